@@ -1,0 +1,91 @@
+"""The workspace: messages round-trip, packages are indexed, layers stay apart."""
+import pathlib
+import re
+
+import numpy as np
+import pytest
+from rclpy.serialization import deserialize_message, serialize_message
+
+from conftest import ROOT
+
+msg = pytest.importorskip('mshoot_msgs.msg')
+PACKAGES = ('mshoot_core', 'mshoot_nodes', 'mshoot_msgs')
+
+
+def _filled(msg_type):
+    """Return an instance of ``msg_type`` with every field set to a distinct value."""
+    m = msg_type()
+    m.header.stamp.sec = 7200
+    m.header.stamp.nanosec = 5
+    m.header.frame_id = 'zone_a'
+    rng = np.random.default_rng(abs(hash(msg_type.__name__)) % 1000)
+    for name, kind in m.get_fields_and_field_types().items():
+        if name == 'header':
+            continue
+        if kind == 'double':
+            setattr(m, name, float(rng.normal()))
+        elif kind == 'sequence<double>':
+            setattr(m, name, rng.normal(size=5).tolist())
+        elif kind == 'boolean':
+            setattr(m, name, True)
+        elif kind == 'int32':
+            setattr(m, name, int(rng.integers(1, 1000)))
+        elif kind == 'string':
+            setattr(m, name, 'solver: converged ✓')
+        else:
+            raise AssertionError(f'unhandled field type {kind} of {msg_type.__name__}.{name}')
+    return m
+
+
+@pytest.mark.parametrize('name', ['ZoneState', 'Disturbances', 'Forecast', 'Setpoint',
+                                  'MpcStatus'])
+def test_message_round_trip(name):
+    msg_type = getattr(msg, name)
+    original = _filled(msg_type)
+    back = deserialize_message(serialize_message(original), msg_type)
+    assert back == original
+    for field in original.get_fields_and_field_types():
+        assert np.all(np.asarray(getattr(back, field)) == np.asarray(getattr(original, field))) \
+            if field != 'header' else back.header == original.header
+
+
+def test_contract_field_names():
+    """The field names are a contract with tools outside the project."""
+    expected = {
+        'ZoneState': {'header', 'temperature_c', 'heat_rate_w'},
+        'Disturbances': {'header', 'outdoor_temperature_c', 'solar_radiation_w_m2', 'occupancy'},
+        'Forecast': {'header', 'step_s', 'outdoor_temperature_c', 'solar_radiation_w_m2',
+                     'occupancy', 'comfort_min_c', 'comfort_max_c'},
+        'Setpoint': {'header', 'heat_rate_w', 'temperature_setpoint_c', 'step_s',
+                     'plan_heat_rate_w', 'plan_temperature_c'},
+        'MpcStatus': {'header', 'success', 'fallback', 'message', 'iterations',
+                      'solve_time_s', 'objective', 'max_defect'},
+    }
+    for name, fields in expected.items():
+        have = set(getattr(msg, name).get_fields_and_field_types())
+        assert fields <= have, f'{name} lacks {fields - have}'
+
+
+def test_ament_index_knows_the_packages():
+    from ament_index_python.packages import get_package_prefix, get_packages_with_prefixes
+    known = get_packages_with_prefixes()
+    for pkg in PACKAGES:
+        assert pkg in known, f'{pkg} not in the ament index'
+        assert pathlib.Path(get_package_prefix(pkg)).is_dir()
+
+
+@pytest.mark.parametrize('exe', ['emulator', 'forecaster', 'mpc'])
+def test_executables_installed_for_ros2_run(exe):
+    from ament_index_python.packages import get_package_prefix
+    path = pathlib.Path(get_package_prefix('mshoot_nodes')) / 'lib' / 'mshoot_nodes' / exe
+    assert path.is_file(), f'{path} missing: `ros2 run mshoot_nodes {exe}` would fail'
+    assert path.stat().st_mode & 0o111
+
+
+def test_core_never_imports_ros():
+    pattern = re.compile(r'import rclpy|_msgs')
+    core = ROOT / 'ros2_ws' / 'src' / 'mshoot_core'
+    offenders = [str(p) for p in core.rglob('*') if p.is_file() and p.suffix in ('.py', '.xml',
+                                                                                 '.cfg')
+                 and pattern.search(p.read_text(errors='replace'))]
+    assert not offenders, f'mshoot_core must not depend on ROS: {offenders}'

