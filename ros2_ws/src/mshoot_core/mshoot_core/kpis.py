@@ -1,0 +1,92 @@
+"""Key performance indicators of a closed-loop run: energy, discomfort, computation time."""
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+JOULES_PER_KWH = 3.6e6
+
+
+def comfort_violation(temperature_c: np.ndarray, comfort_min: np.ndarray,
+                      comfort_max: np.ndarray) -> np.ndarray:
+    """Distance [K] of each temperature outside its band [comfort_min, comfort_max] (0 inside)."""
+    t = np.asarray(temperature_c, dtype=float)
+    return np.maximum(np.asarray(comfort_min) - t, 0.0) + np.maximum(t - np.asarray(comfort_max),
+                                                                     0.0)
+
+
+def energy_kwh(heat_rate_w: np.ndarray, step_s: float) -> dict[str, float]:
+    """Energy of a piecewise-constant heat rate: total sum |q| dt, heating and cooling apart.
+
+    Parameters
+    ----------
+    heat_rate_w : ndarray
+        Heat rate of each step [W], heating > 0, cooling < 0.
+    step_s : float
+        Step length [s].
+
+    Returns
+    -------
+    dict with 'energy_kwh', 'heating_kwh', 'cooling_kwh' [kWh] (all >= 0).
+    """
+    q = np.asarray(heat_rate_w, dtype=float)
+    return {'energy_kwh': float(np.sum(np.abs(q)) * step_s / JOULES_PER_KWH),
+            'heating_kwh': float(np.sum(np.clip(q, 0, None)) * step_s / JOULES_PER_KWH),
+            'cooling_kwh': float(-np.sum(np.clip(q, None, 0)) * step_s / JOULES_PER_KWH)}
+
+
+def discomfort_kh(fine: pd.DataFrame, temperature_column: str = 'y_T',
+                  sample_every_s: float = 3600.0) -> dict[str, float]:
+    """Thermal discomfort [K h] of a trajectory on a fine grid.
+
+    Parameters
+    ----------
+    fine : DataFrame
+        Indexed by time [s] (fine grid, e.g. 60 s) with the zone temperature
+        [degC] and the columns ``comfort_min``, ``comfort_max`` [degC].
+    temperature_column : str
+        Column of the zone temperature.
+    sample_every_s : float
+        Spacing of the samples of the original's hourly-sum KPI [s].
+
+    Returns
+    -------
+    dict with 'discomfort_kh' (trapezoidal integral of the violation over the
+    fine grid, BOPTEST-style) and 'discomfort_kh_hourly' (sum over the samples
+    at multiples of ``sample_every_s``, each weighted by that spacing, as the
+    original reported it).
+    """
+    t = np.asarray(fine.index, dtype=float)
+    dist = comfort_violation(fine[temperature_column].to_numpy(), fine['comfort_min'].to_numpy(),
+                             fine['comfort_max'].to_numpy())
+    integral = float(np.sum(0.5 * (dist[1:] + dist[:-1]) * np.diff(t)) / 3600.0)
+    on_grid = np.isclose(np.mod(t - t[0], sample_every_s), 0.0, atol=1e-6)
+    hourly = float(np.sum(dist[on_grid]) * sample_every_s / 3600.0)
+    return {'discomfort_kh': integral, 'discomfort_kh_hourly': hourly}
+
+
+def closed_loop_kpis(steps: pd.DataFrame, fine: pd.DataFrame, step_s: float,
+                     wall_s: float, control: str = 'q',
+                     temperature_column: str = 'y_T') -> dict[str, float]:
+    """All KPIs of a closed-loop run (the keys of ``kpis.json``).
+
+    Parameters
+    ----------
+    steps : DataFrame
+        Per-step records with the applied control and ``solve_time_s``, ``success``.
+    fine : DataFrame
+        The fine-grid trajectory (see :func:`discomfort_kh`).
+    step_s : float
+        Control step [s].
+    wall_s : float
+        Wall time of the whole run [s].
+    """
+    kpis = energy_kwh(steps[control].to_numpy(), step_s)
+    kpis.update(discomfort_kh(fine, temperature_column, step_s))
+    solve = steps['solve_time_s'].to_numpy(dtype=float)
+    kpis.update(steps=int(len(steps)), wall_s=float(wall_s),
+                solve_s_total=float(solve.sum()), solve_s_median=float(np.median(solve)),
+                solve_s_max=float(solve.max()),
+                solve_per_control_step=float(solve.sum() / (len(steps) * step_s)),
+                solver_failures=int((~steps['success'].astype(bool)).sum()))
+    return kpis

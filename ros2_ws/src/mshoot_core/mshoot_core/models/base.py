@@ -1,0 +1,171 @@
+"""The generic model interface every zone model implements.
+
+A model maps inputs held constant over intervals (zero-order hold) and an
+initial state vector to state and output trajectories. The one required
+method is :meth:`Model.simulate`; the batch path
+:meth:`Model.simulate_intervals` and the optional analytic derivatives
+:meth:`Model.interval_jacobians` are what the multiple-shooting optimiser
+calls, and have generic defaults built on ``simulate``.
+"""
+from __future__ import annotations
+
+import abc
+import dataclasses
+import logging
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+logger = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass(frozen=True)
+class IntervalJacobians:
+    """End values of B independent intervals and their derivatives.
+
+    Attributes
+    ----------
+    x_end : ndarray, shape (B, nx)
+        States at the end of each interval.
+    y_end : ndarray, shape (B, ny)
+        Outputs at the end of each interval.
+    dx_dx0 : ndarray, shape (B, nx, nx)
+        d x_end / d x_start.
+    dx_du : ndarray, shape (B, nx, len(wrt_inputs))
+        d x_end / d u for the requested input columns.
+    dy_dx0 : ndarray, shape (B, ny, nx)
+        d y_end / d x_start.
+    dy_du : ndarray, shape (B, ny, len(wrt_inputs))
+        d y_end / d u for the requested input columns.
+    """
+
+    x_end: np.ndarray
+    y_end: np.ndarray
+    dx_dx0: np.ndarray
+    dx_du: np.ndarray
+    dy_dx0: np.ndarray
+    dy_du: np.ndarray
+
+
+class Model(abc.ABC):
+    """A dynamic zone model with named inputs, states and outputs.
+
+    Subclasses set :attr:`input_names`, :attr:`state_names` and
+    :attr:`output_names` and implement :meth:`simulate`. Units are the
+    model's own (the R1C1 zone: states in K, outputs in degC and J).
+    """
+
+    #: Names of the inputs, the column order of ``udf`` and of ``u`` arrays.
+    input_names: tuple[str, ...] = ()
+    #: Names of the states, the order of ``x0`` and of state arrays.
+    state_names: tuple[str, ...] = ()
+    #: Names of the outputs, the order of output arrays.
+    output_names: tuple[str, ...] = ()
+
+    @abc.abstractmethod
+    def simulate(self, udf: pd.DataFrame, x0: Sequence[float]) -> tuple[pd.DataFrame,
+                                                                       pd.DataFrame]:
+        """Simulate from ``x0`` over the time index of ``udf``.
+
+        Parameters
+        ----------
+        udf : DataFrame, shape (T, nu)
+            Inputs indexed by time [s] (strictly increasing), one column per
+            name in :attr:`input_names`. Row i is held constant over
+            [t_i, t_{i+1}); the last row only marks the end time.
+        x0 : sequence of float, length nx
+            Initial state at ``udf.index[0]``.
+
+        Returns
+        -------
+        ydf : DataFrame, shape (T, ny)
+            Outputs at the times of ``udf.index``.
+        xdf : DataFrame, shape (T, nx)
+            States at the times of ``udf.index``; the first row equals ``x0``.
+        """
+
+    # -- helpers shared by all models -------------------------------------------------------
+    def check_inputs(self, udf: pd.DataFrame, x0: Sequence[float]) -> tuple[np.ndarray,
+                                                                             np.ndarray,
+                                                                             np.ndarray]:
+        """Validate ``udf`` and ``x0``; return times [s], inputs (T, nu) and x0 (nx,).
+
+        Raises
+        ------
+        ValueError
+            If columns are missing, the index is not strictly increasing,
+            values are not finite, or ``x0`` has the wrong length.
+        """
+        if not isinstance(udf, pd.DataFrame):
+            raise TypeError(f'udf must be a pandas DataFrame, got {type(udf).__name__}')
+        missing = [n for n in self.input_names if n not in udf.columns]
+        if missing:
+            raise ValueError(f'udf lacks input columns {missing}; expected {list(self.input_names)}'
+                             f', got {list(udf.columns)}')
+        t = np.asarray(udf.index, dtype=float)
+        if t.size < 2 or np.any(np.diff(t) <= 0):
+            raise ValueError('udf index must be at least two strictly increasing times [s]')
+        u = udf[list(self.input_names)].to_numpy(dtype=float)
+        if not np.all(np.isfinite(u)):
+            raise ValueError('udf holds non-finite input values')
+        x0_arr = np.asarray(x0, dtype=float).reshape(-1)
+        if x0_arr.size != len(self.state_names):
+            raise ValueError(f'x0 must have {len(self.state_names)} values '
+                             f'({list(self.state_names)}), got {x0_arr.size}')
+        if not np.all(np.isfinite(x0_arr)):
+            raise ValueError(f'x0 holds non-finite values: {x0_arr}')
+        return t, u, x0_arr
+
+    def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray,
+                           dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Simulate B independent intervals of length ``dt_s`` (the batch path).
+
+        Each interval starts from its own state with its own constant inputs.
+        The default calls :meth:`simulate` once per interval; fast models
+        override it (vectorised numpy, one ``predict`` call, a reused FMU).
+
+        Parameters
+        ----------
+        x_start : ndarray, shape (B, nx)
+            Start state of each interval.
+        u : ndarray, shape (B, nu)
+            Inputs of each interval, columns in :attr:`input_names` order.
+        dt_s : float
+            Interval length [s].
+
+        Returns
+        -------
+        x_end : ndarray, shape (B, nx)
+        y_end : ndarray, shape (B, ny)
+        """
+        x_start = np.atleast_2d(np.asarray(x_start, dtype=float))
+        u = np.atleast_2d(np.asarray(u, dtype=float))
+        x_end = np.empty_like(x_start)
+        y_end = np.empty((x_start.shape[0], len(self.output_names)))
+        for b in range(x_start.shape[0]):
+            udf = pd.DataFrame(np.vstack([u[b], u[b]]), index=[0.0, float(dt_s)],
+                               columns=list(self.input_names))
+            ydf, xdf = self.simulate(udf, x_start[b])
+            x_end[b] = xdf.to_numpy()[-1]
+            y_end[b] = ydf.to_numpy()[-1]
+        return x_end, y_end
+
+    def interval_jacobians(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
+                           wrt_inputs: Sequence[int]) -> IntervalJacobians | None:
+        """Analytic end values and derivatives of B intervals, or None.
+
+        Models with analytic (or forward-sensitivity) derivatives override
+        this; the default returns None and the optimiser falls back to
+        finite differences over :meth:`simulate_intervals`.
+
+        Parameters
+        ----------
+        x_start : ndarray, shape (B, nx)
+        u : ndarray, shape (B, nu)
+        dt_s : float
+            Interval length [s].
+        wrt_inputs : sequence of int
+            Column indices of ``u`` to differentiate with respect to.
+        """
+        return None

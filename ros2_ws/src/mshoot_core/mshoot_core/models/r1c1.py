@@ -1,0 +1,165 @@
+"""The R1C1 zone model of the OU44 reference case, in plain Python (exact solution).
+
+    C dT/dt = (Tout + 273.15 - T)/R + shgc*solrad + occheff*occ*M(T) + qv + q
+    C = tmass*1.2*1005*Vi,  R = RExt/(3*Vi^(2/3)),  M(T) = 84*(325.15 - T)/32
+    qv = (1206/3600)*(maxVent*dpos/100)*(max(Tout, Tve) + 273.15 - T)
+
+With inputs held constant over an interval the right-hand side is affine in
+T, dT/dt = (f - g*T)/C, so each interval has the closed-form solution
+T(t) = T_inf + (T0 - T_inf)*exp(-g*t/C), T_inf = f/g: no integrator, no
+tolerance, and exact derivatives.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+from mshoot_core.models.base import IntervalJacobians, Model
+
+KELVIN = 273.15
+#: Metabolic heat per occupant [W] at 293.15 K, falling linearly to 0 W at 325.15 K.
+OCC_HEAT_W = 84.0
+OCC_HEAT_ZERO_K = 325.15
+OCC_HEAT_SPAN_K = 32.0
+#: Volumetric heat capacity of air [J/(m3 K)] over 3600 s/h, as in the original model.
+AIR_HEAT_PER_M3H = 1206.0 / 3600.0
+
+
+@dataclasses.dataclass(frozen=True)
+class R1C1Parameters:
+    """Parameters of the R1C1 zone (defaults: the calibrated OU44 classroom).
+
+    Attributes
+    ----------
+    tmass : float
+        Thermal mass multiplier of the zone air [-].
+    shgc : float
+        Solar heat gain coefficient [m2] (W per W/m2).
+    occheff : float
+        Occupant heat multiplier [-].
+    RExt : float
+        External wall resistance parameter [K m2/W].
+    Tve : float
+        Ventilation supply temperature [degC].
+    Vi : float
+        Zone volume [m3].
+    maxVent : float
+        Maximum ventilation flow [m3/h].
+    """
+
+    tmass: float = 50.0
+    shgc: float = 4.608961327935981
+    occheff: float = 2.0836995296486704
+    RExt: float = 4.0
+    Tve: float = 21.0
+    Vi: float = 486.5
+    maxVent: float = 4800.0
+
+    def __post_init__(self) -> None:
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            if not np.isfinite(value):
+                raise ValueError(f'R1C1 parameter {field.name} must be finite, got {value}')
+        for name in ('tmass', 'RExt', 'Vi'):
+            if getattr(self, name) <= 0:
+                raise ValueError(f'R1C1 parameter {name} must be > 0, got {getattr(self, name)}')
+
+    @property
+    def capacity_j_k(self) -> float:
+        """Heat capacity C [J/K]."""
+        return self.tmass * 1.2 * 1005.0 * self.Vi
+
+    @property
+    def resistance_k_w(self) -> float:
+        """Thermal resistance R to the outdoors [K/W]."""
+        return self.RExt / (3.0 * self.Vi ** (2.0 / 3.0))
+
+
+class R1C1Model(Model):
+    """The R1C1 zone with its exact per-interval solution.
+
+    Inputs: ``solrad`` [W/m2], ``Tout`` [degC], ``occ`` [persons], ``dpos``
+    [%], ``q`` [W]. State: ``T`` [K]. Outputs: ``T`` [degC], ``Qr`` = integral
+    of q [J] since the start of the simulation.
+    """
+
+    input_names = ('solrad', 'Tout', 'occ', 'dpos', 'q')
+    state_names = ('T',)
+    output_names = ('T', 'Qr')
+
+    def __init__(self, parameters: R1C1Parameters | None = None) -> None:
+        self.parameters = parameters or R1C1Parameters()
+
+    def affine_coefficients(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Return (f [W], g [W/K]) with C dT/dt = f - g*T for inputs ``u`` (B, 5)."""
+        p = self.parameters
+        solrad, tout, occ, dpos, q = (u[:, i] for i in range(5))
+        occ_slope = p.occheff * occ * OCC_HEAT_W / OCC_HEAT_SPAN_K
+        vent = AIR_HEAT_PER_M3H * p.maxVent * dpos / 100.0
+        g = 1.0 / p.resistance_k_w + occ_slope + vent
+        f = ((tout + KELVIN) / p.resistance_k_w + p.shgc * solrad
+             + occ_slope * OCC_HEAT_ZERO_K + vent * (np.maximum(tout, p.Tve) + KELVIN) + q)
+        return f, g
+
+    def derivative(self, T: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """dT/dt [K/s] for states ``T`` (B,) and inputs ``u`` (B, 5)."""
+        f, g = self.affine_coefficients(np.atleast_2d(u))
+        return (f - g * T) / self.parameters.capacity_j_k
+
+    def simulate(self, udf: pd.DataFrame, x0: Sequence[float]) -> tuple[pd.DataFrame,
+                                                                       pd.DataFrame]:
+        t, u, x0_arr = self.check_inputs(udf, x0)
+        temps = np.empty(t.size)
+        heat = np.zeros(t.size)
+        temps[0] = x0_arr[0]
+        dt = np.diff(t)
+        f, g = self.affine_coefficients(u[:-1])
+        decay = np.exp(-g * dt / self.parameters.capacity_j_k)
+        t_inf = f / g
+        for k in range(dt.size):
+            temps[k + 1] = t_inf[k] + (temps[k] - t_inf[k]) * decay[k]
+        heat[1:] = np.cumsum(u[:-1, 4] * dt)
+        index = udf.index
+        xdf = pd.DataFrame({'T': temps}, index=index)
+        ydf = pd.DataFrame({'T': temps - KELVIN, 'Qr': heat}, index=index)
+        return ydf, xdf
+
+    def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray,
+                           dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+        x_start = np.atleast_2d(np.asarray(x_start, dtype=float))
+        u = np.atleast_2d(np.asarray(u, dtype=float))
+        f, g = self.affine_coefficients(u)
+        decay = np.exp(-g * dt_s / self.parameters.capacity_j_k)
+        t_end = f / g + (x_start[:, 0] - f / g) * decay
+        return t_end[:, None], np.column_stack([t_end - KELVIN, u[:, 4] * dt_s])
+
+    def interval_jacobians(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
+                           wrt_inputs: Sequence[int]) -> IntervalJacobians:
+        x_start = np.atleast_2d(np.asarray(x_start, dtype=float))
+        u = np.atleast_2d(np.asarray(u, dtype=float))
+        x_end, y_end = self.simulate_intervals(x_start, u, dt_s)
+        f, g = self.affine_coefficients(u)
+        cap = self.parameters.capacity_j_k
+        decay = np.exp(-g * dt_s / cap)
+        batch = x_start.shape[0]
+        wrt = list(wrt_inputs)
+        dx_du = np.zeros((batch, 1, len(wrt)))
+        dy_du = np.zeros((batch, 2, len(wrt)))
+        for j, col in enumerate(wrt):
+            if col == 4:  # q enters f only: dT_end/dq = (1 - decay)/g
+                dx_du[:, 0, j] = (1.0 - decay) / g
+                dy_du[:, 1, j] = dt_s
+            else:  # disturbances: differentiate numerically through the exact solution
+                step = 1e-6 * np.maximum(1.0, np.abs(u[:, col]))
+                up = u.copy()
+                up[:, col] += step
+                x_up, _ = self.simulate_intervals(x_start, up, dt_s)
+                dx_du[:, 0, j] = (x_up[:, 0] - x_end[:, 0]) / step
+            dy_du[:, 0, j] = dx_du[:, 0, j]
+        dx_dx0 = decay[:, None, None]
+        dy_dx0 = np.zeros((batch, 2, 1))
+        dy_dx0[:, 0, 0] = decay
+        return IntervalJacobians(x_end, y_end, dx_dx0, dx_du, dy_dx0, dy_du)

@@ -1,0 +1,211 @@
+"""The MPC controller: a configured multiple-shooting problem solved every control step.
+
+``MPC.make_step(x0, t, forecast) -> u0`` is the loop interface; ``MPC.solve``
+returns the full :class:`MpcResult`. Between steps the previous plan, shifted
+by one interval, warm-starts the next solve.
+"""
+from __future__ import annotations
+
+import logging
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+from mshoot_core.models.base import Model
+from mshoot_core.scenario import COMFORT_COLUMNS
+from mshoot_core.shooting import CostFunction, Scaling, ShootingProblem, ShootingResult
+from mshoot_core.solvers import Solver, make_solver
+
+logger = logging.getLogger(__name__)
+
+KELVIN = 273.15
+#: Default state-bound mapping of a thermal zone: state 'T' [K] bounded by the comfort
+#: band columns [degC] plus an offset.
+ZONE_STATE_BOUNDS = {'T': ('comfort_min', 'comfort_max', KELVIN)}
+
+
+class MpcResult(ShootingResult):
+    """One MPC step: a :class:`ShootingResult` plus ``t_s`` (start time [s]),
+    ``fallback_used`` (bool), and ``plan`` (DataFrame of controls and predicted states
+    indexed by the interval start times [s])."""
+
+
+class MPC:
+    """Model predictive control with multiple shooting.
+
+    Parameters
+    ----------
+    model : Model
+        The control model.
+    horizon_steps : int
+        Number of control steps N in the horizon.
+    step_s : float
+        Control step [s].
+    control_names, control_bounds :
+        The optimised inputs and their physical bounds.
+    state_bounds : dict
+        ``{state: (lower_column, upper_column, offset)}``: the bound of the
+        state at time t is ``forecast[column] + offset`` at t (default: zone
+        temperature in K from a comfort band in degC). States not listed are
+        unbounded.
+    cost : {'quadratic', 'energy'} or callable
+        See :class:`ShootingProblem`.
+    solver : str or Solver
+        'slsqp' (default), 'trust-constr', 'ipopt', or a Solver instance.
+    soft_bounds, soft_penalty :
+        Slack-with-penalty comfort bounds (see :class:`ShootingProblem`).
+    state_scaling : Scaling, optional
+        Fixed normalisation of the states (default: from the bounds).
+    solver_options : dict, optional
+        Keyword arguments of the solver (``max_iter``, ``tol``).
+    """
+
+    def __init__(self, model: Model, *, horizon_steps: int = 10, step_s: float = 3600.0,
+                 control_names: Sequence[str] = ('q',),
+                 control_bounds: Sequence[tuple[float, float]] = ((-2000.0, 2000.0),),
+                 state_bounds: dict | None = None, cost: str | CostFunction = 'quadratic',
+                 solver: str | Solver = 'slsqp', soft_bounds: bool = False,
+                 soft_penalty: float = 1e3, state_scaling: Scaling | None = None,
+                 solver_options: dict | None = None, **problem_options) -> None:
+        self.problem = ShootingProblem(model, control_names=control_names,
+                                       control_bounds=control_bounds,
+                                       n_intervals=horizon_steps, step_s=step_s, cost=cost,
+                                       soft_bounds=soft_bounds, soft_penalty=soft_penalty,
+                                       state_scaling=state_scaling, **problem_options)
+        bounds = ZONE_STATE_BOUNDS if state_bounds is None else dict(state_bounds)
+        unknown = [s for s in bounds if s not in model.state_names]
+        if unknown:
+            raise ValueError(f'state_bounds names {unknown} are not states of the model '
+                             f'{list(model.state_names)}')
+        for name, spec in bounds.items():
+            if len(spec) != 3:
+                raise ValueError(f'state_bounds[{name!r}] must be (lower_column, upper_column, '
+                                 f'offset), got {spec!r}')
+        self.state_bounds = bounds
+        self.solver = make_solver(solver, **(solver_options or {}))
+        self._warm_start: np.ndarray | None = None
+        self.last_result: MpcResult | None = None
+
+    # -- configuration --------------------------------------------------------------------
+    @property
+    def model(self) -> Model:
+        return self.problem.model
+
+    @property
+    def horizon_steps(self) -> int:
+        return self.problem.n_intervals
+
+    @property
+    def step_s(self) -> float:
+        return self.problem.step_s
+
+    @property
+    def forecast_columns(self) -> list[str]:
+        """Columns a forecast must hold: the disturbances and the bound columns."""
+        cols = list(self.problem.disturbance_names)
+        for lo, hi, _ in self.state_bounds.values():
+            cols += [c for c in (lo, hi) if c not in cols]
+        return cols
+
+    def set_solver(self, solver: str | Solver, **options) -> None:
+        """Replace the solver (no rebuild of the problem)."""
+        self.solver = make_solver(solver, **options)
+
+    def set_soft_bounds(self, soft: bool, penalty: float | None = None) -> None:
+        """Switch between hard and soft state bounds at run time."""
+        p = self.problem
+        if penalty is not None:
+            if not penalty > 0:
+                raise ValueError(f'soft_penalty must be > 0, got {penalty}')
+            p.soft_penalty = float(penalty)
+        if bool(soft) != p.soft_bounds:
+            p.soft_bounds = bool(soft)
+            p.index = type(p.index)(p.n_intervals, p.index.n_controls, p.index.n_states,
+                                    p.soft_bounds)
+            self._warm_start = None
+
+    def reset(self) -> None:
+        """Forget the warm start (e.g. after a jump in the state)."""
+        self._warm_start = None
+
+    # -- the loop interface ---------------------------------------------------------------
+    def bounds_from_forecast(self, forecast: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+        """State bounds (N, nx) at the end of each interval from forecast rows 1..N."""
+        n, names = self.horizon_steps, self.model.state_names
+        lower = np.full((n, len(names)), -np.inf)
+        upper = np.full((n, len(names)), np.inf)
+        for name, (lo, hi, offset) in self.state_bounds.items():
+            i = names.index(name)
+            lower[:, i] = forecast[lo].to_numpy(dtype=float)[1:n + 1] + offset
+            upper[:, i] = forecast[hi].to_numpy(dtype=float)[1:n + 1] + offset
+        return lower, upper
+
+    def check_forecast(self, forecast: pd.DataFrame) -> None:
+        """Raise ValueError unless ``forecast`` has N+1 rows of finite needed columns."""
+        if not isinstance(forecast, pd.DataFrame):
+            raise TypeError(f'forecast must be a DataFrame, got {type(forecast).__name__}')
+        missing = [c for c in self.forecast_columns if c not in forecast.columns]
+        if missing:
+            raise ValueError(f'forecast lacks columns {missing}; needs {self.forecast_columns}')
+        if len(forecast) < self.horizon_steps + 1:
+            raise ValueError(f'forecast must have horizon_steps + 1 = {self.horizon_steps + 1} '
+                             f'rows (bounds at every interval end), got {len(forecast)}')
+        values = forecast[self.forecast_columns].to_numpy(dtype=float)[:self.horizon_steps + 1]
+        if not np.all(np.isfinite(values)):
+            raise ValueError('forecast holds non-finite values')
+        for lo, hi, _ in self.state_bounds.values():
+            if np.any(forecast[lo].to_numpy()[:self.horizon_steps + 1]
+                      > forecast[hi].to_numpy()[:self.horizon_steps + 1]):
+                raise ValueError(f'forecast bound {lo} exceeds {hi}')
+
+    def solve(self, x0: Sequence[float], t_s: float, forecast: pd.DataFrame) -> MpcResult:
+        """Optimise the horizon starting at ``t_s`` from state ``x0``.
+
+        Parameters
+        ----------
+        x0 : sequence of float
+            Current state (physical units, e.g. T in K).
+        t_s : float
+            Current time [s] (labels the plan).
+        forecast : DataFrame, N+1 rows
+            Row k: disturbances of interval k and the bound columns at its
+            start (see :meth:`check_forecast`).
+        """
+        self.check_forecast(forecast)
+        n = self.horizon_steps
+        disturbances = forecast[list(self.problem.disturbance_names)].to_numpy(
+            dtype=float)[:n]
+        lower, upper = self.bounds_from_forecast(forecast)
+        result = self.problem.solve(x0, disturbances, lower, upper, self.solver,
+                                    z0=self._warm_start)
+        out = MpcResult(result)
+        out.t_s = float(t_s)
+        times = float(t_s) + np.arange(n) * self.step_s
+        plan = pd.DataFrame(result.controls, columns=list(self.problem.control_names),
+                            index=pd.Index(times, name='time_s'))
+        for i, name in enumerate(self.model.state_names):
+            plan[f'{name}_end'] = result.states[1:, i]
+        out.plan = plan
+        if not result.success:
+            logger.warning('MPC step at t=%.0f s: solver %s did not converge (%s); returning '
+                           'its best plan (max defect %.2e)', t_s, self.solver.name,
+                           result.message, result.max_defect)
+        self._warm_start = self._shifted(result.x)
+        self.last_result = out
+        return out
+
+    def make_step(self, x0: Sequence[float], t_s: float, forecast: pd.DataFrame) -> np.ndarray:
+        """Solve and return the controls of the first interval (physical units)."""
+        return self.solve(x0, t_s, forecast).controls[0].copy()
+
+    def _shifted(self, z: np.ndarray) -> np.ndarray:
+        """The plan shifted by one interval, the last interval repeated."""
+        idx = self.problem.index
+        shifted = z.copy()
+        for view in (idx.u, idx.x, idx.s):
+            block = view(shifted)
+            if block.size:
+                block[:-1] = view(z)[1:]
+                block[-1] = view(z)[-1]
+        return shifted

@@ -1,0 +1,160 @@
+"""Scenarios: disturbance time series and the comfort band, indexed by time [s].
+
+A scenario is a DataFrame indexed by seconds since its start (hourly rows by
+default) with the columns of :data:`SCENARIO_COLUMNS`:
+
+- ``solrad`` [W/m2], ``Tout`` [degC], ``occ`` [persons], ``dpos`` [%]:
+  disturbances held constant over each row's interval;
+- ``comfort_min``, ``comfort_max`` [degC]: the comfort band at that time.
+
+The start time of day and date are kept in ``df.attrs['start']`` (an ISO
+string) so that the hour of day of each row is known.
+"""
+from __future__ import annotations
+
+import logging
+import pathlib
+
+import numpy as np
+import pandas as pd
+
+logger = logging.getLogger(__name__)
+
+DISTURBANCE_COLUMNS = ('solrad', 'Tout', 'occ', 'dpos')
+COMFORT_COLUMNS = ('comfort_min', 'comfort_max')
+SCENARIO_COLUMNS = DISTURBANCE_COLUMNS + COMFORT_COLUMNS
+#: Measured columns the OU44 CSV must hold.
+OU44_COLUMNS = ('datetime', 'T', 'solrad', 'Tout', 'occ', 'dpos')
+
+
+def comfort_band(hours_of_day: np.ndarray, occupied: tuple[float, float] = (21.0, 22.0),
+                 unoccupied: tuple[float, float] = (19.0, 24.0),
+                 occupied_hours: tuple[float, float] = (8.0, 17.0)) -> tuple[np.ndarray,
+                                                                              np.ndarray]:
+    """Comfort band of the reference case at the given hours of day.
+
+    Parameters
+    ----------
+    hours_of_day : ndarray
+        Hour of day of each sample [h], 0 <= h < 24.
+    occupied, unoccupied : (float, float)
+        (min, max) band [degC] for occupied and other hours.
+    occupied_hours : (float, float)
+        [start, end) of the occupied period [h].
+
+    Returns
+    -------
+    (comfort_min, comfort_max) : ndarrays [degC]
+    """
+    hours = np.asarray(hours_of_day, dtype=float)
+    occ = (hours >= occupied_hours[0]) & (hours < occupied_hours[1])
+    return (np.where(occ, occupied[0], unoccupied[0]),
+            np.where(occ, occupied[1], unoccupied[1]))
+
+
+def load_ou44(path: str | pathlib.Path, start: str = '2018-04-05 00:00',
+              end: str = '2018-04-08 00:00', step_s: float = 3600.0) -> pd.DataFrame:
+    """Load the OU44 measurements, resampled to ``step_s`` means, as a scenario.
+
+    Parameters
+    ----------
+    path : path-like
+        The ``measurements.csv`` file (30-minute means, local time).
+    start, end : str
+        Inclusive time range (the reference MPC case: 5 to 8 April 2018, 73 rows).
+    step_s : float
+        Resampling step [s], a multiple of 1800 s.
+
+    Returns
+    -------
+    DataFrame
+        Index: seconds since ``start``; columns :data:`SCENARIO_COLUMNS` plus
+        ``T_measured`` [degC]; ``attrs['start']`` the ISO start time.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        If the file is missing, lacks columns, or does not cover the range.
+    """
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f'OU44 data not found at {path}')
+    raw = pd.read_csv(path)
+    missing = [c for c in OU44_COLUMNS if c not in raw.columns]
+    if missing:
+        raise ValueError(f'{path}: missing columns {missing}; expected {list(OU44_COLUMNS)}, '
+                         f'got {list(raw.columns)}')
+    raw['datetime'] = pd.to_datetime(raw['datetime'])
+    raw = raw.set_index('datetime').sort_index()
+    if step_s <= 0 or step_s % 1800:
+        raise ValueError(f'step_s must be a positive multiple of 1800 s, got {step_s}')
+    values = raw[['T', 'solrad', 'Tout', 'occ', 'dpos']].astype(float)
+    resampled = values.resample(pd.Timedelta(seconds=step_s)).mean()
+    t0, t1 = pd.Timestamp(start), pd.Timestamp(end)
+    if t0 < resampled.index[0] or t1 > resampled.index[-1]:
+        raise ValueError(f'{path} covers {resampled.index[0]} to {resampled.index[-1]}, '
+                         f'not the requested {t0} to {t1}')
+    sel = resampled.loc[t0:t1]
+    if sel.isna().any().any():
+        raise ValueError(f'{path}: gaps in the data between {t0} and {t1}')
+    scenario = pd.DataFrame({c: sel[c].to_numpy() for c in DISTURBANCE_COLUMNS},
+                            index=(sel.index - t0).total_seconds().to_numpy())
+    hours = (sel.index.hour + sel.index.minute / 60.0).to_numpy()
+    scenario['comfort_min'], scenario['comfort_max'] = comfort_band(hours)
+    scenario['T_measured'] = sel['T'].to_numpy()
+    scenario.index.name = 'time_s'
+    scenario.attrs['start'] = t0.isoformat()
+    return scenario
+
+
+def synthetic_scenario(hours: int = 73, seed: int = 0, step_s: float = 3600.0) -> pd.DataFrame:
+    """A built-in scenario that needs no files: three spring days in a classroom.
+
+    Outdoor temperature follows a daily sine (mean 7 degC, amplitude 4 K,
+    minimum at 04:00), solar radiation a clipped half-sine (peak 450 W/m2 at
+    noon), occupancy 25 persons on 08:00-16:00 with a lunch dip; a seeded
+    noise makes the days differ. Ventilation is off (dpos = 0), as in the MPC
+    reference case.
+
+    Parameters
+    ----------
+    hours : int
+        Number of rows (73 covers 72 h of control).
+    seed : int
+        Seed of the day-to-day noise.
+    step_s : float
+        Row spacing [s].
+    """
+    if hours < 2:
+        raise ValueError(f'hours must be >= 2, got {hours}')
+    rng = np.random.default_rng(seed)
+    t = np.arange(hours) * step_s
+    hour = (t / 3600.0) % 24.0
+    day = (t // 86400.0).astype(int)
+    day_offset = rng.normal(0.0, 1.5, size=day.max() + 1)[day]
+    tout = 7.0 - 4.0 * np.cos(2 * np.pi * (hour - 4.0) / 24.0) + day_offset
+    cloudiness = rng.uniform(0.5, 1.0, size=day.max() + 1)[day]
+    solrad = np.clip(450.0 * np.sin(np.pi * (hour - 6.0) / 13.0), 0.0, None) * cloudiness
+    occ = np.where((hour >= 8) & (hour < 16), 25.0, 0.0)
+    occ = np.where(hour == 12, 10.0, occ)
+    cmin, cmax = comfort_band(hour)
+    scenario = pd.DataFrame({'solrad': solrad, 'Tout': tout, 'occ': occ,
+                             'dpos': np.zeros(hours), 'comfort_min': cmin, 'comfort_max': cmax},
+                            index=pd.Index(t, name='time_s'))
+    scenario.attrs['start'] = '2018-04-05T00:00:00'
+    return scenario
+
+
+def validate_scenario(scenario: pd.DataFrame) -> None:
+    """Raise ValueError if ``scenario`` lacks columns, has NaN, or a band with min > max."""
+    missing = [c for c in SCENARIO_COLUMNS if c not in scenario.columns]
+    if missing:
+        raise ValueError(f'scenario lacks columns {missing}; expected {list(SCENARIO_COLUMNS)}')
+    values = scenario[list(SCENARIO_COLUMNS)].to_numpy(dtype=float)
+    if not np.all(np.isfinite(values)):
+        raise ValueError('scenario holds non-finite values')
+    if np.any(scenario['comfort_min'].to_numpy() > scenario['comfort_max'].to_numpy()):
+        raise ValueError('scenario comfort band has comfort_min > comfort_max')
+    t = np.asarray(scenario.index, dtype=float)
+    if t.size < 2 or np.any(np.diff(t) <= 0):
+        raise ValueError('scenario index must be strictly increasing times [s]')

@@ -1,0 +1,640 @@
+"""Multiple shooting: the horizon as N intervals, each simulated from its own start state.
+
+Decision variables (normalised, see :class:`NlpIndex`):
+
+- ``u[k]``: the controls of interval k (held constant), k = 0..N-1;
+- ``x[k]``: the state at the end of interval k (= start of interval k+1),
+  k = 0..N-1; the start state of interval 0 is the measured x0;
+- ``s[k]``: slack of the state bounds at the end of interval k (soft bounds only).
+
+Continuity constraints F(x_start_k, u_k) - x[k] = 0 tie the intervals together.
+Because interval k depends only on its own start state and control, the
+constraint Jacobian is block-bidiagonal; all intervals (and, for finite
+differences, all their perturbations) are evaluated in one batched model call,
+and the evaluation at a point is shared between cost and constraints.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from typing import Callable, Sequence
+
+import numpy as np
+from scipy import optimize
+
+from mshoot_core.models.base import IntervalJacobians, Model
+from mshoot_core.solvers import Nlp, Solver
+
+logger = logging.getLogger(__name__)
+
+#: Penalties of the least-violation phase on normalised slack: linear (dominant) and
+#: quadratic (keeps the phase-1 problem well posed).
+LEAST_VIOLATION_LINEAR = 1e3
+LEAST_VIOLATION_QUADRATIC = 1e1
+#: User cost: cost(x_hat (N, nx), y_hat (N, ny), u_hat (N, nc)) -> float.
+CostFunction = Callable[[np.ndarray, np.ndarray, np.ndarray], float]
+
+
+@dataclasses.dataclass(frozen=True)
+class NlpIndex:
+    """Named views into the NLP vector (no stride arithmetic elsewhere).
+
+    Layout: ``[u (N, nc) | x (N, nx) | s (N, nx) if soft]``, row-major.
+    """
+
+    n_intervals: int
+    n_controls: int
+    n_states: int
+    soft: bool = False
+
+    @property
+    def size(self) -> int:
+        """Length of the NLP vector."""
+        return self.n_intervals * (self.n_controls + self.n_states * (2 if self.soft else 1))
+
+    @property
+    def u_slice(self) -> slice:
+        return slice(0, self.n_intervals * self.n_controls)
+
+    @property
+    def x_slice(self) -> slice:
+        start = self.u_slice.stop
+        return slice(start, start + self.n_intervals * self.n_states)
+
+    @property
+    def s_slice(self) -> slice:
+        start = self.x_slice.stop
+        return slice(start, start + (self.n_intervals * self.n_states if self.soft else 0))
+
+    def u(self, z: np.ndarray) -> np.ndarray:
+        """Controls, shape (N, nc) (a view)."""
+        return z[self.u_slice].reshape(self.n_intervals, self.n_controls)
+
+    def x(self, z: np.ndarray) -> np.ndarray:
+        """Interval end states, shape (N, nx) (a view)."""
+        return z[self.x_slice].reshape(self.n_intervals, self.n_states)
+
+    def s(self, z: np.ndarray) -> np.ndarray:
+        """Slacks, shape (N, nx) (a view; empty unless soft)."""
+        return z[self.s_slice].reshape(self.n_intervals, self.n_states if self.soft else 0)
+
+    def pack(self, u: np.ndarray, x: np.ndarray, s: np.ndarray | None = None) -> np.ndarray:
+        """Assemble an NLP vector from its blocks."""
+        z = np.zeros(self.size)
+        self.u(z)[:] = u
+        self.x(z)[:] = x
+        if self.soft:
+            self.s(z)[:] = 0.0 if s is None else s
+        return z
+
+
+@dataclasses.dataclass(frozen=True)
+class Scaling:
+    """Affine normalisation v_hat = (v - offset) / scale, per column."""
+
+    offset: np.ndarray
+    scale: np.ndarray
+
+    def __post_init__(self) -> None:
+        if np.any(~np.isfinite(self.scale)) or np.any(self.scale <= 0):
+            raise ValueError(f'scales must be finite and > 0, got {self.scale}')
+
+    def to_hat(self, v: np.ndarray) -> np.ndarray:
+        return (v - self.offset) / self.scale
+
+    def from_hat(self, v_hat: np.ndarray) -> np.ndarray:
+        return v_hat * self.scale + self.offset
+
+
+class ShootingResult(optimize.OptimizeResult):
+    """Result of one multiple-shooting solve (extends :class:`scipy.optimize.OptimizeResult`).
+
+    Keys beyond SciPy's (success, status, message, fun, nit, nfev, x):
+    ``controls`` (N, nc) physical plan; ``states`` (N+1, nx) predicted states
+    (x0, then the interval end states of the solution); ``outputs`` (N, ny)
+    predicted outputs at interval ends; ``slacks`` (N, nx) physical slack of the
+    bounds; ``solve_time_s``; ``max_defect`` the largest continuity defect in
+    physical state units; ``relaxed`` whether state bounds were relaxed;
+    ``model_evaluations`` interval simulations spent.
+    """
+
+
+class ShootingProblem:
+    """A multiple-shooting optimal control problem over one horizon.
+
+    Parameters
+    ----------
+    model : Model
+        The control model.
+    control_names : sequence of str
+        Model inputs chosen by the optimiser (e.g. ``('q',)``).
+    control_bounds : sequence of (float, float)
+        Physical bounds of each control (e.g. ``((-2000, 2000),)`` [W]).
+    n_intervals : int
+        N, the number of shooting intervals in the horizon.
+    step_s : float
+        Interval length [s].
+    cost : {'quadratic', 'energy'} or callable
+        'quadratic': sum over intervals of sum over controls (u/u_nom)^2 (the
+        reference); 'energy': sum of |u/u_nom| made smooth as
+        sqrt((u/u_nom)^2 + eps^2) - eps; or a callable
+        ``cost(x_hat, y_hat, u_hat) -> float`` on normalised quantities.
+    control_nominal : sequence of float, optional
+        u_nom per control (default: the largest absolute bound).
+    state_scaling : Scaling, optional
+        Normalisation of the states (default: offset and range of the bounds
+        passed at each solve, falling back to offset 0 and scale 1).
+    output_nominal : sequence of float, optional
+        Output nominal values for y_hat = y / y_nom (default 1).
+    soft_bounds : bool
+        Use slack variables with penalty instead of hard state bounds.
+    soft_penalty : float
+        Weight w2 of the quadratic penalty w2 * sum(s_hat^2) on normalised slacks.
+    soft_penalty_linear : float
+        Weight w1 of the linear (exact) penalty w1 * sum(s_hat); with w1 large
+        the solver first minimises the summed violation, then the cost.
+    energy_epsilon : float
+        Smoothing of the energy cost, in normalised control units.
+    fd_step : float, optional
+        Finite-difference step on normalised variables (default from the
+        model's ``tolerance`` attribute: max(1e-7, sqrt(tolerance))).
+    """
+
+    def __init__(self, model: Model, *, control_names: Sequence[str] = ('q',),
+                 control_bounds: Sequence[tuple[float, float]] = ((-2000.0, 2000.0),),
+                 n_intervals: int = 10, step_s: float = 3600.0,
+                 cost: str | CostFunction = 'quadratic',
+                 control_nominal: Sequence[float] | None = None,
+                 state_scaling: Scaling | None = None,
+                 output_nominal: Sequence[float] | None = None,
+                 soft_bounds: bool = False, soft_penalty: float = 1e3,
+                 soft_penalty_linear: float = 0.0, energy_epsilon: float = 1e-3, fd_step: float | None = None) -> None:
+        if not isinstance(model, Model):
+            raise TypeError(f'model must be a mshoot_core Model, got {type(model).__name__}')
+        unknown = [c for c in control_names if c not in model.input_names]
+        if unknown or not control_names:
+            raise ValueError(f'controls must be model inputs {list(model.input_names)}, '
+                             f'got {list(control_names)}')
+        if len(control_bounds) != len(control_names):
+            raise ValueError(f'need one (min, max) per control, got {len(control_bounds)} '
+                             f'for {list(control_names)}')
+        bounds = np.asarray(control_bounds, dtype=float)
+        if not np.all(np.isfinite(bounds)) or np.any(bounds[:, 0] >= bounds[:, 1]):
+            raise ValueError(f'control bounds must be finite with min < max, got {bounds}')
+        if int(n_intervals) != n_intervals or n_intervals < 1:
+            raise ValueError(f'n_intervals must be a positive integer, got {n_intervals}')
+        if not step_s > 0:
+            raise ValueError(f'step_s must be > 0, got {step_s}')
+        if isinstance(cost, str) and cost not in ('quadratic', 'energy'):
+            raise ValueError(f"cost must be 'quadratic', 'energy' or a callable, got {cost!r}")
+        if not isinstance(cost, str) and not callable(cost):
+            raise TypeError(f'cost must be a string or a callable, got {type(cost).__name__}')
+        if not soft_penalty > 0:
+            raise ValueError(f'soft_penalty must be > 0, got {soft_penalty}')
+        self.model = model
+        self.control_names = tuple(control_names)
+        self.control_cols = [model.input_names.index(c) for c in self.control_names]
+        self.disturbance_names = tuple(n for n in model.input_names
+                                       if n not in self.control_names)
+        self.disturbance_cols = [model.input_names.index(c) for c in self.disturbance_names]
+        self.control_bounds = bounds
+        nominal = (np.abs(bounds).max(axis=1) if control_nominal is None
+                   else np.asarray(control_nominal, dtype=float))
+        self.control_scaling = Scaling(np.zeros(len(control_names)), nominal)
+        self.n_intervals = int(n_intervals)
+        self.step_s = float(step_s)
+        self.cost = cost
+        self.state_scaling = state_scaling
+        ny = len(model.output_names)
+        self.output_nominal = (np.ones(ny) if output_nominal is None
+                               else np.asarray(output_nominal, dtype=float))
+        if self.output_nominal.shape != (ny,) or np.any(self.output_nominal == 0):
+            raise ValueError(f'output_nominal must be {ny} non-zero values')
+        self.soft_bounds = bool(soft_bounds)
+        self.soft_penalty = float(soft_penalty)
+        if not soft_penalty_linear >= 0:
+            raise ValueError(f'soft_penalty_linear must be >= 0, got {soft_penalty_linear}')
+        self.soft_penalty_linear = float(soft_penalty_linear)
+        self.energy_epsilon = float(energy_epsilon)
+        tol = getattr(model, 'tolerance', None)
+        self.fd_step = float(fd_step) if fd_step is not None else (
+            max(1e-7, float(np.sqrt(tol))) if tol else 1e-7)
+        self.index = NlpIndex(self.n_intervals, len(control_names), len(model.state_names),
+                              self.soft_bounds)
+
+    # -- model evaluation ------------------------------------------------------------------
+    def _full_inputs(self, controls: np.ndarray, disturbances: np.ndarray) -> np.ndarray:
+        u = np.empty((controls.shape[0], len(self.model.input_names)))
+        u[:, self.control_cols] = controls
+        u[:, self.disturbance_cols] = disturbances
+        return u
+
+    def evaluate_intervals(self, x_start: np.ndarray, controls: np.ndarray,
+                           disturbances: np.ndarray, sensitivities: bool = True
+                           ) -> IntervalJacobians:
+        """End states, outputs and sensitivities of all intervals in one batch.
+
+        Uses the model's analytic ``interval_jacobians`` where it has them,
+        otherwise forward finite differences on normalised variables, all
+        perturbations in one ``simulate_intervals`` call.
+        """
+        u = self._full_inputs(controls, disturbances)
+        if sensitivities:
+            jac = self.model.interval_jacobians(x_start, u, self.step_s, self.control_cols)
+            if jac is not None:
+                self.model_evaluations += x_start.shape[0]
+                return jac
+        n, nx = x_start.shape
+        nc = controls.shape[1]
+        if not sensitivities:
+            x_end, y_end = self.model.simulate_intervals(x_start, u, self.step_s)
+            self.model_evaluations += n
+            empty = np.zeros((n, 0, 0))
+            return IntervalJacobians(x_end, y_end, empty, empty, empty, empty)
+        h = self.fd_step
+        x_scale = self._x_scaling.scale
+        u_scale = self.control_scaling.scale
+        batch_x = [x_start]
+        batch_u = [u]
+        for i in range(nx):
+            xp = x_start.copy()
+            xp[:, i] += h * x_scale[i]
+            batch_x.append(xp)
+            batch_u.append(u)
+        for j, col in enumerate(self.control_cols):
+            up = u.copy()
+            step = h * u_scale[j]
+            # step inwards at the upper bound so the model is never driven past its limits
+            up[:, col] = np.where(up[:, col] + step <= self.control_bounds[j, 1],
+                                  up[:, col] + step, up[:, col] - step)
+            batch_x.append(x_start)
+            batch_u.append(up)
+        x_all, y_all = self.model.simulate_intervals(np.vstack(batch_x), np.vstack(batch_u),
+                                                     self.step_s)
+        self.model_evaluations += x_all.shape[0]
+        x_all = x_all.reshape(1 + nx + nc, n, nx)
+        y_all = y_all.reshape(1 + nx + nc, n, -1)
+        x_end, y_end = x_all[0], y_all[0]
+        dx_dx0 = np.stack([(x_all[1 + i] - x_end) / (h * x_scale[i]) for i in range(nx)], -1)
+        dy_dx0 = np.stack([(y_all[1 + i] - y_end) / (h * x_scale[i]) for i in range(nx)], -1)
+        signs = np.stack([np.where(u[:, col] + h * u_scale[j] <= self.control_bounds[j, 1],
+                                   1.0, -1.0) for j, col in enumerate(self.control_cols)], -1)
+        dx_du = np.stack([(x_all[1 + nx + j] - x_end) / (signs[:, j:j + 1] * h * u_scale[j])
+                          for j in range(nc)], -1)
+        dy_du = np.stack([(y_all[1 + nx + j] - y_end) / (signs[:, j:j + 1] * h * u_scale[j])
+                          for j in range(nc)], -1)
+        return IntervalJacobians(x_end, y_end, dx_dx0, dx_du, dy_dx0, dy_du)
+
+    # -- the NLP ---------------------------------------------------------------------------
+    def _state_scaling_for(self, lower: np.ndarray, upper: np.ndarray) -> Scaling:
+        if self.state_scaling is not None:
+            return self.state_scaling
+        nx = lower.shape[1]
+        offset = np.zeros(nx)
+        scale = np.ones(nx)
+        for i in range(nx):
+            lo = lower[:, i][np.isfinite(lower[:, i])]
+            hi = upper[:, i][np.isfinite(upper[:, i])]
+            if lo.size and hi.size and hi.max() > lo.min():
+                offset[i] = lo.min()
+                scale[i] = hi.max() - lo.min()
+        return Scaling(offset, scale)
+
+    def reachable_envelope(self, x0: np.ndarray, disturbances: np.ndarray) -> tuple[np.ndarray,
+                                                                                   np.ndarray]:
+        """Element-wise min and max of the state trajectories under the extreme controls.
+
+        Simulates the horizon with every control at its lower bound and at its
+        upper bound; returns (low, high), each (N, nx), the interval end states.
+        """
+        trajectories = []
+        for side in (0, 1):
+            controls = np.tile(self.control_bounds[:, side], (self.n_intervals, 1))
+            u = self._full_inputs(controls, disturbances)
+            x = x0.copy()
+            ends = []
+            for k in range(self.n_intervals):
+                x_end, _ = self.model.simulate_intervals(x[None, :], u[k:k + 1], self.step_s)
+                x = x_end[0]
+                ends.append(x)
+            self.model_evaluations += self.n_intervals
+            trajectories.append(np.array(ends))
+        return np.minimum(*trajectories), np.maximum(*trajectories)
+
+    def relax_bounds(self, x0: np.ndarray, disturbances: np.ndarray, lower: np.ndarray,
+                     upper: np.ndarray, margin: float = 1e-4) -> tuple[np.ndarray, np.ndarray,
+                                                                       bool]:
+        """Relax state bounds that no control can reach from ``x0``.
+
+        Where even the extreme controls cannot bring a state inside its bounds
+        (too little capacity, or an initial state outside the band), the bound
+        is moved to the reachable envelope (minus ``margin``, in scaled state
+        units) so the hard-bounded problem stays feasible and its optimum rides
+        along the band's closest reachable edge.
+
+        Returns
+        -------
+        lower, upper : ndarray, shape (N, nx)
+        relaxed : bool
+            Whether any bound moved.
+        """
+        env_low, env_high = self.reachable_envelope(x0, disturbances)
+        pad = margin * self._state_scaling_for(lower, upper).scale
+        new_lower = np.where(env_high - pad < lower, env_high - pad, lower)
+        new_upper = np.where(env_low + pad > upper, env_low + pad, upper)
+        relaxed = bool(np.any(new_lower != lower) or np.any(new_upper != upper))
+        return new_lower, new_upper, relaxed
+
+    def solve(self, x0: Sequence[float], disturbances: np.ndarray, lower: np.ndarray,
+              upper: np.ndarray, solver: Solver, z0: np.ndarray | None = None,
+              relax: bool = True) -> ShootingResult:
+        """Optimise the horizon from ``x0``.
+
+        With hard bounds, where the band cannot be reached from ``x0`` (the
+        extreme controls cannot bring the state inside, or the hard problem
+        fails), a first phase minimises the violation (soft bounds, a large
+        linear penalty); the bounds are then relaxed to that least-violating
+        trajectory and the hard problem is solved from it: the plan keeps the
+        state as close to the band as physics allows, at the least cost.
+
+        Parameters
+        ----------
+        x0 : sequence of float, length nx
+            Initial state (physical units).
+        disturbances : ndarray, shape (N, nd)
+            Non-control inputs of each interval, in ``self.disturbance_names`` order.
+        lower, upper : ndarray, shape (N, nx)
+            State bounds at the end of each interval (physical units; +-inf
+            for unbounded).
+        solver : Solver
+            The NLP solver.
+        z0 : ndarray, optional
+            Warm start (normalised NLP vector in :attr:`index` layout); default:
+            controls 0 and states x0.
+        relax : bool
+            Relax unreachable hard bounds (ignored with soft bounds).
+
+        Returns
+        -------
+        ShootingResult
+        """
+        started = time.perf_counter()
+        self.model_evaluations = 0
+        n, nx = self.n_intervals, len(self.model.state_names)
+        x0 = np.asarray(x0, dtype=float).reshape(-1)
+        disturbances = np.asarray(disturbances, dtype=float).reshape(n, len(self.disturbance_cols))
+        lower = np.asarray(lower, dtype=float).reshape(n, nx)
+        upper = np.asarray(upper, dtype=float).reshape(n, nx)
+        if x0.size != nx or not np.all(np.isfinite(x0)):
+            raise ValueError(f'x0 must be {nx} finite values, got {x0}')
+        if not np.all(np.isfinite(disturbances)):
+            raise ValueError('disturbances must be finite')
+        if np.any(lower > upper):
+            raise ValueError('state bounds must have lower <= upper')
+        self._x_scaling = self._state_scaling_for(lower, upper)
+        if z0 is None or np.asarray(z0).size != self.index.size:
+            z0 = self.index.pack(np.zeros((n, self.index.n_controls)),
+                                 np.tile(self._x_scaling.to_hat(x0), (n, 1)))
+        z0 = np.asarray(z0, dtype=float)
+        if self.soft_bounds:
+            result = self._solve_nlp(x0, disturbances, lower, upper, solver, z0, self.index,
+                                     self.soft_penalty, self.soft_penalty_linear)
+            result.relaxed = False
+        else:
+            unreachable = relax and self.relax_bounds(x0, disturbances, lower, upper)[2]
+            result = None
+            if not unreachable:
+                result = self._solve_nlp(x0, disturbances, lower, upper, solver, z0,
+                                         self.index, 0.0, 0.0)
+                result.relaxed = False
+            if relax and (unreachable or not result.success):
+                result = self._solve_least_violation(x0, disturbances, lower, upper, solver, z0)
+        result.solve_time_s = time.perf_counter() - started
+        result.model_evaluations = self.model_evaluations
+        return result
+
+    def _solve_least_violation(self, x0: np.ndarray, disturbances: np.ndarray,
+                               lower: np.ndarray, upper: np.ndarray, solver: Solver,
+                               z0: np.ndarray) -> ShootingResult:
+        """Phase 1: least violation (soft bounds); phase 2: least cost within it."""
+        soft = NlpIndex(self.n_intervals, self.index.n_controls, self.index.n_states, True)
+        phase1 = self._solve_nlp(x0, disturbances, lower, upper, solver,
+                                 soft.pack(self.index.u(z0), self.index.x(z0)), soft,
+                                 LEAST_VIOLATION_QUADRATIC, LEAST_VIOLATION_LINEAR)
+        margin = 1e-6 * self._x_scaling.scale
+        reached = phase1.simulated_states[1:]
+        relaxed_lower = np.minimum(lower, reached - margin)
+        relaxed_upper = np.maximum(upper, reached + margin)
+        z_hard = self.index.pack(soft.u(phase1.x), self._x_scaling.to_hat(reached))
+        result = self._solve_nlp(x0, disturbances, relaxed_lower, relaxed_upper, solver, z_hard,
+                                 self.index, 0.0, 0.0)
+        result.relaxed = True
+        result.nit += phase1.nit
+        result.nfev += phase1.nfev
+        if not phase1.success:
+            result.message = f'{result.message} (least-violation phase: {phase1.message})'
+        logger.debug('bounds relaxed by up to %.3g (state units): least-violation phase %s, '
+                     'least-cost phase %s', float(np.max(np.maximum(lower - relaxed_lower,
+                                                                    relaxed_upper - upper))),
+                     phase1.message, result.message)
+        return result
+
+    def _solve_nlp(self, x0: np.ndarray, disturbances: np.ndarray, lower: np.ndarray,
+                   upper: np.ndarray, solver: Solver, z0: np.ndarray, idx: NlpIndex,
+                   penalty_quadratic: float, penalty_linear: float) -> ShootingResult:
+        """Build and solve one NLP (hard bounds unless ``idx.soft``)."""
+        n, nx = self.n_intervals, len(self.model.state_names)
+        xs, us = self._x_scaling, self.control_scaling
+        lower_hat, upper_hat = xs.to_hat(lower), xs.to_hat(upper)
+        u_lo = us.to_hat(self.control_bounds[:, 0])
+        u_hi = us.to_hat(self.control_bounds[:, 1])
+
+        cache: dict[bytes, tuple[np.ndarray, IntervalJacobians]] = {}
+
+        def evaluate(z: np.ndarray) -> IntervalJacobians:
+            key = z.tobytes()
+            hit = cache.get(key)
+            if hit is None:
+                x_end_hat = idx.x(z)
+                x_start = np.vstack([x0[None, :], xs.from_hat(x_end_hat[:-1])])
+                jac = self.evaluate_intervals(x_start, us.from_hat(idx.u(z)), disturbances)
+                cache.clear()
+                cache[key] = (z.copy(), jac)
+                return jac
+            return hit[1]
+
+        def eq_fun(z: np.ndarray) -> np.ndarray:
+            jac = evaluate(z)
+            return (xs.to_hat(jac.x_end) - idx.x(z)).reshape(-1)
+
+        def eq_jac(z: np.ndarray) -> np.ndarray:
+            jac = evaluate(z)
+            out = np.zeros((n * nx, idx.size))
+            for k in range(n):
+                rows = slice(k * nx, (k + 1) * nx)
+                # d x_hat_end / d u_hat = diag(1/x_scale) dF/du diag(u_scale)
+                out[rows, _block(idx.u_slice, k, idx.n_controls)] = (
+                    jac.dx_du[k] / xs.scale[:, None] * us.scale[None, :])
+                out[rows, _block(idx.x_slice, k, nx)] = -np.eye(nx)
+                if k > 0:
+                    out[rows, _block(idx.x_slice, k - 1, nx)] = (
+                        jac.dx_dx0[k] / xs.scale[:, None] * xs.scale[None, :])
+            return out
+
+        cost_fun, cost_grad = self._cost_functions(evaluate, idx)
+
+        def fun(z: np.ndarray) -> float:
+            value = cost_fun(z)
+            if idx.soft:
+                slack = idx.s(z)
+                value += (penalty_quadratic * float(np.sum(slack ** 2))
+                          + penalty_linear * float(np.sum(slack)))
+            return value
+
+        def grad(z: np.ndarray) -> np.ndarray:
+            g = cost_grad(z)
+            if idx.soft:
+                g[idx.s_slice] += 2.0 * penalty_quadratic * z[idx.s_slice] + penalty_linear
+            return g
+
+        lb = np.full(idx.size, -np.inf)
+        ub = np.full(idx.size, np.inf)
+        lb[idx.u_slice] = np.tile(u_lo, n)
+        ub[idx.u_slice] = np.tile(u_hi, n)
+        ineq_fun = ineq_jac = None
+        ineq_sparsity = None
+        if idx.soft:
+            lb[idx.s_slice] = 0.0
+            finite_lo = np.isfinite(lower_hat).reshape(-1)
+            finite_hi = np.isfinite(upper_hat).reshape(-1)
+
+            def ineq_fun(z: np.ndarray) -> np.ndarray:
+                x_hat = z[idx.x_slice]
+                s_hat = z[idx.s_slice]
+                return np.concatenate([(x_hat - lower_hat.reshape(-1) + s_hat)[finite_lo],
+                                       (upper_hat.reshape(-1) - x_hat + s_hat)[finite_hi]])
+
+            eye = np.eye(n * nx)
+            jac_const = np.vstack([
+                np.hstack([np.zeros((n * nx, idx.x_slice.start)), eye, eye])[finite_lo],
+                np.hstack([np.zeros((n * nx, idx.x_slice.start)), -eye, eye])[finite_hi]])
+
+            def ineq_jac(z: np.ndarray) -> np.ndarray:
+                return jac_const
+
+            ineq_sparsity = jac_const != 0
+        else:
+            lb[idx.x_slice] = lower_hat.reshape(-1)
+            ub[idx.x_slice] = upper_hat.reshape(-1)
+
+        eq_sparsity = np.zeros((n * nx, idx.size), bool)
+        for k in range(n):
+            rows = slice(k * nx, (k + 1) * nx)
+            eq_sparsity[rows, _block(idx.u_slice, k, idx.n_controls)] = True
+            eq_sparsity[rows, _block(idx.x_slice, k, nx)] = True
+            if k > 0:
+                eq_sparsity[rows, _block(idx.x_slice, k - 1, nx)] = True
+
+        nlp = Nlp(fun=fun, grad=grad, eq_fun=eq_fun, eq_jac=eq_jac, lb=lb, ub=ub,
+                  ineq_fun=ineq_fun, ineq_jac=ineq_jac, eq_sparsity=eq_sparsity,
+                  ineq_sparsity=ineq_sparsity)
+        try:
+            raw = solver.solve(nlp, np.asarray(z0, dtype=float))
+            z = np.asarray(raw.x, dtype=float)
+            success, status, message = bool(raw.success), int(raw.status), str(raw.message)
+            nit, nfev = int(getattr(raw, 'nit', 0)), int(getattr(raw, 'nfev', 0))
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+            logger.warning('solver %s raised %s: %s', solver.name, type(exc).__name__, exc)
+            z = np.clip(np.asarray(z0, dtype=float), lb, ub)
+            success, status, message, nit, nfev = False, -1, f'solver error: {exc}', 0, 0
+        if not np.all(np.isfinite(z)):
+            z = np.clip(np.asarray(z0, dtype=float), lb, ub)
+            success, status, message = False, -2, 'solver returned non-finite values'
+        z[idx.u_slice] = np.clip(z[idx.u_slice], lb[idx.u_slice], ub[idx.u_slice])
+        controls = us.from_hat(idx.u(z))
+        jac = evaluate(z)
+        x_end = xs.from_hat(idx.x(z))
+        defect = np.abs(jac.x_end - x_end)
+        states = np.vstack([x0[None, :], x_end])
+        result = ShootingResult(
+            x=z, fun=float(fun(z)), success=success, status=status, message=message, nit=nit,
+            nfev=nfev, controls=controls, states=states, outputs=jac.y_end.copy(),
+            slacks=(idx.s(z) * xs.scale if idx.soft else np.zeros((n, nx))),
+            max_defect=float(defect.max()), lower=lower, upper=upper,
+            simulated_states=np.vstack([x0[None, :], jac.x_end]),
+            solve_time_s=0.0, model_evaluations=0)
+        return result
+
+    def _cost_functions(self, evaluate: Callable[[np.ndarray], IntervalJacobians],
+                        idx: NlpIndex) -> tuple[Callable[[np.ndarray], float],
+                                   Callable[[np.ndarray], np.ndarray]]:
+        if self.cost == 'quadratic':
+            def cost(z: np.ndarray) -> float:
+                return float(np.sum(idx.u(z) ** 2))
+
+            def grad(z: np.ndarray) -> np.ndarray:
+                g = np.zeros(idx.size)
+                g[idx.u_slice] = 2.0 * z[idx.u_slice]
+                return g
+            return cost, grad
+        if self.cost == 'energy':
+            eps = self.energy_epsilon
+
+            def cost(z: np.ndarray) -> float:
+                return float(np.sum(np.sqrt(idx.u(z) ** 2 + eps ** 2) - eps))
+
+            def grad(z: np.ndarray) -> np.ndarray:
+                g = np.zeros(idx.size)
+                u = z[idx.u_slice]
+                g[idx.u_slice] = u / np.sqrt(u ** 2 + eps ** 2)
+                return g
+            return cost, grad
+
+        user_cost = self.cost
+        xs = None
+
+        def hats(z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            jac = evaluate(z)
+            return idx.x(z), jac.y_end / self.output_nominal, idx.u(z)
+
+        def cost(z: np.ndarray) -> float:
+            return float(user_cost(*hats(z)))
+
+        def grad(z: np.ndarray) -> np.ndarray:
+            # chain rule: x_hat and u_hat are variables; y_hat depends on (x_start, u) per
+            # interval, differentiated by finite differences of the user cost
+            x_hat, y_hat, u_hat = hats(z)
+            jac = evaluate(z)
+            base = float(user_cost(x_hat, y_hat, u_hat))
+            h = 1e-7
+            g = np.zeros(idx.size)
+            dc_dy = np.zeros_like(y_hat)
+            for arr, target in ((x_hat, idx.x_slice), (u_hat, idx.u_slice)):
+                flat = arr.reshape(-1)
+                for i in range(flat.size):
+                    pert = arr.copy().reshape(-1)
+                    pert[i] += h
+                    args = [x_hat, y_hat, u_hat]
+                    args[0 if target == idx.x_slice else 2] = pert.reshape(arr.shape)
+                    g[target.start + i] += (float(user_cost(*args)) - base) / h
+            for k in range(y_hat.shape[0]):
+                for i in range(y_hat.shape[1]):
+                    pert = y_hat.copy()
+                    pert[k, i] += h
+                    dc_dy[k, i] = (float(user_cost(x_hat, pert, u_hat)) - base) / h
+            scale_x = self._x_scaling.scale
+            scale_u = self.control_scaling.scale
+            for k in range(self.n_intervals):
+                dy = dc_dy[k] / self.output_nominal
+                g[_block(idx.u_slice, k, idx.n_controls)] += (dy @ jac.dy_du[k]) * scale_u
+                if k > 0:
+                    g[_block(idx.x_slice, k - 1, idx.n_states)] += (dy @ jac.dy_dx0[k]) * scale_x
+            return g
+        del xs
+        return cost, grad
+
+
+def _block(part: slice, k: int, width: int) -> slice:
+    """Columns of block k (of ``width`` entries) inside the NLP slice ``part``."""
+    return slice(part.start + k * width, part.start + (k + 1) * width)

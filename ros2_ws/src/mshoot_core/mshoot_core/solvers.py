@@ -1,0 +1,210 @@
+"""NLP solvers behind one interface: SciPy SLSQP, SciPy trust-constr, IPOPT (cyipopt).
+
+A :class:`Nlp` is the smooth problem
+
+    min f(z)  s.t.  c_eq(z) = 0,  c_ineq(z) >= 0,  lb <= z <= ub
+
+with callables for values and (dense) Jacobians plus an optional sparsity
+pattern of the constraint Jacobian. A solver takes an :class:`Nlp` and a start
+point and returns a :class:`scipy.optimize.OptimizeResult`; non-convergence is
+a status (``success=False``), never an exception.
+"""
+from __future__ import annotations
+
+import abc
+import dataclasses
+import logging
+import time
+from typing import Callable
+
+import numpy as np
+from scipy import optimize, sparse
+
+logger = logging.getLogger(__name__)
+
+Vector = np.ndarray
+Matrix = np.ndarray
+
+
+@dataclasses.dataclass
+class Nlp:
+    """A smooth nonlinear program in the variables z (length n).
+
+    Attributes
+    ----------
+    fun, grad : callables
+        Objective f(z) -> float and its gradient -> (n,).
+    eq_fun, eq_jac : callables
+        Equality constraints c_eq(z) -> (m_eq,) and Jacobian -> (m_eq, n).
+    ineq_fun, ineq_jac : callables or None
+        Inequality constraints c_ineq(z) >= 0 -> (m_in,) and Jacobian.
+    lb, ub : ndarray, shape (n,)
+        Variable bounds (may be +-inf).
+    eq_sparsity, ineq_sparsity : ndarray of bool or None
+        Structural non-zeros of the constraint Jacobians.
+    """
+
+    fun: Callable[[Vector], float]
+    grad: Callable[[Vector], Vector]
+    eq_fun: Callable[[Vector], Vector]
+    eq_jac: Callable[[Vector], Matrix]
+    lb: Vector
+    ub: Vector
+    ineq_fun: Callable[[Vector], Vector] | None = None
+    ineq_jac: Callable[[Vector], Matrix] | None = None
+    eq_sparsity: np.ndarray | None = None
+    ineq_sparsity: np.ndarray | None = None
+
+
+class Solver(abc.ABC):
+    """Solves an :class:`Nlp` from a start point."""
+
+    #: Short name used in configuration ('slsqp', 'ipopt', ...).
+    name: str = ''
+
+    def __init__(self, max_iter: int = 200, tol: float = 1e-10) -> None:
+        if max_iter < 1:
+            raise ValueError(f'max_iter must be >= 1, got {max_iter}')
+        if not tol > 0:
+            raise ValueError(f'tol must be > 0, got {tol}')
+        self.max_iter = int(max_iter)
+        self.tol = float(tol)
+
+    @abc.abstractmethod
+    def solve(self, nlp: Nlp, z0: Vector) -> optimize.OptimizeResult:
+        """Solve ``nlp`` from ``z0``; return an OptimizeResult (x, fun, success, status,
+        message, nit, nfev)."""
+
+
+class SlsqpSolver(Solver):
+    """SciPy's SLSQP (dense; fine for short horizons and few zones)."""
+
+    name = 'slsqp'
+
+    def solve(self, nlp: Nlp, z0: Vector) -> optimize.OptimizeResult:
+        constraints = [{'type': 'eq', 'fun': nlp.eq_fun, 'jac': nlp.eq_jac}]
+        if nlp.ineq_fun is not None:
+            constraints.append({'type': 'ineq', 'fun': nlp.ineq_fun, 'jac': nlp.ineq_jac})
+        bounds = optimize.Bounds(nlp.lb, nlp.ub)
+        z0 = np.clip(z0, nlp.lb, nlp.ub)
+        res = optimize.minimize(nlp.fun, z0, jac=nlp.grad, bounds=bounds,
+                                constraints=constraints, method='SLSQP',
+                                options={'maxiter': self.max_iter, 'ftol': self.tol})
+        res.nit = int(getattr(res, 'nit', 0))
+        return res
+
+
+class TrustConstrSolver(Solver):
+    """SciPy's trust-constr with sparse constraint Jacobians."""
+
+    name = 'trust-constr'
+
+    def solve(self, nlp: Nlp, z0: Vector) -> optimize.OptimizeResult:
+        n_eq = nlp.eq_fun(z0).size
+        constraints = [optimize.NonlinearConstraint(
+            nlp.eq_fun, np.zeros(n_eq), np.zeros(n_eq),
+            jac=lambda z: sparse.csr_matrix(nlp.eq_jac(z)), hess=optimize.BFGS())]
+        if nlp.ineq_fun is not None:
+            n_in = nlp.ineq_fun(z0).size
+            constraints.append(optimize.NonlinearConstraint(
+                nlp.ineq_fun, np.zeros(n_in), np.full(n_in, np.inf),
+                jac=lambda z: sparse.csr_matrix(nlp.ineq_jac(z)), hess=optimize.BFGS()))
+        z0 = np.clip(z0, nlp.lb, nlp.ub)
+        res = optimize.minimize(nlp.fun, z0, jac=nlp.grad, hess=optimize.BFGS(),
+                                bounds=optimize.Bounds(nlp.lb, nlp.ub),
+                                constraints=constraints, method='trust-constr',
+                                options={'maxiter': self.max_iter, 'gtol': self.tol,
+                                         'xtol': self.tol, 'verbose': 0})
+        res.success = bool(res.status in (1, 2))
+        return res
+
+
+class IpoptSolver(Solver):
+    """IPOPT through cyipopt (the ``cyipopt-wheels`` package), with sparse Jacobians
+    and a limited-memory Hessian approximation."""
+
+    name = 'ipopt'
+
+    def __init__(self, max_iter: int = 200, tol: float = 1e-8,
+                 options: dict | None = None) -> None:
+        super().__init__(max_iter, tol)
+        try:
+            import cyipopt  # noqa: F401
+        except ImportError as exc:  # pragma: no cover - depends on the install
+            raise ValueError('solver "ipopt" needs cyipopt: pip install cyipopt-wheels') from exc
+        self.options = dict(options or {})
+
+    def solve(self, nlp: Nlp, z0: Vector) -> optimize.OptimizeResult:
+        import cyipopt
+        n = z0.size
+        eq_pattern = (nlp.eq_sparsity if nlp.eq_sparsity is not None
+                      else np.ones((nlp.eq_fun(z0).size, n), bool))
+        blocks = [eq_pattern]
+        if nlp.ineq_fun is not None:
+            blocks.append(nlp.ineq_sparsity if nlp.ineq_sparsity is not None
+                          else np.ones((nlp.ineq_fun(z0).size, n), bool))
+        pattern = np.vstack(blocks)
+        rows, cols = np.nonzero(pattern)
+        n_eq = eq_pattern.shape[0]
+        counter = {'nfev': 0}
+
+        class _Problem:
+            def objective(self, z):
+                counter['nfev'] += 1
+                return nlp.fun(z)
+
+            def gradient(self, z):
+                return nlp.grad(z)
+
+            def constraints(self, z):
+                parts = [nlp.eq_fun(z)]
+                if nlp.ineq_fun is not None:
+                    parts.append(nlp.ineq_fun(z))
+                return np.concatenate(parts)
+
+            def jacobian(self, z):
+                parts = [nlp.eq_jac(z)]
+                if nlp.ineq_fun is not None:
+                    parts.append(nlp.ineq_jac(z))
+                return np.vstack(parts)[rows, cols]
+
+            def jacobianstructure(self):
+                return rows, cols
+
+        m = pattern.shape[0]
+        cu = np.zeros(m)
+        cu[n_eq:] = 2e19
+        lb = np.where(np.isfinite(nlp.lb), nlp.lb, -2e19)
+        ub = np.where(np.isfinite(nlp.ub), nlp.ub, 2e19)
+        problem = cyipopt.Problem(n=n, m=m, problem_obj=_Problem(), lb=lb, ub=ub,
+                                  cl=np.zeros(m), cu=cu)
+        problem.add_option('print_level', 0)
+        problem.add_option('sb', 'yes')
+        problem.add_option('max_iter', self.max_iter)
+        problem.add_option('tol', self.tol)
+        problem.add_option('hessian_approximation', 'limited-memory')
+        problem.add_option('mu_strategy', 'adaptive')
+        for key, value in self.options.items():
+            problem.add_option(key, value)
+        start = time.perf_counter()
+        z, info = problem.solve(np.clip(z0, nlp.lb, nlp.ub))
+        status = int(info['status'])
+        return optimize.OptimizeResult(
+            x=z, fun=float(info['obj_val']), success=status in (0, 1), status=status,
+            message=info['status_msg'].decode() if isinstance(info['status_msg'], bytes)
+            else str(info['status_msg']),
+            nit=int(getattr(problem, 'iterations', 0) or 0), nfev=counter['nfev'],
+            wall_s=time.perf_counter() - start)
+
+
+SOLVERS: dict[str, type[Solver]] = {cls.name: cls for cls in (SlsqpSolver, TrustConstrSolver,
+                                                               IpoptSolver)}
+
+
+def make_solver(name: str | Solver, **options) -> Solver:
+    """Return a solver by name ('slsqp', 'trust-constr', 'ipopt') or pass one through."""
+    if isinstance(name, Solver):
+        return name
+    if name not in SOLVERS:
+        raise ValueError(f'unknown solver {name!r}; choose one of {sorted(SOLVERS)}')
+    return SOLVERS[name](**options)
