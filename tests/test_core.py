@@ -1,0 +1,325 @@
+"""mshoot_core: R1C1 analytics, multiple shooting, MPC loop, KPIs, the reference case."""
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import optimize
+
+from mshoot_core.case import PUBLISHED, main as case_main, reference_scenario, run_case
+from mshoot_core.closed_loop import forecast_window, run_closed_loop
+from mshoot_core.emulation import Emulator
+from mshoot_core.kpis import closed_loop_kpis, discomfort_kh, energy_kwh
+from mshoot_core.models import Model, R1C1Model, R1C1Parameters
+from mshoot_core.mpc import MPC
+from mshoot_core.scenario import synthetic_scenario
+from mshoot_core.shooting import NlpIndex, ShootingProblem
+from mshoot_core.solvers import SlsqpSolver, make_solver
+
+KELVIN = 273.15
+
+
+def r1c1_closed_form(t, T0, solrad, tout, occ, q, p=R1C1Parameters()):
+    """Closed-form R1C1 response [K] to constant inputs (dpos = 0), from SPEC's equation."""
+    C = p.tmass * 1.2 * 1005 * p.Vi
+    R = p.RExt / (3 * p.Vi ** (2 / 3))
+    g = 1 / R + p.occheff * occ * 84 / 32
+    f = (tout + KELVIN) / R + p.shgc * solrad + p.occheff * occ * 84 * 325.15 / 32 + q
+    return f / g + (T0 - f / g) * np.exp(-g * t / C)
+
+
+def test_r1c1_parameters_match_spec():
+    p = R1C1Parameters()
+    assert p.capacity_j_k == pytest.approx(2.934e7, rel=1e-3)
+    assert p.resistance_k_w == pytest.approx(0.021555, rel=1e-4)
+    assert p.capacity_j_k * p.resistance_k_w / 3600 == pytest.approx(176, rel=0.01)
+
+
+def test_r1c1_python_model_equals_closed_form():
+    model = R1C1Model()
+    t = np.arange(0, 6 * 3600 + 1, 600.0)
+    udf = pd.DataFrame({'solrad': 300.0, 'Tout': 4.0, 'occ': 12.0, 'dpos': 0.0, 'q': -800.0},
+                       index=t)
+    ydf, xdf = model.simulate(udf, [294.0])
+    expected = r1c1_closed_form(t, 294.0, 300.0, 4.0, 12.0, -800.0)
+    np.testing.assert_allclose(xdf['T'].to_numpy(), expected, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(ydf['T'].to_numpy(), expected - KELVIN, atol=1e-9)
+    np.testing.assert_allclose(ydf['Qr'].to_numpy(), -800.0 * t, rtol=1e-12)
+
+
+def test_r1c1_ventilation_term_matches_ode():
+    """With dpos > 0 the exact solution still satisfies C dT/dt = RHS (checked by RK4)."""
+    model = R1C1Model()
+    u = np.array([[100.0, 2.0, 5.0, 40.0, 1500.0]])
+    T, h = 295.0, 1.0
+    for _ in range(3600):
+        k1 = model.derivative(np.array([T]), u)[0]
+        k2 = model.derivative(np.array([T + h / 2 * k1]), u)[0]
+        k3 = model.derivative(np.array([T + h / 2 * k2]), u)[0]
+        k4 = model.derivative(np.array([T + h * k3]), u)[0]
+        T += h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    x_end, _ = model.simulate_intervals(np.array([[295.0]]), u, 3600.0)
+    assert x_end[0, 0] == pytest.approx(T, abs=1e-9)
+
+
+def test_batch_path_equals_simulate():
+    model = R1C1Model()
+    rng = np.random.default_rng(1)
+    u = np.column_stack([rng.uniform(0, 500, 6), rng.uniform(-5, 15, 6), rng.uniform(0, 30, 6),
+                         rng.uniform(0, 100, 6), rng.uniform(-2000, 2000, 6)])
+    x = rng.uniform(290, 300, (6, 1))
+    x_end, y_end = model.simulate_intervals(x, u, 3600.0)
+    generic_x, generic_y = Model.simulate_intervals(model, x, u, 3600.0)
+    np.testing.assert_array_equal(x_end, generic_x)
+    np.testing.assert_allclose(y_end, generic_y, rtol=1e-15, atol=1e-9)
+
+
+def test_analytic_jacobians_match_finite_differences():
+    model = R1C1Model()
+    problem = ShootingProblem(model, n_intervals=3)
+    problem._x_scaling = problem._state_scaling_for(np.full((3, 1), 292.0),
+                                                    np.full((3, 1), 297.0))
+    problem.model_evaluations = 0
+    x = np.array([[293.0], [295.0], [297.0]])
+    controls = np.array([[500.0], [-1500.0], [0.0]])
+    dist = np.array([[100.0, 5.0, 10.0, 0.0], [0.0, 2.0, 0.0, 0.0], [400.0, 9.0, 30.0, 0.0]])
+    analytic = problem.evaluate_intervals(x, controls, dist)
+
+    class Opaque(R1C1Model):
+        def interval_jacobians(self, *args, **kwargs):
+            return None
+    problem.model = Opaque()
+    fd = problem.evaluate_intervals(x, controls, dist)
+    np.testing.assert_allclose(fd.x_end, analytic.x_end)
+    np.testing.assert_allclose(fd.dx_dx0, analytic.dx_dx0, rtol=1e-5)
+    np.testing.assert_allclose(fd.dx_du, analytic.dx_du, rtol=1e-5)
+
+
+class LinearScalar(Model):
+    """x_{k+1} = a x_k + b u_k per interval: a generic plug-in model with only simulate()."""
+
+    input_names = ('u',)
+    state_names = ('x',)
+    output_names = ('x',)
+
+    def __init__(self, a=0.9, b=0.5):
+        self.a, self.b = a, b
+
+    def simulate(self, udf, x0):
+        t, u, x0 = self.check_inputs(udf, x0)
+        x = np.empty(t.size)
+        x[0] = x0[0]
+        for k in range(t.size - 1):
+            x[k + 1] = self.a * x[k] + self.b * u[k, 0]
+        df = pd.DataFrame({'x': x}, index=udf.index)
+        return df, df.copy()
+
+
+def test_unconstrained_quadratic_matches_least_squares():
+    """min sum (x_k - r)^2 + rho sum u_k^2 for linear dynamics has a closed-form optimum."""
+    a, b, r, rho, x0, n = 0.9, 0.5, 1.0, 0.1, 0.0, 6
+    model = LinearScalar(a, b)
+
+    def cost(x_hat, y_hat, u_hat):
+        return float(np.sum((y_hat[:, 0] - r) ** 2) + rho * np.sum(u_hat ** 2))
+
+    problem = ShootingProblem(model, control_names=('u',), control_bounds=((-100.0, 100.0),),
+                              n_intervals=n, step_s=1.0, cost=cost, control_nominal=[1.0])
+    res = problem.solve([x0], np.zeros((n, 0)), np.full((n, 1), -np.inf),
+                        np.full((n, 1), np.inf), SlsqpSolver(tol=1e-12))
+    # x = F x0 + G u  ->  u* = argmin |F x0 + G u - r|^2 + rho |u|^2
+    F = np.array([a ** (k + 1) for k in range(n)])
+    G = np.array([[a ** (k - j) * b if j <= k else 0.0 for j in range(n)] for k in range(n)])
+    u_star = np.linalg.solve(G.T @ G + rho * np.eye(n), G.T @ (r - F * x0))
+    assert res.success
+    np.testing.assert_allclose(res.controls[:, 0], u_star, atol=1e-5)
+    assert res.max_defect < 1e-6
+
+
+def _ou_like_problem(n=8, soft=False, cost='quadratic'):
+    scenario = synthetic_scenario(hours=n + 1, seed=3)
+    model = R1C1Model()
+    problem = ShootingProblem(model, n_intervals=n, cost=cost, soft_bounds=soft)
+    dist = scenario[list(problem.disturbance_names)].to_numpy()[:n].copy()
+    lower = scenario['comfort_min'].to_numpy()[1:n + 1, None] + KELVIN
+    upper = scenario['comfort_max'].to_numpy()[1:n + 1, None] + KELVIN
+    return problem, dist, lower, upper
+
+
+def test_multiple_shooting_agrees_with_single_shooting():
+    problem, dist, lower, upper = _ou_like_problem(n=8)
+    x0 = np.array([293.6])  # the band rises to 21 degC at 08:00: preheating needed
+    ms = problem.solve(x0, dist, lower, upper, SlsqpSolver())
+    assert ms.success and ms.max_defect <= 1e-6
+    model = problem.model
+
+    def trajectory(q):
+        x, out = x0.copy(), []
+        for k in range(problem.n_intervals):
+            u = np.concatenate([dist[k], [q[k]]])[None, :]
+            x = model.simulate_intervals(x[None, :], u, 3600.0)[0][0]
+            out.append(x[0])
+        return np.array(out)
+
+    # single shooting on the normalised control q/2000 [-], the states simulated through
+    cons = [{'type': 'ineq', 'fun': lambda v: trajectory(2000 * v) - lower[:, 0]},
+            {'type': 'ineq', 'fun': lambda v: upper[:, 0] - trajectory(2000 * v)}]
+    single = optimize.minimize(lambda v: np.sum(v ** 2), np.zeros(8), method='SLSQP',
+                               bounds=[(-1, 1)] * 8, constraints=cons,
+                               options={'ftol': 1e-12, 'maxiter': 500})
+    assert single.success, single.message
+    np.testing.assert_allclose(ms.controls[:, 0], 2000 * single.x, atol=1.0)  # [W]
+    assert ms.fun == pytest.approx(single.fun, rel=1e-5)
+
+
+def test_unreachable_band_rides_through_with_max_cooling():
+    problem, dist, lower, upper = _ou_like_problem(n=6)
+    dist[:, 0] = 600.0  # strong sun
+    dist[:, 2] = 60.0   # a crowded room: gains far beyond 2 kW of cooling
+    res = problem.solve([297.0], dist, lower, upper, SlsqpSolver())
+    assert res.relaxed, 'the band is unreachable: bounds must be reported relaxed'
+    assert np.all(np.isfinite(res.controls))
+    np.testing.assert_allclose(res.controls[:, 0], -2000.0, atol=0.1)  # [W]
+    assert res.max_defect <= 1e-6
+    # the plan cannot be beaten on violation: max cooling is the least-violating plan
+    assert np.all(res.states[1:, 0] >= upper[:, 0] - 1e-9)
+
+
+def test_unreachable_band_success_is_honest_when_solver_stops_early():
+    problem, dist, lower, upper = _ou_like_problem(n=6)
+    dist[:, 2] = 60.0
+    res = problem.solve([297.0], dist, lower, upper, SlsqpSolver(max_iter=1))
+    assert not res.success
+    assert np.all(np.isfinite(res.controls))
+    assert np.all(np.abs(res.controls) <= 2000.0)
+
+
+def test_soft_bounds_trade_energy_for_comfort():
+    problem, dist, lower, upper = _ou_like_problem(n=8, soft=True)
+    results = {}
+    for penalty in (1.0, 1e4):
+        problem.soft_penalty = penalty
+        res = problem.solve([290.0], dist, lower, upper, SlsqpSolver())
+        assert res.success and res.max_defect <= 1e-6
+        results[penalty] = (np.sum(np.abs(res.controls)), np.sum(res.slacks))
+    assert results[1e4][0] > results[1.0][0]  # more energy ...
+    assert results[1e4][1] < results[1.0][1]  # ... for less violation
+
+
+def test_energy_cost_spends_less_energy_than_quadratic():
+    energies = {}
+    for cost in ('quadratic', 'energy'):
+        problem, dist, lower, upper = _ou_like_problem(n=8, cost=cost)
+        res = problem.solve([293.6], dist, lower, upper, SlsqpSolver())
+        assert res.success
+        assert np.all(res.states[1:, 0] >= lower[:, 0] - 1e-6)
+        energies[cost] = np.sum(np.abs(res.controls))
+    assert energies['energy'] < energies['quadratic'] * 0.999
+
+
+def test_nlp_index_named_views():
+    idx = NlpIndex(3, 2, 1, soft=True)
+    z = np.arange(idx.size, dtype=float)
+    assert idx.u(z).shape == (3, 2) and idx.x(z).shape == (3, 1) and idx.s(z).shape == (3, 1)
+    z2 = idx.pack(idx.u(z), idx.x(z), idx.s(z))
+    np.testing.assert_array_equal(z, z2)
+
+
+@pytest.mark.parametrize('kwargs, match', [
+    ({'control_names': ('power',)}, 'controls must be model inputs'),
+    ({'control_bounds': ((10.0, -10.0),)}, 'min < max'),
+    ({'n_intervals': 0}, 'positive integer'),
+    ({'cost': 'cubic'}, 'cost must be'),
+    ({'soft_penalty': -1.0}, 'soft_penalty'),
+])
+def test_bad_configuration_is_rejected(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        ShootingProblem(R1C1Model(), **kwargs)
+
+
+def test_unknown_solver_rejected():
+    with pytest.raises(ValueError, match='choose one of'):
+        make_solver('newton')
+
+
+def test_forecast_window_pads_with_last_row():
+    s = synthetic_scenario(hours=5)
+    w = forecast_window(s, 3, 4)
+    assert len(w) == 5
+    np.testing.assert_array_equal(w['Tout'].to_numpy()[1:], s['Tout'].to_numpy()[[4, 4, 4, 4]])
+    assert w.index[0] == s.index[3]
+
+
+def test_mpc_rejects_bad_forecast():
+    mpc = MPC(R1C1Model(), horizon_steps=3)
+    s = synthetic_scenario(hours=10)
+    with pytest.raises(ValueError, match='rows'):
+        mpc.solve([293.0], 0.0, s.iloc[:3])
+    bad = s.iloc[:4].copy()
+    bad.loc[bad.index[1], 'comfort_min'] = 30.0
+    with pytest.raises(ValueError, match='exceeds'):
+        mpc.solve([293.0], 0.0, bad)
+    bad = s.iloc[:4].copy()
+    bad.loc[bad.index[2], 'Tout'] = np.nan
+    with pytest.raises(ValueError, match='non-finite'):
+        mpc.solve([293.0], 0.0, bad)
+
+
+def test_kpis_against_hand_computation():
+    q = np.array([1000.0, -500.0, 0.0])
+    e = energy_kwh(q, 3600.0)
+    assert e == {'energy_kwh': 1.5, 'heating_kwh': 1.0, 'cooling_kwh': 0.5}
+    t = np.arange(0, 7201, 60.0)
+    temp = np.where(t < 3600, 23.0, 20.0)  # 1 K above 22 for an hour, then 1 K below 21
+    fine = pd.DataFrame({'y_T': temp, 'comfort_min': 21.0, 'comfort_max': 22.0}, index=t)
+    d = discomfort_kh(fine)
+    assert d['discomfort_kh'] == pytest.approx(2.0, abs=1 / 60 + 1e-9)
+    assert d['discomfort_kh_hourly'] == pytest.approx(3.0)  # samples at 0 h, 1 h and 2 h
+
+
+def test_closed_loop_warm_start_and_records():
+    s = synthetic_scenario(hours=13, seed=2)
+    mpc = MPC(R1C1Model(), horizon_steps=4)
+    em = Emulator(R1C1Model(), s, [293.15])
+    result = run_closed_loop(mpc, em, log_every=0)
+    assert len(result.steps) == 12 and len(result.plans) == 12
+    assert result.steps['success'].all()
+    # control model == emulation model: prediction is exact
+    np.testing.assert_allclose(result.steps['T_predicted'], result.steps['T_end'], atol=1e-6)
+    assert len(result.fine) == 12 * 60 + 1
+    kpis = closed_loop_kpis(result.steps, result.fine, 3600.0, result.wall_s)
+    assert kpis['steps'] == 12 and kpis['solver_failures'] == 0
+
+
+@pytest.mark.parametrize('horizon', [2, 10])
+def test_reference_case_against_published(ou44_csv, horizon):
+    """Energy and hourly discomfort may not both be worse than published by more than 3 %."""
+    scenario = reference_scenario('ou44', ou44_csv)
+    result, kpis = run_case(scenario, R1C1Model(), R1C1Model(), horizon=horizon, log_every=0)
+    published = PUBLISHED[horizon]
+    worse_energy = kpis['energy_kwh'] > 1.03 * published['energy_kwh']
+    worse_comfort = kpis['discomfort_kh_hourly'] > 1.03 * published['discomfort_kh_hourly']
+    assert not (worse_energy and worse_comfort), kpis
+    assert kpis['solver_failures'] == 0
+    assert result.steps['max_defect'].max() <= 1e-6
+    assert kpis['steps'] == 72
+
+
+def test_case_command_writes_outputs(tmp_path):
+    out = tmp_path / 'case'
+    assert case_main(['synthetic', '--horizon', '3', '--hours', '6', '--out', str(out)]) == 0
+    kpis = json.loads((out / 'kpis.json').read_text())
+    for key in ('energy_kwh', 'heating_kwh', 'cooling_kwh', 'discomfort_kh',
+                'discomfort_kh_hourly', 'steps', 'horizon_h', 'wall_s', 'solve_s_median',
+                'solver_failures'):
+        assert key in kpis
+    assert kpis['steps'] == 6
+    assert (out / 'plot.png').stat().st_size > 10_000
+    traj = pd.read_csv(out / 'trajectories.csv')
+    assert len(traj) == 6 * 60 + 1
+
+
+def test_case_command_reports_bad_data_path(tmp_path, caplog):
+    assert case_main(['ou44', '--data', str(tmp_path / 'nope.csv'), '--out',
+                      str(tmp_path)]) == 2
+    assert 'not found' in caplog.text
