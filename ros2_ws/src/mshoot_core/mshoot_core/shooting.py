@@ -21,13 +21,17 @@ import time
 from typing import Callable, Sequence
 
 import numpy as np
+import pandas as pd
 from scipy import optimize
 
 from mshoot_core.models.base import IntervalJacobians, Model
+from mshoot_core.sensitivities import finite_difference_jacobians
 from mshoot_core.solvers import Nlp, Solver
 
 logger = logging.getLogger(__name__)
 
+#: Evaluation modes of :class:`ShootingProblem`.
+MODES = ('fast', 'naive')
 #: Penalties of the least-violation phase on normalised slack: linear (dominant) and
 #: quadratic (keeps the phase-1 problem well posed).
 LEAST_VIOLATION_LINEAR = 1e3
@@ -159,6 +163,14 @@ class ShootingProblem:
     fd_step : float, optional
         Finite-difference step on normalised variables (default from the
         model's ``tolerance`` attribute: max(1e-7, sqrt(tolerance))).
+    mode : {'fast', 'naive'}
+        'fast': batched, cached, structured sensitivities (analytic where the
+        model has them). 'naive': the ancestor's algorithm, kept as a
+        side-by-side baseline: every objective and constraint evaluation
+        simulates all intervals one by one through ``simulate`` (DataFrames in
+        the loop, nothing cached, objective and constraints simulated
+        separately), and the solver estimates dense Jacobians over all
+        variables with SciPy's default finite differences.
     """
 
     def __init__(self, model: Model, *, control_names: Sequence[str] = ('q',),
@@ -169,7 +181,8 @@ class ShootingProblem:
                  state_scaling: Scaling | None = None,
                  output_nominal: Sequence[float] | None = None,
                  soft_bounds: bool = False, soft_penalty: float = 1e3,
-                 soft_penalty_linear: float = 0.0, energy_epsilon: float = 1e-3, fd_step: float | None = None) -> None:
+                 soft_penalty_linear: float = 0.0, energy_epsilon: float = 1e-3,
+                 fd_step: float | None = None, mode: str = 'fast') -> None:
         if not isinstance(model, Model):
             raise TypeError(f'model must be a mshoot_core Model, got {type(model).__name__}')
         unknown = [c for c in control_names if c not in model.input_names]
@@ -192,6 +205,9 @@ class ShootingProblem:
             raise TypeError(f'cost must be a string or a callable, got {type(cost).__name__}')
         if not soft_penalty > 0:
             raise ValueError(f'soft_penalty must be > 0, got {soft_penalty}')
+        if mode not in MODES:
+            raise ValueError(f'mode must be one of {MODES}, got {mode!r}')
+        self.mode = mode
         self.model = model
         self.control_names = tuple(control_names)
         self.control_cols = [model.input_names.index(c) for c in self.control_names]
@@ -237,7 +253,8 @@ class ShootingProblem:
 
         Uses the model's analytic ``interval_jacobians`` where it has them,
         otherwise forward finite differences on normalised variables, all
-        perturbations in one ``simulate_intervals`` call.
+        perturbations in one ``simulate_intervals`` call, columns grouped by the
+        model's declared sparsity (:mod:`mshoot_core.sensitivities`).
         """
         u = self._full_inputs(controls, disturbances)
         if sensitivities:
@@ -245,46 +262,17 @@ class ShootingProblem:
             if jac is not None:
                 self.model_evaluations += x_start.shape[0]
                 return jac
-        n, nx = x_start.shape
-        nc = controls.shape[1]
         if not sensitivities:
             x_end, y_end = self.model.simulate_intervals(x_start, u, self.step_s)
-            self.model_evaluations += n
-            empty = np.zeros((n, 0, 0))
+            self.model_evaluations += x_start.shape[0]
+            empty = np.zeros((x_start.shape[0], 0, 0))
             return IntervalJacobians(x_end, y_end, empty, empty, empty, empty)
-        h = self.fd_step
-        x_scale = self._x_scaling.scale
-        u_scale = self.control_scaling.scale
-        batch_x = [x_start]
-        batch_u = [u]
-        for i in range(nx):
-            xp = x_start.copy()
-            xp[:, i] += h * x_scale[i]
-            batch_x.append(xp)
-            batch_u.append(u)
-        for j, col in enumerate(self.control_cols):
-            up = u.copy()
-            step = h * u_scale[j]
-            # step inwards at the upper bound so the model is never driven past its limits
-            up[:, col] = np.where(up[:, col] + step <= self.control_bounds[j, 1],
-                                  up[:, col] + step, up[:, col] - step)
-            batch_x.append(x_start)
-            batch_u.append(up)
-        x_all, y_all = self.model.simulate_intervals(np.vstack(batch_x), np.vstack(batch_u),
-                                                     self.step_s)
-        self.model_evaluations += x_all.shape[0]
-        x_all = x_all.reshape(1 + nx + nc, n, nx)
-        y_all = y_all.reshape(1 + nx + nc, n, -1)
-        x_end, y_end = x_all[0], y_all[0]
-        dx_dx0 = np.stack([(x_all[1 + i] - x_end) / (h * x_scale[i]) for i in range(nx)], -1)
-        dy_dx0 = np.stack([(y_all[1 + i] - y_end) / (h * x_scale[i]) for i in range(nx)], -1)
-        signs = np.stack([np.where(u[:, col] + h * u_scale[j] <= self.control_bounds[j, 1],
-                                   1.0, -1.0) for j, col in enumerate(self.control_cols)], -1)
-        dx_du = np.stack([(x_all[1 + nx + j] - x_end) / (signs[:, j:j + 1] * h * u_scale[j])
-                          for j in range(nc)], -1)
-        dy_du = np.stack([(y_all[1 + nx + j] - y_end) / (signs[:, j:j + 1] * h * u_scale[j])
-                          for j in range(nc)], -1)
-        return IntervalJacobians(x_end, y_end, dx_dx0, dx_du, dy_dx0, dy_du)
+        jac, spent = finite_difference_jacobians(
+            self.model, x_start, u, self.step_s, self.control_cols,
+            self.fd_step * self._x_scaling.scale, self.fd_step * self.control_scaling.scale,
+            self.control_bounds[:, 1], self.model.jacobian_sparsity(self.control_cols))
+        self.model_evaluations += spent
+        return jac
 
     # -- the NLP ---------------------------------------------------------------------------
     def _state_scaling_for(self, lower: np.ndarray, upper: np.ndarray) -> Scaling:
@@ -539,6 +527,8 @@ class ShootingProblem:
         nlp = Nlp(fun=fun, grad=grad, eq_fun=eq_fun, eq_jac=eq_jac, lb=lb, ub=ub,
                   ineq_fun=ineq_fun, ineq_jac=ineq_jac, eq_sparsity=eq_sparsity,
                   ineq_sparsity=ineq_sparsity)
+        if self.mode == 'naive':
+            nlp = self._naive_nlp(nlp, idx, x0, disturbances, fun)
         try:
             raw = solver.solve(nlp, np.asarray(z0, dtype=float))
             z = np.asarray(raw.x, dtype=float)
@@ -565,6 +555,40 @@ class ShootingProblem:
             simulated_states=np.vstack([x0[None, :], jac.x_end]),
             solve_time_s=0.0, model_evaluations=0)
         return result
+
+    def simulate_serially(self, x_start: np.ndarray, controls: np.ndarray,
+                          disturbances: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Interval end states and outputs, one ``simulate`` call (DataFrames) per interval."""
+        u = self._full_inputs(controls, disturbances)
+        x_end = np.empty_like(x_start)
+        y_end = np.empty((x_start.shape[0], len(self.model.output_names)))
+        for k in range(x_start.shape[0]):
+            udf = pd.DataFrame(np.vstack([u[k], u[k]]), index=[0.0, self.step_s],
+                               columns=list(self.model.input_names))
+            ydf, xdf = self.model.simulate(udf, x_start[k])
+            x_end[k] = xdf.to_numpy()[-1]
+            y_end[k] = ydf.to_numpy()[-1]
+        self.model_evaluations += x_start.shape[0]
+        return x_end, y_end
+
+    def _naive_nlp(self, nlp: Nlp, idx: NlpIndex, x0: np.ndarray, disturbances: np.ndarray,
+                   fast_fun: Callable[[np.ndarray], float]) -> Nlp:
+        """The ancestor's evaluation: serial simulations, no cache, no derivatives."""
+        xs, us = self._x_scaling, self.control_scaling
+
+        def simulate(z: np.ndarray) -> np.ndarray:
+            x_start = np.vstack([x0[None, :], xs.from_hat(idx.x(z)[:-1])])
+            return self.simulate_serially(x_start, us.from_hat(idx.u(z)), disturbances)[0]
+
+        def fun(z: np.ndarray) -> float:
+            simulate(z)  # the original simulated the horizon for the cost as well
+            return fast_fun(z)
+
+        def eq_fun(z: np.ndarray) -> np.ndarray:
+            return (xs.to_hat(simulate(z)) - idx.x(z)).reshape(-1)
+
+        return dataclasses.replace(nlp, fun=fun, grad=None, eq_fun=eq_fun, eq_jac=None,
+                                   ineq_jac=None)
 
     def _cost_functions(self, evaluate: Callable[[np.ndarray], IntervalJacobians],
                         idx: NlpIndex) -> tuple[Callable[[np.ndarray], float],

@@ -33,9 +33,11 @@ class Nlp:
     Attributes
     ----------
     fun, grad : callables
-        Objective f(z) -> float and its gradient -> (n,).
+        Objective f(z) -> float and its gradient -> (n,) (None: the solver
+        estimates it by finite differences, where it can).
     eq_fun, eq_jac : callables
-        Equality constraints c_eq(z) -> (m_eq,) and Jacobian -> (m_eq, n).
+        Equality constraints c_eq(z) -> (m_eq,) and Jacobian -> (m_eq, n)
+        (None: estimated by the solver).
     ineq_fun, ineq_jac : callables or None
         Inequality constraints c_ineq(z) >= 0 -> (m_in,) and Jacobian.
     lb, ub : ndarray, shape (n,)
@@ -45,9 +47,9 @@ class Nlp:
     """
 
     fun: Callable[[Vector], float]
-    grad: Callable[[Vector], Vector]
+    grad: Callable[[Vector], Vector] | None
     eq_fun: Callable[[Vector], Vector]
-    eq_jac: Callable[[Vector], Matrix]
+    eq_jac: Callable[[Vector], Matrix] | None
     lb: Vector
     ub: Vector
     ineq_fun: Callable[[Vector], Vector] | None = None
@@ -82,9 +84,9 @@ class SlsqpSolver(Solver):
     name = 'slsqp'
 
     def solve(self, nlp: Nlp, z0: Vector) -> optimize.OptimizeResult:
-        constraints = [{'type': 'eq', 'fun': nlp.eq_fun, 'jac': nlp.eq_jac}]
+        constraints = [_scipy_constraint('eq', nlp.eq_fun, nlp.eq_jac)]
         if nlp.ineq_fun is not None:
-            constraints.append({'type': 'ineq', 'fun': nlp.ineq_fun, 'jac': nlp.ineq_jac})
+            constraints.append(_scipy_constraint('ineq', nlp.ineq_fun, nlp.ineq_jac))
         bounds = optimize.Bounds(nlp.lb, nlp.ub)
         z0 = np.clip(z0, nlp.lb, nlp.ub)
         res = optimize.minimize(nlp.fun, z0, jac=nlp.grad, bounds=bounds,
@@ -94,6 +96,14 @@ class SlsqpSolver(Solver):
         return res
 
 
+def _scipy_constraint(kind: str, fun: Callable, jac: Callable | None) -> dict:
+    """A SciPy constraint dict; without ``jac`` SciPy estimates it by finite differences."""
+    constraint = {'type': kind, 'fun': fun}
+    if jac is not None:
+        constraint['jac'] = jac
+    return constraint
+
+
 class TrustConstrSolver(Solver):
     """SciPy's trust-constr with sparse constraint Jacobians."""
 
@@ -101,16 +111,19 @@ class TrustConstrSolver(Solver):
 
     def solve(self, nlp: Nlp, z0: Vector) -> optimize.OptimizeResult:
         n_eq = nlp.eq_fun(z0).size
+        def sparse_jac(jac: Callable | None) -> Callable | str:
+            return '2-point' if jac is None else (lambda z: sparse.csr_matrix(jac(z)))
         constraints = [optimize.NonlinearConstraint(
-            nlp.eq_fun, np.zeros(n_eq), np.zeros(n_eq),
-            jac=lambda z: sparse.csr_matrix(nlp.eq_jac(z)), hess=optimize.BFGS())]
+            nlp.eq_fun, np.zeros(n_eq), np.zeros(n_eq), jac=sparse_jac(nlp.eq_jac),
+            hess=optimize.BFGS())]
         if nlp.ineq_fun is not None:
             n_in = nlp.ineq_fun(z0).size
             constraints.append(optimize.NonlinearConstraint(
                 nlp.ineq_fun, np.zeros(n_in), np.full(n_in, np.inf),
-                jac=lambda z: sparse.csr_matrix(nlp.ineq_jac(z)), hess=optimize.BFGS()))
+                jac=sparse_jac(nlp.ineq_jac), hess=optimize.BFGS()))
         z0 = np.clip(z0, nlp.lb, nlp.ub)
-        res = optimize.minimize(nlp.fun, z0, jac=nlp.grad, hess=optimize.BFGS(),
+        res = optimize.minimize(nlp.fun, z0, jac=nlp.grad if nlp.grad is not None else '2-point',
+                                hess=optimize.BFGS(),
                                 bounds=optimize.Bounds(nlp.lb, nlp.ub),
                                 constraints=constraints, method='trust-constr',
                                 options={'maxiter': self.max_iter, 'gtol': self.tol,
@@ -135,6 +148,8 @@ class IpoptSolver(Solver):
         self.options = dict(options or {})
 
     def solve(self, nlp: Nlp, z0: Vector) -> optimize.OptimizeResult:
+        if nlp.grad is None or nlp.eq_jac is None:
+            raise ValueError('IPOPT needs derivatives: use mode "fast" or the slsqp solver')
         import cyipopt
         n = z0.size
         eq_pattern = (nlp.eq_sparsity if nlp.eq_sparsity is not None

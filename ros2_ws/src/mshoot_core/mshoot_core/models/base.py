@@ -169,3 +169,15 @@ class Model(abc.ABC):
             Column indices of ``u`` to differentiate with respect to.
         """
         return None
+
+    def jacobian_sparsity(self, wrt_inputs: Sequence[int]) -> np.ndarray | None:
+        """Structure of one interval's Jacobian, or None for dense.
+
+        Returns
+        -------
+        ndarray of bool, shape (nx + ny, nx + len(wrt_inputs)), or None
+            True where d(x_end, y_end)/d(x_start, u[wrt_inputs]) may be
+            non-zero. Models of weakly coupled parts (e.g. independent zones)
+            declare it so finite differences perturb many columns at once.
+        """
+        return None
