@@ -22,7 +22,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 import pandas as pd
-from scipy import optimize
+from scipy import optimize, sparse
 
 from mshoot_core.models.base import IntervalJacobians, Model
 from mshoot_core.sensitivities import finite_difference_jacobians
@@ -456,21 +456,20 @@ class ShootingProblem:
             jac = evaluate(z)
             return (xs.to_hat(jac.x_end) - idx.x(z)).reshape(-1)
 
-        def eq_jac(z: np.ndarray) -> np.ndarray:
+        structure = ContinuityStructure(idx, self.model.jacobian_sparsity(self.control_cols))
+
+        def eq_jac(z: np.ndarray) -> sparse.coo_array:
             jac = evaluate(z)
-            out = np.zeros((n * nx, idx.size))
-            for k in range(n):
-                rows = slice(k * nx, (k + 1) * nx)
-                # d x_hat_end / d u_hat = diag(1/x_scale) dF/du diag(u_scale)
-                out[rows, _block(idx.u_slice, k, idx.n_controls)] = (
-                    jac.dx_du[k] / xs.scale[:, None] * us.scale[None, :])
-                out[rows, _block(idx.x_slice, k, nx)] = -np.eye(nx)
-                if k > 0:
-                    out[rows, _block(idx.x_slice, k - 1, nx)] = (
-                        jac.dx_dx0[k] / xs.scale[:, None] * xs.scale[None, :])
-            return out
+            return structure.matrix(jac.dx_du, jac.dx_dx0, xs.scale, us.scale)
 
         cost_fun, cost_grad = self._cost_functions(evaluate, idx)
+        cost_hess = self._cost_hessian_diag(idx)
+
+        def hess_diag(z: np.ndarray) -> np.ndarray | None:
+            h = cost_hess(z)
+            if idx.soft:
+                h[idx.s_slice] += 2.0 * penalty_quadratic
+            return h
 
         def fun(z: np.ndarray) -> float:
             value = cost_fun(z)
@@ -491,7 +490,6 @@ class ShootingProblem:
         lb[idx.u_slice] = np.tile(u_lo, n)
         ub[idx.u_slice] = np.tile(u_hi, n)
         ineq_fun = ineq_jac = None
-        ineq_sparsity = None
         if idx.soft:
             lb[idx.s_slice] = 0.0
             finite_lo = np.isfinite(lower_hat).reshape(-1)
@@ -504,29 +502,19 @@ class ShootingProblem:
                                        (upper_hat.reshape(-1) - x_hat + s_hat)[finite_hi]])
 
             eye = np.eye(n * nx)
-            jac_const = np.vstack([
+            jac_const = sparse.coo_array(np.vstack([
                 np.hstack([np.zeros((n * nx, idx.x_slice.start)), eye, eye])[finite_lo],
-                np.hstack([np.zeros((n * nx, idx.x_slice.start)), -eye, eye])[finite_hi]])
+                np.hstack([np.zeros((n * nx, idx.x_slice.start)), -eye, eye])[finite_hi]]))
 
-            def ineq_jac(z: np.ndarray) -> np.ndarray:
+            def ineq_jac(z: np.ndarray) -> sparse.coo_array:
                 return jac_const
-
-            ineq_sparsity = jac_const != 0
         else:
             lb[idx.x_slice] = lower_hat.reshape(-1)
             ub[idx.x_slice] = upper_hat.reshape(-1)
 
-        eq_sparsity = np.zeros((n * nx, idx.size), bool)
-        for k in range(n):
-            rows = slice(k * nx, (k + 1) * nx)
-            eq_sparsity[rows, _block(idx.u_slice, k, idx.n_controls)] = True
-            eq_sparsity[rows, _block(idx.x_slice, k, nx)] = True
-            if k > 0:
-                eq_sparsity[rows, _block(idx.x_slice, k - 1, nx)] = True
-
         nlp = Nlp(fun=fun, grad=grad, eq_fun=eq_fun, eq_jac=eq_jac, lb=lb, ub=ub,
-                  ineq_fun=ineq_fun, ineq_jac=ineq_jac, eq_sparsity=eq_sparsity,
-                  ineq_sparsity=ineq_sparsity)
+                  ineq_fun=ineq_fun, ineq_jac=ineq_jac,
+                  objective_hessian_diag=hess_diag if cost_hess is not None else None)
         if self.mode == 'naive':
             nlp = self._naive_nlp(nlp, idx, x0, disturbances, fun)
         try:
@@ -589,6 +577,24 @@ class ShootingProblem:
 
         return dataclasses.replace(nlp, fun=fun, grad=None, eq_fun=eq_fun, eq_jac=None,
                                    ineq_jac=None)
+
+    def _cost_hessian_diag(self, idx: NlpIndex) -> Callable[[np.ndarray], np.ndarray] | None:
+        """Diagonal Hessian of a built-in cost in the NLP variables (None for user costs)."""
+        if self.cost == 'quadratic':
+            def hess(z: np.ndarray) -> np.ndarray:
+                h = np.zeros(idx.size)
+                h[idx.u_slice] = 2.0
+                return h
+            return hess
+        if self.cost == 'energy':
+            eps = self.energy_epsilon
+
+            def hess(z: np.ndarray) -> np.ndarray:
+                h = np.zeros(idx.size)
+                h[idx.u_slice] = eps ** 2 / (z[idx.u_slice] ** 2 + eps ** 2) ** 1.5
+                return h
+            return hess
+        return None
 
     def _cost_functions(self, evaluate: Callable[[np.ndarray], IntervalJacobians],
                         idx: NlpIndex) -> tuple[Callable[[np.ndarray], float],
@@ -657,6 +663,50 @@ class ShootingProblem:
             return g
         del xs
         return cost, grad
+
+
+class ContinuityStructure:
+    """Sparse structure and values of the continuity-constraint Jacobian.
+
+    Row block k (the nx continuity equations of interval k) has the entries
+    d x_hat_end_k / d u_hat_k (the model's declared pattern), -I on x_hat_k,
+    and, for k > 0, d x_hat_end_k / d x_hat_{k-1}: block-bidiagonal. The
+    row/column arrays are fixed, so sparse solvers get one structure and
+    fresh values at each call.
+
+    Parameters
+    ----------
+    idx : NlpIndex
+    pattern : ndarray of bool, shape (nx + ny, nx + nc), or None
+        The model's interval Jacobian structure (None: dense blocks).
+    """
+
+    def __init__(self, idx: NlpIndex, pattern: np.ndarray | None) -> None:
+        n, nx, nc = idx.n_intervals, idx.n_states, idx.n_controls
+        if pattern is None:
+            pattern = np.ones((nx, nx + nc), bool)
+        self.x_rows, self.x_cols = np.nonzero(np.asarray(pattern)[:nx, :nx])
+        self.u_rows, self.u_cols = np.nonzero(np.asarray(pattern)[:nx, nx:nx + nc])
+        k = np.arange(n)[:, None]
+        rows = [(k * nx + self.u_rows).ravel(),
+                (k * nx + np.arange(nx)).ravel(),
+                (k[1:] * nx + self.x_rows).ravel()]
+        cols = [(idx.u_slice.start + k * nc + self.u_cols).ravel(),
+                (idx.x_slice.start + k * nx + np.arange(nx)).ravel(),
+                (idx.x_slice.start + (k[1:] - 1) * nx + self.x_cols).ravel()]
+        self.rows = np.concatenate(rows)
+        self.cols = np.concatenate(cols)
+        self.shape = (n * nx, idx.size)
+        self.minus_ones = -np.ones(n * nx)
+
+    def matrix(self, dx_du: np.ndarray, dx_dx0: np.ndarray, x_scale: np.ndarray,
+               u_scale: np.ndarray) -> sparse.coo_array:
+        """The Jacobian (normalised variables) from the interval sensitivities."""
+        du = dx_du[:, self.u_rows, self.u_cols] * (u_scale[self.u_cols] / x_scale[self.u_rows])
+        dx = dx_dx0[1:, self.x_rows, self.x_cols] * (x_scale[self.x_cols]
+                                                     / x_scale[self.x_rows])
+        data = np.concatenate([du.ravel(), self.minus_ones, dx.ravel()])
+        return sparse.coo_array((data, (self.rows, self.cols)), shape=self.shape)
 
 
 def _block(part: slice, k: int, width: int) -> slice:

@@ -36,14 +36,19 @@ class Nlp:
         Objective f(z) -> float and its gradient -> (n,) (None: the solver
         estimates it by finite differences, where it can).
     eq_fun, eq_jac : callables
-        Equality constraints c_eq(z) -> (m_eq,) and Jacobian -> (m_eq, n)
-        (None: estimated by the solver).
+        Equality constraints c_eq(z) -> (m_eq,) and Jacobian -> sparse
+        (m_eq, n) ``scipy.sparse.coo_array`` whose row/column arrays are the
+        same at every call (None: estimated by the solver).
     ineq_fun, ineq_jac : callables or None
-        Inequality constraints c_ineq(z) >= 0 -> (m_in,) and Jacobian.
+        Inequality constraints c_ineq(z) >= 0 -> (m_in,) and Jacobian (as eq_jac).
     lb, ub : ndarray, shape (n,)
         Variable bounds (may be +-inf).
-    eq_sparsity, ineq_sparsity : ndarray of bool or None
-        Structural non-zeros of the constraint Jacobians.
+    objective_hessian_diag : callable or None
+        Diagonal of the objective's Hessian -> (n,), when the objective is
+        separable. Solvers that take a Hessian use it as the Hessian of the
+        Lagrangian, which is exact when the constraints are affine (e.g. the
+        R1C1 zones: interval end states are affine in start state and heat
+        rate) and a Gauss-Newton-like approximation otherwise.
     """
 
     fun: Callable[[Vector], float]
@@ -54,8 +59,7 @@ class Nlp:
     ub: Vector
     ineq_fun: Callable[[Vector], Vector] | None = None
     ineq_jac: Callable[[Vector], Matrix] | None = None
-    eq_sparsity: np.ndarray | None = None
-    ineq_sparsity: np.ndarray | None = None
+    objective_hessian_diag: Callable[[Vector], Vector] | None = None
 
 
 class Solver(abc.ABC):
@@ -97,10 +101,11 @@ class SlsqpSolver(Solver):
 
 
 def _scipy_constraint(kind: str, fun: Callable, jac: Callable | None) -> dict:
-    """A SciPy constraint dict; without ``jac`` SciPy estimates it by finite differences."""
+    """A SciPy (SLSQP) constraint dict with a dense Jacobian; without ``jac`` SciPy
+    estimates it by finite differences."""
     constraint = {'type': kind, 'fun': fun}
     if jac is not None:
-        constraint['jac'] = jac
+        constraint['jac'] = lambda z: jac(z).toarray()
     return constraint
 
 
@@ -112,7 +117,7 @@ class TrustConstrSolver(Solver):
     def solve(self, nlp: Nlp, z0: Vector) -> optimize.OptimizeResult:
         n_eq = nlp.eq_fun(z0).size
         def sparse_jac(jac: Callable | None) -> Callable | str:
-            return '2-point' if jac is None else (lambda z: sparse.csr_matrix(jac(z)))
+            return '2-point' if jac is None else (lambda z: sparse.csr_array(jac(z)))
         constraints = [optimize.NonlinearConstraint(
             nlp.eq_fun, np.zeros(n_eq), np.zeros(n_eq), jac=sparse_jac(nlp.eq_jac),
             hess=optimize.BFGS())]
@@ -152,16 +157,20 @@ class IpoptSolver(Solver):
             raise ValueError('IPOPT needs derivatives: use mode "fast" or the slsqp solver')
         import cyipopt
         n = z0.size
-        eq_pattern = (nlp.eq_sparsity if nlp.eq_sparsity is not None
-                      else np.ones((nlp.eq_fun(z0).size, n), bool))
-        blocks = [eq_pattern]
-        if nlp.ineq_fun is not None:
-            blocks.append(nlp.ineq_sparsity if nlp.ineq_sparsity is not None
-                          else np.ones((nlp.ineq_fun(z0).size, n), bool))
-        pattern = np.vstack(blocks)
-        rows, cols = np.nonzero(pattern)
-        n_eq = eq_pattern.shape[0]
-        counter = {'nfev': 0}
+        z_start = np.clip(z0, nlp.lb, nlp.ub)
+        jacobians = [nlp.eq_jac] + ([nlp.ineq_jac] if nlp.ineq_fun is not None else [])
+        offsets, row_parts, col_parts = [0], [], []
+        for jac in jacobians:
+            structure = jac(z_start)
+            row_parts.append(structure.row + offsets[-1])
+            col_parts.append(structure.col)
+            offsets.append(offsets[-1] + structure.shape[0])
+        rows, cols = np.concatenate(row_parts), np.concatenate(col_parts)
+        m, n_eq = offsets[-1], offsets[1]
+        counter = {'nfev': 0, 'nit': 0}
+        use_hessian = (nlp.objective_hessian_diag is not None
+                       and 'hessian_approximation' not in self.options)
+        diag = np.arange(n)
 
         class _Problem:
             def objective(self, z):
@@ -178,15 +187,21 @@ class IpoptSolver(Solver):
                 return np.concatenate(parts)
 
             def jacobian(self, z):
-                parts = [nlp.eq_jac(z)]
-                if nlp.ineq_fun is not None:
-                    parts.append(nlp.ineq_jac(z))
-                return np.vstack(parts)[rows, cols]
+                return np.concatenate([jac(z).data for jac in jacobians])
 
             def jacobianstructure(self):
                 return rows, cols
 
-        m = pattern.shape[0]
+            def hessianstructure(self):
+                return diag, diag
+
+            def hessian(self, z, lagrange, obj_factor):
+                return obj_factor * nlp.objective_hessian_diag(z)
+
+            def intermediate(self, *args):
+                counter['nit'] = int(args[1])
+                return True
+
         cu = np.zeros(m)
         cu[n_eq:] = 2e19
         lb = np.where(np.isfinite(nlp.lb), nlp.lb, -2e19)
@@ -197,18 +212,18 @@ class IpoptSolver(Solver):
         problem.add_option('sb', 'yes')
         problem.add_option('max_iter', self.max_iter)
         problem.add_option('tol', self.tol)
-        problem.add_option('hessian_approximation', 'limited-memory')
+        problem.add_option('hessian_approximation', 'exact' if use_hessian else 'limited-memory')
         problem.add_option('mu_strategy', 'adaptive')
         for key, value in self.options.items():
             problem.add_option(key, value)
         start = time.perf_counter()
-        z, info = problem.solve(np.clip(z0, nlp.lb, nlp.ub))
+        z, info = problem.solve(z_start)
         status = int(info['status'])
         return optimize.OptimizeResult(
             x=z, fun=float(info['obj_val']), success=status in (0, 1), status=status,
             message=info['status_msg'].decode() if isinstance(info['status_msg'], bytes)
             else str(info['status_msg']),
-            nit=int(getattr(problem, 'iterations', 0) or 0), nfev=counter['nfev'],
+            nit=counter['nit'], nfev=counter['nfev'],
             wall_s=time.perf_counter() - start)
 
 

@@ -32,6 +32,9 @@ AIR_HEAT_PER_M3H = 1206.0 / 3600.0
 class R1C1Parameters:
     """Parameters of the R1C1 zone (defaults: the calibrated OU44 classroom).
 
+    Each field may also be an array of per-zone values (see
+    :class:`mshoot_core.models.multizone.MultiZoneModel`).
+
     Attributes
     ----------
     tmass : float
@@ -61,10 +64,10 @@ class R1C1Parameters:
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):
             value = getattr(self, field.name)
-            if not np.isfinite(value):
+            if not np.all(np.isfinite(value)):
                 raise ValueError(f'R1C1 parameter {field.name} must be finite, got {value}')
         for name in ('tmass', 'RExt', 'Vi'):
-            if getattr(self, name) <= 0:
+            if np.any(np.asarray(getattr(self, name)) <= 0):
                 raise ValueError(f'R1C1 parameter {name} must be > 0, got {getattr(self, name)}')
 
     @property
@@ -94,9 +97,9 @@ class R1C1Model(Model):
         self.parameters = parameters or R1C1Parameters()
 
     def affine_coefficients(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Return (f [W], g [W/K]) with C dT/dt = f - g*T for inputs ``u`` (B, 5)."""
+        """Return (f [W], g [W/K]) with C dT/dt = f - g*T for inputs ``u`` (..., 5)."""
         p = self.parameters
-        solrad, tout, occ, dpos, q = (u[:, i] for i in range(5))
+        solrad, tout, occ, dpos, q = (u[..., i] for i in range(5))
         occ_slope = p.occheff * occ * OCC_HEAT_W / OCC_HEAT_SPAN_K
         vent = AIR_HEAT_PER_M3H * p.maxVent * dpos / 100.0
         g = 1.0 / p.resistance_k_w + occ_slope + vent
