@@ -11,6 +11,7 @@ built-in scenario, which needs no data file.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import pathlib
@@ -36,7 +37,9 @@ logger = logging.getLogger(__name__)
 #: Published results of the original (72 h, FMU tolerance 1e-11): SPEC section 3.
 PUBLISHED = {2: {'energy_kwh': 40.9, 'discomfort_kh_hourly': 17.9, 'wall_s': 116.0},
              10: {'energy_kwh': 44.0, 'discomfort_kh_hourly': 13.1, 'wall_s': 3485.0}}
-CONTROL_MODELS = ('python', 'fmu', 'fmu-cs', 'svr')
+#: Data-driven control models (scikit-learn estimators trained as in Setup 2).
+DATA_DRIVEN = ('svr', 'linear', 'ridge', 'knn', 'random_forest', 'mlp')
+CONTROL_MODELS = ('python', 'fmu', 'fmu-cs') + DATA_DRIVEN
 R1C1_INPUTS = ('solrad', 'Tout', 'occ', 'dpos', 'q')
 DEFAULT_DATA = pathlib.Path(__file__).resolve().parents[4] / '..' / 'shared' / 'data' / 'ou44' \
     / 'measurements.csv'
@@ -80,9 +83,10 @@ def control_model(kind: str, tolerance: float = 1e-6, data: str | pathlib.Path |
 
     Parameters
     ----------
-    kind : {'python', 'fmu', 'fmu-cs', 'svr'}
+    kind : {'python', 'fmu', 'fmu-cs', 'svr', 'linear', 'ridge', 'knn', 'random_forest', 'mlp'}
         The exact Python R1C1, the R1C1 FMU (Model Exchange at ``tolerance``,
-        or Co-Simulation), or the SVR model of Setup 2 (needs ``data``).
+        or Co-Simulation), or a scikit-learn model trained as in Setup 2 (SVR is
+        Setup 2 itself; needs ``data``).
     report : dict, optional
         Filled with the training/validation report of data-driven models.
     """
@@ -92,13 +96,17 @@ def control_model(kind: str, tolerance: float = 1e-6, data: str | pathlib.Path |
         return r1c1_fmu_model(tolerance, 'ModelExchange')
     if kind == 'fmu-cs':
         return r1c1_fmu_model(tolerance, 'CoSimulation')
-    if kind == 'svr':
+    if kind in DATA_DRIVEN:
         if data is None:
-            raise ValueError('--control svr needs --data (it trains on the OU44 disturbances)')
+            raise ValueError(f'--control {kind} needs --data (it trains on the OU44 '
+                             'disturbances)')
         from mshoot_core.models.sklearn_model import train_setup2
-        model, training = train_setup2(data, estimator='svr')
+        model, training = train_setup2(data, estimator=kind)
+        logger.info('%s trained: validation RMSE %.3f K free run, %.4f K one step', kind,
+                    training.rmse_free_run_k, training.rmse_one_step_k)
         if report is not None:
-            report.update(training)
+            report.update({f.name: getattr(training, f.name)
+                           for f in dataclasses.fields(training) if f.name != 'validation'})
         return model
     raise ValueError(f'unknown control model {kind!r}; choose one of {list(CONTROL_MODELS)}')
 
@@ -146,7 +154,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--horizon', type=int, default=10, help='MPC horizon [h] (default 10)')
     parser.add_argument('--control', choices=CONTROL_MODELS, default='python',
                         help='control model: exact Python R1C1, R1C1 FMU (Model Exchange '
-                             'or Co-Simulation), or the SVR of Setup 2 (default python)')
+                             'or Co-Simulation), or a scikit-learn model trained on R1C1 '
+                             'responses as in Setup 2 (svr is Setup 2; default python)')
     parser.add_argument('--emulator', choices=('python', 'fmu', 'fmu-cs'), default='python',
                         help='emulation model (default python: the exact R1C1)')
     parser.add_argument('--tolerance', type=float, default=1e-6,

@@ -36,7 +36,7 @@ def plot_closed_loop(fine: pd.DataFrame, steps: pd.DataFrame, path: str | pathli
                       color='tab:green', alpha=0.15, label='comfort band')
     ax_t.plot(hours, fine[temperature_column], color='tab:red', lw=1.5, label='zone T')
     ax_t.set_ylabel('temperature [°C]')
-    ax_t.legend(loc='upper right')
+    ax_t.legend(loc='lower left', framealpha=0.9)
     ax_t.grid(alpha=0.3)
     step_hours = steps.index.to_numpy(dtype=float) / 3600.0
     q_kw = steps[control].to_numpy(dtype=float) / 1000.0
