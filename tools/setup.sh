@@ -27,7 +27,14 @@ else
   log "requirements unchanged, skipping install"
 fi
 
-# 2. The workspace (colcon, symlink install: Python edits are live without a rebuild).
+# 2. The FMUs: compile the R1C1 FMU (gcc) into the cache, $MSHOOT_FMU_DIR or ~/.cache/mshoot/fmu,
+#    under a hash of its sources; a quick no-op when that build is already there.
+fmu=$(PYTHONPATH="$root/ros2_ws/src/mshoot_core${PYTHONPATH:+:$PYTHONPATH}" \
+  "$venv/bin/python" -m mshoot_core.fmu_build --cache r1c1) \
+  || { echo "[setup] error: building the R1C1 FMU failed (gcc is required)" >&2; exit 1; }
+log "R1C1 FMU: $fmu"
+
+# 3. The workspace (colcon, symlink install: Python edits are live without a rebuild).
 src_files=$(find ros2_ws/src -type f \( -name package.xml -o -name setup.py -o -name setup.cfg \
   -o -name CMakeLists.txt -o -name '*.msg' -o -path '*/resource/*' -o -path '*/config/*' \
   -o -path '*/launch/*' -o -path '*/fmu_src/*' \) | LC_ALL=C sort)
