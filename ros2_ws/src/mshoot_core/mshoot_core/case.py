@@ -40,7 +40,6 @@ PUBLISHED = {2: {'energy_kwh': 40.9, 'discomfort_kh_hourly': 17.9, 'wall_s': 116
 #: Data-driven control models (scikit-learn estimators trained as in Setup 2).
 DATA_DRIVEN = ('svr', 'linear', 'ridge', 'knn', 'random_forest', 'mlp')
 CONTROL_MODELS = ('python', 'fmu', 'fmu-cs') + DATA_DRIVEN
-R1C1_INPUTS = ('solrad', 'Tout', 'occ', 'dpos', 'q')
 DEFAULT_DATA = pathlib.Path(__file__).resolve().parents[4] / '..' / 'shared' / 'data' / 'ou44' \
     / 'measurements.csv'
 
@@ -70,11 +69,10 @@ def reference_scenario(name: str, data: str | pathlib.Path | None = None,
 
 
 def r1c1_fmu_model(tolerance: float = 1e-6, fmi_type: str = 'ModelExchange') -> Model:
-    """The built-in R1C1 FMU (built with gcc on first use) as a control or emulation model."""
-    from mshoot_core.fmu_build import r1c1_fmu_path
-    from mshoot_core.models.fmi import FmiModel
-    return FmiModel(r1c1_fmu_path(), inputs=R1C1_INPUTS, states=('T',), outputs=('T', 'Qr'),
-                    tolerance=tolerance, fmi_type=fmi_type)
+    """The built-in R1C1 FMU (built with gcc on first use) as a control or emulation model,
+    with the names of :class:`R1C1Model`."""
+    from mshoot_core.models.fmi import r1c1_fmi_model
+    return r1c1_fmi_model(fmi_type=fmi_type, tolerance=tolerance)
 
 
 def control_model(kind: str, tolerance: float = 1e-6, data: str | pathlib.Path | None = None,

@@ -59,6 +59,8 @@ class MPC:
         Fixed normalisation of the states (default: from the bounds).
     solver_options : dict, optional
         Keyword arguments of the solver (``max_iter``, ``tol``).
+    relaxation : {'two-phase', 'exact-penalty'}
+        Handling of unreachable comfort bounds (see :class:`ShootingProblem`).
     mode : {'fast', 'naive'}
         Evaluation mode (see :class:`ShootingProblem`); 'naive' reproduces the
         ancestor's algorithm as a baseline.
@@ -71,12 +73,13 @@ class MPC:
                  solver: str | Solver = 'slsqp', soft_bounds: bool = False,
                  soft_penalty: float = 1e3, state_scaling: Scaling | None = None,
                  solver_options: dict | None = None, mode: str = 'fast',
-                 **problem_options) -> None:
+                 relaxation: str = 'two-phase', **problem_options) -> None:
         self.problem = ShootingProblem(model, control_names=control_names,
                                        control_bounds=control_bounds,
                                        n_intervals=horizon_steps, step_s=step_s, cost=cost,
                                        soft_bounds=soft_bounds, soft_penalty=soft_penalty,
                                        state_scaling=state_scaling, mode=mode,
+                                       relaxation=relaxation,
                                        **problem_options)
         bounds = ZONE_STATE_BOUNDS if state_bounds is None else dict(state_bounds)
         unknown = [s for s in bounds if s not in model.state_names]

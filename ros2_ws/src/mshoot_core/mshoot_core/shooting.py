@@ -32,6 +32,8 @@ logger = logging.getLogger(__name__)
 
 #: Evaluation modes of :class:`ShootingProblem`.
 MODES = ('fast', 'naive')
+#: Handling of unreachable hard bounds (see :class:`ShootingProblem`).
+RELAXATIONS = ('two-phase', 'exact-penalty')
 #: Penalties of the least-violation phase on normalised slack: linear (dominant) and
 #: quadratic (keeps the phase-1 problem well posed).
 LEAST_VIOLATION_LINEAR = 1e3
@@ -163,6 +165,13 @@ class ShootingProblem:
     fd_step : float, optional
         Finite-difference step on normalised variables (default from the
         model's ``tolerance`` attribute: max(1e-7, sqrt(tolerance))).
+    relaxation : {'two-phase', 'exact-penalty'}
+        How hard bounds that cannot be met are handled: 'two-phase' minimises
+        the violation, relaxes the bounds to it and solves the hard problem
+        again; 'exact-penalty' always solves once with slack and a large linear
+        penalty on the violation (the same plan up to the solver tolerance, in
+        one solve; suits IPOPT on large problems, where a failing hard solve
+        costs as much as a solve).
     mode : {'fast', 'naive'}
         'fast': batched, cached, structured sensitivities (analytic where the
         model has them). 'naive': the ancestor's algorithm, kept as a
@@ -182,7 +191,8 @@ class ShootingProblem:
                  output_nominal: Sequence[float] | None = None,
                  soft_bounds: bool = False, soft_penalty: float = 1e3,
                  soft_penalty_linear: float = 0.0, energy_epsilon: float = 1e-3,
-                 fd_step: float | None = None, mode: str = 'fast') -> None:
+                 fd_step: float | None = None, mode: str = 'fast',
+                 relaxation: str = 'two-phase') -> None:
         if not isinstance(model, Model):
             raise TypeError(f'model must be a mshoot_core Model, got {type(model).__name__}')
         unknown = [c for c in control_names if c not in model.input_names]
@@ -207,6 +217,9 @@ class ShootingProblem:
             raise ValueError(f'soft_penalty must be > 0, got {soft_penalty}')
         if mode not in MODES:
             raise ValueError(f'mode must be one of {MODES}, got {mode!r}')
+        if relaxation not in RELAXATIONS:
+            raise ValueError(f'relaxation must be one of {RELAXATIONS}, got {relaxation!r}')
+        self.relaxation = relaxation
         self.mode = mode
         self.model = model
         self.control_names = tuple(control_names)
@@ -390,7 +403,8 @@ class ShootingProblem:
                                      self.soft_penalty, self.soft_penalty_linear)
             result.relaxed = False
         else:
-            unreachable = relax and self.relax_bounds(x0, disturbances, lower, upper)[2]
+            unreachable = relax and (self.relaxation == 'exact-penalty' or self.relax_bounds(
+                x0, disturbances, lower, upper)[2])
             result = None
             if not unreachable:
                 result = self._solve_nlp(x0, disturbances, lower, upper, solver, z0,
@@ -405,11 +419,18 @@ class ShootingProblem:
     def _solve_least_violation(self, x0: np.ndarray, disturbances: np.ndarray,
                                lower: np.ndarray, upper: np.ndarray, solver: Solver,
                                z0: np.ndarray) -> ShootingResult:
-        """Phase 1: least violation (soft bounds); phase 2: least cost within it."""
+        """Phase 1: least violation (soft bounds, exact linear penalty); phase 2 (two-phase
+        relaxation): least cost within the relaxed bounds."""
         soft = NlpIndex(self.n_intervals, self.index.n_controls, self.index.n_states, True)
         phase1 = self._solve_nlp(x0, disturbances, lower, upper, solver,
                                  soft.pack(self.index.u(z0), self.index.x(z0)), soft,
                                  LEAST_VIOLATION_QUADRATIC, LEAST_VIOLATION_LINEAR)
+        if self.relaxation == 'exact-penalty':
+            # the large linear penalty already made phase 1 lexicographic: keep its plan
+            phase1.x = self.index.pack(soft.u(phase1.x), soft.x(phase1.x))
+            phase1.fun = float(self._cost_functions(lambda z: None, self.index)[0](phase1.x))
+            phase1.relaxed = bool(np.any(phase1.slacks > 1e-6 * self._x_scaling.scale))
+            return phase1
         margin = 1e-6 * self._x_scaling.scale
         reached = phase1.simulated_states[1:]
         relaxed_lower = np.minimum(lower, reached - margin)
@@ -501,10 +522,10 @@ class ShootingProblem:
                 return np.concatenate([(x_hat - lower_hat.reshape(-1) + s_hat)[finite_lo],
                                        (upper_hat.reshape(-1) - x_hat + s_hat)[finite_hi]])
 
-            eye = np.eye(n * nx)
-            jac_const = sparse.coo_array(np.vstack([
-                np.hstack([np.zeros((n * nx, idx.x_slice.start)), eye, eye])[finite_lo],
-                np.hstack([np.zeros((n * nx, idx.x_slice.start)), -eye, eye])[finite_hi]]))
+            eye = sparse.eye_array(n * nx, format='csr')
+            left = sparse.csr_array((n * nx, idx.x_slice.start))
+            jac_const = sparse.vstack([sparse.hstack([left, eye, eye])[finite_lo],
+                                       sparse.hstack([left, -eye, eye])[finite_hi]]).tocoo()
 
             def ineq_jac(z: np.ndarray) -> sparse.coo_array:
                 return jac_const

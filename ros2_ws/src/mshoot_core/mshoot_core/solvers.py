@@ -151,6 +151,10 @@ class IpoptSolver(Solver):
         except ImportError as exc:  # pragma: no cover - depends on the install
             raise ValueError('solver "ipopt" needs cyipopt: pip install cyipopt-wheels') from exc
         self.options = dict(options or {})
+        # cyipopt logs every callback at INFO level: keep it to warnings
+        cyipopt_logger = logging.getLogger('cyipopt')
+        if cyipopt_logger.getEffectiveLevel() < logging.WARNING:
+            cyipopt_logger.setLevel(logging.WARNING)
 
     def solve(self, nlp: Nlp, z0: Vector) -> optimize.OptimizeResult:
         if nlp.grad is None or nlp.eq_jac is None:

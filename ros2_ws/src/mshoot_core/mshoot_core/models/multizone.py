@@ -122,10 +122,21 @@ class MultiZoneModel(Model):
         return pattern
 
 
-def multizone_mpc_options(model: MultiZoneModel) -> dict:
-    """MPC keyword arguments for a :class:`MultiZoneModel`: one heater per zone
-    (-2000..2000 W) and every zone bounded by the comfort band."""
-    return {'control_names': tuple(f'q_{i}' for i in range(model.n_zones)),
-            'control_bounds': ((-2000.0, 2000.0),) * model.n_zones,
-            'state_bounds': {name: ('comfort_min', 'comfort_max', KELVIN)
-                             for name in model.state_names}}
+def multizone_mpc_options(model: MultiZoneModel, solver: str = 'ipopt') -> dict:
+    """MPC keyword arguments for a :class:`MultiZoneModel`.
+
+    One heater per zone (-2000..2000 W), every zone bounded by the comfort
+    band, and for IPOPT the large-problem configuration: a single
+    exact-penalty solve where the band is out of reach, and Mehrotra's
+    predictor-corrector (the problem is a convex QP: the zones are affine in
+    state and heat rate, the cost is quadratic).
+    """
+    options = {'control_names': tuple(f'q_{i}' for i in range(model.n_zones)),
+               'control_bounds': ((-2000.0, 2000.0),) * model.n_zones,
+               'state_bounds': {name: ('comfort_min', 'comfort_max', KELVIN)
+                                for name in model.state_names},
+               'solver': solver}
+    if solver == 'ipopt':
+        options.update(relaxation='exact-penalty',
+                       solver_options={'options': {'mehrotra_algorithm': 'yes'}})
+    return options

@@ -1,0 +1,64 @@
+"""Speed: the 72 h reference case, fast path vs the ancestor's naive algorithm, side by side.
+
+    python bench/speed.py [--naive-steps 3] [--controls fmu python svr] [--horizons 2 10]
+
+For each control model and horizon: the fast path runs all 72 steps; the naive
+mode runs the first ``--naive-steps`` steps (at H = 10 a naive step costs
+seconds to minutes). The ratio compares per-step medians of the same steps.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+import numpy as np
+
+from common import logger, print_table, setup_logging, timed_run, write_json
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('--naive-steps', type=int, default=3,
+                        help='MPC steps of the naive baseline (default 3)')
+    parser.add_argument('--controls', nargs='+', default=['fmu', 'python', 'svr'],
+                        choices=['fmu', 'fmu-cs', 'python', 'svr'])
+    parser.add_argument('--horizons', nargs='+', type=int, default=[2, 10])
+    args = parser.parse_args(argv)
+    setup_logging()
+    rows, models = [], {}
+    for control in args.controls:
+        for horizon in args.horizons:
+            fast = timed_run(control, horizon, models=models)
+            fast_same = timed_run(control, horizon, steps=args.naive_steps, models=models)
+            naive = timed_run(control, horizon, mode='naive', steps=args.naive_steps,
+                              models=models)
+            ratio = naive['step_median_s'] / fast_same['step_median_s']
+            # objectives of near-empty plans are ~0: compare on the scale of one full-power hour
+            rel = float(np.max(np.abs(np.subtract(naive['objectives'], fast_same['objectives']))
+                               / np.maximum(np.abs(fast_same['objectives']), 1.0)))
+            for row in (fast, naive):
+                row.pop('objectives')
+            rows.append({**fast, 'naive_step_median_s': naive['step_median_s'],
+                         'naive_iterations_per_step': naive['iterations'] / naive['steps'],
+                         'naive_evaluations_per_step': naive['model_evaluations']
+                         / naive['steps'],
+                         'speedup': ratio, 'objective_rel_diff': rel})
+            logger.info('%s H=%d: fast %.2f s for 72 steps (median %.4f s/step), naive median '
+                        '%.3f s/step: %.0fx', control, horizon, fast['wall_s'],
+                        fast['step_median_s'], naive['step_median_s'], ratio)
+    print_table(rows, [('control', 'control', 's'), ('horizon_h', 'H [h]', 'd'),
+                       ('wall_s', 'fast 72h [s]', '.2f'), ('step_median_s', 'fast/step [s]', '.4f'),
+                       ('iterations', 'fast iters', 'd'),
+                       ('model_evaluations', 'fast evals', 'd'),
+                       ('naive_step_median_s', 'naive/step [s]', '.3f'),
+                       ('naive_evaluations_per_step', 'naive evals/step', '.0f'),
+                       ('speedup', 'speed-up', '.0f'),
+                       ('objective_rel_diff', 'obj rel diff', '.1e'),
+                       ('energy_kwh', 'kWh', '.2f'), ('discomfort_kh_hourly', 'Kh hourly', '.2f')])
+    write_json('speed', {'naive_steps': args.naive_steps, 'rows': rows})
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,134 @@
+"""Speed paths: naive vs fast agreement, grouped finite differences, sparse solvers, zones."""
+import numpy as np
+import pytest
+
+from mshoot_core.case import reference_scenario
+from mshoot_core.closed_loop import forecast_window
+from mshoot_core.models import R1C1Model
+from mshoot_core.models.base import Model
+from mshoot_core.models.multizone import MultiZoneModel, multizone_mpc_options
+from mshoot_core.mpc import MPC
+from mshoot_core.scenario import synthetic_scenario
+from mshoot_core.sensitivities import column_groups, finite_difference_jacobians
+from mshoot_core.shooting import ContinuityStructure, NlpIndex
+
+
+@pytest.mark.parametrize('horizon', [2, 4])
+def test_fast_and_naive_reach_the_same_optimum(ou44_csv, horizon):
+    scenario = reference_scenario('ou44', ou44_csv, hours=12)
+    objectives = {}
+    for mode in ('fast', 'naive'):
+        mpc = MPC(R1C1Model(), horizon_steps=horizon, mode=mode)
+        x = np.array([293.15])
+        values = []
+        for k in (0, 8, 9):  # night, then the morning with the band rising to 21 degC
+            result = mpc.solve(x if k == 0 else [294.0], scenario.index[k],
+                               forecast_window(scenario, k, horizon))
+            values.append(result.fun)
+        objectives[mode] = np.array(values)
+    scale = np.maximum(np.abs(objectives['fast']), 1.0)  # objective of one full-power hour
+    np.testing.assert_array_less(np.abs(objectives['naive'] - objectives['fast']) / scale,
+                                 1e-6)
+
+
+def test_naive_mode_spends_far_more_model_evaluations():
+    s = synthetic_scenario(hours=12)
+    evaluations = {}
+    for mode in ('fast', 'naive'):
+        mpc = MPC(R1C1Model(), horizon_steps=4, mode=mode)
+        evaluations[mode] = mpc.solve([294.0], 0.0, forecast_window(s, 0, 4)).model_evaluations
+    assert evaluations['naive'] > 5 * evaluations['fast']
+
+
+def test_column_groups_cover_each_column_once_without_row_clashes():
+    rng = np.random.default_rng(0)
+    pattern = rng.random((12, 9)) < 0.25
+    groups = column_groups(pattern)
+    assert sorted(c for g in groups for c in g) == list(range(9))
+    for group in groups:
+        assert np.all(pattern[:, group].sum(axis=1) <= 1)
+    assert len(column_groups(np.eye(50, dtype=bool))) == 1
+    assert len(column_groups(np.ones((3, 4), bool))) == 4
+
+
+def test_grouped_finite_differences_match_analytic_multizone():
+    model = MultiZoneModel(20, seed=1)
+    rng = np.random.default_rng(2)
+    batch = 3
+    x = rng.uniform(291, 297, (batch, 20))
+    u = np.column_stack([rng.uniform(0, 400, (batch, 1)), rng.uniform(0, 10, (batch, 1)),
+                         rng.uniform(0, 20, (batch, 1)), np.zeros((batch, 1)),
+                         rng.uniform(-2000, 2000, (batch, 20))])
+    wrt = list(range(4, 24))
+    analytic = model.interval_jacobians(x, u, 3600.0, wrt)
+    grouped, spent = finite_difference_jacobians(
+        model, x, u, 3600.0, wrt, np.full(20, 1e-4), np.full(20, 1e-2), np.full(20, 2000.0),
+        model.jacobian_sparsity(wrt))
+    dense, spent_dense = finite_difference_jacobians(
+        model, x, u, 3600.0, wrt, np.full(20, 1e-4), np.full(20, 1e-2), np.full(20, 2000.0))
+    for fd in (grouped, dense):
+        np.testing.assert_allclose(fd.dx_dx0, analytic.dx_dx0, atol=1e-6)
+        np.testing.assert_allclose(fd.dx_du, analytic.dx_du, rtol=1e-5, atol=1e-12)
+    assert spent == batch * 3  # base + one state group + one control group
+    assert spent_dense == batch * 41  # base + 20 states + 20 controls
+
+
+def test_multizone_batch_equals_simulate_and_single_zone_equals_r1c1():
+    model = MultiZoneModel(3)
+    s = synthetic_scenario(hours=5)
+    udf = s[['solrad', 'Tout', 'occ', 'dpos']].copy()
+    for i in range(3):
+        udf[f'q_{i}'] = [500.0 * (i - 1)] * 5
+    ydf, xdf = model.simulate(udf, [293.0, 294.0, 295.0])
+    x_end, _ = model.simulate_intervals(xdf.to_numpy()[:-1], udf.to_numpy()[:-1], 3600.0)
+    np.testing.assert_array_equal(x_end, xdf.to_numpy()[1:])
+    zone = R1C1Model(model.zones.parameters.__class__(
+        **{**model.zones.parameters.__dict__, 'Vi': float(model.zones.parameters.Vi[1])}))
+    zu = udf.to_numpy()[:-1, :5].copy()
+    zu[:, 0] *= model.solar_share[1]
+    zu[:, 2] *= model.occupancy_share[1]
+    zu[:, 4] = udf['q_1'].to_numpy()[:-1]
+    x1, _ = zone.simulate_intervals(xdf.to_numpy()[:-1, [1]], zu, 3600.0)
+    np.testing.assert_allclose(x1[:, 0], xdf['T_1'].to_numpy()[1:], rtol=0, atol=1e-9)
+
+
+def test_continuity_structure_is_block_bidiagonal():
+    idx = NlpIndex(4, 2, 2)
+    pattern = np.array([[1, 0, 1, 0], [0, 1, 0, 1]], bool)
+    structure = ContinuityStructure(idx, pattern)
+    dx_du = np.zeros((4, 2, 2)) + np.eye(2)
+    dx_dx0 = np.zeros((4, 2, 2)) + 2 * np.eye(2)
+    jac = structure.matrix(dx_du, dx_dx0, np.ones(2), np.ones(2)).toarray()
+    assert jac.shape == (8, 16)
+    assert np.count_nonzero(jac) == 4 * 2 + 8 + 3 * 2
+    np.testing.assert_array_equal(jac[2:4, 8:10], 2 * np.eye(2))   # d x_1 / d x_0
+    np.testing.assert_array_equal(jac[2:4, 10:12], -np.eye(2))
+    assert not np.any(jac[4:6, 8:10])                             # nothing two blocks back
+
+
+@pytest.mark.parametrize('solver', ['ipopt', 'trust-constr'])
+def test_sparse_solvers_agree_with_slsqp(solver):
+    s = synthetic_scenario(hours=10, seed=4)
+    forecast = forecast_window(s, 6, 4)  # morning: preheating for the 08:00 band
+    ref = MPC(R1C1Model(), horizon_steps=4).solve([293.6], s.index[6], forecast)
+    res = MPC(R1C1Model(), horizon_steps=4, solver=solver).solve([293.6], s.index[6], forecast)
+    assert ref.success and res.success, res.message
+    np.testing.assert_allclose(res.controls, ref.controls, atol=2.0)  # [W]
+    assert res.fun == pytest.approx(ref.fun, rel=1e-4)
+
+
+def test_multizone_mpc_ipopt_matches_slsqp_and_relaxes_honestly():
+    model = MultiZoneModel(4, seed=3)
+    s = synthetic_scenario(hours=12)
+    forecast = forecast_window(s, 5, 6)
+    x0 = np.full(4, 292.9)
+    results = {solver: MPC(model, horizon_steps=6, **multizone_mpc_options(model, solver))
+               .solve(x0, s.index[5], forecast) for solver in ('slsqp', 'ipopt')}
+    for r in results.values():
+        assert r.max_defect < 1e-6
+        assert np.all(np.abs(r.controls) <= 2000 + 1e-6)
+    np.testing.assert_allclose(results['ipopt'].controls, results['slsqp'].controls, atol=5.0)
+
+
+def test_model_without_sparsity_is_dense():
+    assert Model.jacobian_sparsity(R1C1Model(), [4]) is None
