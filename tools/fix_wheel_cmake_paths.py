@@ -3,40 +3,50 @@
 The PyPI wheels export CMake targets whose include directories point at
 ``/opt/python/cp311-cp311/...`` (the manylinux build image). Building a custom
 interface package against them fails with "Imported target ... includes
-non-existent path". This rewrites those paths, inside the given venv only, to
-this interpreter's include directory and numpy's, then checks none is left.
+non-existent path". This rewrites every Python and numpy include directory
+named in those files, inside the given venv only, to this interpreter's
+include directory and this venv's numpy, then checks that each is right.
+
+Files are replaced, never edited in place: installers such as uv hard-link
+venv files to their cache, and an in-place edit would change the cache too.
 """
 import pathlib
+import re
 import sys
 import sysconfig
 
 import numpy
 
-BUILD_PY_INCLUDE = '/opt/python/cp311-cp311/include/python3.11'
-BUILD_NUMPY_INCLUDE = '/opt/python/cp311-cp311/lib/python3.11/site-packages/numpy/_core/include'
+NUMPY_INCLUDE = re.compile(r'[^";]*/numpy/_core/include')
+PYTHON_INCLUDE = re.compile(r'[^";]*/include/python3\.\d+')
 
 
 def main(venv: str) -> int:
     share = pathlib.Path(venv) / 'share'
-    replacements = {
-        BUILD_NUMPY_INCLUDE: numpy.get_include(),
-        BUILD_PY_INCLUDE: sysconfig.get_paths()['include'],
-    }
+    numpy_include = numpy.get_include()
+    python_include = sysconfig.get_paths()['include']
     fixed = 0
+    for path in sorted(share.glob('*/cmake/*.cmake')):
+        text = path.read_text()
+        if 'INTERFACE_INCLUDE_DIRECTORIES' not in text:
+            continue
+        new = NUMPY_INCLUDE.sub(lambda m: numpy_include, text)
+        new = PYTHON_INCLUDE.sub(lambda m: python_include, new)
+        if new != text:
+            path.unlink()  # break any hard link to an installer's cache
+            path.write_text(new)
+            fixed += 1
+    wrong = []
     for path in share.glob('*/cmake/*.cmake'):
         text = path.read_text()
-        if '/opt/python/cp311-cp311' not in text:
-            continue
-        for old, new in replacements.items():
-            text = text.replace(old, new)
-        path.write_text(text)
-        fixed += 1
-    left = [str(p) for p in share.glob('*/cmake/*.cmake')
-            if '/opt/python/cp311-cp311' in p.read_text()]
-    if left:
-        sys.stderr.write('build-machine paths left in:\n  ' + '\n  '.join(left) + '\n')
+        for pattern, expected in ((NUMPY_INCLUDE, numpy_include),
+                                  (PYTHON_INCLUDE, python_include)):
+            wrong += [f'{path}: {m}' for m in pattern.findall(text) if m != expected]
+    if wrong:
+        sys.stderr.write('include paths left wrong:\n  ' + '\n  '.join(wrong) + '\n')
         return 1
-    sys.stdout.write(f'[setup] fixed build-machine paths in {fixed} CMake files\n')
+    sys.stdout.write(f'[setup] include paths of the message wheels point at this venv '
+                     f'({fixed} CMake files rewritten)\n')
     return 0
 
 
