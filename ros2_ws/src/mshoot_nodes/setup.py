@@ -26,6 +26,10 @@ setup(
             'emulator = mshoot_nodes.emulator_node:main',
             'forecaster = mshoot_nodes.forecaster_node:main',
             'mpc = mshoot_nodes.mpc_node:main',
+            'recorder = mshoot_nodes.recorder_node:main',
+            'replayer = mshoot_nodes.replayer_node:main',
+            'bringup = mshoot_nodes.bringup:main',
+            'bringup_processes = mshoot_nodes.processes:main',
         ],
     },
 )

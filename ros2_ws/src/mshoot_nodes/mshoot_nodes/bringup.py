@@ -1,0 +1,260 @@
+"""Bring-up in one process: emulator, forecaster, MPC and the bag recorder in one executor.
+
+    bringup --scenario synthetic --hours 72 --out out/demo        # the demo (make demo)
+    bringup --scenario ou44 --data ../shared/data/ou44/measurements.csv
+
+The fast path: the four nodes share one rclpy context and one
+SingleThreadedExecutor; the emulator runs in lockstep, so simulated time goes
+as fast as the MPC solves and the run equals the core-only loop. Writes to
+``--out``: ``bag/`` (rosbag2, mcap by default), ``kpis.json`` (the keys of
+``python -m mshoot_core.case``), ``steps.csv``, ``trajectories.csv`` and
+``plot.png``; prints progress and the KPIs. Parameters come from the YAML
+files in the package's ``config/`` (or ``--params-file``), then the flags.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+import os
+import pathlib
+import sys
+import time
+from typing import Any, Callable, Sequence
+
+from mshoot_core.closed_loop import run_closed_loop
+from mshoot_core.models.r1c1 import KELVIN
+import rclpy
+from rclpy.context import Context
+from rclpy.exceptions import InvalidParameterValueException
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.logging import LoggingSeverity
+from rclpy.parameter import Parameter
+
+from mshoot_nodes import contract
+from mshoot_nodes.config import default_params_files, ros_args
+from mshoot_nodes.conversions import mpc_records_frame
+from mshoot_nodes.emulator_node import build_emulator, EmulatorNode
+from mshoot_nodes.forecaster_node import ForecasterNode
+from mshoot_nodes.logbridge import bridge_core_logging
+from mshoot_nodes.mpc_node import build_mpc, MpcNode
+from mshoot_nodes.recorder_node import RecorderNode
+from mshoot_nodes.results import kpi_summary, run_outputs
+from mshoot_nodes.sources import build_model
+
+NODE_NAMES = ('emulator', 'forecaster', 'mpc', 'recorder')
+
+
+def overrides(values: dict[str, Any]) -> list[Parameter]:
+    """Parameter overrides from a dict, skipping None (= keep the YAML/default value)."""
+    return [Parameter(name, value=value) for name, value in values.items() if value is not None]
+
+
+@dataclasses.dataclass
+class RosRun:
+    """The nodes of an in-process run, after it ended."""
+
+    emulator: EmulatorNode
+    forecaster: ForecasterNode
+    mpc: MpcNode
+    recorder: RecorderNode | None
+    wall_s: float
+
+
+def run_in_process(context: Context, node_params: dict[str, dict[str, Any]], *,
+                   record: bool = True, timeout_s: float = 600.0,
+                   progress: Callable[[EmulatorNode], None] | None = None) -> RosRun:
+    """Run the closed loop over ROS in one executor until the emulator's scenario ends.
+
+    Parameters
+    ----------
+    context : Context
+        An initialised rclpy context (its arguments may carry ``--params-file``).
+    node_params : dict
+        Node name ('emulator', 'forecaster', 'mpc', 'recorder') -> parameter
+        overrides (None values are skipped).
+    record : bool
+        Also run the bag recorder.
+    timeout_s : float
+        Wall-clock guard [s]: TimeoutError when the run takes longer.
+    progress : callable, optional
+        Called with the emulator node after every executor turn that advanced it.
+
+    The nodes are destroyed before returning (the recorder's bag is closed);
+    their records stay readable.
+    """
+    def make(cls: type, name: str) -> Any:
+        return cls(context=context, parameter_overrides=overrides(node_params.get(name, {})))
+
+    nodes: list[Any] = []
+    executor = SingleThreadedExecutor(context=context)
+    try:
+        recorder = make(RecorderNode, 'recorder') if record else None
+        forecaster = make(ForecasterNode, 'forecaster')
+        mpc = make(MpcNode, 'mpc')
+        emulator = make(EmulatorNode, 'emulator')
+        nodes = [n for n in (recorder, forecaster, mpc, emulator) if n is not None]
+        for node in nodes:
+            executor.add_node(node)
+        started = time.perf_counter()
+        steps_seen = 0
+        while not emulator.done:
+            executor.spin_once(timeout_sec=0.1)
+            if progress is not None and len(emulator.records) != steps_seen:
+                steps_seen = len(emulator.records)
+                progress(emulator)
+            if time.perf_counter() - started > timeout_s:
+                raise TimeoutError(f'the ROS run did not finish within {timeout_s:.0f} s '
+                                   f'({len(emulator.records)} steps done)')
+        wall_s = time.perf_counter() - started
+        # Let the last messages reach the recorder (bounded: 2 s).
+        drained = time.perf_counter()
+        while recorder is not None and time.perf_counter() - drained < 2.0 and (
+                recorder.counts.get(recorder.resolve_topic_name(contract.STATUS), 0)
+                < len(mpc.history)
+                or recorder.counts.get(recorder.resolve_topic_name(contract.ZONE_STATE), 0)
+                < len(emulator.records) + 1):
+            executor.spin_once(timeout_sec=0.01)
+        for _ in range(10):
+            executor.spin_once(timeout_sec=0.0)
+    finally:
+        executor.shutdown()
+        for node in nodes:
+            node.destroy_node()
+    return RosRun(emulator, forecaster, mpc, recorder, wall_s)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog='bringup', description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('--scenario', default=None,
+                        help="'synthetic' (default, built in), 'ou44' or an OU44-format CSV")
+    parser.add_argument('--data', default=None, help="OU44 measurements.csv for 'ou44'")
+    parser.add_argument('--hours', type=int, default=None, help='control steps (default 72)')
+    parser.add_argument('--horizon', type=int, default=None, help='MPC horizon [steps]')
+    parser.add_argument('--emulator-model', default=None,
+                        help='emulation model: python, fmu, fmu-cs or an .fmu path')
+    parser.add_argument('--control-model', default=None,
+                        help='MPC model: python, fmu, fmu-cs or an .fmu path')
+    parser.add_argument('--cost', choices=('quadratic', 'energy'), default=None)
+    parser.add_argument('--comfort', choices=('hard', 'soft'), default=None)
+    parser.add_argument('--solver', default=None, help='slsqp, trust-constr or ipopt')
+    parser.add_argument('--mode', choices=('lockstep', 'free'), default=None,
+                        help='emulator mode (default lockstep)')
+    parser.add_argument('--speedup', type=float, default=None,
+                        help='free mode: simulated seconds per wall second')
+    parser.add_argument('--storage', choices=('mcap', 'sqlite3'), default=None,
+                        help='bag storage (default mcap)')
+    parser.add_argument('--no-bag', action='store_true', help='do not record a bag')
+    parser.add_argument('--out', type=pathlib.Path, default=pathlib.Path('out/demo'),
+                        help='output folder (default out/demo)')
+    parser.add_argument('--params-file', type=pathlib.Path, action='append', default=None,
+                        help='YAML parameter file (repeatable; default: the config/ files)')
+    parser.add_argument('--timeout', type=float, default=900.0,
+                        help='wall-clock limit of the run [s] (default 900)')
+    parser.add_argument('--progress-every', type=int, default=12,
+                        help='print a progress line every so many steps (0: never)')
+    parser.add_argument('--compare-core', action='store_true',
+                        help='also run the core-only loop and report the ROS overhead')
+    parser.add_argument('--discovery', choices=('OFF', 'LOCALHOST', 'SUBNET'), default='OFF',
+                        help='ROS_AUTOMATIC_DISCOVERY_RANGE of this process (default OFF: '
+                             'isolated from other processes)')
+    parser.add_argument('-v', '--verbose', action='store_true', help='node logs at INFO')
+    return parser
+
+
+def node_params_from_args(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
+    """Per-node parameter overrides from the command-line flags."""
+    out = args.out
+    scenario = {'scenario': args.scenario, 'data': args.data, 'hours': args.hours}
+    return {
+        'emulator': {**scenario, 'model': args.emulator_model, 'mode': args.mode,
+                     'speedup': args.speedup},
+        'forecaster': {**scenario, 'horizon_steps': args.horizon},
+        'mpc': {'horizon_steps': args.horizon, 'model': args.control_model, 'cost': args.cost,
+                'comfort': args.comfort, 'solver': args.solver},
+        'recorder': {'bag_path': str(out / 'bag'), 'overwrite': True, 'storage': args.storage},
+    }
+
+
+def core_only(emulator: EmulatorNode, mpc: MpcNode) -> tuple[float, float]:
+    """Run the core-only loop with the same parameters: (its wall time [s], max |dT| [K]).
+
+    The models are built afresh, the scenario is the emulator node's own.
+    """
+    core_emulator = build_emulator(emulator.params)
+    core_mpc = build_mpc(build_model(mpc.params['model'], mpc.params['fmu_tolerance']),
+                         mpc.params)
+    result = run_closed_loop(core_mpc, core_emulator, steps=len(emulator.records), log_every=0)
+    ros_t = emulator.applied_frame()['T_end'].to_numpy()
+    core_t = result.steps['T_end'].to_numpy()
+    return result.wall_s, float(abs(ros_t - core_t).max())
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = args.discovery
+    logging.basicConfig(level=logging.WARNING, format='%(levelname)s %(name)s: %(message)s')
+    params_files = args.params_file or default_params_files(args.scenario)
+    context = Context()
+    rclpy.init(args=ros_args(params_files), context=context)
+    if not args.verbose:
+        for name in NODE_NAMES:
+            rclpy.logging.set_logger_level(name, LoggingSeverity.WARN)
+    bridge_core_logging(rclpy.logging.get_logger('mshoot_core'))
+    started = time.perf_counter()
+
+    def progress(emulator: EmulatorNode) -> None:
+        done = len(emulator.records)
+        total = done + emulator.emulator.steps_left
+        if args.progress_every and (done % args.progress_every == 0 or done == total):
+            record = emulator.records[-1]
+            print(f'[demo] step {done:3d}/{total} (t = {record.t_start_s / 3600 + 1:5.1f} h): '
+                  f'T = {record.x_end[0] - KELVIN:6.2f} degC, q = {record.controls[0]:+8.1f} W, '
+                  f'wall {time.perf_counter() - started:6.2f} s', flush=True)
+
+    try:
+        run = run_in_process(context, node_params_from_args(args), record=not args.no_bag,
+                             timeout_s=args.timeout, progress=progress)
+    except (InvalidParameterValueException, ValueError, FileNotFoundError) as exc:
+        print(f'[demo] error: {exc}', file=sys.stderr)
+        rclpy.try_shutdown(context=context)
+        return 2
+    except (TimeoutError, KeyboardInterrupt) as exc:
+        print(f'[demo] stopped: {exc or "interrupted"}', file=sys.stderr)
+        rclpy.try_shutdown(context=context)
+        return 1
+    rclpy.try_shutdown(context=context)
+
+    emulator, mpc = run.emulator, run.mpc
+    p_emu, p_mpc = emulator.params, mpc.params
+    records = mpc_records_frame([s for s, _ in mpc.history], [s for _, s in mpc.history],
+                                emulator.epoch_ns)
+    extra: dict[str, Any] = dict(
+        scenario=p_emu['scenario'], control=p_mpc['model'], emulator=p_emu['model'],
+        tolerance=p_mpc['fmu_tolerance'], horizon_h=p_mpc['horizon_steps'] * p_mpc['step_s']
+        / 3600.0, cost=p_mpc['cost'], solver=p_mpc['solver'], comfort=p_mpc['comfort'],
+        setup_s=0.0, transport='ros2 in-process', mode=p_emu['mode'])
+    if run.recorder is not None:
+        extra['bag'] = str(run.recorder.path)
+        extra['bag_messages'] = dict(run.recorder.counts)
+    if args.compare_core:
+        core_wall, max_diff = core_only(emulator, mpc)
+        extra.update(core_wall_s=core_wall, ros_overhead_s=run.wall_s - core_wall,
+                     max_abs_diff_vs_core_k=max_diff)
+    title = (f"{p_emu['scenario']} over ROS 2: H = {p_mpc['horizon_steps']} steps, control "
+             f"{p_mpc['model']}, {p_mpc['cost']} cost")
+    kpis = run_outputs(args.out, emulator.applied_frame(), emulator.fine_frame(), records,
+                       p_emu['step_s'], run.wall_s, title, **extra)
+    print(f'[demo] {kpi_summary(kpis)}')
+    if args.compare_core:
+        print(f"[demo] core-only loop: {kpis['core_wall_s']:.2f} s wall; ROS overhead "
+              f"{kpis['ros_overhead_s']:+.2f} s; max |T_ros - T_core| = "
+              f"{kpis['max_abs_diff_vs_core_k']:.2e} K")
+    print(f'[demo] wrote {args.out}/: kpis.json, steps.csv, trajectories.csv, plot.png'
+          + (', bag/' if run.recorder is not None else ''))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

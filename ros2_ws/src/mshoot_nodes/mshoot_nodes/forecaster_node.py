@@ -1,0 +1,173 @@
+"""The forecaster node: disturbance and comfort-band forecasts over the MPC horizon.
+
+On every control step of simulated time (a sim-time timer) it publishes on
+``/forecast`` (latched: reliable, transient local, depth 1) the scenario rows
+of the step and the ``horizon_steps`` that follow, from
+:func:`mshoot_core.closed_loop.forecast_window`, so a ROS run and the core-only
+loop see the same forecasts. By default the forecasts are perfect; the
+``random_walk`` error model adds seeded errors that grow with the lead time
+(the current step stays exact: it is measured).
+"""
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+from mshoot_core.closed_loop import forecast_window
+from mshoot_msgs.msg import Forecast
+import numpy as np
+import pandas as pd
+import rclpy
+from rclpy.exceptions import InvalidParameterValueException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+
+from mshoot_nodes import contract, sources
+from mshoot_nodes.conversions import (floor_to_step, forecast_msg, NS_PER_S, seconds_to_ns)
+from mshoot_nodes.params import declare, ParamSpec, values
+
+PARAMS = (
+    ParamSpec('scenario', 'synthetic', "the scenario: 'synthetic', 'ou44' or a path to a CSV "
+              'in the OU44 format (the same as the emulator)', read_only=True),
+    ParamSpec('data', '', "path of the OU44 measurements.csv for scenario 'ou44' "
+              "('' = the default shared data folder)", read_only=True),
+    ParamSpec('hours', 72, 'control steps of the scenario [-]', low=1, high=1_000_000,
+              read_only=True),
+    ParamSpec('start_time', '', 'ROS time of the first scenario row, ISO date-time read as UTC '
+              "('' = the scenario's own start date)", read_only=True),
+    ParamSpec('step_s', 3600.0, 'control step and forecast sample spacing [s]', low=1.0,
+              high=86400.0, read_only=True),
+    ParamSpec('horizon_steps', 10, 'forecast horizon N: every forecast holds N+1 samples [-]',
+              low=1, high=10_000),
+    ParamSpec('error_model', 'none', "'none': perfect forecasts; 'random_walk': errors that "
+              'grow with the lead time', choices=('none', 'random_walk')),
+    ParamSpec('error_tout_std_c', 0.5, 'random walk: outdoor temperature error added per '
+              'step of lead time, standard deviation [K]', low=0.0, high=100.0),
+    ParamSpec('error_solrad_std_w_m2', 20.0, 'random walk: solar radiation error added per '
+              'step of lead time, standard deviation [W/m2]', low=0.0, high=2000.0),
+    ParamSpec('error_seed', 0, 'seed of the forecast errors (with the step index) [-]',
+              low=0, high=2 ** 31 - 1),
+    ParamSpec('zone', 'zone', 'zone name (header.frame_id)', read_only=True),
+)
+
+
+def _check_sources(v: dict[str, Any]) -> str | None:
+    if 'scenario' in v and (reason := sources.check_scenario(v['scenario'], v.get('data', ''))):
+        return reason
+    if 'start_time' in v and (reason := sources.check_start_time(v['start_time'])):
+        return reason
+    return None
+
+
+def forecast_errors(step_index: int, samples: int, tout_std: float, solrad_std: float,
+                    seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Random-walk forecast errors of one step: zero at lead 0, then cumulative.
+
+    Parameters
+    ----------
+    step_index : int
+        Scenario row of the forecast's first sample (seeds the generator with
+        ``seed``, so every step's errors are reproducible on their own).
+    samples : int
+        Forecast length.
+    tout_std, solrad_std : float
+        Standard deviation of the increment per step [K], [W/m2].
+    seed : int
+        Base seed.
+
+    Returns
+    -------
+    (tout_error, solrad_error) : ndarrays, shape (samples,)
+    """
+    rng = np.random.default_rng([int(seed), int(step_index)])
+    steps = rng.standard_normal((2, samples))
+    steps[:, 0] = 0.0
+    walk = np.cumsum(steps, axis=1)
+    return walk[0] * tout_std, walk[1] * solrad_std
+
+
+class ForecasterNode(Node):
+    """Publishes the horizon forecast every control step (see the module docstring)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('forecaster', **kwargs)
+        declare(self, PARAMS, [_check_sources])
+        self.params = values(self, PARAMS)
+        self.add_post_set_parameters_callback(self._on_parameters_set)
+        p = self.params
+        self.scenario = sources.load_scenario(p['scenario'], p['data'], p['hours'])
+        self.epoch_ns = sources.start_ns(self.scenario, p['start_time'])
+        self.step_ns = seconds_to_ns(p['step_s'])
+        self.last_index: int | None = None
+        self.published = 0
+        self._publisher = self.create_publisher(Forecast, contract.FORECAST, contract.LATCHED_QOS)
+        # Fires on whole simulated steps when use_sim_time is true (never before a /clock).
+        self._timer = self.create_timer(p['step_s'], self._on_step)
+        self.get_logger().info(
+            f"{p['scenario']} scenario from {pd.Timestamp(self.epoch_ns, tz='UTC').isoformat()}: "
+            f"{p['horizon_steps'] + 1}-sample forecasts every {p['step_s']:.0f} s, "
+            f"errors: {p['error_model']}")
+
+    def _on_parameters_set(self, params: list) -> None:
+        self.params = values(self, PARAMS)
+        names = ', '.join(f'{p.name} = {p.value}' for p in params)
+        self.get_logger().info(f'parameters changed: {names} (from the next step)')
+
+    def _on_step(self) -> None:
+        now = self.get_clock().now().nanoseconds
+        step = floor_to_step(now - self.epoch_ns, self.step_ns)
+        index = step // self.step_ns
+        last_step = len(self.scenario) - 2  # the last row only ends the last control step
+        if index == self.last_index or (self.last_index is not None
+                                        and self.last_index > last_step):
+            return
+        if 0 <= index <= last_step:
+            self.publish_forecast(int(index))
+        elif index > last_step and self.last_index is not None:
+            self.get_logger().info('scenario over: no more forecasts')
+            self.last_index = int(index)
+        elif now > 0:
+            self.get_logger().warning(
+                f'clock at {now / NS_PER_S:.0f} s is outside the scenario '
+                f'({self.epoch_ns / NS_PER_S:.0f} s + {last_step + 1} steps); is use_sim_time '
+                'set?', throttle_duration_sec=30.0)
+
+    def publish_forecast(self, index: int) -> Forecast:
+        """Publish the forecast starting at scenario row ``index``."""
+        p = self.params
+        window = forecast_window(self.scenario, index, p['horizon_steps'])
+        if p['error_model'] == 'random_walk':
+            tout_err, solrad_err = forecast_errors(index, len(window), p['error_tout_std_c'],
+                                                   p['error_solrad_std_w_m2'], p['error_seed'])
+            window = window.copy()
+            window['Tout'] = window['Tout'].to_numpy() + tout_err
+            window['solrad'] = np.clip(window['solrad'].to_numpy() + solrad_err, 0.0, None)
+        stamp = self.epoch_ns + index * self.step_ns
+        msg = forecast_msg(stamp, p['step_s'], window, p['zone'])
+        self._publisher.publish(msg)
+        self.last_index = index
+        self.published += 1
+        self.get_logger().debug(f'forecast for step {index} ({stamp / NS_PER_S:.0f} s)')
+        return msg
+
+
+def main(args: list[str] | None = None) -> None:
+    """``ros2 run mshoot_nodes forecaster`` (set use_sim_time:=true against the emulator)."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = ForecasterNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (InvalidParameterValueException, ValueError, FileNotFoundError) as exc:
+        rclpy.logging.get_logger('forecaster').fatal(f'cannot start: {exc}')
+        sys.exit(2)
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

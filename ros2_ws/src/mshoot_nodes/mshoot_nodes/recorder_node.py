@@ -1,0 +1,179 @@
+"""The bag recorder node: writes rosbag2 bags (mcap or sqlite3) from raw serialized messages.
+
+It subscribes with ``raw=True`` (no deserialisation: the CDR bytes go to the
+bag as they came), registers the message definitions of the custom types from
+the installed ``share/<package>/msg/*.msg``, and stores the offered QoS of each
+topic, so ``ros2 bag info`` and ``ros2 bag play`` on a ROS 2 install accept the
+bag. Receive times come from the node clock (the wall clock, or simulated time
+with use_sim_time, as ``ros2 bag record --use-sim-time``).
+
+Contract topics are subscribed at once with their contract QoS (nothing is
+missed at start-up); other topics when a publisher shows up, with its type and
+offered QoS from the graph. On a full ROS 2 install the equivalent is::
+
+    ros2 bag record -s mcap /clock /zone/state /zone/disturbances /forecast \\
+        /mpc/setpoint /mpc/status
+"""
+from __future__ import annotations
+
+import pathlib
+import shutil
+import sys
+from typing import Any
+
+import rclpy
+from rclpy.exceptions import InvalidParameterValueException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from rosbags.rosbag2 import Writer
+
+from mshoot_nodes import contract
+from mshoot_nodes.bags import ensure_type, qos_to_rosbags, STORAGES, typestore
+from mshoot_nodes.contract import message_class
+from mshoot_nodes.params import declare, ParamSpec, values
+
+PARAMS = (
+    ParamSpec('bag_path', 'mshoot_bag', 'bag directory to create', read_only=True),
+    ParamSpec('storage', 'mcap', 'storage plugin of the bag', choices=tuple(STORAGES),
+              read_only=True),
+    ParamSpec('topics', list(contract.RECORDED_TOPICS), 'topics to record', read_only=True),
+    ParamSpec('overwrite', False, 'replace an existing bag directory', read_only=True),
+    ParamSpec('queue_depth', 100, 'subscription depth of volatile topics [-]', low=1,
+              high=100_000, read_only=True),
+)
+
+
+def _check(v: dict[str, Any]) -> str | None:
+    if 'topics' in v:
+        topics = list(v['topics'])
+        if not topics or not all(isinstance(t, str) and t.startswith('/') for t in topics):
+            return f'topics must be absolute topic names, got {topics}'
+    if 'bag_path' in v and not v['bag_path']:
+        return 'bag_path must not be empty'
+    if {'bag_path', 'overwrite'} <= v.keys() and not v['overwrite'] \
+            and pathlib.Path(v['bag_path']).exists():
+        return f"bag_path {v['bag_path']!r} exists (set overwrite:=true to replace it)"
+    return None
+
+
+class RecorderNode(Node):
+    """Records topics into a rosbag2 bag (see the module docstring).
+
+    Attributes
+    ----------
+    counts : dict
+        Topic -> messages written so far.
+    """
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('recorder', **kwargs)
+        declare(self, PARAMS, [_check])
+        self.params = values(self, PARAMS)
+        p = self.params
+        self.path = pathlib.Path(p['bag_path'])
+        if self.path.exists() and p['overwrite']:
+            shutil.rmtree(self.path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._store = typestore()
+        self._writer = Writer(self.path, version=9, storage_plugin=STORAGES[p['storage']])
+        self._writer.open()
+        self._connections: dict[str, Any] = {}
+        self.counts: dict[str, int] = {}
+        self._closed = False
+        self._waiting = [t for t in p['topics'] if not self._subscribe_contract(t)]
+        if self._waiting:
+            self._discover()
+            self._discovery_timer = self.create_timer(1.0, self._discover)
+        self.get_logger().info(f"recording {len(p['topics'])} topics to {self.path} "
+                               f"({p['storage']})")
+
+    def _subscribe_contract(self, topic: str) -> bool:
+        resolved = self.resolve_topic_name(topic)
+        type_name = contract.TOPIC_TYPES.get(topic)
+        if type_name is None:
+            return False
+        offered = contract.TOPIC_QOS[topic]
+        self._subscribe(resolved, type_name, offered)
+        return True
+
+    def _discover(self) -> None:
+        """Subscribe to the waiting topics that have a publisher now."""
+        for topic in list(self._waiting):
+            infos = self.get_publishers_info_by_topic(self.resolve_topic_name(topic))
+            if not infos:
+                continue
+            try:
+                self._subscribe(self.resolve_topic_name(topic), infos[0].topic_type,
+                                infos[0].qos_profile)
+            except ValueError as exc:
+                self.get_logger().error(f'cannot record {topic}: {exc}')
+            self._waiting.remove(topic)
+        if not self._waiting and hasattr(self, '_discovery_timer'):
+            self._discovery_timer.cancel()
+
+    def _subscribe(self, topic: str, type_name: str, offered: QoSProfile) -> None:
+        ensure_type(self._store, type_name)
+        cls = message_class(type_name)
+        latched = offered.durability == DurabilityPolicy.TRANSIENT_LOCAL
+        qos = QoSProfile(depth=offered.depth if latched else self.params['queue_depth'],
+                         reliability=offered.reliability
+                         if offered.reliability in (ReliabilityPolicy.RELIABLE,
+                                                    ReliabilityPolicy.BEST_EFFORT)
+                         else ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
+                         else DurabilityPolicy.VOLATILE)
+        self._connections[topic] = self._writer.add_connection(
+            topic, type_name, typestore=self._store,
+            offered_qos_profiles=[qos_to_rosbags(offered)])
+        self.counts[topic] = 0
+        self.create_subscription(cls, topic, lambda raw, t=topic: self._write(t, raw), qos,
+                                 raw=True)
+        self.get_logger().debug(f'recording {topic} [{type_name}]')
+
+    def _write(self, topic: str, raw: bytes) -> None:
+        if self._closed:
+            return
+        self._writer.write(self._connections[topic], self.get_clock().now().nanoseconds, raw)
+        self.counts[topic] += 1
+
+    def close(self) -> None:
+        """Finish the bag (writes metadata.yaml); further messages are dropped."""
+        if not self._closed:
+            self._closed = True
+            self._writer.close()
+            total = sum(self.counts.values())
+            self.get_logger().info(f'closed {self.path}: {total} messages '
+                                   f'({", ".join(f"{t} {n}" for t, n in self.counts.items())})')
+
+    def destroy_node(self) -> None:
+        self.close()
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> None:
+    """``ros2 run mshoot_nodes recorder --ros-args -p bag_path:=out/bag``; Ctrl-C ends it.
+
+    SIGINT raises KeyboardInterrupt here instead of shutting the context down first, so
+    the bag is closed (and logged) by a node whose context is still valid.
+    """
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    node = None
+    try:
+        node = RecorderNode()
+        while rclpy.ok():  # short waits: Python sees SIGINT between them
+            rclpy.spin_once(node, timeout_sec=0.2)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (InvalidParameterValueException, ValueError) as exc:
+        rclpy.logging.get_logger('recorder').fatal(f'cannot start: {exc}')
+        sys.exit(2)
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

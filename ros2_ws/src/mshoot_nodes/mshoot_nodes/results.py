@@ -1,0 +1,87 @@
+"""The outputs of a ROS run: per-step records, KPIs, plot, as the core case command writes them.
+
+A ROS run is recorded in two places: the emulator knows what it applied and
+the fine trajectory (:meth:`EmulatorNode.applied_frame`, ``fine_frame``, or
+``applied.csv`` and ``trajectories.csv`` from a separate process), the MPC's
+setpoints and statuses are on the topics (the node's history, or the bag).
+:func:`steps_frame` joins them by step and :func:`run_outputs` computes
+``kpis.json`` with :func:`mshoot_core.kpis.closed_loop_kpis` (the keys of the
+core case command) and writes the files with :func:`mshoot_core.case.write_outputs`.
+"""
+from __future__ import annotations
+
+import pathlib
+
+from mshoot_core.case import write_outputs
+from mshoot_core.closed_loop import ClosedLoopResult
+from mshoot_core.kpis import closed_loop_kpis
+from mshoot_core.models.r1c1 import KELVIN
+import numpy as np
+import pandas as pd
+
+#: Columns of the per-step MPC records that go into steps.csv.
+MPC_COLUMNS = ('solve_time_s', 'success', 'fallback', 'iterations', 'objective',
+               'max_defect', 'q_setpoint', 'T_predicted_c', 'message')
+
+
+def steps_frame(applied: pd.DataFrame, mpc_records: pd.DataFrame) -> pd.DataFrame:
+    """One row per control step: what the emulator applied and what the MPC reported.
+
+    Parameters
+    ----------
+    applied : DataFrame
+        Index ``time_s``; columns ``q`` [W], ``T_start``, ``T_end`` [K] (the
+        emulator's :meth:`applied_frame`).
+    mpc_records : DataFrame
+        Index ``time_s``; see :func:`mshoot_nodes.conversions.mpc_records_frame`.
+
+    Returns
+    -------
+    DataFrame
+        ``applied`` joined with the MPC columns, plus ``T_predicted`` [K];
+        steps without an MPC record (should not happen in lockstep) get
+        ``success`` False and ``solve_time_s`` 0.
+    """
+    steps = applied.drop(columns=['stamp_ns'], errors='ignore').join(
+        mpc_records.reindex(columns=list(MPC_COLUMNS)), how='left')
+    steps['mpc_record'] = steps['success'].notna()
+    steps['success'] = steps['success'].astype('boolean').fillna(False).astype(bool)
+    steps['fallback'] = steps['fallback'].astype('boolean').fillna(False).astype(bool)
+    steps['solve_time_s'] = steps['solve_time_s'].astype(float).fillna(0.0)
+    steps['T_predicted'] = steps['T_predicted_c'].astype(float) + KELVIN
+    return steps
+
+
+def run_kpis(steps: pd.DataFrame, fine: pd.DataFrame, step_s: float, wall_s: float,
+             **extra: object) -> dict:
+    """KPIs of a ROS run: :func:`closed_loop_kpis` plus ``extra`` and ``fallbacks``."""
+    kpis = closed_loop_kpis(steps, fine, step_s, wall_s)
+    kpis['fallbacks'] = int(np.sum(steps['fallback'].to_numpy(dtype=bool)))
+    kpis['mpc_records_missing'] = int(np.sum(~steps['mpc_record'].to_numpy(dtype=bool)))
+    kpis.update(extra)
+    return kpis
+
+
+def run_outputs(out: pathlib.Path, applied: pd.DataFrame, fine: pd.DataFrame,
+                mpc_records: pd.DataFrame, step_s: float, wall_s: float, title: str,
+                **extra: object) -> dict:
+    """Write kpis.json, steps.csv, trajectories.csv and plot.png to ``out``; return the KPIs."""
+    steps = steps_frame(applied, mpc_records)
+    kpis = run_kpis(steps, fine, step_s, wall_s, **extra)
+    write_outputs(pathlib.Path(out), ClosedLoopResult(steps, fine, [], wall_s), kpis, title)
+    return kpis
+
+
+def kpi_summary(kpis: dict) -> str:
+    """A few lines with the KPIs an operator looks at first."""
+    missing = kpis.get('mpc_records_missing', 0)
+    return (f"energy {kpis['energy_kwh']:.2f} kWh (heating {kpis['heating_kwh']:.2f}, cooling "
+            f"{kpis['cooling_kwh']:.2f})\n"
+            f"discomfort {kpis['discomfort_kh']:.2f} Kh (hourly samples "
+            f"{kpis['discomfort_kh_hourly']:.2f} Kh)\n"
+            f"{kpis['steps']} steps, wall {kpis['wall_s']:.2f} s, solve total "
+            f"{kpis['solve_s_total']:.2f} s (median {kpis['solve_s_median']:.4f} s, max "
+            f"{kpis['solve_s_max']:.3f} s), solver failures {kpis['solver_failures']}, "
+            f"fallbacks {kpis.get('fallbacks', 0)}"
+            + (f'\nwarning: {missing} steps have no recorded MPC setpoint/status' if missing
+               else ''))

@@ -1,0 +1,160 @@
+"""Scenarios, models and the simulated-time origin, built from parameter values.
+
+A small adapter between node parameters and :mod:`mshoot_core`: the emulator
+and the forecaster read the same scenario parameters, so they must build the
+same DataFrame and place it at the same ROS time.
+"""
+from __future__ import annotations
+
+import logging
+import pathlib
+
+from mshoot_core.models.base import Model
+from mshoot_core.models.r1c1 import R1C1Model
+from mshoot_core.scenario import load_ou44, synthetic_scenario
+import pandas as pd
+
+from mshoot_nodes.conversions import NS_PER_S
+
+logger = logging.getLogger(__name__)
+
+#: Scenario names understood besides a CSV path.
+SCENARIOS = ('synthetic', 'ou44')
+#: Model names understood besides a path to an .fmu file.
+MODELS = ('python', 'fmu', 'fmu-cs')
+#: First row of the OU44 reference case (5 April 2018, local time).
+OU44_START = '2018-04-05 00:00'
+#: Used when a scenario carries no start time in ``attrs['start']``.
+DEFAULT_START = '2018-04-05T00:00:00'
+
+
+def check_scenario(name: str, data: str) -> str | None:
+    """Reason why scenario parameters are invalid, or None."""
+    if name in SCENARIOS:
+        if name == 'ou44' and data and not pathlib.Path(data).is_file():
+            return f'data must be the OU44 measurements.csv, got {data!r} (no such file)'
+        return None
+    if name.endswith('.csv'):
+        return None if pathlib.Path(name).is_file() else f'scenario file {name!r} not found'
+    return f'scenario must be one of {list(SCENARIOS)} or a path to an OU44-format CSV, ' \
+           f'got {name!r}'
+
+
+def load_scenario(name: str, data: str = '', hours: int = 72) -> pd.DataFrame:
+    """The scenario of a run: ``hours`` control steps (``hours + 1`` rows).
+
+    The same frames as :func:`mshoot_core.case.reference_scenario` (checked by
+    the tests), built from :mod:`mshoot_core.scenario` directly: importing
+    ``mshoot_core.case`` also imports matplotlib, seconds of start-up per node.
+
+    Parameters
+    ----------
+    name : str
+        'synthetic' (built in, no files), 'ou44' (the reference case, ventilation
+        off; data from ``data`` or the default path of :mod:`mshoot_core.case`),
+        or a path to a CSV in the OU44 format.
+    data : str
+        Path of the OU44 ``measurements.csv`` for 'ou44' ('' = default).
+    hours : int
+        Control steps.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        Missing data or a scenario that does not cover ``hours``.
+    """
+    if name == 'synthetic':
+        return synthetic_scenario(hours=hours + 1)
+    if name == 'ou44':
+        if data:
+            path = pathlib.Path(data)
+        else:
+            from mshoot_core.case import DEFAULT_DATA
+            path = DEFAULT_DATA.resolve()
+    else:
+        path = pathlib.Path(name)
+    end = pd.Timestamp(OU44_START) + pd.Timedelta(hours=hours)
+    scenario = load_ou44(path, start=OU44_START, end=str(end))
+    scenario['dpos'] = 0.0  # the MPC case runs with the ventilation off
+    return scenario
+
+
+def start_ns(scenario: pd.DataFrame, start_time: str = '') -> int:
+    """ROS time [ns] of the first scenario row.
+
+    ``start_time`` (ISO, read as UTC) or else the scenario's ``attrs['start']``,
+    else :data:`DEFAULT_START`. Real dates keep simulated time away from 0,
+    which rclpy reads as "no clock received yet".
+    """
+    text = start_time or scenario.attrs.get('start') or DEFAULT_START
+    stamp = pd.Timestamp(text)
+    stamp = stamp.tz_localize('UTC') if stamp.tzinfo is None else stamp.tz_convert('UTC')
+    seconds = (stamp - pd.Timestamp(0, tz='UTC')).total_seconds()
+    if seconds <= 0:
+        raise ValueError(f'start_time must be after 1970-01-01, got {text!r}')
+    return int(round(seconds)) * NS_PER_S
+
+
+def check_start_time(text: str) -> str | None:
+    """Reason why a start_time parameter is invalid, or None."""
+    if not text:
+        return None
+    try:
+        stamp = pd.Timestamp(text)
+    except ValueError as exc:
+        return f'start_time must be an ISO date-time such as {DEFAULT_START!r}: {exc}'
+    if stamp.tzinfo is None:
+        stamp = stamp.tz_localize('UTC')
+    if stamp <= pd.Timestamp(0, tz='UTC'):
+        return f'start_time must be after 1970-01-01, got {text!r}'
+    return None
+
+
+def check_model(kind: str) -> str | None:
+    """Reason why a model parameter is invalid, or None."""
+    if kind in MODELS:
+        return None
+    if kind.endswith('.fmu'):
+        return None if pathlib.Path(kind).is_file() else f'FMU file {kind!r} not found'
+    return f'model must be one of {list(MODELS)} or a path to an .fmu file, got {kind!r}'
+
+
+def build_model(kind: str, tolerance: float = 1e-10) -> Model:
+    """The zone model named by a parameter.
+
+    Parameters
+    ----------
+    kind : str
+        'python' (exact R1C1), 'fmu' (the built-in R1C1 FMU, Model Exchange),
+        'fmu-cs' (Co-Simulation) or a path to an .fmu with the R1C1 zone's
+        variables (as the built-in one: inputs solrad, Tout, occ, dpos, q; state
+        heatCapacitor.T [K]; outputs T [degC], Qr [J]), run as Model Exchange.
+    tolerance : float
+        Relative tolerance of the FMU integrator.
+
+    Raises
+    ------
+    ValueError
+        Unknown kind, or FMU support missing from the installed mshoot_core.
+    """
+    if kind == 'python':
+        return R1C1Model()
+    if kind not in MODELS and not kind.endswith('.fmu'):
+        raise ValueError(check_model(kind))
+    try:
+        from mshoot_core.models.fmi import r1c1_fmi_model
+    except ImportError as exc:
+        raise ValueError(f'model {kind!r} needs FMU support in mshoot_core ({exc})') from exc
+    fmi_type = 'CoSimulation' if kind == 'fmu-cs' else 'ModelExchange'
+    return r1c1_fmi_model(fmi_type=fmi_type, tolerance=tolerance,
+                          fmu_path=None if kind in MODELS else pathlib.Path(kind))
+
+
+def fmu_available() -> bool:
+    """True if the installed mshoot_core can build and load the R1C1 FMU."""
+    try:
+        from mshoot_core import fmu_build  # noqa: F401
+        from mshoot_core.models import fmi  # noqa: F401
+    except ImportError:
+        return False
+    return True
