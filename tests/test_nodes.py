@@ -1,0 +1,255 @@
+"""ROS 2 nodes in one process: the closed loop over topics equals the core-only loop.
+
+One 24 h lockstep run (emulator, forecaster, MPC and bag recorder in one
+SingleThreadedExecutor, a private rclpy Context) is shared by the tests of this
+module; tests that spin nodes of their own get a Context of their own.
+Every spin loop has a wall-clock guard, so a deadlock fails instead of hanging.
+"""
+import os
+import time
+
+from mshoot_core.case import r1c1_fmu_model
+from mshoot_core.closed_loop import run_closed_loop
+from mshoot_core.emulation import Emulator
+from mshoot_core.models.r1c1 import KELVIN, R1C1Model
+from mshoot_core.mpc import MPC
+from mshoot_core.scenario import synthetic_scenario
+from mshoot_msgs.msg import Setpoint
+import numpy as np
+import pytest
+import rclpy
+from rclpy.exceptions import InvalidParameterValueException
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+
+from mshoot_nodes import contract
+from mshoot_nodes.bags import read_bag, read_messages
+from mshoot_nodes.bringup import run_in_process
+from mshoot_nodes.conversions import NS_PER_S, stamp_to_ns
+from mshoot_nodes.emulator_node import EmulatorNode
+from mshoot_nodes.forecaster_node import ForecasterNode
+from mshoot_nodes.mpc_node import MpcNode
+from mshoot_nodes.recorder_node import RecorderNode
+from mshoot_nodes.replayer_node import ReplayerNode
+
+pytestmark = pytest.mark.ros
+HOURS = 24
+EPOCH_NS = 1522886400 * NS_PER_S  # 2018-04-05T00:00Z, the synthetic scenario's start
+
+
+def _context():
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'OFF'
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=os.getpid() % 100 + 1)
+    return context
+
+
+@pytest.fixture
+def context():
+    """A private rclpy context, shut down after the test."""
+    ctx = _context()
+    yield ctx
+    rclpy.try_shutdown(context=ctx)
+
+
+def spin_until(executor, condition, timeout_s=20.0):
+    """Spin until ``condition()`` holds; fail after ``timeout_s`` of wall time."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            pytest.fail(f'condition not reached within {timeout_s} s')
+        executor.spin_once(timeout_sec=0.05)
+
+
+@pytest.fixture(scope='module')
+def ros_run(tmp_path_factory):
+    """A 24 h lockstep run over ROS with a bag, and the core-only loop of the same case."""
+    bag = tmp_path_factory.mktemp('ros_run') / 'bag'
+    ctx = _context()
+    try:
+        run = run_in_process(ctx, {
+            'emulator': {'hours': HOURS},  # the default emulator: the R1C1 FMU
+            'forecaster': {'hours': HOURS, 'use_sim_time': True},
+            'mpc': {'model': 'python', 'use_sim_time': True},
+            'recorder': {'bag_path': str(bag)},
+        }, timeout_s=60.0)
+    finally:
+        rclpy.try_shutdown(context=ctx)
+    mpc = MPC(R1C1Model(), horizon_steps=10)
+    emulator = Emulator(r1c1_fmu_model(1e-10), synthetic_scenario(hours=HOURS + 1),
+                        [20.0 + KELVIN])
+    core = run_closed_loop(mpc, emulator, steps=HOURS, log_every=0)
+    return run, core, bag
+
+
+def test_ros_closed_loop_equals_core_loop(ros_run):
+    run, core, _ = ros_run
+    applied = run.emulator.applied_frame()
+    assert len(applied) == HOURS
+    np.testing.assert_allclose(applied.index.to_numpy(), core.steps.index.to_numpy())
+    assert np.max(np.abs(applied['T_end'].to_numpy() - core.steps['T_end'].to_numpy())) < 1e-9
+    assert np.max(np.abs(applied['q'].to_numpy() - core.steps['q'].to_numpy())) < 1e-6
+    fine = run.emulator.fine_frame()
+    assert fine.shape[0] == core.fine.shape[0] == HOURS * 60 + 1
+    assert np.max(np.abs(fine['y_T'].to_numpy() - core.fine['y_T'].to_numpy())) < 1e-9
+
+
+def test_a_setpoint_for_every_step(ros_run):
+    run, core, _ = ros_run
+    stamps = [stamp_to_ns(setpoint.header.stamp) for setpoint, _ in run.mpc.history]
+    assert stamps == [EPOCH_NS + k * 3600 * NS_PER_S for k in range(HOURS)]
+    statuses = [status for _, status in run.mpc.history]
+    assert all(s.success and not s.fallback for s in statuses)
+    first = run.mpc.history[0][0]
+    assert len(first.plan_heat_rate_w) == len(first.plan_temperature_c) == 10
+    assert first.heat_rate_w == pytest.approx(core.steps['q'].iloc[0], abs=1e-6)
+    assert first.temperature_setpoint_c == pytest.approx(
+        core.steps['T_predicted'].iloc[0] - KELVIN, abs=1e-9)
+    assert run.forecaster.published == HOURS
+
+
+def test_bag_has_every_topic_and_count(ros_run):
+    run, _, bag = ros_run
+    contents = read_bag(bag)
+    assert contents.storage == 'mcap'
+    assert set(contents.topics) == set(contract.RECORDED_TOPICS)
+    for topic, (msgtype, qos) in contents.topics.items():
+        assert msgtype == contract.TOPIC_TYPES[topic]
+        assert qos, f'{topic}: no offered QoS in the metadata'
+    assert contents.topics[contract.FORECAST][1][0].durability.name == 'TRANSIENT_LOCAL'
+    assert contents.counts == run.recorder.counts
+    assert sum(contents.counts.values()) == len(contents.messages)
+    unique = {topic: len({(m.timestamp_ns, m.rawdata) for m in contents.messages
+                          if m.topic == topic}) for topic in contents.topics}
+    # Lockstep: one state/disturbances/clock per step plus the final one, one forecast,
+    # setpoint and status per control step (heartbeats may add repeats, never new stamps).
+    states = read_messages(bag, contract.ZONE_STATE)
+    assert len({stamp_to_ns(m.header.stamp) for m in states}) == HOURS + 1
+    for topic, expected in ((contract.CLOCK, HOURS + 1), (contract.ZONE_DISTURBANCES, HOURS + 1),
+                            (contract.FORECAST, HOURS), (contract.SETPOINT, HOURS),
+                            (contract.STATUS, HOURS)):
+        assert contents.counts[topic] >= expected, topic
+        assert unique[topic] >= expected, topic
+    setpoints = read_messages(bag, contract.SETPOINT)
+    assert [s.heat_rate_w for s in setpoints][:HOURS] == \
+        [s.heat_rate_w for s, _ in run.mpc.history]
+
+
+def test_replayed_bag_drives_a_fresh_mpc_to_the_recorded_setpoints(ros_run, context):
+    _, _, bag = ros_run
+    recorded = read_messages(bag, contract.SETPOINT)
+    contents = read_bag(bag)
+    t0 = contents.messages[0].timestamp_ns
+    setpoint_offsets = [m.timestamp_ns - t0 for m in contents.messages
+                        if m.topic == contract.SETPOINT]
+    replayer = ReplayerNode(context=context, parameter_overrides=[
+        Parameter('bag_path', value=str(bag)), Parameter('autostart', value=False),
+        Parameter('exclude_topics', value=[contract.SETPOINT, contract.STATUS])])
+    fresh = MpcNode(context=context, parameter_overrides=[Parameter('use_sim_time', value=True)])
+    executor = SingleThreadedExecutor(context=context)
+    for node in (replayer, fresh):
+        executor.add_node(node)
+    spin_until(executor, lambda: fresh.count_publishers(contract.ZONE_STATE) > 0, 5.0)
+    for k, offset in enumerate(setpoint_offsets):
+        # Everything the original MPC had received when it published setpoint k.
+        replayer.publish_until(offset - 1)
+        spin_until(executor, lambda: len(fresh.history) > k)
+    replayer.publish_until(2 ** 62)
+    assert replayer.done
+    replayed = [s for s, _ in fresh.history]
+    assert [stamp_to_ns(s.header.stamp) for s in replayed] == \
+        [stamp_to_ns(s.header.stamp) for s in recorded]
+    np.testing.assert_allclose([s.heat_rate_w for s in replayed],
+                               [s.heat_rate_w for s in recorded], rtol=0, atol=1e-9)
+    np.testing.assert_allclose([s.plan_temperature_c for s in replayed],
+                               [s.plan_temperature_c for s in recorded], rtol=0, atol=1e-9)
+    executor.shutdown()
+    for node in (replayer, fresh):
+        node.destroy_node()
+
+
+def test_replayer_keeps_the_recorded_timing_scaled(ros_run, context):
+    _, _, bag = ros_run
+    contents = read_bag(bag)
+    span_s = (contents.messages[-1].timestamp_ns - contents.messages[0].timestamp_ns) / 1e9
+    rate = span_s / 0.5  # the whole bag in 0.5 s
+    replayer = ReplayerNode(context=context, parameter_overrides=[
+        Parameter('bag_path', value=str(bag)), Parameter('rate', value=rate),
+        Parameter('start_delay_s', value=0.2)])
+    listener = rclpy.create_node('listener', context=context)
+    received = []
+    listener.create_subscription(Setpoint, contract.SETPOINT,
+                                 lambda m: received.append(time.monotonic()), 100)
+    executor = SingleThreadedExecutor(context=context)
+    for node in (replayer, listener):
+        executor.add_node(node)
+    spin_until(executor, lambda: replayer.done and len(received) == contents.counts[
+        contract.SETPOINT], 10.0)
+    # Setpoints were recorded over most of the run: they arrive spread over ~0.5 s.
+    assert 0.2 < received[-1] - received[0] < 3.0
+    executor.shutdown()
+    for node in (replayer, listener):
+        node.destroy_node()
+
+
+def test_solve_overrunning_its_budget_gets_a_fallback(context, tmp_path):
+    """The solve runs in a worker thread: the node publishes a fallback while it runs."""
+    run = run_in_process(context, {
+        'emulator': {'hours': 3},
+        'forecaster': {'hours': 3, 'use_sim_time': True},
+        'mpc': {'use_sim_time': True, 'time_budget_s': 1e-4},
+    }, record=False, timeout_s=30.0)
+    statuses = [status for _, status in run.mpc.history]
+    assert len(statuses) == 3 and all(s.fallback for s in statuses)
+    assert 'time budget exceeded' in statuses[0].message
+    assert run.emulator.applied_frame()['q'].tolist() == [0.0, 0.0, 0.0]
+
+
+def test_free_running_emulator_completes(context):
+    run = run_in_process(context, {
+        'emulator': {'hours': 4, 'mode': 'free', 'speedup': 3600.0 / 0.3,
+                     'clock_period_s': 0.01},
+        'forecaster': {'hours': 4, 'use_sim_time': True},
+        'mpc': {'use_sim_time': True},
+    }, record=False, timeout_s=30.0)
+    assert len(run.emulator.records) == 4
+    assert len(run.mpc.history) >= 3  # one per step unless a solve overran a 0.3 s step
+
+
+def test_invalid_parameters_are_rejected_with_a_reason(context, tmp_path):
+    def rejected(cls, **params):
+        with pytest.raises(InvalidParameterValueException) as info:
+            cls(context=context, parameter_overrides=[Parameter(k, value=v)
+                                                      for k, v in params.items()])
+        return str(info.value)
+
+    assert "cost must be one of ['quadratic', 'energy'], got 'cubic'" in rejected(
+        MpcNode, cost='cubic')
+    assert 'out of range' in rejected(MpcNode, horizon_steps=0)
+    assert 'heat_rate_min_w must be < heat_rate_max_w' in rejected(
+        MpcNode, heat_rate_min_w=500.0, heat_rate_max_w=100.0)
+    assert 'solver must be one of' in rejected(MpcNode, solver='newton')
+    assert 'not found' in rejected(MpcNode, model='/nowhere/zone.fmu')
+    assert 'not found' in rejected(EmulatorNode, scenario='/nowhere/data.csv')
+    assert "mode must be one of ['lockstep', 'free']" in rejected(EmulatorNode, mode='fast')
+    assert 'step_s must be a multiple of fine_step_s' in rejected(EmulatorNode, fine_step_s=7.0)
+    assert 'start_time must be after 1970' in rejected(EmulatorNode, start_time='1960-01-01')
+    assert 'error_model must be one of' in rejected(ForecasterNode, error_model='gauss')
+    assert "storage must be one of ['mcap', 'sqlite3']" in rejected(
+        RecorderNode, storage='zip', bag_path=str(tmp_path / 'b'))
+    assert 'exists (set overwrite:=true' in rejected(RecorderNode, bag_path=str(tmp_path))
+
+    # At run time: rejected changes keep the old value, valid ones rebuild the MPC.
+    mpc = MpcNode(context=context)
+    result = mpc.set_parameters([Parameter('heat_rate_min_w', value=3000.0)])[0]
+    assert not result.successful and 'heat_rate_max_w' in result.reason
+    result = mpc.set_parameters([Parameter('model', value='fmu')])[0]
+    assert not result.successful and 'read-only' in result.reason
+    result = mpc.set_parameters([Parameter('comfort', value='lukewarm')])[0]
+    assert not result.successful and "'hard', 'soft'" in result.reason
+    assert mpc.get_parameter('heat_rate_min_w').value == -2000.0
+    assert mpc.set_parameters([Parameter('horizon_steps', value=6)])[0].successful
+    assert mpc.mpc.horizon_steps == 6
+    assert mpc.set_parameters([Parameter('comfort', value='soft')])[0].successful
+    assert mpc.mpc.problem.soft_bounds
+    mpc.destroy_node()
