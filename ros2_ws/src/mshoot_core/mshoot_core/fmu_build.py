@@ -234,6 +234,41 @@ def fmu_path(name: str) -> pathlib.Path:
     return path
 
 
+#: C source of the batched Co-Simulation driver (see :mod:`mshoot_core.models.fmi`).
+CS_BATCH_SOURCE = SOURCE_DIR / 'cs_batch.c'
+
+
+def cs_batch_library() -> pathlib.Path | None:
+    """Return the compiled batched Co-Simulation driver, building it on first use.
+
+    Returns None (with a warning) when no compiler is available: FMUs then run
+    through fmpy's calls interval by interval, slower but the same.
+    """
+    digest = hashlib.sha256(CS_BATCH_SOURCE.read_bytes())
+    for header in sorted(SOURCE_DIR.glob('fmi2*.h')):
+        digest.update(header.read_bytes())
+    digest.update(' '.join(CFLAGS).encode())
+    _, suffix = _platform()
+    target = fmu_cache_dir() / 'driver' / digest.hexdigest()[:16] / f'mshoot_cs_batch{suffix}'
+    if target.is_file():
+        return target
+    try:
+        compiler = find_compiler()
+    except RuntimeError as exc:
+        logger.warning('no batched FMU driver: %s', exc)
+        return None
+    target.parent.mkdir(parents=True, exist_ok=True)
+    staged = target.parent / f'.{target.name}.{os.getpid()}.tmp'
+    command = [compiler, *CFLAGS, '-I', str(SOURCE_DIR), '-o', str(staged), str(CS_BATCH_SOURCE)]
+    result = subprocess.run(command, capture_output=True, text=True, check=False)
+    if result.returncode != 0:
+        logger.warning('compiling the batched FMU driver failed, using fmpy calls:\n%s',
+                       result.stderr.strip())
+        return None
+    os.replace(staged, target)
+    return target
+
+
 def r1c1_fmu_path() -> pathlib.Path:
     """Return the cached R1C1 FMU (ME + CS), building it on first use."""
     return fmu_path('r1c1')

@@ -99,6 +99,36 @@ class _HeldInputs:
         """Do nothing: the inputs are already set on the FMU for the interval."""
 
 
+class _CsApi(ctypes.Structure):
+    """The FMI functions the batched Co-Simulation driver calls (see fmu_src/cs_batch.c)."""
+
+    _fields_ = [(name, ctypes.c_void_p) for name in (
+        'reset', 'set_real', 'get_real', 'setup_experiment', 'enter_initialization',
+        'exit_initialization', 'do_step')]
+
+
+_CS_FUNCTIONS = ('fmi2Reset', 'fmi2SetReal', 'fmi2GetReal', 'fmi2SetupExperiment',
+                 'fmi2EnterInitializationMode', 'fmi2ExitInitializationMode', 'fmi2DoStep')
+
+
+def _load_cs_driver(fmu: FMU2Slave) -> tuple[ctypes.CDLL, _CsApi] | None:
+    """The compiled batch driver bound to ``fmu``'s functions, or None if unavailable."""
+    from mshoot_core.fmu_build import cs_batch_library
+    path = cs_batch_library()
+    if path is None:
+        return None
+    driver = ctypes.CDLL(str(path))
+    driver.mshoot_cs_batch.restype = ctypes.c_long
+    size, real = ctypes.c_size_t, ctypes.c_double
+    ptr = ctypes.c_void_p
+    driver.mshoot_cs_batch.argtypes = [ptr, ptr, size, real, ctypes.c_int, real,
+                                       size, ptr, ptr, size, ptr, ptr, size, ptr, ptr,
+                                       size, ptr, ptr, size, ptr, ptr]
+    api = _CsApi(*[ctypes.cast(getattr(fmu.dll, name), ctypes.c_void_p) for name in
+                   _CS_FUNCTIONS])
+    return driver, api
+
+
 def _real_array(values: Sequence[float]) -> ctypes.Array:
     return (ctypes.c_double * len(values))(*values)
 
@@ -404,6 +434,7 @@ class FmiModel(Model):
                         instanceName=instance_name)
         self._fmu.instantiate(callbacks=_CALLBACKS)
         self._initialized_once = False
+        self._cs_driver = None
         logger.debug('instantiated %s as %s', self.fmu_path.name, self.fmi_type)
 
     # -- lifecycle --------------------------------------------------------------------------
@@ -656,13 +687,49 @@ class FmiModel(Model):
         y_end : ndarray, shape (B, ny)
         """
         x_start, u, dt_s = self._check_batch(x_start, u, dt_s)
-        x_end = np.empty_like(x_start)
+        x_end = np.empty(x_start.shape)
         y_end = np.empty((x_start.shape[0], len(self.output_names)))
+        if self._batch_in_c(x_start, u, dt_s, x_end, y_end):
+            return x_end, y_end
         for b in range(x_start.shape[0]):
             self._start_interval(x_start[b], u[b])
             self._advance(0.0, dt_s)
             x_end[b], y_end[b] = self._read()
         return x_end, y_end
+
+    def _batch_in_c(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
+                    x_end: np.ndarray, y_end: np.ndarray) -> bool:
+        """Run a Co-Simulation batch in the compiled driver; False where it does not apply.
+
+        Applies to Co-Simulation FMUs whose parameters are all Real, after the
+        first initialisation through fmpy; each interval makes the same FMI
+        calls as :meth:`_initialize` + ``doStep`` + :meth:`_read`.
+        """
+        if self.is_model_exchange or not self._initialized_once or any(
+                kind != 'Real' for kind in self._parameter_groups):
+            return False
+        if self._cs_driver is None:
+            self._cs_driver = _load_cs_driver(self._fmu) or False
+        if self._cs_driver is False:
+            return False
+        driver, api = self._cs_driver
+        par_refs, par_values = self._parameter_groups.get('Real', ([], []))
+        start = np.ascontiguousarray(x_start[:, self._start_state_index])
+        inputs = np.ascontiguousarray(u)
+        code = driver.mshoot_cs_batch(
+            ctypes.byref(api), self._fmu.component, x_start.shape[0], dt_s,
+            self.tolerance is not None, self.tolerance or 0.0,
+            len(par_refs), _vr_array(par_refs), _real_array(par_values),
+            len(self._start_state_index), self._start_state_refs, _pointer(start),
+            len(self._input_vars), self._input_refs, _pointer(inputs),
+            len(self._state_vars), self._state_refs, _pointer(x_end),
+            len(self._output_vars), self._output_refs, _pointer(y_end))
+        if code:
+            raise RuntimeError(f'{self.fmu_path.name}: FMI call {code % 16 - 1} of interval '
+                               f'{code // 16} failed in the batched driver '
+                               f'(0 reset, 1 parameters, 2 start states, 3 setup, 4 enter '
+                               f'init, 5 inputs, 6 exit init, 7 doStep, 8/9 read)')
+        return True
 
     def _sensitivity_plan(self, wrt: Sequence[int]) -> str | None:
         """Why sensitivities are unavailable, or None when they are."""
