@@ -282,7 +282,7 @@ def main(argv: list[str] | None = None) -> int:
     where.add_argument('--out', type=pathlib.Path, help='directory to write the .fmu files to')
     where.add_argument('--cache', action='store_true',
                        help=f'build into the cache (${CACHE_ENV} or ~/.cache/mshoot/fmu) '
-                            'unless already there')
+                            'unless already there, with the batched Co-Simulation driver')
     parser.add_argument('models', nargs='*', metavar='MODEL', default=['r1c1'],
                         help=f'models to build, from {sorted(MODELS)} (default: r1c1)')
     args = parser.parse_args(argv)
@@ -291,6 +291,10 @@ def main(argv: list[str] | None = None) -> int:
         for name in args.models:
             path = fmu_path(name) if args.cache else build_fmu(name, args.out)
             sys.stdout.write(f'{path}\n')
+        if args.cache:
+            driver = cs_batch_library()
+            if driver is not None:
+                sys.stdout.write(f'{driver}\n')
     except (ValueError, RuntimeError) as error:
         logger.error('%s', error)
         return 1
