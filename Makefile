@@ -24,3 +24,14 @@ bench: setup  ## run the benchmarks (speed, tolerance, scale); figures in out/be
 clean:  ## remove build products (keeps .venv)
 	rm -rf $(ROOT)/ros2_ws/build $(ROOT)/ros2_ws/install $(ROOT)/ros2_ws/log $(ROOT)/out
 	rm -f $(ROOT)/.venv/.stamp-workspace
+
+# -- the demo (mshoot_nodes): the closed loop over ROS 2 ----------------------------------------
+SCENARIO ?= synthetic
+OU44_CSV ?= $(abspath $(ROOT)/../shared/data/ou44/measurements.csv)
+DEMO_OUT ?= out/demo
+DEMO_ARGS ?=
+
+.PHONY: demo
+demo: setup  ## 72 h MPC over ROS 2 (emulator, forecaster, mpc, bag) -> out/demo/; SCENARIO=ou44 for the OU44 data
+	@$(RUN) cd $(ROOT) && python -m mshoot_nodes.bringup --scenario $(SCENARIO) \
+		$(if $(filter ou44,$(SCENARIO)),--data $(OU44_CSV)) --out $(DEMO_OUT) $(DEMO_ARGS)

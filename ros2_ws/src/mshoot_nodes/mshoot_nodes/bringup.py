@@ -22,6 +22,7 @@ import sys
 import time
 from typing import Any, Callable, Sequence
 
+from mshoot_core.case import PUBLISHED
 from mshoot_core.closed_loop import run_closed_loop
 from mshoot_core.models.r1c1 import KELVIN
 import rclpy
@@ -235,6 +236,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         tolerance=p_mpc['fmu_tolerance'], horizon_h=p_mpc['horizon_steps'] * p_mpc['step_s']
         / 3600.0, cost=p_mpc['cost'], solver=p_mpc['solver'], comfort=p_mpc['comfort'],
         setup_s=0.0, transport='ros2 in-process', mode=p_emu['mode'])
+    hours = len(emulator.records)
+    if p_emu['scenario'] == 'ou44' and hours == 72 and p_mpc['horizon_steps'] in PUBLISHED:
+        extra['published'] = PUBLISHED[p_mpc['horizon_steps']]
     if run.recorder is not None:
         extra['bag'] = str(run.recorder.path)
         extra['bag_messages'] = dict(run.recorder.counts)
@@ -243,7 +247,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         extra.update(core_wall_s=core_wall, ros_overhead_s=run.wall_s - core_wall,
                      max_abs_diff_vs_core_k=max_diff)
     title = (f"{p_emu['scenario']} over ROS 2: H = {p_mpc['horizon_steps']} steps, control "
-             f"{p_mpc['model']}, {p_mpc['cost']} cost")
+             f"{p_mpc['model']}, emulator {p_emu['model']}, {p_mpc['cost']} cost")
     kpis = run_outputs(args.out, emulator.applied_frame(), emulator.fine_frame(), records,
                        p_emu['step_s'], run.wall_s, title, **extra)
     print(f'[demo] {kpi_summary(kpis)}')
