@@ -84,19 +84,20 @@ def run_in_process(context: Context, node_params: dict[str, dict[str, Any]], *,
     The nodes are destroyed before returning (the recorder's bag is closed);
     their records stay readable.
     """
-    def make(cls: type, name: str) -> Any:
-        return cls(context=context, parameter_overrides=overrides(node_params.get(name, {})))
-
     nodes: list[Any] = []
+
+    def make(cls: type, name: str) -> Any:
+        node = cls(context=context, parameter_overrides=overrides(node_params.get(name, {})))
+        nodes.append(node)  # destroyed below even if a later node fails to start
+        executor.add_node(node)
+        return node
+
     executor = SingleThreadedExecutor(context=context)
     try:
         recorder = make(RecorderNode, 'recorder') if record else None
         forecaster = make(ForecasterNode, 'forecaster')
         mpc = make(MpcNode, 'mpc')
         emulator = make(EmulatorNode, 'emulator')
-        nodes = [n for n in (recorder, forecaster, mpc, emulator) if n is not None]
-        for node in nodes:
-            executor.add_node(node)
         started = time.perf_counter()
         steps_seen = 0
         while not emulator.done:

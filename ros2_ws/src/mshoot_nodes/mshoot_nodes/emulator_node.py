@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import pathlib
+import sys
 from typing import Any
 
 from mshoot_core.emulation import Emulator, StepRecord
@@ -31,6 +32,7 @@ import numpy as np
 import pandas as pd
 import rclpy
 from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -379,6 +381,9 @@ def main(args: list[str] | None = None) -> None:
             rclpy.spin_once(node, timeout_sec=0.5)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except (InvalidParameterValueException, ValueError, FileNotFoundError) as exc:
+        rclpy.logging.get_logger('emulator').fatal(f'cannot start: {exc}')
+        sys.exit(2)
     finally:
         if node is not None:
             node.destroy_node()
