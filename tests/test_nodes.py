@@ -207,13 +207,16 @@ def test_solve_overrunning_its_budget_gets_a_fallback(context, tmp_path):
 
 def test_free_running_emulator_completes(context):
     run = run_in_process(context, {
-        'emulator': {'hours': 4, 'mode': 'free', 'speedup': 3600.0 / 0.3,
+        'emulator': {'hours': 3, 'mode': 'free', 'speedup': 3600.0 / 0.5,
                      'clock_period_s': 0.01},
-        'forecaster': {'hours': 4, 'use_sim_time': True},
+        'forecaster': {'hours': 3, 'use_sim_time': True},
         'mpc': {'use_sim_time': True},
     }, record=False, timeout_s=30.0)
-    assert len(run.emulator.records) == 4
-    assert len(run.mpc.history) >= 3  # one per step unless a solve overran a 0.3 s step
+    assert len(run.emulator.records) == 3
+    # Each step applies the newest setpoint (0 W before the first one): never anything else.
+    published = {setpoint.heat_rate_w for setpoint, _ in run.mpc.history}
+    assert published
+    assert set(run.emulator.applied_frame()['q']) <= published | {0.0}
 
 
 def test_invalid_parameters_are_rejected_with_a_reason(context, tmp_path):
