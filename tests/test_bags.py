@@ -31,7 +31,7 @@ def context():
     rclpy.try_shutdown(context=ctx)
 
 
-def spin_until(executor, condition, timeout_s=10.0):
+def spin_until(executor, condition, timeout_s=60.0):
     deadline = time.monotonic() + timeout_s
     while not condition():
         if time.monotonic() > deadline:

@@ -52,7 +52,7 @@ def context():
     rclpy.try_shutdown(context=ctx)
 
 
-def spin_until(executor, condition, timeout_s=20.0):
+def spin_until(executor, condition, timeout_s=90.0):
     """Spin until ``condition()`` holds; fail after ``timeout_s`` of wall time."""
     deadline = time.monotonic() + timeout_s
     while not condition():
@@ -149,7 +149,7 @@ def test_replayed_bag_drives_a_fresh_mpc_to_the_recorded_setpoints(ros_run, cont
     executor = SingleThreadedExecutor(context=context)
     for node in (replayer, fresh):
         executor.add_node(node)
-    spin_until(executor, lambda: fresh.count_publishers(contract.ZONE_STATE) > 0, 5.0)
+    spin_until(executor, lambda: fresh.count_publishers(contract.ZONE_STATE) > 0, 30.0)
     for k, offset in enumerate(setpoint_offsets):
         # Everything the original MPC had received when it published setpoint k.
         replayer.publish_until(offset - 1)

@@ -22,6 +22,9 @@ if [ "$(cat "$venv/.stamp-requirements" 2>/dev/null)" != "$req_hash" ]; then
   "$venv/bin/python" -m pip install -q --disable-pip-version-check uv==0.13.8
   VIRTUAL_ENV="$venv" "$venv/bin/uv" pip install -q -r requirements.txt
   "$venv/bin/python" tools/fix_wheel_cmake_paths.py "$venv"
+  # byte-compile once: with PYTHONDONTWRITEBYTECODE set, every process would otherwise
+  # compile numpy/scipy/pandas/matplotlib from source at import (seconds per node)
+  "$venv/bin/python" -m compileall -q -j 0 "$venv/lib" > /dev/null || true
   echo "$req_hash" > "$venv/.stamp-requirements"
 else
   log "requirements unchanged, skipping install"

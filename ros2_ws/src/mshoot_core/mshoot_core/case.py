@@ -28,8 +28,7 @@ from mshoot_core.kpis import closed_loop_kpis
 from mshoot_core.models.base import Model
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.mpc import MPC
-from mshoot_core.plotting import plot_closed_loop
-from mshoot_core.scenario import load_ou44, synthetic_scenario
+from mshoot_core.scenario import DEFAULT_DATA, reference_scenario  # noqa: F401 (API)
 from mshoot_core.solvers import SOLVERS
 
 logger = logging.getLogger(__name__)
@@ -40,32 +39,6 @@ PUBLISHED = {2: {'energy_kwh': 40.9, 'discomfort_kh_hourly': 17.9, 'wall_s': 116
 #: Data-driven control models (scikit-learn estimators trained as in Setup 2).
 DATA_DRIVEN = ('svr', 'linear', 'ridge', 'knn', 'random_forest', 'mlp')
 CONTROL_MODELS = ('python', 'fmu', 'fmu-cs') + DATA_DRIVEN
-DEFAULT_DATA = pathlib.Path(__file__).resolve().parents[4] / '..' / 'shared' / 'data' / 'ou44' \
-    / 'measurements.csv'
-
-
-def reference_scenario(name: str, data: str | pathlib.Path | None = None,
-                       hours: int = 72) -> pd.DataFrame:
-    """The scenario of the MPC case: OU44 5-8 April 2018 (ventilation off) or synthetic.
-
-    Parameters
-    ----------
-    name : {'ou44', 'synthetic'}
-    data : path-like, optional
-        The OU44 ``measurements.csv`` (needed for 'ou44').
-    hours : int
-        Control steps; the scenario holds ``hours + 1`` rows.
-    """
-    if name == 'ou44':
-        if data is None:
-            raise ValueError('scenario ou44 needs --data PATH to measurements.csv')
-        end = pd.Timestamp('2018-04-05 00:00') + pd.Timedelta(hours=hours)
-        scenario = load_ou44(data, end=str(end))
-        scenario['dpos'] = 0.0  # the MPC case runs with the ventilation off
-        return scenario
-    if name == 'synthetic':
-        return synthetic_scenario(hours=hours + 1)
-    raise ValueError(f"unknown scenario {name!r}; choose 'ou44' or 'synthetic'")
 
 
 def r1c1_fmu_model(tolerance: float = 1e-6, fmi_type: str = 'ModelExchange') -> Model:
@@ -135,6 +108,7 @@ def write_outputs(out: pathlib.Path, result: ClosedLoopResult, kpis: dict,
     (out / 'kpis.json').write_text(json.dumps(kpis, indent=2, sort_keys=True) + '\n')
     result.fine.to_csv(out / 'trajectories.csv', index_label='time_s')
     result.steps.to_csv(out / 'steps.csv', index_label='time_s')
+    from mshoot_core.plotting import plot_closed_loop  # matplotlib only where plots are made
     subtitle = (f"{kpis['energy_kwh']:.1f} kWh, {kpis['discomfort_kh']:.1f} Kh "
                 f"({kpis['discomfort_kh_hourly']:.1f} Kh hourly), wall {kpis['wall_s']:.1f} s")
     plot_closed_loop(result.fine, result.steps, out / 'plot.png', f'{title}\n{subtitle}')

@@ -23,6 +23,11 @@ logger = logging.getLogger(__name__)
 DISTURBANCE_COLUMNS = ('solrad', 'Tout', 'occ', 'dpos')
 COMFORT_COLUMNS = ('comfort_min', 'comfort_max')
 SCENARIO_COLUMNS = DISTURBANCE_COLUMNS + COMFORT_COLUMNS
+#: Start of the reference MPC case (SPEC section 3).
+OU44_START = '2018-04-05 00:00'
+#: The OU44 measurements where the project sits beside ``shared/`` (a checkout).
+DEFAULT_DATA = (pathlib.Path(__file__).resolve().parents[4] / '..' / 'shared' / 'data' / 'ou44'
+                / 'measurements.csv')
 #: Measured columns the OU44 CSV must hold.
 OU44_COLUMNS = ('datetime', 'T', 'solrad', 'Tout', 'occ', 'dpos')
 
@@ -158,3 +163,34 @@ def validate_scenario(scenario: pd.DataFrame) -> None:
     t = np.asarray(scenario.index, dtype=float)
     if t.size < 2 or np.any(np.diff(t) <= 0):
         raise ValueError('scenario index must be strictly increasing times [s]')
+
+
+def reference_scenario(name: str, data: str | pathlib.Path | None = None,
+                       hours: int = 72) -> pd.DataFrame:
+    """The scenario of the MPC case: ``hours`` control steps (``hours + 1`` rows).
+
+    Parameters
+    ----------
+    name : str
+        'ou44' (5-8 April 2018 from the OU44 data, ventilation off as in the
+        MPC case), 'synthetic' (built in, no files), or a path to a CSV in the
+        OU44 format (read like 'ou44').
+    data : path-like, optional
+        The OU44 ``measurements.csv`` for 'ou44' (default :data:`DEFAULT_DATA`).
+    hours : int
+        Control steps.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        Missing data, or data that does not cover ``hours``.
+    """
+    if hours < 1:
+        raise ValueError(f'hours must be >= 1, got {hours}')
+    if name == 'synthetic':
+        return synthetic_scenario(hours=hours + 1)
+    path = pathlib.Path(name) if name != 'ou44' else pathlib.Path(data or DEFAULT_DATA)
+    end = pd.Timestamp(OU44_START) + pd.Timedelta(hours=hours)
+    scenario = load_ou44(path, start=OU44_START, end=str(end))
+    scenario['dpos'] = 0.0  # the MPC case runs with the ventilation off
+    return scenario

@@ -11,7 +11,7 @@ import pathlib
 
 from mshoot_core.models.base import Model
 from mshoot_core.models.r1c1 import R1C1Model
-from mshoot_core.scenario import load_ou44, synthetic_scenario
+from mshoot_core.scenario import reference_scenario
 import pandas as pd
 
 from mshoot_nodes.conversions import NS_PER_S
@@ -23,7 +23,6 @@ SCENARIOS = ('synthetic', 'ou44')
 #: Model names understood besides a path to an .fmu file.
 MODELS = ('python', 'fmu', 'fmu-cs')
 #: First row of the OU44 reference case (5 April 2018, local time).
-OU44_START = '2018-04-05 00:00'
 #: Used when a scenario carries no start time in ``attrs['start']``.
 DEFAULT_START = '2018-04-05T00:00:00'
 
@@ -43,16 +42,12 @@ def check_scenario(name: str, data: str) -> str | None:
 def load_scenario(name: str, data: str = '', hours: int = 72) -> pd.DataFrame:
     """The scenario of a run: ``hours`` control steps (``hours + 1`` rows).
 
-    The same frames as :func:`mshoot_core.case.reference_scenario` (checked by
-    the tests), built from :mod:`mshoot_core.scenario` directly: importing
-    ``mshoot_core.case`` also imports matplotlib, seconds of start-up per node.
-
     Parameters
     ----------
     name : str
         'synthetic' (built in, no files), 'ou44' (the reference case, ventilation
-        off; data from ``data`` or the default path of :mod:`mshoot_core.case`),
-        or a path to a CSV in the OU44 format.
+        off; data from ``data`` or the default path), or a path to a CSV in the
+        OU44 format.
     data : str
         Path of the OU44 ``measurements.csv`` for 'ou44' ('' = default).
     hours : int
@@ -63,20 +58,7 @@ def load_scenario(name: str, data: str = '', hours: int = 72) -> pd.DataFrame:
     FileNotFoundError, ValueError
         Missing data or a scenario that does not cover ``hours``.
     """
-    if name == 'synthetic':
-        return synthetic_scenario(hours=hours + 1)
-    if name == 'ou44':
-        if data:
-            path = pathlib.Path(data)
-        else:
-            from mshoot_core.case import DEFAULT_DATA
-            path = DEFAULT_DATA.resolve()
-    else:
-        path = pathlib.Path(name)
-    end = pd.Timestamp(OU44_START) + pd.Timedelta(hours=hours)
-    scenario = load_ou44(path, start=OU44_START, end=str(end))
-    scenario['dpos'] = 0.0  # the MPC case runs with the ventilation off
-    return scenario
+    return reference_scenario(name, data or None, hours)
 
 
 def start_ns(scenario: pd.DataFrame, start_time: str = '') -> int:
