@@ -133,7 +133,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--tolerance', type=float, default=1e-6,
                         help='FMU integrator relative tolerance (default 1e-6)')
     parser.add_argument('--cost', choices=('quadratic', 'energy'), default='quadratic',
-                        help='quadratic: sum (q/q_nom)^2 (the reference); energy: sum |q|')
+                        help='quadratic: sum (q/q_nom)^2 (the reference); energy: sum |q| '
+                             '(smoothed; converges far faster with --solver ipopt)')
     parser.add_argument('--comfort', choices=('hard', 'soft'), default='hard',
                         help='hard: band as bounds, relaxed where unreachable; soft: slack '
                              'with quadratic penalty (default hard)')
