@@ -453,3 +453,14 @@ def test_batched_co_simulation_driver_equals_fmpy_calls():
     np.testing.assert_array_equal(y_c, y_py)
     x_ref, y_ref = R1C1Model().simulate_intervals(x, u, 3600.0)
     np.testing.assert_allclose(x_c, x_ref, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize('fmi_type', ['CoSimulation', 'ModelExchange'])
+def test_simulate_fresh_reproduces_the_reused_instance(fmi_type):
+    """The ancestor's way (simulate_fmu from the file each time) gives the same trajectory."""
+    model = r1c1_fmi_model(fmi_type=fmi_type, tolerance=1e-10)
+    udf = hourly_inputs(4, seed=3)
+    ydf, xdf = model.simulate(udf, [294.0])
+    y_fresh, x_fresh = model.simulate_fresh(udf, [294.0])
+    np.testing.assert_allclose(x_fresh.to_numpy(), xdf.to_numpy(), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(y_fresh.to_numpy(), ydf.to_numpy(), rtol=1e-9, atol=1e-6)

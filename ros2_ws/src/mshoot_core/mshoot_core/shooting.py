@@ -567,14 +567,19 @@ class ShootingProblem:
 
     def simulate_serially(self, x_start: np.ndarray, controls: np.ndarray,
                           disturbances: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Interval end states and outputs, one ``simulate`` call (DataFrames) per interval."""
+        """Interval end states and outputs, one ``simulate`` call (DataFrames) per interval.
+
+        Models that can simulate the way the ancestor did (an FMU loaded from its
+        file for every simulation: ``simulate_fresh``) do so here.
+        """
+        simulate = getattr(self.model, 'simulate_fresh', self.model.simulate)
         u = self._full_inputs(controls, disturbances)
         x_end = np.empty_like(x_start)
         y_end = np.empty((x_start.shape[0], len(self.model.output_names)))
         for k in range(x_start.shape[0]):
             udf = pd.DataFrame(np.vstack([u[k], u[k]]), index=[0.0, self.step_s],
                                columns=list(self.model.input_names))
-            ydf, xdf = self.model.simulate(udf, x_start[k])
+            ydf, xdf = simulate(udf, x_start[k])
             x_end[k] = xdf.to_numpy()[-1]
             y_end[k] = ydf.to_numpy()[-1]
         self.model_evaluations += x_start.shape[0]

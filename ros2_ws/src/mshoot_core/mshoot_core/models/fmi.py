@@ -670,6 +670,38 @@ class FmiModel(Model):
         xdf = pd.DataFrame(states, index=udf.index, columns=list(self.state_names))
         return ydf, xdf
 
+    def simulate_fresh(self, udf: pd.DataFrame,
+                       x0: Sequence[float]) -> tuple[pd.DataFrame, pd.DataFrame]:
+        """Simulate as the ancestor did: ``fmpy.simulate_fmu`` from the file, every time.
+
+        Extracts, instantiates and frees the FMU for this one simulation (the
+        per-simulation cost the ``naive`` optimiser mode reproduces); inputs
+        are a table with every switch time twice, so fmpy holds them constant.
+        Same results as :meth:`simulate` up to the integrator tolerance.
+        """
+        t, u, x0_arr = self.check_inputs(udf, x0)
+        names = [v.name for v in self._input_vars]
+        rows = [(t[0], *u[0])]
+        for k in range(1, t.size):
+            rows += [(t[k], *u[k - 1]), (t[k], *u[k])]
+        table = np.array(rows, dtype=[('time', float)] + [(n, float) for n in names])
+        start = dict(self.parameters)
+        start.update({self._state_vars[i].name: float(x0_arr[i])
+                      for i in self._start_state_index})
+        outputs = [v.name for v in self._state_vars] + [v.name for v in self._output_vars]
+        result = fmpy.simulate_fmu(
+            str(self.fmu_path), fmi_type=self.fmi_type, start_time=t[0], stop_time=t[-1],
+            start_values=start, input=table, output=list(dict.fromkeys(outputs)),
+            relative_tolerance=self.tolerance, output_interval=float(np.min(np.diff(t))))
+        times = result['time']
+        pick = [int(np.argmin(np.abs(times - tk))) for tk in t]
+        xdf = pd.DataFrame({m: result[v.name][pick] for m, v in
+                            zip(self.state_names, self._state_vars)}, index=udf.index)
+        ydf = pd.DataFrame({m: result[v.name][pick] for m, v in
+                            zip(self.output_names, self._output_vars)}, index=udf.index)
+        xdf.iloc[0] = x0_arr
+        return ydf, xdf
+
     def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray,
                            dt_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Simulate B independent intervals of ``dt_s`` [s] on the one instance.
