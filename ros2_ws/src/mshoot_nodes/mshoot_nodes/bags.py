@@ -6,14 +6,30 @@
 - :func:`qos_to_rosbags` / :func:`qos_from_rosbags`: offered QoS profiles as
   stored in ``metadata.yaml`` (version 9, as Jazzy writes it);
 - :func:`read_bag`: all messages of a bag as raw CDR bytes, with their topics,
-  types and receive times; :func:`read_messages` deserialises them with rclpy.
+  types and receive times; :func:`read_messages` deserialises them with rclpy;
+- crash safety: :func:`flush_writer` puts everything written so far on disk
+  (closes the pending mcap chunk, commits the sqlite3 transaction); a bag cut
+  short by a crash or ``kill -9`` has no ``metadata.yaml`` and no mcap summary,
+  :func:`salvage_bag` reads it up to its last complete chunk and
+  :func:`recover_bag` rewrites it as a valid bag (the damaged file is kept
+  beside it as ``*.damaged``)::
+
+      python -m mshoot_nodes.bags recover out/demo/bag
+      python -m mshoot_nodes.bags info out/demo/bag
 """
 from __future__ import annotations
 
+import argparse
+import contextlib
 import dataclasses
 import functools
+import os
 import pathlib
-from typing import Iterable
+import shutil
+import sqlite3
+import struct
+import sys
+from typing import Iterable, Sequence
 
 from ament_index_python.packages import get_package_share_directory, PackageNotFoundError
 from rclpy.duration import Duration
@@ -22,7 +38,8 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSPro
 from rclpy.serialization import deserialize_message
 from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness, QosReliability,
                                 QosTime)
-from rosbags.rosbag2 import Reader, StoragePlugin
+from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.rosbag2.metadata import parse_qos
 from rosbags.typesys import get_types_from_msg, Stores
 from rosbags.typesys import get_typestore as _get_typestore
 from rosbags.typesys.store import Typestore
@@ -152,6 +169,24 @@ class BagContents:
     storage: str
 
 
+class IncompleteBagError(ValueError):
+    """A bag directory without ``metadata.yaml``: its recording was cut short."""
+
+
+def check_complete(path: str | pathlib.Path) -> None:
+    """Raise :class:`IncompleteBagError` (saying how to recover) if ``path`` lacks its
+    ``metadata.yaml``; FileNotFoundError if it is not a directory."""
+    path = pathlib.Path(path)
+    if not path.is_dir():
+        raise FileNotFoundError(f'no bag directory at {path}')
+    if not (path / 'metadata.yaml').is_file():
+        data = sorted(p.name for p in path.iterdir() if p.suffix in ('.mcap', '.db3'))
+        raise IncompleteBagError(
+            f'{path} has no metadata.yaml: the recording was cut short (a crash or kill -9)'
+            + (f'; {", ".join(data)} holds what was flushed. Recover it with: python -m '
+               f'mshoot_nodes.bags recover {path}' if data else '; it holds no data file'))
+
+
 def read_bag(path: str | pathlib.Path, topics: Iterable[str] | None = None) -> BagContents:
     """Read a rosbag2 bag (mcap or sqlite3) into memory.
 
@@ -161,7 +196,13 @@ def read_bag(path: str | pathlib.Path, topics: Iterable[str] | None = None) -> B
         The bag directory (holding ``metadata.yaml``).
     topics : iterable of str, optional
         Only these topics (default: all).
+
+    Raises
+    ------
+    IncompleteBagError
+        A bag cut short by a crash (the message says how to recover it).
     """
+    check_complete(path)
     wanted = None if topics is None else set(topics)
     with Reader(pathlib.Path(path)) as reader:
         connections = [c for c in reader.connections if wanted is None or c.topic in wanted]
@@ -189,3 +230,301 @@ def read_messages(path: str | pathlib.Path, topic: str) -> list:
         return []
     cls = message_class(contents.topics[topic][0])
     return [deserialize_message(m.rawdata, cls) for m in contents.messages]
+
+
+# -- crash safety -------------------------------------------------------------------------
+def flush_writer(writer: Writer) -> None:
+    """Put everything written so far on disk, so a crash loses nothing before this call.
+
+    mcap: closes the pending chunk (the unit a reader can recover) and flushes
+    the file; sqlite3: commits the open transaction. Uses the storage objects of
+    the pinned ``rosbags`` version (0.11).
+    """
+    storage = getattr(writer, 'storage', None)
+    if storage is None:
+        return
+    chunk = getattr(storage, 'chunk', None)
+    if chunk is not None:  # mcap
+        if chunk.msgs:
+            storage.close_chunk()
+        storage.bio.flush()
+        os.fsync(storage.bio.fileno())
+    elif hasattr(storage, 'conn'):  # sqlite3
+        storage.conn.commit()
+
+
+@dataclasses.dataclass
+class Salvage:
+    """What a bag cut short still holds.
+
+    Attributes
+    ----------
+    storage : str
+        'mcap' or 'sqlite3'.
+    data_file : pathlib.Path
+        The storage file read.
+    connections : dict
+        Topic -> (message type, offered QoS list, message definition or '').
+    messages : list of BagMessage
+        Readable messages, in the order written.
+    complete_chunks : int
+        mcap: chunks read completely (0 for sqlite3).
+    lost_bytes : int
+        Bytes after the last complete record (a partial chunk) [B].
+    """
+
+    storage: str
+    data_file: pathlib.Path
+    connections: dict[str, tuple[str, list[Qos], str]]
+    messages: list[BagMessage]
+    complete_chunks: int = 0
+    lost_bytes: int = 0
+
+
+_MCAP_MAGIC = b'\x89MCAP0\r\n'
+
+
+class _Cursor:
+    def __init__(self, data: bytes | memoryview) -> None:
+        self.data, self.pos = memoryview(data), 0
+
+    def take(self, n: int) -> memoryview:
+        if self.pos + n > len(self.data):
+            raise EOFError
+        out = self.data[self.pos:self.pos + n]
+        self.pos += n
+        return out
+
+    def u16(self) -> int:
+        return struct.unpack('<H', self.take(2))[0]
+
+    def u32(self) -> int:
+        return struct.unpack('<I', self.take(4))[0]
+
+    def u64(self) -> int:
+        return struct.unpack('<Q', self.take(8))[0]
+
+    def string(self) -> str:
+        return bytes(self.take(self.u32())).decode()
+
+
+def _mcap_records(data: bytes | memoryview) -> Iterable[tuple[int, memoryview, int]]:
+    """(opcode, content, end offset) of the complete records of an mcap byte string."""
+    cursor = _Cursor(data)
+    while True:
+        try:
+            opcode = cursor.take(1)[0]
+            content = cursor.take(cursor.u64())
+        except EOFError:
+            return
+        yield opcode, content, cursor.pos
+
+
+def _decompress(compression: str, payload: memoryview, size: int) -> bytes:
+    if compression == '':
+        return bytes(payload)
+    if compression == 'zstd':
+        if sys.version_info >= (3, 14):  # pragma: no cover
+            from compression import zstd
+        else:
+            from backports import zstd
+        return zstd.decompress(bytes(payload))
+    if compression == 'lz4':
+        from lz4.frame import decompress
+        return decompress(bytes(payload))
+    raise ValueError(f'unknown mcap chunk compression {compression!r}')
+
+
+def _salvage_mcap(file: pathlib.Path) -> Salvage:
+    data = file.read_bytes()
+    if len(data) < len(_MCAP_MAGIC) and _MCAP_MAGIC.startswith(data):
+        return Salvage('mcap', file, {}, [], 0, len(data))  # cut before anything was flushed
+    if not data.startswith(_MCAP_MAGIC):
+        raise ValueError(f'{file} is not an mcap file (no magic bytes)')
+    schemas: dict[int, tuple[str, str]] = {}
+    channels: dict[int, tuple[str, str, list[Qos]]] = {}
+    messages: list[BagMessage] = []
+    chunks, good_end, closed = 0, len(_MCAP_MAGIC), False
+
+    def handle(opcode: int, content: memoryview) -> None:
+        cursor = _Cursor(content)
+        if opcode == 0x03:  # schema
+            schema_id = cursor.u16()
+            name = cursor.string()
+            cursor.string()  # schema encoding: ros2msg
+            schemas[schema_id] = (name, bytes(cursor.take(cursor.u32())).decode())
+        elif opcode == 0x04:  # channel
+            channel_id, schema_id = cursor.u16(), cursor.u16()
+            topic = cursor.string()
+            cursor.string()  # message encoding: cdr
+            meta = _Cursor(cursor.take(cursor.u32()))
+            metadata = {}
+            while meta.pos < len(meta.data):
+                key = meta.string()
+                metadata[key] = meta.string()
+            msgtype = schemas.get(schema_id, ('', ''))[0]
+            channels[channel_id] = (topic, msgtype,
+                                    parse_qos(metadata.get('offered_qos_profiles', '')))
+        elif opcode == 0x05 and channels:  # message
+            channel_id = cursor.u16()
+            cursor.u32()  # sequence
+            log_time = cursor.u64()
+            cursor.u64()  # publish time
+            if channel_id in channels:
+                topic, msgtype, _ = channels[channel_id]
+                messages.append(BagMessage(topic, msgtype, log_time,
+                                           bytes(content[cursor.pos:])))
+
+    body = memoryview(data)[len(_MCAP_MAGIC):]
+    for opcode, content, end in _mcap_records(body):
+        if opcode == 0x06:  # chunk: start, end, size, crc, compression, records
+            cursor = _Cursor(content)
+            cursor.u64(), cursor.u64()  # message start and end time
+            size = cursor.u64()
+            cursor.u32()  # crc of the uncompressed records (not checked)
+            compression = cursor.string()
+            try:
+                records = _decompress(compression, cursor.take(cursor.u64()), size)
+            except (EOFError, ValueError, RuntimeError):
+                break
+            for inner, inner_content, _ in _mcap_records(records):
+                handle(inner, inner_content)
+            chunks += 1
+        elif opcode in (0x03, 0x04, 0x05):
+            handle(opcode, content)
+        elif opcode == 0x0F:  # data end: what follows is the summary of a closed file
+            closed = True
+            break
+        good_end = len(_MCAP_MAGIC) + end
+    definitions = dict(schemas.values())
+    connections = {topic: (msgtype, qos, definitions.get(msgtype, ''))
+                   for topic, msgtype, qos in channels.values()}
+    lost = 0 if closed else len(data) - good_end
+    return Salvage('mcap', file, connections, messages, chunks, lost)
+
+
+def _salvage_sqlite3(file: pathlib.Path) -> Salvage:
+    # Opened read-write on purpose: sqlite rolls back an interrupted transaction (a hot
+    # journal) when it opens the file; what was committed stays.
+    with contextlib.closing(sqlite3.connect(file)) as con:
+        definitions = dict(con.execute(
+            'SELECT topic_type, encoded_message_definition FROM message_definitions'))
+        topics = {row[0]: (row[1], row[2], parse_qos(row[3] or ''))
+                  for row in con.execute('SELECT id, name, type, offered_qos_profiles '
+                                         'FROM topics')}
+        rows = con.execute('SELECT topic_id, timestamp, data FROM messages ORDER BY id')
+        messages = [BagMessage(topics[tid][0], topics[tid][1], int(ts), bytes(raw))
+                    for tid, ts, raw in rows if tid in topics]
+    connections = {name: (msgtype, qos, definitions.get(msgtype, ''))
+                   for name, msgtype, qos in topics.values()}
+    return Salvage('sqlite3', file, connections, messages)
+
+
+def salvage_bag(path: str | pathlib.Path) -> Salvage:
+    """Read what a bag cut short holds, without its metadata.yaml.
+
+    Parameters
+    ----------
+    path : path-like
+        The bag directory (one ``*.mcap`` or ``*.db3`` file).
+
+    Raises
+    ------
+    FileNotFoundError
+        No data file in ``path``.
+    ValueError
+        A data file that is not a bag.
+    """
+    path = pathlib.Path(path)
+    files = sorted(path.glob('*.mcap')) + sorted(path.glob('*.db3'))
+    if not files:
+        raise FileNotFoundError(f'no .mcap or .db3 file in {path}')
+    file = files[0]
+    return _salvage_mcap(file) if file.suffix == '.mcap' else _salvage_sqlite3(file)
+
+
+def recover_bag(path: str | pathlib.Path) -> Salvage:
+    """Rewrite a bag cut short as a valid bag, in place; return what was recovered.
+
+    The readable messages (up to the last complete mcap chunk, or the last
+    sqlite3 commit) go into a fresh bag of the same storage with metadata;
+    the damaged data file stays beside it as ``<name>.damaged``.
+
+    Raises
+    ------
+    ValueError
+        The bag is complete (it has a metadata.yaml): nothing to recover.
+    """
+    path = pathlib.Path(path)
+    if (path / 'metadata.yaml').is_file():
+        raise ValueError(f'{path} has a metadata.yaml: it is complete, nothing to recover')
+    salvage = salvage_bag(path)
+    staging = path.parent / f'.{path.name}.recovering'
+    if staging.exists():
+        shutil.rmtree(staging)
+    staging.mkdir()
+    fresh = staging / path.name
+    store = typestore()
+    writer = Writer(fresh, version=9, storage_plugin=STORAGES[salvage.storage])
+    writer.open()
+    connections = {}
+    for topic, (msgtype, qos, definition) in salvage.connections.items():
+        try:
+            ensure_type(store, msgtype)
+            connections[topic] = writer.add_connection(topic, msgtype, typestore=store,
+                                                       offered_qos_profiles=qos)
+        except ValueError:
+            if not definition:
+                raise
+            store.register(get_types_from_msg(definition, msgtype))
+            connections[topic] = writer.add_connection(topic, msgtype, typestore=store,
+                                                       offered_qos_profiles=qos)
+    for message in salvage.messages:
+        writer.write(connections[message.topic], message.timestamp_ns, message.rawdata)
+    writer.close()
+    damaged = salvage.data_file.with_name(salvage.data_file.name + '.damaged')
+    salvage.data_file.replace(damaged)
+    for extra in path.glob(salvage.data_file.name + '-*'):  # a sqlite3 journal
+        extra.replace(extra.with_name(extra.name + '.damaged'))
+    for item in fresh.iterdir():
+        item.replace(path / item.name)
+    shutil.rmtree(staging)
+    return salvage
+
+
+def _counts(messages: Sequence[BagMessage]) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for message in messages:
+        out[message.topic] = out.get(message.topic, 0) + 1
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m mshoot_nodes.bags {info,recover} BAG``."""
+    parser = argparse.ArgumentParser(prog='python -m mshoot_nodes.bags',
+                                     description='Inspect or recover rosbag2 bags.')
+    parser.add_argument('command', choices=('info', 'recover'),
+                        help='info: topics and counts; recover: rebuild a bag cut short')
+    parser.add_argument('bag', type=pathlib.Path, help='bag directory')
+    args = parser.parse_args(argv)
+    try:
+        if args.command == 'info':
+            contents = read_bag(args.bag)
+            print(f'{args.bag}: {contents.storage}, {len(contents.messages)} messages')
+            for topic, (msgtype, _) in contents.topics.items():
+                print(f'  {topic} [{msgtype}]: {contents.counts.get(topic, 0)}')
+            return 0
+        salvage = recover_bag(args.bag)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        return 1
+    counts = ', '.join(f'{t} {n}' for t, n in _counts(salvage.messages).items())
+    print(f'recovered {len(salvage.messages)} messages ({counts}) from {salvage.data_file.name}'
+          + (f', {salvage.complete_chunks} complete chunks' if salvage.storage == 'mcap' else '')
+          + (f'; {salvage.lost_bytes} bytes of a partial chunk dropped' if salvage.lost_bytes
+             else '') + f'; the damaged file is kept as {salvage.data_file.name}.damaged')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

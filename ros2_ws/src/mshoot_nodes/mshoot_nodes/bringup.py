@@ -41,6 +41,7 @@ from mshoot_nodes.logbridge import bridge_core_logging
 from mshoot_nodes.mpc_node import build_mpc, MpcNode
 from mshoot_nodes.recorder_node import RecorderNode
 from mshoot_nodes.results import kpi_summary, run_outputs
+from mshoot_nodes.signals import StopSignals
 from mshoot_nodes.sources import build_model
 
 NODE_NAMES = ('emulator', 'forecaster', 'mpc', 'recorder')
@@ -64,7 +65,8 @@ class RosRun:
 
 def run_in_process(context: Context, node_params: dict[str, dict[str, Any]], *,
                    record: bool = True, timeout_s: float = 600.0,
-                   progress: Callable[[EmulatorNode], None] | None = None) -> RosRun:
+                   progress: Callable[[EmulatorNode], None] | None = None,
+                   stop: Callable[[], bool] | None = None) -> RosRun:
     """Run the closed loop over ROS in one executor until the emulator's scenario ends.
 
     Parameters
@@ -80,6 +82,10 @@ def run_in_process(context: Context, node_params: dict[str, dict[str, Any]], *,
         Wall-clock guard [s]: TimeoutError when the run takes longer.
     progress : callable, optional
         Called with the emulator node after every executor turn that advanced it.
+    stop : callable, optional
+        Polled between executor turns; True ends the run early with
+        InterruptedError (e.g. on SIGTERM: the nodes are still destroyed, the bag
+        closed with everything received).
 
     The nodes are destroyed before returning (the recorder's bag is closed);
     their records stay readable.
@@ -102,12 +108,16 @@ def run_in_process(context: Context, node_params: dict[str, dict[str, Any]], *,
         steps_seen = 0
         while not emulator.done:
             executor.spin_once(timeout_sec=0.1)
-            if progress is not None and len(emulator.records) != steps_seen:
-                steps_seen = len(emulator.records)
+            if progress is not None and emulator.steps_done != steps_seen:
+                steps_seen = emulator.steps_done
                 progress(emulator)
             if time.perf_counter() - started > timeout_s:
                 raise TimeoutError(f'the ROS run did not finish within {timeout_s:.0f} s '
-                                   f'({len(emulator.records)} steps done)')
+                                   f'({emulator.steps_done} steps done)')
+            if stop is not None and stop():
+                if recorder is not None:
+                    recorder.drain(executor)
+                raise InterruptedError(f'stopped after {emulator.steps_done} steps')
         wall_s = time.perf_counter() - started
         # Let the last messages reach the recorder (bounded: 2 s).
         drained = time.perf_counter()
@@ -115,7 +125,7 @@ def run_in_process(context: Context, node_params: dict[str, dict[str, Any]], *,
                 recorder.counts.get(recorder.resolve_topic_name(contract.STATUS), 0)
                 < len(mpc.history)
                 or recorder.counts.get(recorder.resolve_topic_name(contract.ZONE_STATE), 0)
-                < len(emulator.records) + 1):
+                < emulator.steps_done + 1):
             executor.spin_once(timeout_sec=0.01)
         for _ in range(10):
             executor.spin_once(timeout_sec=0.0)
@@ -216,17 +226,23 @@ def main(argv: Sequence[str] | None = None) -> int:
                   f'wall {time.perf_counter() - started:6.2f} s', flush=True)
 
     try:
-        run = run_in_process(context, node_params_from_args(args), record=not args.no_bag,
-                             timeout_s=args.timeout, progress=progress)
+        with StopSignals() as signals:  # SIGINT/SIGTERM: stop cleanly, the bag is closed
+            run = run_in_process(context, node_params_from_args(args), record=not args.no_bag,
+                                 timeout_s=args.timeout, progress=progress,
+                                 stop=lambda: signals.requested)
     except (InvalidParameterValueException, ValueError, FileNotFoundError) as exc:
         print(f'[demo] error: {exc}', file=sys.stderr)
         rclpy.try_shutdown(context=context)
         return 2
-    except (TimeoutError, KeyboardInterrupt) as exc:
-        print(f'[demo] stopped: {exc or "interrupted"}', file=sys.stderr)
+    except (TimeoutError, KeyboardInterrupt, InterruptedError) as exc:
+        why = f'{signals.received}: ' if signals.received else ''
+        print(f'[demo] stopped: {why}{exc or "interrupted"}', file=sys.stderr)
         rclpy.try_shutdown(context=context)
         return 1
     rclpy.try_shutdown(context=context)
+    if run.emulator.failed:
+        print(f'[demo] error: the run stopped early: {run.emulator.failed}', file=sys.stderr)
+        return 1
 
     emulator, mpc = run.emulator, run.mpc
     p_emu, p_mpc = emulator.params, mpc.params

@@ -45,6 +45,11 @@ DATA_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
 LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: Subscribers of latched topics keep a few samples: a malformed message published right
+#: after a good one must not displace it before it is taken (compatible with LATCHED_QOS).
+LATCHED_READER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                                reliability=ReliabilityPolicy.RELIABLE,
+                                durability=DurabilityPolicy.TRANSIENT_LOCAL)
 #: /clock as rclpy's time source subscribes to it.
 CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                        reliability=ReliabilityPolicy.BEST_EFFORT,

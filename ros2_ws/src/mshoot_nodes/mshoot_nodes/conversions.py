@@ -20,6 +20,7 @@ from rosgraph_msgs.msg import Clock
 
 if TYPE_CHECKING:  # the emulator process need not import scipy (through mshoot_core.mpc)
     from mshoot_core.mpc import MpcResult
+    from mshoot_core.safety import Decision
 
 NS_PER_S = 1_000_000_000
 #: Forecast columns in the message, as scenario columns.
@@ -134,6 +135,12 @@ def forecast_length(msg: Forecast) -> int:
     return next(iter(lengths.values()))
 
 
+def forecast_series(msg: Forecast) -> dict[str, Sequence[float]]:
+    """The arrays of a forecast by scenario column (Tout, solrad, occ, comfort_min,
+    comfort_max), unchecked: what :func:`mshoot_core.safety.check_forecast` validates."""
+    return {column: getattr(msg, field) for column, field in FORECAST_FIELDS.items()}
+
+
 def forecast_to_frame(msg: Forecast, dpos: float = 0.0) -> pd.DataFrame:
     """A forecast message as a DataFrame with the scenario columns.
 
@@ -220,6 +227,63 @@ def status_msg(stamp_ns: int, result: MpcResult | None, *, fallback: bool = Fals
     return msg
 
 
+def decision_setpoint_msg(stamp_ns: int, decision: Decision, step_s: float,
+                          safe_temperature_c: float, zone: str = '') -> Setpoint:
+    """The setpoint of a supervisor decision (first control ``q``, first state ``T`` [K]).
+
+    Parameters
+    ----------
+    stamp_ns : int
+        Start of the step [ns].
+    decision : Decision
+        From :class:`mshoot_core.safety.SetpointSupervisor`.
+    step_s : float
+        Control step [s].
+    safe_temperature_c : float
+        Temperature setpoint sent with a safe setpoint (which predicts nothing) [degC].
+    zone : str
+        ``header.frame_id``.
+    """
+    temperature_c = (float(decision.predicted_state[0]) - KELVIN
+                     if decision.predicted_state is not None else float(safe_temperature_c))
+    return fallback_setpoint_msg(stamp_ns, float(decision.controls[0]), temperature_c, step_s,
+                                 np.asarray(decision.plan_controls, dtype=float)[:, 0],
+                                 np.asarray(decision.plan_states, dtype=float)[:, 0] - KELVIN
+                                 if len(decision.plan_states) else (), zone)
+
+
+def decision_status_msg(stamp_ns: int, decision: Decision, result: MpcResult | None, *,
+                        solve_time_s: float, rejected_states: int = 0,
+                        rejected_forecasts: int = 0,
+                        consecutive_fallbacks: int = 0) -> MpcStatus:
+    """The status of a supervisor decision; never a non-finite number.
+
+    ``result`` is the step's solve result if there is one (its numbers are
+    reported even when it was not used); without one, ``objective`` and
+    ``max_defect`` are -1.
+    """
+    msg = status_msg(stamp_ns, result, fallback=decision.fallback,
+                     message=decision.reason, solve_time_s=solve_time_s)
+    msg.solve_time_s = _finite(solve_time_s, 0.0)
+    msg.objective = _finite(msg.objective, -1.0)
+    msg.max_defect = _finite(msg.max_defect, -1.0)
+    msg.source = decision.source
+    msg.fallback_reason = decision.code
+    msg.rejected_states = _int32(rejected_states)
+    msg.rejected_forecasts = _int32(rejected_forecasts)
+    msg.consecutive_fallbacks = _int32(consecutive_fallbacks)
+    return msg
+
+
+def _finite(value: float, default: float) -> float:
+    value = float(value)
+    return value if np.isfinite(value) else default
+
+
+def _int32(value: int) -> int:
+    return int(min(max(int(value), 0), 2 ** 31 - 1))
+
+
 # -- records of a run ---------------------------------------------------------------------
 def mpc_records_frame(setpoints: Iterable[Setpoint], statuses: Iterable[MpcStatus],
                       epoch_ns: int = 0) -> pd.DataFrame:
@@ -231,7 +295,7 @@ def mpc_records_frame(setpoints: Iterable[Setpoint], statuses: Iterable[MpcStatu
         Index ``time_s`` (stamp minus ``epoch_ns`` [s]); columns
         ``q_setpoint`` [W], ``T_predicted_c`` [degC], ``success``, ``fallback``,
         ``iterations``, ``solve_time_s``, ``objective``, ``max_defect``,
-        ``message``.
+        ``message``, ``source``, ``fallback_reason``.
     """
     rows: dict[int, dict] = {}
     for msg in setpoints:
@@ -244,7 +308,8 @@ def mpc_records_frame(setpoints: Iterable[Setpoint], statuses: Iterable[MpcStatu
             row.update(success=bool(msg.success), fallback=bool(msg.fallback),
                        iterations=int(msg.iterations), solve_time_s=msg.solve_time_s,
                        objective=msg.objective, max_defect=msg.max_defect,
-                       message=msg.message)
+                       message=msg.message, source=msg.source,
+                       fallback_reason=msg.fallback_reason)
     frame = pd.DataFrame.from_dict(rows, orient='index').sort_index()
     frame.index = pd.Index((frame.index.to_numpy(dtype=np.int64) - int(epoch_ns)) / NS_PER_S,
                            name='time_s')

@@ -13,13 +13,32 @@ Modes (parameter ``mode``):
   re-publishes clock, state and disturbances every ``heartbeat_period_s`` (lost
   messages during discovery cannot stall the loop).
 - ``free``: simulated time runs at ``speedup`` times the wall clock; at the
-  end of each step the latest setpoint is applied (a stale one with a warning).
+  end of each step the setpoint of the step is applied.
+
+Safety (the rules are in :mod:`mshoot_core.safety`):
+
+- every setpoint is validated (finite, plausible, the control step,
+  consistent plan arrays, stamped neither for a future step nor going
+  backwards, nor, in lockstep, for a step already done); a rejected one is
+  counted (``rejections``, ``run.json``) and logged one line each,
+  rate-limited, and never reaches the building;
+- when a step has no setpoint (free mode, or lockstep after
+  ``lockstep_timeout_s`` of wall time with ``on_lockstep_timeout`` 'hold'),
+  the last setpoint is held for ``hold_s`` of simulated time, then the safe
+  default ``safe_heat_rate_w`` is applied
+  (:class:`~mshoot_core.safety.SetpointHold`); with 'stop' (default) the run
+  ends with a clear error instead of waiting forever (exit code 1);
+- a model that raises or returns non-finite states ends the run with an
+  error; nothing non-finite is ever published;
+- ``start_step`` and ``initial_temperature_c`` restart a run mid-scenario
+  from a given time and state.
 
 The node drives itself with STEADY_TIME timers (the node publishing /clock
 must not wait on a simulated-time timer).
 """
 from __future__ import annotations
 
+import collections
 import json
 import pathlib
 import sys
@@ -27,12 +46,13 @@ from typing import Any
 
 from mshoot_core.emulation import Emulator, StepRecord
 from mshoot_core.models.r1c1 import KELVIN
+from mshoot_core.safety import (check_setpoint, check_stamp_fields, Rejection, SetpointHold,
+                                StampGate)
 from mshoot_msgs.msg import Disturbances, Setpoint, ZoneState
 import numpy as np
 import pandas as pd
 import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.exceptions import InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -42,6 +62,8 @@ from mshoot_nodes.conversions import (clock_msg, disturbances_msg, NS_PER_S, sec
                                       setpoint_to_controls, stamp_to_ns, zone_state_msg)
 from mshoot_nodes.logbridge import bridge_core_logging
 from mshoot_nodes.params import declare, ordered, ParamSpec, values
+from mshoot_nodes.startup import construct, EXIT_CONFIG
+from mshoot_nodes.validation import RejectionLog
 
 PARAMS = (
     ParamSpec('scenario', 'synthetic', "the scenario: 'synthetic' (built in, no files), 'ou44' "
@@ -60,6 +82,9 @@ PARAMS = (
               low=1e-14, high=1e-2, read_only=True),
     ParamSpec('initial_temperature_c', 20.0, 'zone temperature at the first step [degC]',
               low=-50.0, high=80.0, read_only=True),
+    ParamSpec('start_step', 0, 'scenario step to start at (a restart mid-run, with '
+              'initial_temperature_c the state then) [-]', low=0, high=1_000_000,
+              read_only=True),
     ParamSpec('step_s', 3600.0, 'control step [s]', low=1.0, high=86400.0, read_only=True),
     ParamSpec('fine_step_s', 60.0, 'grid of the recorded fine trajectory [s]', low=1.0,
               high=86400.0, read_only=True),
@@ -77,6 +102,18 @@ PARAMS = (
     ParamSpec('heartbeat_period_s', 0.5, 'lockstep: wall time without a setpoint after which '
               'clock, state and disturbances are published again [s]', low=0.01, high=600.0,
               read_only=True),
+    ParamSpec('lockstep_timeout_s', 60.0, 'lockstep: wall time a step waits for its setpoint '
+              'before on_lockstep_timeout applies [s]', low=0.01, high=86400.0),
+    ParamSpec('on_lockstep_timeout', 'stop', "lockstep, no setpoint in time: 'stop' ends the "
+              "run with an error, 'hold' applies the held or safe setpoint and goes on",
+              choices=('stop', 'hold')),
+    ParamSpec('hold_s', 3600.0, 'a step without its setpoint applies the last one while it is '
+              'at most this old (simulated time), else the safe default [s]', low=0.0,
+              high=1e7),
+    ParamSpec('safe_heat_rate_w', 0.0, 'safe default heat rate when no setpoint can be held '
+              '[W]', low=-1e7, high=1e7),
+    ParamSpec('reject_log_period_s', 5.0, 'at most one log line per kind of rejected '
+              'setpoint in this wall time [s]', low=0.0, high=3600.0, read_only=True),
     ParamSpec('min_state_subscribers', 1, 'start once /zone/state has this many subscribers '
               '(and, in lockstep, /mpc/setpoint a publisher) [-]', low=0, high=1000,
               read_only=True),
@@ -85,6 +122,8 @@ PARAMS = (
               read_only=True),
     ParamSpec('output_dir', '', 'folder for trajectories.csv, applied.csv and run.json when '
               "the scenario ends ('' = write nothing)", read_only=True),
+    ParamSpec('records_kept', 0, 'step records kept in memory (0 = all; the outputs cover the '
+              'kept ones: a bound for long runs) [-]', low=0, high=100_000_000, read_only=True),
     ParamSpec('zone', 'zone', 'zone name (header.frame_id of the published messages)',
               read_only=True),
     ParamSpec('exit_when_done', True, 'stand-alone process: exit when the scenario ends',
@@ -104,6 +143,13 @@ def _check_sources(v: dict[str, Any]) -> str | None:
     if 'step_s' in v and 'fine_step_s' in v and v['step_s'] % v['fine_step_s']:
         return (f"step_s must be a multiple of fine_step_s, got {v['step_s']} and "
                 f"{v['fine_step_s']}")
+    if {'start_step', 'hours'} <= v.keys() and v['start_step'] >= v['hours']:
+        return (f"start_step must be < hours (steps 0 to {v['hours'] - 1}), got "
+                f"{v['start_step']}")
+    if {'safe_heat_rate_w', 'heat_rate_min_w', 'heat_rate_max_w'} <= v.keys() and not (
+            v['heat_rate_min_w'] <= v['safe_heat_rate_w'] <= v['heat_rate_max_w']):
+        return (f"safe_heat_rate_w must be within the actuator limits [{v['heat_rate_min_w']}, "
+                f"{v['heat_rate_max_w']}], got {v['safe_heat_rate_w']}")
     return None
 
 
@@ -113,7 +159,8 @@ def build_emulator(p: dict[str, Any]) -> Emulator:
     model = sources.build_model(p['model'], p['fmu_tolerance'])
     return Emulator(model, scenario, [p['initial_temperature_c'] + KELVIN], control_names=('q',),
                     control_bounds=((p['heat_rate_min_w'], p['heat_rate_max_w']),),
-                    step_s=p['step_s'], fine_step_s=p['fine_step_s'])
+                    step_s=p['step_s'], fine_step_s=p['fine_step_s'],
+                    start_index=p.get('start_step', 0))
 
 
 class EmulatorNode(Node):
@@ -124,9 +171,18 @@ class EmulatorNode(Node):
     emulator : Emulator
         The core emulator; the node only converts and times.
     records : list of StepRecord
-        What every step did (controls, start and end states, fine trajectory).
+        What every step did (controls, start and end states, fine trajectory);
+        the last ``records_kept`` when that is set.
+    steps_done : int
+        Steps applied so far.
     done : bool
-        True once the scenario is over.
+        True once the scenario is over (or the run failed).
+    failed : str
+        '' or why the run stopped early (a lockstep timeout, a model error).
+    rejections : RejectionLog
+        Rejected setpoints by kind.
+    applied_sources : list of str
+        Per step: 'setpoint', 'held' or 'safe' (see SetpointHold).
     """
 
     def __init__(self, **kwargs: Any) -> None:
@@ -139,11 +195,17 @@ class EmulatorNode(Node):
         self.epoch_ns = sources.start_ns(self.emulator.scenario, p['start_time'])
         self.step_ns = seconds_to_ns(p['step_s'])
         self.records: list[StepRecord] = []
+        self.steps_done = 0
         self.done = False
+        self.failed = ''
         self.started = False
+        self.rejections = RejectionLog(self, p['reject_log_period_s'])
+        self.applied_sources: list[str] = []
+        self._hold = SetpointHold((p['safe_heat_rate_w'],), p['hold_s'])
+        self._setpoint_gate = StampGate(self.step_ns, max_age_ns=(
+            0 if p['mode'] == 'lockstep' else seconds_to_ns(p['hold_s'])))
         self._speedup = float(p['speedup'])
         self._last_heat_rate_w = 0.0
-        self._latest_setpoint: Setpoint | None = None
         self._sim_ns = self.stamp_ns
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._last_publish_ns = 0
@@ -180,10 +242,16 @@ class EmulatorNode(Node):
 
     # -- parameters -----------------------------------------------------------------------
     def _on_parameters_set(self, params: list) -> None:
+        self.params = values(self, PARAMS)
         for param in params:
             if param.name == 'speedup':
                 self._speedup = float(param.value)
                 self.get_logger().info(f'speed-up set to {self._speedup:g}')
+            elif param.name in ('hold_s', 'safe_heat_rate_w'):
+                self._hold.hold_s = float(self.params['hold_s'])
+                self._hold.safe_controls = np.array([self.params['safe_heat_rate_w']])
+                if self.params['mode'] != 'lockstep':
+                    self._setpoint_gate.max_age_ns = seconds_to_ns(self.params['hold_s'])
 
     # -- start ----------------------------------------------------------------------------
     def _try_start(self) -> None:
@@ -245,32 +313,66 @@ class EmulatorNode(Node):
         if waited < seconds_to_ns(self.params['heartbeat_period_s']):
             return
         step_waited = now - self._step_started_ns
+        if step_waited >= seconds_to_ns(self.params['lockstep_timeout_s']):
+            self._lockstep_timeout(step_waited / NS_PER_S)
+            return
         if step_waited > 10 * NS_PER_S and now - self._last_wait_warning_ns > 10 * NS_PER_S:
             self.get_logger().warning(
                 f'no setpoint stamped {self.stamp_ns / NS_PER_S:.0f} s after '
-                f'{step_waited / NS_PER_S:.0f} s (step {len(self.records) + 1}/'
-                f'{len(self.records) + self.emulator.steps_left}): is the MPC running?')
+                f'{step_waited / NS_PER_S:.0f} s (step {self.steps_done + 1}/'
+                f'{self.steps_done + self.emulator.steps_left}): is the MPC running?')
             self._last_wait_warning_ns = now
         self.get_logger().debug('no setpoint yet: publishing the step again')
         self._publish_step()
 
     # -- stepping -------------------------------------------------------------------------
+    def _lockstep_timeout(self, waited_s: float) -> None:
+        """Lockstep: the step's setpoint did not come within lockstep_timeout_s."""
+        step = f'{self.stamp_ns / NS_PER_S:.0f} s (step {self.steps_done + 1})'
+        if self.params['on_lockstep_timeout'] == 'stop':
+            self._fail(f'no setpoint for {step} within lockstep_timeout_s = '
+                       f"{self.params['lockstep_timeout_s']:g} s: is the MPC running? Stopping "
+                       '(on_lockstep_timeout:=hold goes on with held or safe setpoints)')
+            return
+        decision = self._hold.controls_for(self._scenario_s(self.stamp_ns))
+        self.get_logger().error(f'no setpoint for {step} after {waited_s:.1f} s (lockstep '
+                                f'timeout): {decision.reason}')
+        self._advance(decision.controls, decision.source)
+
+    def _scenario_s(self, stamp_ns: int) -> float:
+        """Scenario time [s] of a ROS stamp."""
+        return (stamp_ns - self.epoch_ns) / NS_PER_S
+
     def _on_setpoint(self, msg: Setpoint) -> None:
         if self.done:
             return
-        if self.params['mode'] != 'lockstep':
-            self._latest_setpoint = msg
+        stamp = stamp_to_ns(msg.header.stamp)
+        lockstep = self.params['mode'] == 'lockstep'
+        now = self.stamp_ns if lockstep else max(self._sim_ns, self.stamp_ns)
+        rejection = (check_stamp_fields(msg.header.stamp.sec, msg.header.stamp.nanosec)
+                     or check_setpoint(msg.heat_rate_w, msg.temperature_setpoint_c, msg.step_s,
+                                       msg.plan_heat_rate_w, msg.plan_temperature_c,
+                                       expected_step_s=self.params['step_s'])
+                     or self._setpoint_gate.check(stamp, now))
+        if rejection:
+            self._reject(stamp, rejection)
             return
+        if stamp == self._setpoint_gate.latest_ns:
+            return  # a repeat (the MPC answers a heartbeat with its last setpoint)
         if not self.started:
             return
-        stamp = stamp_to_ns(msg.header.stamp)
-        if stamp != self.stamp_ns:
-            if stamp > self.stamp_ns:
-                self.get_logger().warning(
-                    f'setpoint for a future step ({stamp / NS_PER_S:.0f} s) while at '
-                    f'{self.stamp_ns / NS_PER_S:.0f} s: ignored')
+        if lockstep and stamp != self.stamp_ns:  # off the step grid
+            self._reject(stamp, Rejection('stale', f'stamp {stamp / NS_PER_S:.3f} s is not '
+                                          f'the current step {self.stamp_ns / NS_PER_S:.3f} s'))
             return
-        self._advance(setpoint_to_controls(msg))
+        self._setpoint_gate.accept(stamp, now)
+        controls = setpoint_to_controls(msg)
+        self._hold.offer(self._scenario_s(stamp), controls)
+        if lockstep:
+            self._advance(controls, 'setpoint')
+
+    def _reject(self, stamp_ns: int, rejection: Rejection) -> None:
+        self.rejections.reject('setpoint', self._setpoint_sub.topic_name, stamp_ns, rejection)
 
     def _tick(self) -> None:
         """Free mode: advance simulated time by ``clock_period_s * speedup``."""
@@ -280,21 +382,13 @@ class EmulatorNode(Node):
         if self._sim_ns < self.stamp_ns + self.step_ns:
             self._clock_pub.publish(clock_msg(self._sim_ns))
             return
-        setpoint = self._latest_setpoint
-        if setpoint is None:
-            self.get_logger().warning(f'no setpoint received for step '
-                                      f'{self.stamp_ns / NS_PER_S:.0f} s: applying 0 W')
-            controls = np.zeros(1)
-        else:
-            stamp = stamp_to_ns(setpoint.header.stamp)
-            if stamp != self.stamp_ns:
-                self.get_logger().warning(
-                    f'no setpoint for step {self.stamp_ns / NS_PER_S:.0f} s: holding the one '
-                    f'stamped {stamp / NS_PER_S:.0f} s ({setpoint.heat_rate_w:.1f} W)')
-            controls = setpoint_to_controls(setpoint)
-        self._advance(controls)
+        decision = self._hold.controls_for(self._scenario_s(self.stamp_ns))
+        if decision.source != 'setpoint':
+            self.get_logger().warning(f'step {self.stamp_ns / NS_PER_S:.0f} s: '
+                                      f'{decision.reason}')
+        self._advance(decision.controls, decision.source)
 
-    def _advance(self, controls: np.ndarray) -> None:
+    def _advance(self, controls: np.ndarray, source: str = 'setpoint') -> None:
         """Apply ``controls`` over the current step, publish the next one."""
         bounds = self.emulator.control_bounds
         clipped = np.clip(controls, bounds[:, 0], bounds[:, 1])
@@ -303,26 +397,48 @@ class EmulatorNode(Node):
                 f'setpoint {controls[0]:.1f} W at {self.stamp_ns / NS_PER_S:.0f} s is outside '
                 f'the actuator limits [{bounds[0, 0]:.0f}, {bounds[0, 1]:.0f}] W: applying '
                 f'{clipped[0]:.1f} W')
-        record = self.emulator.advance(clipped)
+        try:
+            record = self.emulator.advance(clipped)
+        except Exception as exc:  # noqa: BLE001 - the building model failed: stop, clearly
+            self._fail(f'the emulation model failed at {self.stamp_ns / NS_PER_S:.0f} s: '
+                       f'{type(exc).__name__}: {exc}')
+            return
+        if not np.all(np.isfinite(record.x_end)):
+            self._fail(f'the emulation model returned non-finite states {record.x_end} at '
+                       f'{self.stamp_ns / NS_PER_S:.0f} s')
+            return
         self._step_started_ns = self._steady_ns()
         self.records.append(record)
+        self.steps_done += 1
+        if self.params['records_kept'] and len(self.records) > self.params['records_kept']:
+            del self.records[:-self.params['records_kept']]
+        self.applied_sources.append(source)
         self._last_heat_rate_w = float(record.controls[0])
         self.get_logger().debug(
-            f'step {len(self.records)}: q = {record.controls[0]:.1f} W, T '
+            f'step {self.steps_done}: q = {record.controls[0]:.1f} W, T '
             f'{record.x_start[0] - KELVIN:.3f} -> {record.x_end[0] - KELVIN:.3f} degC')
         self._publish_step()
         if self.emulator.steps_left == 0:
             self._finish()
+
+    def _fail(self, reason: str) -> None:
+        """End the run early with an error (the process exits with code 1)."""
+        self.failed = reason
+        self.get_logger().error(reason)
+        self._finish()
 
     def _finish(self) -> None:
         self.done = True
         self.wall_s = (self._steady_ns() - self._run_started_ns) / NS_PER_S
         if self._run_timer is not None:
             self._run_timer.cancel()
-        temps = [r.x_end[0] - KELVIN for r in self.records]
+        temps = [r.x_end[0] - KELVIN for r in self.records] or [float('nan')]
+        sources = dict(collections.Counter(self.applied_sources))
+        rejected = self.rejections.total()
         self.get_logger().info(
-            f'scenario over: {len(self.records)} steps in {self.wall_s:.2f} s wall, zone '
-            f'temperature {min(temps):.2f} to {max(temps):.2f} degC')
+            f"{'run stopped' if self.failed else 'scenario over'}: {self.steps_done} steps in "
+            f'{self.wall_s:.2f} s wall, zone temperature {min(temps):.2f} to {max(temps):.2f} '
+            f'degC; applied {sources}; {rejected} setpoints rejected')
         if self.params['output_dir']:
             self.write_outputs(pathlib.Path(self.params['output_dir']))
 
@@ -365,7 +481,10 @@ class EmulatorNode(Node):
         self.applied_frame().to_csv(out / 'applied.csv', index_label='time_s')
         keys = ('scenario', 'data', 'hours', 'model', 'mode', 'initial_temperature_c', 'step_s')
         run = {key: self.params[key] for key in keys}
-        run.update(epoch_ns=self.epoch_ns, steps=len(self.records), wall_s=self.wall_s)
+        run.update(epoch_ns=self.epoch_ns, steps=self.steps_done, wall_s=self.wall_s,
+                   start_step=self.params['start_step'], failed=self.failed,
+                   applied_sources=dict(collections.Counter(self.applied_sources)),
+                   rejected_setpoints=self.rejections.counter.by_kind())
         (out / 'run.json').write_text(json.dumps(run, indent=2) + '\n')
         self.get_logger().info(f'wrote {out}/trajectories.csv, applied.csv, run.json')
 
@@ -375,19 +494,20 @@ def main(args: list[str] | None = None) -> None:
     rclpy.init(args=args)
     node = None
     try:
-        node = EmulatorNode()
+        node = construct(EmulatorNode, 'emulator')
+        if node is None:
+            sys.exit(EXIT_CONFIG)
         bridge_core_logging(node.get_logger())
         while rclpy.ok() and not (node.done and node.params['exit_when_done']):
             rclpy.spin_once(node, timeout_sec=0.5)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except (InvalidParameterValueException, ValueError, FileNotFoundError) as exc:
-        rclpy.logging.get_logger('emulator').fatal(f'cannot start: {exc}')
-        sys.exit(2)
     finally:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+    if node is not None and node.failed:
+        sys.exit(1)
 
 
 if __name__ == '__main__':

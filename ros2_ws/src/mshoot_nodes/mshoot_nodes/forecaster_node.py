@@ -18,13 +18,13 @@ from mshoot_msgs.msg import Forecast
 import numpy as np
 import pandas as pd
 import rclpy
-from rclpy.exceptions import InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from mshoot_nodes import contract, sources
 from mshoot_nodes.conversions import (floor_to_step, forecast_msg, NS_PER_S, seconds_to_ns)
 from mshoot_nodes.params import declare, ParamSpec, values
+from mshoot_nodes.startup import construct, EXIT_CONFIG
 
 PARAMS = (
     ParamSpec('scenario', 'synthetic', "the scenario: 'synthetic', 'ou44' or a path to a CSV "
@@ -47,6 +47,8 @@ PARAMS = (
               'step of lead time, standard deviation [W/m2]', low=0.0, high=2000.0),
     ParamSpec('error_seed', 0, 'seed of the forecast errors (with the step index) [-]',
               low=0, high=2 ** 31 - 1),
+    ParamSpec('enabled', True, 'publish forecasts (false: pause them, e.g. to exercise the '
+              "MPC's fallback when the forecast stops)"),
     ParamSpec('zone', 'zone', 'zone name (header.frame_id)', read_only=True),
 )
 
@@ -112,6 +114,8 @@ class ForecasterNode(Node):
         self.params = values(self, PARAMS)
         names = ', '.join(f'{p.name} = {p.value}' for p in params)
         self.get_logger().info(f'parameters changed: {names} (from the next step)')
+        if any(p.name == 'enabled' and p.value for p in params):
+            self._on_step()  # resumed: the current step's forecast at once
 
     def _on_step(self) -> None:
         now = self.get_clock().now().nanoseconds
@@ -122,6 +126,10 @@ class ForecasterNode(Node):
                                         and self.last_index > last_step):
             return
         if 0 <= index <= last_step:
+            if not self.params['enabled']:
+                self.get_logger().warning(f'forecasts paused (enabled = false): none for step '
+                                          f'{index}', throttle_duration_sec=30.0)
+                return
             self.publish_forecast(int(index))
         elif index > last_step and self.last_index is not None:
             self.get_logger().info('scenario over: no more forecasts')
@@ -156,13 +164,12 @@ def main(args: list[str] | None = None) -> None:
     rclpy.init(args=args)
     node = None
     try:
-        node = ForecasterNode()
+        node = construct(ForecasterNode, 'forecaster')
+        if node is None:
+            sys.exit(EXIT_CONFIG)
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except (InvalidParameterValueException, ValueError, FileNotFoundError) as exc:
-        rclpy.logging.get_logger('forecaster').fatal(f'cannot start: {exc}')
-        sys.exit(2)
     finally:
         if node is not None:
             node.destroy_node()

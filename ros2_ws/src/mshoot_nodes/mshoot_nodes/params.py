@@ -87,6 +87,10 @@ def declare(node: Node, specs: Sequence[ParamSpec], checks: Iterable[Check] = ()
     ------
     rclpy.exceptions.InvalidParameterValueException
         If an override (``-p``, YAML) is rejected; the message holds the reason.
+    ValueError
+        If an override names a parameter the node does not have (a typo in a
+        YAML file would otherwise be ignored silently); the message lists the
+        valid names.
     """
     by_name = {spec.name: spec for spec in specs}
     checks = list(checks)
@@ -111,8 +115,18 @@ def declare(node: Node, specs: Sequence[ParamSpec], checks: Iterable[Check] = ()
         return SetParametersResult(successful=True)
 
     node.add_on_set_parameters_callback(on_set)
-    for spec in specs:
-        node.declare_parameter(spec.name, spec.default, spec.descriptor())
+    try:
+        for spec in specs:
+            node.declare_parameter(spec.name, spec.default, spec.descriptor())
+        unknown = sorted(name for name in getattr(node, '_parameter_overrides', {})
+                         if not node.has_parameter(name)
+                         and not name.startswith('qos_overrides.'))
+        if unknown:
+            raise ValueError(f'unknown parameter(s) {unknown} for node {node.get_name()!r}; '
+                             f'valid: {sorted(spec.name for spec in specs)} (and use_sim_time)')
+    except Exception:
+        Node.destroy_node(node)  # the base class: the node's own attributes do not exist yet
+        raise
 
 
 def values(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:

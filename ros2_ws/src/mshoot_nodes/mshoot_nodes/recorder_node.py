@@ -4,12 +4,23 @@ It subscribes with ``raw=True`` (no deserialisation: the CDR bytes go to the
 bag as they came), registers the message definitions of the custom types from
 the installed ``share/<package>/msg/*.msg``, and stores the offered QoS of each
 topic, so ``ros2 bag info`` and ``ros2 bag play`` on a ROS 2 install accept the
-bag. Receive times come from the node clock (the wall clock, or simulated time
-with use_sim_time, as ``ros2 bag record --use-sim-time``).
+bag. Receive times are the middleware's reception times (system clock: the
+bag keeps the order in which messages arrived across topics, not the order in
+which the executor happened to take them), or with use_sim_time the node's
+simulated clock (as ``ros2 bag record --use-sim-time``).
 
 Contract topics are subscribed at once with their contract QoS (nothing is
 missed at start-up); other topics when a publisher shows up, with its type and
-offered QoS from the graph. On a full ROS 2 install the equivalent is::
+offered QoS from the graph.
+
+Nothing recorded is lost: every ``flush_period_s`` (wall time) what was
+written goes to disk (the mcap chunk is closed, the sqlite3 transaction
+committed), so a crash or ``kill -9`` loses at most that much and the bag is
+recovered with ``python -m mshoot_nodes.bags recover BAG``. SIGINT and
+SIGTERM end the process cleanly: the messages already received (waiting in
+the subscriptions) are written, then the bag is closed with its metadata.
+
+On a full ROS 2 install the equivalent is::
 
     ros2 bag record -s mcap /clock /zone/state /zone/disturbances /forecast \\
         /mpc/setpoint /mpc/status
@@ -19,20 +30,23 @@ from __future__ import annotations
 import pathlib
 import shutil
 import sys
+import time
 from typing import Any
 
 import rclpy
-from rclpy.exceptions import InvalidParameterValueException
-from rclpy.executors import ExternalShutdownException
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rosbags.rosbag2 import Writer
 
 from mshoot_nodes import contract
-from mshoot_nodes.bags import ensure_type, qos_to_rosbags, STORAGES, typestore
+from mshoot_nodes.bags import ensure_type, flush_writer, qos_to_rosbags, STORAGES, typestore
 from mshoot_nodes.contract import message_class
 from mshoot_nodes.params import declare, ParamSpec, values
+from mshoot_nodes.signals import StopSignals
+from mshoot_nodes.startup import construct, EXIT_CONFIG
 
 PARAMS = (
     ParamSpec('bag_path', 'mshoot_bag', 'bag directory to create', read_only=True),
@@ -40,8 +54,10 @@ PARAMS = (
               read_only=True),
     ParamSpec('topics', list(contract.RECORDED_TOPICS), 'topics to record', read_only=True),
     ParamSpec('overwrite', False, 'replace an existing bag directory', read_only=True),
-    ParamSpec('queue_depth', 100, 'subscription depth of volatile topics [-]', low=1,
-              high=100_000, read_only=True),
+    ParamSpec('queue_depth', 100, 'subscription depth of every topic (latched ones too) [-]',
+              low=1, high=100_000, read_only=True),
+    ParamSpec('flush_period_s', 1.0, 'wall time between flushes to disk: a crash loses at '
+              'most this much [s]', low=0.01, high=3600.0, read_only=True),
 )
 
 
@@ -82,10 +98,14 @@ class RecorderNode(Node):
         self._connections: dict[str, Any] = {}
         self.counts: dict[str, int] = {}
         self._closed = False
+        self._unflushed = 0
+        self.create_timer(p['flush_period_s'], self.flush,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._waiting = [t for t in p['topics'] if not self._subscribe_contract(t)]
         if self._waiting:
             self._discover()
             self._discovery_timer = self.create_timer(1.0, self._discover)
+        flush_writer(self._writer)  # the file header and the contract topics' definitions
         self.get_logger().info(f"recording {len(p['topics'])} topics to {self.path} "
                                f"({p['storage']})")
 
@@ -117,7 +137,8 @@ class RecorderNode(Node):
         ensure_type(self._store, type_name)
         cls = message_class(type_name)
         latched = offered.durability == DurabilityPolicy.TRANSIENT_LOCAL
-        qos = QoSProfile(depth=offered.depth if latched else self.params['queue_depth'],
+        # A deeper reader queue than the writer's is compatible, also for latched topics.
+        qos = QoSProfile(depth=max(offered.depth, self.params['queue_depth']),
                          reliability=offered.reliability
                          if offered.reliability in (ReliabilityPolicy.RELIABLE,
                                                     ReliabilityPolicy.BEST_EFFORT)
@@ -128,15 +149,47 @@ class RecorderNode(Node):
             topic, type_name, typestore=self._store,
             offered_qos_profiles=[qos_to_rosbags(offered)])
         self.counts[topic] = 0
-        self.create_subscription(cls, topic, lambda raw, t=topic: self._write(t, raw), qos,
-                                 raw=True)
+        self.create_subscription(cls, topic, lambda raw, info, t=topic: self._write(t, raw, info),
+                                 qos, raw=True)
         self.get_logger().debug(f'recording {topic} [{type_name}]')
 
-    def _write(self, topic: str, raw: bytes) -> None:
+    def _write(self, topic: str, raw: bytes, info: dict | None = None) -> None:
         if self._closed:
             return
-        self._writer.write(self._connections[topic], self.get_clock().now().nanoseconds, raw)
+        received = int((info or {}).get('received_timestamp') or 0)
+        if received <= 0 or self.get_parameter('use_sim_time').value:
+            received = self.get_clock().now().nanoseconds
+        self._writer.write(self._connections[topic], received, raw)
         self.counts[topic] += 1
+        self._unflushed += 1
+
+    @property
+    def total(self) -> int:
+        """Messages written so far."""
+        return sum(self.counts.values())
+
+    def flush(self) -> None:
+        """Put what was written on disk (a crash after this loses none of it)."""
+        if not self._closed and self._unflushed:
+            flush_writer(self._writer)
+            self._unflushed = 0
+
+    def drain(self, executor: SingleThreadedExecutor, quiet_s: float = 0.1,
+              limit_s: float = 2.0) -> int:
+        """Take the messages already received (waiting in the subscriptions) before closing.
+
+        Spins until nothing new arrived for ``quiet_s`` (at most ``limit_s``) of
+        wall time; returns the number written meanwhile.
+        """
+        before = last = self.total
+        started = quiet_since = time.monotonic()
+        while time.monotonic() - started < limit_s:
+            executor.spin_once(timeout_sec=0.01)
+            if self.total != last:
+                last, quiet_since = self.total, time.monotonic()
+            elif time.monotonic() - quiet_since >= quiet_s:
+                break
+        return self.total - before
 
     def close(self) -> None:
         """Finish the bag (writes metadata.yaml); further messages are dropped."""
@@ -155,24 +208,39 @@ class RecorderNode(Node):
 def main(args: list[str] | None = None) -> None:
     """``ros2 run mshoot_nodes recorder --ros-args -p bag_path:=out/bag``; Ctrl-C ends it.
 
-    SIGINT raises KeyboardInterrupt here instead of shutting the context down first, so
-    the bag is closed (and logged) by a node whose context is still valid.
+    SIGINT and SIGTERM only request the stop (no exception in the middle of a
+    write, and the context stays valid): what was received is written, then the
+    bag is closed and logged.
     """
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    node = None
-    try:
-        node = RecorderNode()
-        while rclpy.ok():  # short waits: Python sees SIGINT between them
-            rclpy.spin_once(node, timeout_sec=0.2)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (InvalidParameterValueException, ValueError) as exc:
-        rclpy.logging.get_logger('recorder').fatal(f'cannot start: {exc}')
-        sys.exit(2)
-    finally:
-        if node is not None:
-            node.destroy_node()
+    with StopSignals() as stop:
+        code = _record(stop)
+    if code:
+        sys.exit(code)
+
+
+def _record(stop: StopSignals) -> int:
+    """Record until a stop is requested (or the context shuts down); the exit code."""
+    node = construct(RecorderNode, 'recorder')
+    if node is None:
         rclpy.try_shutdown()
+        return EXIT_CONFIG
+    executor = SingleThreadedExecutor()
+    try:
+        executor.add_node(node)
+        while rclpy.ok() and not stop.requested:  # short waits: signals are seen fast
+            executor.spin_once(timeout_sec=0.1)
+        if stop.requested:
+            drained = node.drain(executor)
+            node.get_logger().info(f'{stop.received}: wrote the {drained} messages still '
+                                   'queued, closing the bag')
+    except ExternalShutdownException:
+        pass
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
 
 
 if __name__ == '__main__':

@@ -14,7 +14,6 @@ from typing import Any
 
 import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.exceptions import InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.publisher import Publisher
@@ -22,6 +21,7 @@ from rclpy.publisher import Publisher
 from mshoot_nodes.bags import qos_from_rosbags, read_bag
 from mshoot_nodes.contract import message_class
 from mshoot_nodes.params import declare, ParamSpec, values
+from mshoot_nodes.startup import construct, EXIT_CONFIG
 
 PARAMS = (
     ParamSpec('bag_path', '', 'bag directory to play', read_only=True),
@@ -145,14 +145,13 @@ def main(args: list[str] | None = None) -> None:
     rclpy.init(args=args)
     node = None
     try:
-        node = ReplayerNode()
+        node = construct(ReplayerNode, 'replayer')
+        if node is None:
+            sys.exit(EXIT_CONFIG)
         while rclpy.ok() and not (node.done and node.params['exit_when_done']):
             rclpy.spin_once(node, timeout_sec=0.5)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except (InvalidParameterValueException, ValueError, FileNotFoundError) as exc:
-        rclpy.logging.get_logger('replayer').fatal(f'cannot start: {exc}')
-        sys.exit(2)
     finally:
         if node is not None:
             node.destroy_node()

@@ -1,0 +1,657 @@
+"""Safety rules of the supervisory loop: input validation and the fallback chains.
+
+A supervisory controller that stops publishing, or publishes NaN, is worse
+than none. This module holds the decisions; the ROS nodes only convert
+messages to the plain values used here and act on the verdicts.
+
+- Validation (:func:`check_zone_state`, :func:`check_disturbances`,
+  :func:`check_forecast`, :func:`check_setpoint`, :class:`StampGate`): a
+  malformed or untimely input gets a :class:`Rejection` (a kind from
+  :data:`REJECTION_KINDS` and one clear sentence) and is counted by a
+  :class:`RejectionCounter`; nothing rejected reaches the optimiser or the
+  building.
+- The MPC fallback chain (:class:`SetpointSupervisor`): a fresh optimum when
+  the solve succeeded and its plan is sane; else the next interval of the last
+  good plan while it is at most ``max_plan_age_steps`` old; else the configured
+  safe setpoint.
+- The emulator's hold policy (:class:`SetpointHold`): the setpoint of the
+  step; else the last one held for ``hold_s``; else the safe default.
+- :class:`InputWait`: how long a due control step waits for missing inputs
+  before it gets a fallback.
+
+Times: stamps are integer nanoseconds (exact step arithmetic on message
+stamps), plan times are seconds as in :mod:`mshoot_core.mpc`.
+"""
+from __future__ import annotations
+
+import collections
+import dataclasses
+import logging
+import math
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+logger = logging.getLogger(__name__)
+
+NS_PER_S = 1_000_000_000
+#: Why an input was rejected.
+REJECTION_KINDS = ('non_finite', 'out_of_range', 'length', 'band', 'step', 'stamp', 'future',
+                   'stale', 'backwards')
+#: Why a setpoint is a fallback (codes of :attr:`Decision.code`).
+FALLBACK_CODES = ('solve_failed', 'budget', 'not_converged', 'invalid_plan', 'inputs_missing')
+#: Where a published setpoint comes from.
+SOURCES = ('optimum', 'plan', 'safe')
+#: Forecast series, in the column names of :mod:`mshoot_core.scenario`.
+FORECAST_SERIES = ('Tout', 'solrad', 'occ', 'comfort_min', 'comfort_max')
+
+
+@dataclasses.dataclass(frozen=True)
+class Rejection:
+    """Why an input was refused.
+
+    Attributes
+    ----------
+    kind : str
+        One of :data:`REJECTION_KINDS`.
+    reason : str
+        One sentence naming the bad value and what was expected.
+    """
+
+    kind: str
+    reason: str
+
+
+@dataclasses.dataclass(frozen=True)
+class Limits:
+    """Plausible ranges of the inputs (inclusive); values outside are rejected.
+
+    Attributes
+    ----------
+    zone_temperature_c : (float, float)
+        Zone air temperature [degC].
+    outdoor_temperature_c : (float, float)
+        Outdoor air temperature [degC].
+    solar_radiation_w_m2 : (float, float)
+        Global solar radiation [W/m2].
+    occupancy : (float, float)
+        Occupants [persons].
+    comfort_c : (float, float)
+        Comfort band bounds [degC].
+    heat_rate_abs_w : float
+        Largest plausible |heat rate| [W] (beyond the actuator limits a
+        setpoint is clipped; beyond this it is rejected).
+    max_samples : int
+        Longest forecast or plan accepted [-].
+    """
+
+    zone_temperature_c: tuple[float, float] = (-50.0, 80.0)
+    outdoor_temperature_c: tuple[float, float] = (-90.0, 70.0)
+    solar_radiation_w_m2: tuple[float, float] = (0.0, 2000.0)
+    occupancy: tuple[float, float] = (0.0, 10_000.0)
+    comfort_c: tuple[float, float] = (-50.0, 80.0)
+    heat_rate_abs_w: float = 1e7
+    max_samples: int = 10_000
+
+    @property
+    def forecast_ranges(self) -> dict[str, tuple[float, float]]:
+        """Range of every forecast series (column name -> (low, high))."""
+        return {'Tout': self.outdoor_temperature_c, 'solrad': self.solar_radiation_w_m2,
+                'occ': self.occupancy, 'comfort_min': self.comfort_c,
+                'comfort_max': self.comfort_c}
+
+
+#: The default limits.
+LIMITS = Limits()
+
+
+# -- value checks -------------------------------------------------------------------------
+def check_value(name: str, value: Any, low: float = -math.inf,
+                high: float = math.inf) -> Rejection | None:
+    """A finite scalar within [low, high], else the rejection."""
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        return Rejection('non_finite', f'{name} must be a number, got {value!r}')
+    if not math.isfinite(x):
+        return Rejection('non_finite', f'{name} = {x} is not finite')
+    if not low <= x <= high:
+        return Rejection('out_of_range', f'{name} = {x:g} is outside [{low:g}, {high:g}]')
+    return None
+
+
+def check_series(name: str, values: Sequence[float], low: float = -math.inf,
+                 high: float = math.inf) -> Rejection | None:
+    """Finite values within [low, high], else the rejection naming the first bad sample."""
+    x = np.asarray(values, dtype=float).reshape(-1)
+    bad = np.flatnonzero(~np.isfinite(x))
+    if bad.size:
+        return Rejection('non_finite', f'{name}[{bad[0]}] = {x[bad[0]]} is not finite '
+                         f'({bad.size} of {x.size} samples)')
+    bad = np.flatnonzero((x < low) | (x > high))
+    if bad.size:
+        return Rejection('out_of_range', f'{name}[{bad[0]}] = {x[bad[0]]:g} is outside '
+                         f'[{low:g}, {high:g}] ({bad.size} of {x.size} samples)')
+    return None
+
+
+def check_stamp_fields(sec: int, nanosec: int) -> Rejection | None:
+    """A time stamp given as (seconds, nanoseconds): nanoseconds must be below 1e9."""
+    if not 0 <= int(nanosec) < NS_PER_S:
+        return Rejection('stamp', f'stamp nanosec = {nanosec} is outside [0, 999999999]')
+    if int(sec) < 0:
+        return Rejection('stamp', f'stamp sec = {sec} is before 1970')
+    return None
+
+
+def check_zone_state(temperature_c: float, heat_rate_w: float,
+                     limits: Limits = LIMITS) -> Rejection | None:
+    """A measured zone state: temperature [degC] and the heat rate applied [W]."""
+    return (check_value('temperature_c', temperature_c, *limits.zone_temperature_c)
+            or check_value('heat_rate_w', heat_rate_w, -limits.heat_rate_abs_w,
+                           limits.heat_rate_abs_w))
+
+
+def check_disturbances(outdoor_temperature_c: float, solar_radiation_w_m2: float,
+                       occupancy: float, limits: Limits = LIMITS) -> Rejection | None:
+    """Measured disturbances: outdoor temperature [degC], solar radiation [W/m2], occupants."""
+    return (check_value('outdoor_temperature_c', outdoor_temperature_c,
+                        *limits.outdoor_temperature_c)
+            or check_value('solar_radiation_w_m2', solar_radiation_w_m2,
+                           *limits.solar_radiation_w_m2)
+            or check_value('occupancy', occupancy, *limits.occupancy))
+
+
+def check_forecast(step_s: float, series: Mapping[str, Sequence[float]],
+                   expected_step_s: float | None = None,
+                   limits: Limits = LIMITS) -> Rejection | None:
+    """A forecast of the disturbances and the comfort band.
+
+    Parameters
+    ----------
+    step_s : float
+        Sample spacing [s].
+    series : mapping
+        Column name (:data:`FORECAST_SERIES`: Tout [degC], solrad [W/m2], occ
+        [persons], comfort_min, comfort_max [degC]) -> samples.
+    expected_step_s : float, optional
+        The control step the forecast must be sampled at [s].
+    limits : Limits
+        Plausible ranges.
+    """
+    rejection = check_value('step_s', step_s, 1e-9, math.inf)
+    if rejection:
+        return Rejection(rejection.kind if rejection.kind == 'non_finite' else 'step',
+                         rejection.reason)
+    if expected_step_s is not None and abs(float(step_s) - expected_step_s) > 1e-6:
+        return Rejection('step', f'step_s = {float(step_s):g} s differs from the control step '
+                         f'{expected_step_s:g} s')
+    missing = [name for name in FORECAST_SERIES if name not in series]
+    if missing:
+        return Rejection('length', f'forecast lacks the series {missing}')
+    lengths = {name: len(series[name]) for name in FORECAST_SERIES}
+    if len(set(lengths.values())) != 1:
+        return Rejection('length', f'forecast arrays differ in length: {lengths}')
+    n = next(iter(lengths.values()))
+    if not 1 <= n <= limits.max_samples:
+        return Rejection('length', f'forecast has {n} samples, expected 1 to '
+                         f'{limits.max_samples}')
+    for name, (low, high) in limits.forecast_ranges.items():
+        rejection = check_series(name, series[name], low, high)
+        if rejection:
+            return rejection
+    low = np.asarray(series['comfort_min'], dtype=float)
+    high = np.asarray(series['comfort_max'], dtype=float)
+    bad = np.flatnonzero(low > high)
+    if bad.size:
+        k = bad[0]
+        return Rejection('band', f'comfort band inverted at sample {k}: comfort_min '
+                         f'{low[k]:g} > comfort_max {high[k]:g} degC ({bad.size} samples)')
+    return None
+
+
+def check_setpoint(heat_rate_w: float, temperature_c: float, step_s: float,
+                   plan_heat_rate_w: Sequence[float] = (),
+                   plan_temperature_c: Sequence[float] = (),
+                   expected_step_s: float | None = None,
+                   limits: Limits = LIMITS) -> Rejection | None:
+    """A supervisory setpoint: heat rate [W], predicted temperature [degC], its plan.
+
+    Heat rates within ``limits.heat_rate_abs_w`` but beyond the actuator limits
+    are not rejected here: the building clips them (with a warning).
+    """
+    rejection = (check_value('heat_rate_w', heat_rate_w, -limits.heat_rate_abs_w,
+                             limits.heat_rate_abs_w)
+                 or check_value('temperature_setpoint_c', temperature_c,
+                                *limits.zone_temperature_c)
+                 or check_value('step_s', step_s, 1e-9, math.inf))
+    if rejection:
+        return rejection
+    if expected_step_s is not None and abs(float(step_s) - expected_step_s) > 1e-6:
+        return Rejection('step', f'step_s = {float(step_s):g} s differs from the control step '
+                         f'{expected_step_s:g} s')
+    if len(plan_heat_rate_w) != len(plan_temperature_c):
+        return Rejection('length', f'plan arrays differ in length: plan_heat_rate_w '
+                         f'{len(plan_heat_rate_w)}, plan_temperature_c '
+                         f'{len(plan_temperature_c)}')
+    if len(plan_heat_rate_w) > limits.max_samples:
+        return Rejection('length', f'plan has {len(plan_heat_rate_w)} intervals, at most '
+                         f'{limits.max_samples} expected')
+    return (check_series('plan_heat_rate_w', plan_heat_rate_w, -limits.heat_rate_abs_w,
+                         limits.heat_rate_abs_w)
+            or check_series('plan_temperature_c', plan_temperature_c,
+                            *limits.zone_temperature_c))
+
+
+# -- time stamps --------------------------------------------------------------------------
+class StampGate:
+    """Refuses stamps that go backwards, lie in the future or are too old to be used.
+
+    One gate per input stream. The rules, in order, for a stamp ``t`` when the
+    receiver's clock reads ``now`` (0: no clock yet, e.g. simulated time before
+    the first /clock; then only the order is checked):
+
+    1. ``t`` equal to the newest accepted stamp: accepted (a repeat, e.g. a
+       heartbeat or a re-delivered latched message);
+    2. ``t`` before the newest accepted stamp: 'backwards';
+    3. ``t > now + max_future_ns``: 'future';
+    4. ``t`` before the start of the current step minus ``max_age_ns``: 'stale'.
+
+    Parameters
+    ----------
+    step_ns : int
+        Control step [ns] (the grid of "the current step").
+    max_age_ns : int
+        Oldest usable stamp before the current step's start [ns].
+    max_future_ns : int
+        Largest lead over the clock [ns] (data and clock topics are not
+        ordered, so a stamp one step ahead is normal in simulated time).
+    """
+
+    def __init__(self, step_ns: int, max_age_ns: int = 0, max_future_ns: int = 0) -> None:
+        if step_ns <= 0 or max_age_ns < 0 or max_future_ns < 0:
+            raise ValueError(f'step_ns must be > 0 and the tolerances >= 0, got {step_ns}, '
+                             f'{max_age_ns}, {max_future_ns}')
+        self.step_ns = int(step_ns)
+        self.max_age_ns = int(max_age_ns)
+        self.max_future_ns = int(max_future_ns)
+        self.latest_ns: int | None = None
+
+    def check(self, stamp_ns: int, now_ns: int) -> Rejection | None:
+        """The rejection of a stamp, or None if it is acceptable (see the class docstring)."""
+        stamp_ns, now_ns = int(stamp_ns), int(now_ns)
+        if self.latest_ns is not None:
+            if stamp_ns == self.latest_ns:
+                return None
+            if stamp_ns < self.latest_ns:
+                return Rejection('backwards', f'stamp {_s(stamp_ns)} is before the previous one '
+                                 f'{_s(self.latest_ns)}: time went backwards')
+        if now_ns > 0:
+            if stamp_ns > now_ns + self.max_future_ns:
+                return Rejection('future', f'stamp {_s(stamp_ns)} is '
+                                 f'{(stamp_ns - now_ns) / NS_PER_S:g} s ahead of the clock '
+                                 f'{_s(now_ns)} (at most {self.max_future_ns / NS_PER_S:g} s)')
+            oldest = (now_ns // self.step_ns) * self.step_ns - self.max_age_ns
+            if stamp_ns < oldest:
+                return Rejection('stale', f'stamp {_s(stamp_ns)} is '
+                                 f'{(now_ns - stamp_ns) / NS_PER_S:g} s old: older than '
+                                 f'{_s(oldest)}, the oldest usable now')
+        return None
+
+    def accept(self, stamp_ns: int, now_ns: int) -> None:
+        """Remember an accepted stamp (only once a clock runs: a stamp that could not be
+        checked against the clock must not lock out the ones that follow)."""
+        if int(now_ns) > 0:
+            self.latest_ns = max(int(stamp_ns), self.latest_ns or 0)
+
+    def reset(self) -> None:
+        """Forget the newest stamp (after the clock jumped back: a restarted simulation)."""
+        self.latest_ns = None
+
+
+def _s(ns: int) -> str:
+    return f'{ns / NS_PER_S:.3f} s'
+
+
+class RejectionCounter:
+    """Counts rejections per input stream and kind.
+
+    Attributes
+    ----------
+    counts : Counter
+        (stream, kind) -> number of rejections.
+    """
+
+    def __init__(self) -> None:
+        self.counts: collections.Counter[tuple[str, str]] = collections.Counter()
+
+    def add(self, stream: str, rejection: Rejection) -> int:
+        """Count one rejection; return the stream's total so far."""
+        self.counts[(stream, rejection.kind)] += 1
+        return self.total(stream)
+
+    def total(self, stream: str | None = None) -> int:
+        """Rejections of ``stream`` (all streams when None)."""
+        return sum(n for (s, _), n in self.counts.items() if stream is None or s == stream)
+
+    def by_kind(self, stream: str | None = None) -> dict[str, int]:
+        """Kind -> rejections of ``stream`` (all streams when None)."""
+        out: dict[str, int] = {}
+        for (s, kind), n in sorted(self.counts.items()):
+            if stream is None or s == stream:
+                out[kind] = out.get(kind, 0) + n
+        return out
+
+
+# -- the MPC fallback chain ---------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class Decision:
+    """The setpoint of one control step and where it comes from.
+
+    Attributes
+    ----------
+    t_s : float
+        Start of the step [s].
+    controls : ndarray, shape (nc,)
+        Controls to apply over the step (finite, within the bounds).
+    predicted_state : ndarray, shape (nx,), or None
+        Predicted state at the end of the step (None for the safe setpoint).
+    plan_controls : ndarray, shape (m, nc)
+        The plan from this step on (empty for the safe setpoint).
+    plan_states : ndarray, shape (m, nx)
+        Predicted states at the end of every planned interval.
+    source : str
+        'optimum' (this step's solve), 'plan' (the last good plan's interval
+        for this step) or 'safe' (the configured safe setpoint).
+    fallback : bool
+        True unless ``source`` is 'optimum'.
+    code : str
+        '' or one of :data:`FALLBACK_CODES`: why the solve result was not used.
+    reason : str
+        '' or one sentence saying why, and what was used instead.
+    """
+
+    t_s: float
+    controls: np.ndarray
+    predicted_state: np.ndarray | None
+    plan_controls: np.ndarray
+    plan_states: np.ndarray
+    source: str
+    fallback: bool
+    code: str = ''
+    reason: str = ''
+
+
+@dataclasses.dataclass
+class _GoodPlan:
+    t_s: float
+    controls: np.ndarray  # (N, nc)
+    states: np.ndarray    # (N, nx): end of every interval
+
+
+class SetpointSupervisor:
+    """The MPC's fallback chain: the optimum, else the last good plan, else the safe setpoint.
+
+    Parameters
+    ----------
+    control_bounds : sequence of (float, float)
+        Actuator limits of every control (physical units).
+    step_s : float
+        Control step [s].
+    safe_controls : sequence of float
+        The configured safe setpoint (clipped to the bounds).
+    max_plan_age_steps : int
+        How many steps after it was computed a good plan may still be used
+        (0: never fall back on a plan, go to the safe setpoint at once).
+    state_range : (sequence, sequence), optional
+        Plausible (lower, upper) state values (physical units); a plan whose
+        predicted states leave them is not used.
+    bound_tolerance : float
+        Relative slack on the control bounds before a plan is refused (a
+        solver's bound satisfaction is only up to its tolerance; within it the
+        controls are clipped).
+    """
+
+    def __init__(self, control_bounds: Sequence[tuple[float, float]], step_s: float,
+                 safe_controls: Sequence[float], *, max_plan_age_steps: int = 4,
+                 state_range: tuple[Sequence[float], Sequence[float]] | None = None,
+                 bound_tolerance: float = 1e-6) -> None:
+        bounds = np.asarray(control_bounds, dtype=float).reshape(-1, 2)
+        if not np.all(np.isfinite(bounds)) or np.any(bounds[:, 0] > bounds[:, 1]):
+            raise ValueError(f'control_bounds must be finite (min, max) pairs, got '
+                             f'{bounds.tolist()}')
+        safe = np.asarray(safe_controls, dtype=float).reshape(-1)
+        if safe.size != bounds.shape[0] or not np.all(np.isfinite(safe)):
+            raise ValueError(f'safe_controls must be {bounds.shape[0]} finite values, got '
+                             f'{safe.tolist()}')
+        if not step_s > 0:
+            raise ValueError(f'step_s must be > 0, got {step_s}')
+        if max_plan_age_steps < 0:
+            raise ValueError(f'max_plan_age_steps must be >= 0, got {max_plan_age_steps}')
+        self.bounds = bounds
+        self.step_s = float(step_s)
+        self.safe_controls = np.clip(safe, bounds[:, 0], bounds[:, 1])
+        self.max_plan_age_steps = int(max_plan_age_steps)
+        self.state_range = (None if state_range is None else
+                            (np.asarray(state_range[0], dtype=float),
+                             np.asarray(state_range[1], dtype=float)))
+        self.bound_tolerance = float(bound_tolerance)
+        self._plan: _GoodPlan | None = None
+        #: Consecutive steps without a fresh optimum.
+        self.consecutive_fallbacks = 0
+        #: Decisions by source since the start.
+        self.sources: collections.Counter[str] = collections.Counter()
+
+    @property
+    def n_controls(self) -> int:
+        return self.bounds.shape[0]
+
+    def reset(self) -> None:
+        """Forget the last good plan (e.g. after the clock jumped back)."""
+        self._plan = None
+        self.consecutive_fallbacks = 0
+
+    def plan_problem(self, controls: Any, states: Any) -> str | None:
+        """Why a plan cannot be applied (non-finite, outside the bounds or the state
+        range, wrong shape), or None."""
+        try:
+            u = np.asarray(controls, dtype=float)
+            x = np.asarray(states, dtype=float)
+        except (TypeError, ValueError) as exc:
+            return f'the plan is not numeric ({exc})'
+        if u.ndim != 2 or u.shape[1] != self.n_controls or u.shape[0] < 1:
+            return f'the plan has shape {u.shape}, expected (N >= 1, {self.n_controls})'
+        if x.ndim != 2 or x.shape[0] != u.shape[0]:
+            return f'the predicted states have shape {x.shape} for {u.shape[0]} intervals'
+        if not np.all(np.isfinite(u)):
+            return 'the plan holds non-finite controls'
+        if not np.all(np.isfinite(x)):
+            return 'the predicted states are not finite'
+        span = self.bounds[:, 1] - self.bounds[:, 0]
+        slack = self.bound_tolerance * np.maximum(np.abs(self.bounds).max(axis=1), span) + 1e-9
+        if np.any(u < self.bounds[:, 0] - slack) or np.any(u > self.bounds[:, 1] + slack):
+            return (f'the plan leaves the control bounds {self.bounds.tolist()} '
+                    f'(range {u.min():g} to {u.max():g})')
+        if self.state_range is not None:
+            low, high = self.state_range
+            if np.any(x < low) or np.any(x > high):
+                return (f'the predicted states leave the plausible range [{low.tolist()}, '
+                        f'{high.tolist()}] (range {x.min():g} to {x.max():g})')
+        return None
+
+    def review(self, t_s: float, result: Any, *, accept_unconverged: bool = True) -> Decision:
+        """The setpoint of the step at ``t_s`` given its solve result.
+
+        Parameters
+        ----------
+        t_s : float
+            Start of the step [s].
+        result : MpcResult-like
+            ``success``, ``message``, ``controls`` (N, nc) and ``states``
+            (N+1, nx: x0 first).
+        accept_unconverged : bool
+            Use the best plan of a solver that did not converge (the offline
+            loop does) if it is sane; else fall back.
+        """
+        try:
+            controls = np.asarray(result.controls, dtype=float)
+            states = np.asarray(result.states, dtype=float)[1:]
+        except (AttributeError, TypeError, ValueError, IndexError) as exc:
+            return self.fallback(t_s, 'invalid_plan', f'the solve returned no usable plan '
+                                 f'({exc})')
+        problem = self.plan_problem(controls, states)
+        if problem:
+            return self.fallback(t_s, 'invalid_plan', problem)
+        if not bool(result.success) and not accept_unconverged:
+            return self.fallback(t_s, 'not_converged',
+                                 f'solver did not converge: {result.message}')
+        controls = np.clip(controls, self.bounds[:, 0], self.bounds[:, 1])
+        self._plan = _GoodPlan(float(t_s), controls.copy(), states.copy())
+        self.consecutive_fallbacks = 0
+        self.sources['optimum'] += 1
+        return Decision(float(t_s), controls[0].copy(), states[0].copy(), controls.copy(),
+                        states.copy(), 'optimum', False)
+
+    def fallback(self, t_s: float, code: str, reason: str) -> Decision:
+        """The fallback of the step at ``t_s``: the last good plan's interval, else safe.
+
+        Parameters
+        ----------
+        t_s : float
+            Start of the step [s].
+        code : str
+            One of :data:`FALLBACK_CODES`.
+        reason : str
+            Why the step's own solve cannot be used.
+        """
+        if code not in FALLBACK_CODES:
+            raise ValueError(f'code must be one of {list(FALLBACK_CODES)}, got {code!r}')
+        self.consecutive_fallbacks += 1
+        plan = self._plan
+        if plan is not None:
+            age = int(round((float(t_s) - plan.t_s) / self.step_s))
+            if 1 <= age <= self.max_plan_age_steps and age < plan.controls.shape[0]:
+                self.sources['plan'] += 1
+                return Decision(float(t_s), plan.controls[age].copy(), plan.states[age].copy(),
+                                plan.controls[age:].copy(), plan.states[age:].copy(), 'plan',
+                                True, code, f'{reason}; fallback: interval {age} of the plan '
+                                f'made {age} step(s) ago')
+            why = (f'the last good plan is {age} steps old (at most {self.max_plan_age_steps})'
+                   if age >= 1 else 'no earlier plan')
+        else:
+            why = 'no good plan yet'
+        return self.safe(t_s, code, f'{reason}; fallback: the safe setpoint '
+                         f'{self.safe_controls.tolist()} ({why})')
+
+    def safe(self, t_s: float, code: str, reason: str) -> Decision:
+        """The last link of the chain: the safe setpoint, with ``reason`` as given."""
+        self.sources['safe'] += 1
+        nx = self._plan.states.shape[1] if self._plan is not None else 0
+        return Decision(float(t_s), self.safe_controls.copy(), None,
+                        np.empty((0, self.n_controls)), np.empty((0, nx)), 'safe', True, code,
+                        reason)
+
+
+# -- waiting for inputs -------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class InputWait:
+    """How long a due control step waits for a missing or stale input.
+
+    The wait is measured from the moment the controller found the step due
+    (a controller started in the middle of a step waits too), on two clocks:
+
+    Attributes
+    ----------
+    wait_s : float
+        Wall time [s] after which the step gets a fallback (in lockstep
+        simulated time stands still while the controller waits).
+    deadline_s : float
+        Time on the controller's own clock [s] (simulated time running freely,
+        or real time) after which the step gets a fallback; 0 disables it.
+    """
+
+    wait_s: float = 5.0
+    deadline_s: float = 1800.0
+
+    def overdue(self, waited_wall_s: float, waited_clock_s: float) -> bool:
+        """True when the step should stop waiting and fall back."""
+        return waited_wall_s >= self.wait_s or (
+            self.deadline_s > 0 and waited_clock_s >= self.deadline_s)
+
+
+# -- the emulator's hold policy -----------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class HoldDecision:
+    """Controls the building applies over a step.
+
+    Attributes
+    ----------
+    controls : ndarray, shape (nc,)
+    source : str
+        'setpoint' (stamped for this step), 'held' (an earlier one, within
+        the hold time) or 'safe' (the safe default).
+    age_s : float
+        Age of the setpoint used at the step start [s] (0 for 'setpoint',
+        NaN for 'safe').
+    reason : str
+        '' for 'setpoint', else one sentence.
+    """
+
+    controls: np.ndarray
+    source: str
+    age_s: float
+    reason: str = ''
+
+
+class SetpointHold:
+    """What a building applies when the supervisory setpoint of a step is missing.
+
+    Parameters
+    ----------
+    safe_controls : sequence of float
+        The safe default controls.
+    hold_s : float
+        How long after its step's start a setpoint may still be applied [s].
+    """
+
+    def __init__(self, safe_controls: Sequence[float], hold_s: float) -> None:
+        self.safe_controls = np.asarray(safe_controls, dtype=float).reshape(-1)
+        if not np.all(np.isfinite(self.safe_controls)):
+            raise ValueError(f'safe_controls must be finite, got {self.safe_controls}')
+        if not hold_s >= 0:
+            raise ValueError(f'hold_s must be >= 0, got {hold_s}')
+        self.hold_s = float(hold_s)
+        self._latest: tuple[float, np.ndarray] | None = None
+
+    @property
+    def latest_t_s(self) -> float | None:
+        """Step start of the newest setpoint [s] (None before the first)."""
+        return None if self._latest is None else self._latest[0]
+
+    def offer(self, t_s: float, controls: Sequence[float]) -> None:
+        """A validated setpoint for the step starting at ``t_s`` (older ones are ignored)."""
+        u = np.asarray(controls, dtype=float).reshape(-1)
+        if u.shape != self.safe_controls.shape or not np.all(np.isfinite(u)):
+            raise ValueError(f'controls must be {self.safe_controls.size} finite values, '
+                             f'got {u}')
+        if self._latest is None or float(t_s) >= self._latest[0]:
+            self._latest = (float(t_s), u.copy())
+
+    def controls_for(self, t_s: float) -> HoldDecision:
+        """The controls of the step starting at ``t_s``."""
+        if self._latest is not None:
+            stamp, u = self._latest
+            age = float(t_s) - stamp
+            if abs(age) < 1e-6:
+                return HoldDecision(u.copy(), 'setpoint', 0.0)
+            if 0 < age <= self.hold_s + 1e-6:
+                return HoldDecision(u.copy(), 'held', age,
+                                    f'no setpoint for this step: holding the one from {age:g} s '
+                                    f'earlier ({u.tolist()}; hold {self.hold_s:g} s)')
+            why = (f'the last one is {age:g} s old (hold {self.hold_s:g} s)' if age > 0
+                   else 'the last one is for a later step')
+        else:
+            why = 'none received yet'
+        return HoldDecision(self.safe_controls.copy(), 'safe', math.nan,
+                            f'no setpoint for this step and {why}: applying the safe default '
+                            f'{self.safe_controls.tolist()}')
