@@ -35,3 +35,13 @@ DEMO_ARGS ?=
 demo: setup  ## 72 h MPC over ROS 2 (emulator, forecaster, mpc, bag) -> out/demo/; SCENARIO=ou44 for the OU44 data
 	@$(RUN) cd $(ROOT) && python -m mshoot_nodes.bringup --scenario $(SCENARIO) \
 		$(if $(filter ou44,$(SCENARIO)),--data $(OU44_CSV)) --out $(DEMO_OUT) $(DEMO_ARGS)
+
+# -- the soak benchmark (issue 6): many simulated days over ROS 2 with faults injected ---------
+SOAK_DAYS ?= 30
+SOAK_SEED ?= 1
+SOAK_ARGS ?=
+
+.PHONY: soak
+soak: setup  ## soak: SOAK_DAYS (30) simulated days over ROS 2 with seeded random faults -> out/soak/
+	@$(RUN) cd $(ROOT) && python bench/soak.py --days $(SOAK_DAYS) --seed $(SOAK_SEED) \
+		--out out/soak $(SOAK_ARGS)
