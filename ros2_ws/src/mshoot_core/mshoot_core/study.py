@@ -334,6 +334,14 @@ def _q_difference(naive: RunOutcome, fast: RunOutcome) -> tuple[float, float]:
     return float(np.sqrt(np.mean(diff ** 2))), float(np.max(np.abs(diff)))
 
 
+def naive_energy_sentence(energies_kwh: Sequence[float]) -> str:
+    """The energy range [kWh] of the naive runs that finished, as a sentence."""
+    low, high = min(energies_kwh), max(energies_kwh)
+    if f'{low:.2f}' == f'{high:.2f}':
+        return f'The naive runs that finished all used {low:.2f} kWh. '
+    return f'The naive runs that finished used {low:.2f} to {high:.2f} kWh. '
+
+
 def naive_verdict(energies_kwh: Sequence[float], threshold: float = 0.02) -> str:
     """One sentence on whether the naive energies [kWh] depend on the tolerance."""
     spread = (max(energies_kwh) - min(energies_kwh)) / max(np.mean(energies_kwh), 1e-9)
@@ -441,7 +449,7 @@ def integration_tolerance(runner: StudyRunner, out: pathlib.Path, *, hours: int 
     fd_max = [r['fd_max_rel_error'] for r in gradient_rows]
     sens = [(r['tolerance'], r.get('sens_max_rel_error', math.nan)) for r in gradient_rows]
     period = 'the whole period' if window == hours else f'the first {window} h'
-    published_h2 = PUBLISHED.get(naive_horizon) if window == 72 else None
+    published_h2 = PUBLISHED.get(naive_horizon) if hours == 72 else None
     notes = [
         f'**Ours** (table 2a): {hours} h at H = {horizon} h, FMU tolerances '
         f'{", ".join(f"{t:.0e}" for t in tolerances)}: energy spread (max − min)/mean = '
@@ -457,14 +465,13 @@ def integration_tolerance(runner: StudyRunner, out: pathlib.Path, *, hours: int 
         f'{min(r["wall_per_step_s"] for r in ours_rows):.2f}-'
         f'{max(r["wall_per_step_s"] for r in ours_rows):.2f} s for ours'
         + (f' (the original took {published_h2["wall_s"]:.0f} s for the 72 h at H = '
-           f'{naive_horizon} h, {published_h2["wall_s"] / 72:.1f} s per step)'
-           if published_h2 else '')
+           f'{naive_horizon} h, {published_h2["wall_s"] / 72:.1f} s per step, on its machine '
+           f'and its FMU)' if published_h2 else '')
         + '. '
         + (f'Runs stopped by the budget (tolerance {", ".join(cut)}) list the steps they '
            f'finished; "ours over the same steps" is our energy over those steps. ' if cut
            else '')
-        + (f'Where the naive runs finished, their energy lies between {min(naive_energy):.2f} '
-           f'and {max(naive_energy):.2f} kWh. ' if naive_energy else '')
+        + (naive_energy_sentence(naive_energy) if naive_energy else '')
         + '"RMS q − q_ours" compares the applied heat rates step by step. '
         + (naive_verdict(naive_energy) if naive_energy else ''),
         f"**Gradients** (table 2c): the naive solver perturbs q/2000 W by SciPy's default "
