@@ -291,6 +291,24 @@ def test_closed_loop_warm_start_and_records():
     assert kpis['steps'] == 12 and kpis['solver_failures'] == 0
 
 
+
+def test_closed_loop_progress_and_budget():
+    """Progress sees every step's records as they accrue; a spent budget ends the run early."""
+    s = synthetic_scenario(hours=7, seed=3)
+    seen = []
+
+    def progress(rows, fines):
+        seen.append((len(rows), len(fines), rows[-1]['time_s']))
+
+    result = run_closed_loop(MPC(R1C1Model(), horizon_steps=3), Emulator(R1C1Model(), s, [293.15]),
+                             progress=progress, log_every=0)
+    assert [n for n, _, _ in seen] == list(range(1, 7)) and all(n == m for n, m, _ in seen)
+    assert [t for _, _, t in seen] == list(result.steps.index)
+    short = run_closed_loop(MPC(R1C1Model(), horizon_steps=3), Emulator(R1C1Model(), s, [293.15]),
+                            log_every=0, budget_s=0.0)
+    assert len(short.steps) == 1 and len(short.fine) == 61  # the first step always runs
+    np.testing.assert_allclose(short.steps['T_end'], result.steps['T_end'].iloc[:1])
+
 @pytest.mark.parametrize('horizon', [2, 10])
 def test_reference_case_against_published(ou44_csv, horizon):
     """Energy and hourly discomfort may not both be worse than published by more than 3 %."""

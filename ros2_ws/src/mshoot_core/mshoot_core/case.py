@@ -85,14 +85,20 @@ def control_model(kind: str, tolerance: float = 1e-6, data: str | pathlib.Path |
 def run_case(scenario: pd.DataFrame, control: Model, emulator_model: Model, *,
              horizon: int = 10, cost: str = 'quadratic', solver: str = 'slsqp',
              comfort: str = 'hard', soft_penalty: float = 1e3, initial_c: float = 20.0,
-             steps: int | None = None, log_every: int = 12) -> tuple[ClosedLoopResult, dict]:
-    """Run the MPC emulation of a scenario and return the records and the KPIs."""
+             mode: str = 'fast', steps: int | None = None, log_every: int = 12,
+             **loop_options) -> tuple[ClosedLoopResult, dict]:
+    """Run the MPC emulation of a scenario and return the records and the KPIs.
+
+    ``mode`` is the MPC's evaluation mode ('fast', or 'naive': the ancestor's
+    algorithm); ``loop_options`` go to :func:`run_closed_loop` (``progress``,
+    ``budget_s``).
+    """
     if comfort not in ('hard', 'soft'):
         raise ValueError(f"comfort must be 'hard' or 'soft', got {comfort!r}")
     mpc = MPC(control, horizon_steps=horizon, cost=cost, solver=solver,
-              soft_bounds=comfort == 'soft', soft_penalty=soft_penalty)
+              soft_bounds=comfort == 'soft', soft_penalty=soft_penalty, mode=mode)
     emulator = Emulator(emulator_model, scenario, [initial_c + KELVIN])
-    result = run_closed_loop(mpc, emulator, steps=steps, log_every=log_every)
+    result = run_closed_loop(mpc, emulator, steps=steps, log_every=log_every, **loop_options)
     kpis = closed_loop_kpis(result.steps, result.fine, mpc.step_s, result.wall_s)
     kpis.update(horizon_h=horizon * mpc.step_s / 3600.0, cost=cost, solver=solver,
                 comfort=comfort)
@@ -141,6 +147,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--soft-penalty', type=float, default=1e3,
                         help='penalty weight of soft bounds on normalised slack (default 1e3)')
     parser.add_argument('--solver', choices=sorted(SOLVERS), default='slsqp')
+    parser.add_argument('--mode', choices=('fast', 'naive'), default='fast',
+                        help="fast: structured, batched sensitivities (default); naive: the "
+                             "original MShoot algorithm (dense finite differences, serial "
+                             "simulations, no caching; slow: for side-by-side comparison)")
     parser.add_argument('--hours', type=int, default=72,
                         help='simulated hours of control (default 72)')
     parser.add_argument('--out', type=pathlib.Path, default=pathlib.Path('out/case'),
@@ -176,9 +186,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                 args.scenario, args.hours, args.horizon, args.control, args.cost, args.comfort)
     result, kpis = run_case(scenario, control, emulator, horizon=args.horizon, cost=args.cost,
                             solver=args.solver, comfort=args.comfort,
-                            soft_penalty=args.soft_penalty)
+                            soft_penalty=args.soft_penalty, mode=args.mode)
     kpis.update(scenario=args.scenario, control=args.control, emulator=args.emulator,
-                tolerance=args.tolerance, setup_s=setup_s)
+                tolerance=args.tolerance, mode=args.mode, setup_s=setup_s)
     if report:
         kpis['training'] = report
     if args.scenario == 'ou44' and args.hours == 72 and args.horizon in PUBLISHED:

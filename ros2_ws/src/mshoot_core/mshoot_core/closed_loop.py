@@ -73,8 +73,8 @@ def step_row(result: MpcResult, record: StepRecord, state_names: tuple[str, ...]
 
 
 def run_closed_loop(mpc: MPC, emulator: Emulator, steps: int | None = None,
-                    progress: Callable[[int, int, dict], None] | None = None,
-                    log_every: int = 12) -> ClosedLoopResult:
+                    progress: Callable[[list[dict], list[pd.DataFrame]], None] | None = None,
+                    log_every: int = 12, budget_s: float | None = None) -> ClosedLoopResult:
     """Run MPC against the emulator for ``steps`` control steps (default: to the end).
 
     Parameters
@@ -86,9 +86,15 @@ def run_closed_loop(mpc: MPC, emulator: Emulator, steps: int | None = None,
     steps : int, optional
         Number of control steps (default: what is left of the scenario).
     progress : callable, optional
-        Called as ``progress(k, steps, row)`` after every step.
+        Called as ``progress(rows, fines)`` after every step with the records
+        so far (the :func:`step_row` of every step, and the fine-grid frames
+        whose concatenation is :attr:`ClosedLoopResult.fine`), e.g. to
+        checkpoint a long run.
     log_every : int
         Log a progress line every so many steps (0: never).
+    budget_s : float, optional
+        Wall-time budget [s]: no step is started once it is spent, and the
+        result holds the steps done (at least one).
     """
     if abs(mpc.step_s - emulator.step_s) > 1e-9:
         raise ValueError(f'MPC step {mpc.step_s} s differs from the emulator step '
@@ -99,6 +105,9 @@ def run_closed_loop(mpc: MPC, emulator: Emulator, steps: int | None = None,
     rows, fines, plans = [], [], []
     started = time.perf_counter()
     for k in range(total):
+        if k and budget_s is not None and time.perf_counter() - started > budget_s:
+            logger.info('budget of %.0f s spent after %d/%d steps', budget_s, k, total)
+            break
         forecast = forecast_window(emulator.scenario, emulator.index, mpc.horizon_steps)
         result = mpc.solve(emulator.x, emulator.t_s, forecast)
         record = emulator.advance(result.controls[0])
@@ -107,7 +116,7 @@ def run_closed_loop(mpc: MPC, emulator: Emulator, steps: int | None = None,
         fines.append(record.fine if k == 0 else record.fine.iloc[1:])
         plans.append(result.plan)
         if progress is not None:
-            progress(k, total, row)
+            progress(rows, fines)
         if log_every and ((k + 1) % log_every == 0 or k + 1 == total):
             logger.info('step %d/%d (t = %.0f h): solve %.3f s, %s', k + 1, total,
                         row['time_s'] / 3600.0, row['solve_time_s'],

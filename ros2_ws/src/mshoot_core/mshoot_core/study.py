@@ -40,10 +40,10 @@ from typing import Any, Callable, Sequence
 import numpy as np
 import pandas as pd
 
-from mshoot_core.case import DEFAULT_DATA, PUBLISHED, reference_scenario
+from mshoot_core.case import DEFAULT_DATA, PUBLISHED, r1c1_fmu_model, reference_scenario
 from mshoot_core.kpis import JOULES_PER_KWH
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
-from mshoot_core.study_runs import fmu_model, RunOutcome, RunSpec, StudyRunner
+from mshoot_core.study_runs import RunOutcome, RunSpec, StudyRunner
 
 logger = logging.getLogger(__name__)
 
@@ -298,7 +298,7 @@ def gradient_accuracy(data: str | pathlib.Path, tolerances: Sequence[float], sam
     q_nominal = 2000.0
     rows = []
     for tol in tolerances:
-        model = fmu_model('ModelExchange', tol)
+        model = r1c1_fmu_model(tol, 'ModelExchange')
         sens = model.interval_jacobians(x0, u, 3600.0, [q_col])
         fd = np.empty(samples)
         for b in range(samples):

@@ -28,13 +28,10 @@ from typing import Any, Iterable, Sequence
 
 import pandas as pd
 
-from mshoot_core.case import DATA_DRIVEN, reference_scenario
-from mshoot_core.closed_loop import forecast_window, step_row
-from mshoot_core.emulation import Emulator
+from mshoot_core.case import DATA_DRIVEN, r1c1_fmu_model, reference_scenario, run_case
 from mshoot_core.kpis import closed_loop_kpis
 from mshoot_core.models.base import Model
-from mshoot_core.models.r1c1 import KELVIN, R1C1Model
-from mshoot_core.mpc import MPC
+from mshoot_core.models.r1c1 import R1C1Model
 
 logger = logging.getLogger(__name__)
 
@@ -202,12 +199,6 @@ def train_control_model(kind: str, data: str | pathlib.Path) -> tuple[Model, dic
     return model, report
 
 
-def fmu_model(fmi_type: str, tolerance: float = 1e-10) -> Model:
-    """The built-in R1C1 FMU with the names of :class:`R1C1Model` (state ``T`` [K])."""
-    from mshoot_core.models.fmi import r1c1_fmi_model
-    return r1c1_fmi_model(fmi_type=fmi_type, tolerance=tolerance)
-
-
 def execute(spec: RunSpec, data: str | pathlib.Path, trained: dict[str, Model] | None = None,
             checkpoint: pathlib.Path | None = None) -> RunOutcome:
     """Run one closed-loop emulation.
@@ -227,36 +218,26 @@ def execute(spec: RunSpec, data: str | pathlib.Path, trained: dict[str, Model] |
     if spec.control == 'python':
         control: Model = R1C1Model()
     elif spec.control == 'fmu':
-        control = fmu_model('ModelExchange', spec.tolerance)
+        control = r1c1_fmu_model(spec.tolerance, 'ModelExchange')
     elif trained is not None and spec.control in trained:
         control = trained[spec.control]
     else:
         control = train_control_model(spec.control, data)[0]
-    emulator_model = R1C1Model() if spec.emulator == 'python' else fmu_model('CoSimulation')
-    mpc = MPC(control, horizon_steps=spec.horizon, step_s=STEP_S, cost=spec.cost,
-              solver=spec.solver, soft_bounds=spec.comfort == 'soft',
-              soft_penalty=spec.soft_penalty if spec.comfort == 'soft' else 1e3,
-              mode=spec.mode)
-    emulator = Emulator(emulator_model, scenario, [INITIAL_C + KELVIN], step_s=STEP_S)
-    rows: list[dict] = []
-    fines: list[pd.DataFrame] = []
+    emulator_model = (R1C1Model() if spec.emulator == 'python'
+                      else r1c1_fmu_model(1e-10, 'CoSimulation'))
     started = time.perf_counter()
-    for k in range(spec.hours):
-        if spec.budget_s is not None and time.perf_counter() - started > spec.budget_s:
-            logger.info('%s: budget of %.0f s spent after %d/%d steps', spec.label,
-                        spec.budget_s, k, spec.hours)
-            break
-        forecast = forecast_window(emulator.scenario, emulator.index, mpc.horizon_steps)
-        result = mpc.solve(emulator.x, emulator.t_s, forecast)
-        record = emulator.advance(result.controls[0])
-        rows.append(step_row(result, record, mpc.model.state_names, mpc.problem.control_names))
-        fines.append(record.fine if k == 0 else record.fine.iloc[1:])
-        logger.debug('%s: step %d/%d, solve %.3f s', spec.label, k + 1, spec.hours,
-                     rows[-1]['solve_time_s'])
-        if checkpoint is not None:
-            _write_pickle(checkpoint, {'rows': rows, 'fines': fines,
-                                       'wall_s': time.perf_counter() - started})
-    return outcome_from_records(spec, rows, fines, time.perf_counter() - started)
+
+    def save(rows: list[dict], fines: list[pd.DataFrame]) -> None:
+        _write_pickle(checkpoint, {'rows': rows, 'fines': fines,
+                                   'wall_s': time.perf_counter() - started})
+
+    result, kpis = run_case(scenario, control, emulator_model, horizon=spec.horizon,
+                            cost=spec.cost, solver=spec.solver, comfort=spec.comfort,
+                            soft_penalty=spec.soft_penalty if spec.comfort == 'soft' else 1e3,
+                            initial_c=INITIAL_C, mode=spec.mode,
+                            steps=spec.hours, log_every=0, budget_s=spec.budget_s,
+                            progress=None if checkpoint is None else save)
+    return RunOutcome(spec, kpis, result.steps, result.fine, len(result.steps))
 
 
 def outcome_from_records(spec: RunSpec, rows: list[dict], fines: list[pd.DataFrame],

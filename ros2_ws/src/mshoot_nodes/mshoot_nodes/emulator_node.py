@@ -51,18 +51,15 @@ from mshoot_core.safety import (check_setpoint, check_stamp_fields, Rejection, S
 from mshoot_msgs.msg import Disturbances, Setpoint, ZoneState
 import numpy as np
 import pandas as pd
-import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from mshoot_nodes import contract, sources
 from mshoot_nodes.conversions import (clock_msg, disturbances_msg, NS_PER_S, seconds_to_ns,
                                       setpoint_to_controls, stamp_to_ns, zone_state_msg)
-from mshoot_nodes.logbridge import bridge_core_logging
 from mshoot_nodes.params import declare, ordered, ParamSpec, values
-from mshoot_nodes.startup import construct, EXIT_CONFIG
+from mshoot_nodes.startup import run_node
 from mshoot_nodes.validation import RejectionLog
 
 PARAMS = (
@@ -491,21 +488,7 @@ class EmulatorNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """``ros2 run mshoot_nodes emulator``: run until the scenario ends (or Ctrl-C)."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = construct(EmulatorNode, 'emulator')
-        if node is None:
-            sys.exit(EXIT_CONFIG)
-        bridge_core_logging(node.get_logger())
-        while rclpy.ok() and not (node.done and node.params['exit_when_done']):
-            rclpy.spin_once(node, timeout_sec=0.5)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    node = run_node(EmulatorNode, 'emulator', args, until_done=True, bridge_logging=True)
     if node is not None and node.failed:
         sys.exit(1)
 

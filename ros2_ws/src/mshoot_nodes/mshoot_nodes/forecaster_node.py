@@ -10,21 +10,18 @@ loop see the same forecasts. By default the forecasts are perfect; the
 """
 from __future__ import annotations
 
-import sys
 from typing import Any
 
 from mshoot_core.closed_loop import forecast_window
 from mshoot_msgs.msg import Forecast
 import numpy as np
 import pandas as pd
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from mshoot_nodes import contract, sources
 from mshoot_nodes.conversions import (floor_to_step, forecast_msg, NS_PER_S, seconds_to_ns)
 from mshoot_nodes.params import declare, ParamSpec, values
-from mshoot_nodes.startup import construct, EXIT_CONFIG
+from mshoot_nodes.startup import run_node
 
 PARAMS = (
     ParamSpec('scenario', 'synthetic', "the scenario: 'synthetic', 'ou44' or a path to a CSV "
@@ -161,19 +158,7 @@ class ForecasterNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """``ros2 run mshoot_nodes forecaster`` (set use_sim_time:=true against the emulator)."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = construct(ForecasterNode, 'forecaster')
-        if node is None:
-            sys.exit(EXIT_CONFIG)
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(ForecasterNode, 'forecaster', args)
 
 
 if __name__ == '__main__':

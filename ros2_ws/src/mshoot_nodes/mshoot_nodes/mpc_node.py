@@ -38,7 +38,6 @@ from __future__ import annotations
 import collections
 import concurrent.futures
 import dataclasses
-import sys
 from typing import Any
 
 from mshoot_core.closed_loop import forecast_window
@@ -51,9 +50,7 @@ from mshoot_core.safety import (check_forecast, check_setpoint, check_stamp_fiel
 from mshoot_core.solvers import make_solver, SOLVERS
 from mshoot_msgs.msg import Forecast, MpcStatus, Setpoint, ZoneState
 import numpy as np
-import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.timer import Timer
 
@@ -61,9 +58,8 @@ from mshoot_nodes import contract, sources
 from mshoot_nodes.conversions import (decision_setpoint_msg, decision_status_msg,
                                       floor_to_step, forecast_series, forecast_to_frame,
                                       NS_PER_S, seconds_to_ns, stamp_to_ns, zone_state_to_x)
-from mshoot_nodes.logbridge import bridge_core_logging
 from mshoot_nodes.params import declare, ordered, ParamSpec, values
-from mshoot_nodes.startup import construct, EXIT_CONFIG
+from mshoot_nodes.startup import run_node
 from mshoot_nodes.validation import RejectionLog
 
 PARAMS = (
@@ -560,20 +556,7 @@ def _trim(messages: dict[int, Any], keep: int = KEEP_MESSAGES) -> None:
 
 def main(args: list[str] | None = None) -> None:
     """``ros2 run mshoot_nodes mpc`` (set use_sim_time:=true against the emulator)."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = construct(MpcNode, 'mpc')
-        if node is None:
-            sys.exit(EXIT_CONFIG)
-        bridge_core_logging(node.get_logger())
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(MpcNode, 'mpc', args, bridge_logging=True)
 
 
 if __name__ == '__main__':

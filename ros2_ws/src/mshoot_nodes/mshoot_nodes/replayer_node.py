@@ -9,19 +9,16 @@ follow the recorded simulated time. On a full ROS 2 install the equivalent is
 """
 from __future__ import annotations
 
-import sys
 from typing import Any
 
-import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 
 from mshoot_nodes.bags import qos_from_rosbags, read_bag
 from mshoot_nodes.contract import message_class
 from mshoot_nodes.params import declare, ParamSpec, values
-from mshoot_nodes.startup import construct, EXIT_CONFIG
+from mshoot_nodes.startup import run_node
 
 PARAMS = (
     ParamSpec('bag_path', '', 'bag directory to play', read_only=True),
@@ -142,20 +139,7 @@ class ReplayerNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """``ros2 run mshoot_nodes replayer --ros-args -p bag_path:=out/demo/bag -p rate:=10.0``."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = construct(ReplayerNode, 'replayer')
-        if node is None:
-            sys.exit(EXIT_CONFIG)
-        while rclpy.ok() and not (node.done and node.params['exit_when_done']):
-            rclpy.spin_once(node, timeout_sec=0.5)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(ReplayerNode, 'replayer', args, until_done=True)
 
 
 if __name__ == '__main__':

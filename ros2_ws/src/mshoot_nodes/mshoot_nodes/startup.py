@@ -8,10 +8,14 @@ traceback or run on with a default.
 """
 from __future__ import annotations
 
+import sys
 from typing import Callable, TypeVar
 
 import rclpy
 from rclpy.exceptions import InvalidParameterValueException
+from rclpy.executors import ExternalShutdownException
+
+from mshoot_nodes.logbridge import bridge_core_logging
 
 NodeT = TypeVar('NodeT')
 #: Exit code of a process whose configuration is invalid.
@@ -38,3 +42,53 @@ def construct(factory: Callable[[], NodeT], name: str) -> NodeT | None:
         text = str(exc) if isinstance(exc, _CLEAR) else f'{type(exc).__name__}: {exc}'
         rclpy.logging.get_logger(name).fatal(f'cannot start: {text}')
         return None
+
+
+def run_node(factory: Callable[[], NodeT], name: str, args: list[str] | None = None, *,
+             until_done: bool = False, bridge_logging: bool = False) -> NodeT | None:
+    """The ``main`` of a node process: init, construct, spin, clean up.
+
+    Ctrl-C and an external shutdown end the spin quietly; the node is destroyed
+    and the context shut down in every case. A configuration error exits with
+    :data:`EXIT_CONFIG` after one clear line (see :func:`construct`).
+
+    Parameters
+    ----------
+    factory : callable
+        Builds the node (e.g. the node class).
+    name : str
+        The node's name (for the start-up error).
+    args : list of str, optional
+        Command-line arguments for ``rclpy.init``.
+    until_done : bool
+        Spin until the node says ``done`` and its ``exit_when_done`` parameter
+        is set (a finite job: the emulator, the replayer), not until shutdown.
+    bridge_logging : bool
+        Forward ``mshoot_core`` warnings and errors to the node's logger.
+
+    Returns
+    -------
+    node
+        The node after it was destroyed (for its final state, e.g. ``failed``), or
+        None when Ctrl-C came before it was built.
+    """
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = construct(factory, name)
+        if node is None:
+            sys.exit(EXIT_CONFIG)
+        if bridge_logging:
+            bridge_core_logging(node.get_logger())
+        if until_done:
+            while rclpy.ok() and not (node.done and node.params['exit_when_done']):
+                rclpy.spin_once(node, timeout_sec=0.5)
+        else:
+            rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return node
