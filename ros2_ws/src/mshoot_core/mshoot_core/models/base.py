@@ -117,6 +117,28 @@ class Model(abc.ABC):
             raise ValueError(f'x0 holds non-finite values: {x0_arr}')
         return t, u, x0_arr
 
+    def _check_batch(self, x_start: np.ndarray,
+                     u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``x_start`` (B, nx) and ``u`` (B, nu) of a batch as finite float arrays.
+
+        Raises
+        ------
+        ValueError
+            On a wrong shape or a non-finite value, naming the model's variables.
+        """
+        x_start = np.atleast_2d(np.asarray(x_start, dtype=float))
+        u = np.atleast_2d(np.asarray(u, dtype=float))
+        nx, nu = len(self.state_names), len(self.input_names)
+        if x_start.ndim != 2 or x_start.shape[1] != nx:
+            raise ValueError(f'x_start must have shape (B, {nx}) for states '
+                             f'{list(self.state_names)}, got {x_start.shape}')
+        if u.ndim != 2 or u.shape != (x_start.shape[0], nu):
+            raise ValueError(f'u must have shape ({x_start.shape[0]}, {nu}) for inputs '
+                             f'{list(self.input_names)}, got {u.shape}')
+        if not (np.all(np.isfinite(x_start)) and np.all(np.isfinite(u))):
+            raise ValueError('x_start and u must be finite')
+        return x_start, u
+
     def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray,
                            dt_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Simulate B independent intervals of length ``dt_s`` (the batch path).

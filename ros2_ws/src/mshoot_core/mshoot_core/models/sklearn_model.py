@@ -578,20 +578,6 @@ class SklearnModel(Model):
                              f'step_s = {self.step_s:g} s, got {dt_s!r} s')
         return n
 
-    def _check_batch(self, x_start: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        x_start = np.atleast_2d(np.asarray(x_start, dtype=float))
-        u = np.atleast_2d(np.asarray(u, dtype=float))
-        nx, nu = len(self.state_names), len(self.input_names)
-        if x_start.ndim != 2 or x_start.shape[1] != nx:
-            raise ValueError(f'x_start must have shape (B, {nx}) for states '
-                             f'{list(self.state_names)}, got {x_start.shape}')
-        if u.ndim != 2 or u.shape != (x_start.shape[0], nu):
-            raise ValueError(f'u must have shape ({x_start.shape[0]}, {nu}) for inputs '
-                             f'{list(self.input_names)}, got {u.shape}')
-        if not (np.all(np.isfinite(x_start)) and np.all(np.isfinite(u))):
-            raise ValueError('x_start and u must be finite')
-        return x_start, u
-
     def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray,
                            dt_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Simulate B independent intervals, one ``predict`` per learned step for the batch.
