@@ -251,11 +251,16 @@ def test_simulate_intervals_equals_per_interval_simulate(which, request):
         u = hourly_inputs(batch - 1, seed=4).to_numpy()
     x_end, y_end = model.simulate_intervals(x_start, u, HOUR)
     assert x_end.shape == x_start.shape and y_end.shape == (batch, 2)
+    # Co-Simulation: the same FMI calls, the same numbers; Model Exchange: the batch is
+    # integrated by the compiled Runge-Kutta driver, ``simulate`` by CVode (both at 1e-10)
+    atol = 0.0 if which == 'r1c1_cs' else 1e-6
+    if which != 'r1c1_cs':
+        assert model.me_batch_plan() is None and model._me_driver
     for b in range(batch):
         udf = pd.DataFrame([u[b], u[b]], index=[0.0, HOUR], columns=list(model.input_names))
         ydf, xdf = model.simulate(udf, x_start[b])
-        np.testing.assert_array_equal(x_end[b], xdf.to_numpy()[-1])
-        np.testing.assert_array_equal(y_end[b], ydf.to_numpy()[-1])
+        np.testing.assert_allclose(x_end[b], xdf.to_numpy()[-1], rtol=0, atol=atol)
+        np.testing.assert_allclose(y_end[b], ydf.to_numpy()[-1], rtol=1e-12, atol=atol)
     # and again, in another order, on the same instance
     x_again, y_again = model.simulate_intervals(x_start[::-1], u[::-1], HOUR)
     np.testing.assert_array_equal(x_again, x_end[::-1])
@@ -453,6 +458,120 @@ def test_batched_co_simulation_driver_equals_fmpy_calls():
     np.testing.assert_array_equal(y_c, y_py)
     x_ref, y_ref = R1C1Model().simulate_intervals(x, u, 3600.0)
     np.testing.assert_allclose(x_c, x_ref, rtol=0, atol=1e-9)
+
+
+def _me_batch_cases(which, batch, seed):
+    rng = np.random.default_rng(seed)
+    if which == 'r2c2':
+        x = rng.uniform(15, 25, (batch, 2))
+        u = np.column_stack([rng.uniform(-5, 20, batch), rng.uniform(0, 3000, batch),
+                             rng.uniform(0, 2000, batch)])
+    else:
+        x = rng.uniform(289.0, 299.0, (batch, 1))
+        u = np.column_stack([rng.uniform(0, 600, batch), rng.uniform(-5, 30, batch),
+                             rng.uniform(0, 40, batch), rng.uniform(0, 80, batch),
+                             rng.uniform(-2000, 2000, batch)])
+    return x, u
+
+
+def _me_model(which, tolerance=1e-10):
+    if which == 'r2c2':
+        return FmiModel(fmu_build.fmu_path('r2c2'), inputs=['Tamb', 'Qhvac', 'Qsun'],
+                        states={'Ta': 'air.T', 'Tw': 'wall.T'}, outputs=['Tair', 'Pwin'],
+                        parameters=R2C2_PARAMETERS, tolerance=tolerance)
+    return r1c1_fmi_model(fmi_type='ModelExchange', tolerance=tolerance)
+
+
+@pytest.mark.parametrize('which', ['r1c1', 'r2c2'])  # with / without FMU state snapshots
+def test_batched_model_exchange_driver_matches_cvode_and_exact(which):
+    """The compiled Runge-Kutta batch equals CVode within the integration tolerance."""
+    if fmu_build.me_batch_library() is None:
+        pytest.skip('no C compiler for the batched driver')
+    x, u = _me_batch_cases(which, 12, seed=21)
+    with _me_model(which) as fast, _me_model(which) as slow:
+        x_c, y_c = fast.simulate_intervals(x, u, HOUR)
+        assert fast._me_driver, 'the batched Model Exchange driver was not used'
+        slow._me_driver = False  # CVode, as before the driver
+        assert slow.me_batch_plan() is not None
+        x_cv, y_cv = slow.simulate_intervals(x, u, HOUR)
+    if which == 'r2c2':
+        exact = [r2c2_exact(x[b], u[b], HOUR) for b in range(len(x))]
+        x_ref, y_ref = np.array([e[0] for e in exact]), np.array([e[1] for e in exact])
+    else:
+        with r1c1_fmi_model(fmi_type='CoSimulation') as cs:  # the exact solution per step
+            x_ref, y_ref = cs.simulate_intervals(x, u, HOUR)
+    np.testing.assert_allclose(x_c, x_cv, rtol=0, atol=1e-6)  # CVode's own error ~5e-7 K
+    np.testing.assert_allclose(y_c, y_cv, rtol=1e-9, atol=1e-6)
+    np.testing.assert_allclose(x_c, x_ref, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(y_c, y_ref, rtol=1e-9, atol=1e-7)
+
+
+@pytest.mark.parametrize('which', ['r1c1', 'r2c2'])
+def test_batched_model_exchange_sensitivities_match_cvode(which):
+    """Forward sensitivities integrated in C equal those integrated by CVode."""
+    if fmu_build.me_batch_library() is None:
+        pytest.skip('no C compiler for the batched driver')
+    x, u = _me_batch_cases(which, 8, seed=22)
+    wrt = [1, 0, 2] if which == 'r2c2' else [4, 0, 1, 3]
+    with _me_model(which) as fast, _me_model(which) as slow:
+        jac = fast.interval_jacobians(x, u, HOUR, wrt)
+        assert fast._me_driver
+        slow._me_driver = False
+        ref = slow.interval_jacobians(x, u, HOUR, wrt)
+    for name in ('dx_dx0', 'dx_du', 'dy_dx0', 'dy_du'):
+        a, b = getattr(jac, name), getattr(ref, name)
+        assert a.shape == b.shape
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-9 * np.abs(b).max(), err_msg=name)
+    np.testing.assert_allclose(jac.x_end, ref.x_end, rtol=0, atol=1e-6)
+
+
+def test_event_indicators_keep_model_exchange_on_cvode(monkeypatch):
+    """FMUs with event indicators never reach the explicit driver (dispatch decision)."""
+    x, u = _me_batch_cases('r1c1', 3, seed=23)
+    with _me_model('r1c1') as model, r1c1_fmi_model(fmi_type='CoSimulation') as cs:
+        assert model.me_batch_plan() is None
+        assert cs.me_batch_plan() == 'Co-Simulation FMU'
+        # create CVode before the patch (an FMU with real event indicators gives it roots)
+        model.simulate(pd.DataFrame(u[:2], index=[0.0, HOUR], columns=R1C1_INPUTS), x[0])
+        monkeypatch.setattr(model.model_description, 'numberOfEventIndicators', 1)
+        assert model.me_batch_plan() == 'the FMU has event indicators'
+
+        def refuse(*args, **kwargs):
+            raise AssertionError('the batched driver was called for an FMU with events')
+
+        monkeypatch.setattr(model, '_me_batch_in_c', refuse)
+        x_end, _ = model.simulate_intervals(x, u, HOUR)  # CVode, as before
+        assert model.interval_jacobians(x, u, HOUR, [4]) is None  # finite differences
+        x_ref, _ = cs.simulate_intervals(x, u, HOUR)
+        np.testing.assert_allclose(x_end, x_ref, rtol=0, atol=1e-6)
+        assert model._me_driver is None and model._solver is not None
+
+
+def test_stiff_model_exchange_batch_falls_back_to_cvode(monkeypatch, caplog):
+    """Too many Runge-Kutta steps: a logged warning, then CVode for this model."""
+    import mshoot_core.models.fmi as fmi
+    if fmu_build.me_batch_library() is None:
+        pytest.skip('no C compiler for the batched driver')
+    x, u = _me_batch_cases('r1c1', 4, seed=24)
+    monkeypatch.setattr(fmi, 'ME_MAX_STEPS', 0)
+    with _me_model('r1c1') as model, caplog.at_level('WARNING', logger=fmi.__name__):
+        x_end, y_end = model.simulate_intervals(x, u, HOUR)
+        assert 'stopped at interval 0 (more than 0 steps' in caplog.text
+        assert model._me_driver is False
+        assert model.me_batch_plan() == 'the compiled driver is unavailable or was disabled'
+        with r1c1_fmi_model(fmi_type='CoSimulation') as cs:
+            x_ref, _ = cs.simulate_intervals(x, u, HOUR)
+        np.testing.assert_allclose(x_end, x_ref, rtol=0, atol=1e-6)
+
+
+def test_model_exchange_driver_is_cached_by_source(tmp_path, monkeypatch):
+    monkeypatch.setenv('MSHOOT_FMU_DIR', str(tmp_path))
+    if fmu_build.me_batch_library() is None:
+        pytest.skip('no C compiler for the batched driver')
+    first = fmu_build.me_batch_library()
+    assert first.is_file() and first.parent.parent == tmp_path / 'driver'
+    assert fmu_build.me_batch_library() == first
+    assert first != fmu_build.cs_batch_library()
 
 
 @pytest.mark.parametrize('fmi_type', ['CoSimulation', 'ModelExchange'])

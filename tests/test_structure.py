@@ -3,9 +3,12 @@ import numpy as np
 import pytest
 
 from mshoot_core.case import reference_scenario
-from mshoot_core.closed_loop import forecast_window
+from mshoot_core.closed_loop import forecast_window, run_closed_loop
+from mshoot_core.emulation import Emulator
+from mshoot_core.kpis import closed_loop_kpis
 from mshoot_core.models import R1C1Model
 from mshoot_core.models.base import Model
+from mshoot_core.models.fmi import r1c1_fmi_model
 from mshoot_core.models.multizone import MultiZoneModel, multizone_mpc_options
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import synthetic_scenario
@@ -13,7 +16,7 @@ from mshoot_core.sensitivities import column_groups, finite_difference_jacobians
 from mshoot_core.shooting import ContinuityStructure, NlpIndex
 
 
-@pytest.mark.parametrize('horizon', [2, 4])
+@pytest.mark.parametrize('horizon', [2, 4, 10])
 def test_fast_and_naive_reach_the_same_optimum(ou44_csv, horizon):
     scenario = reference_scenario('ou44', ou44_csv, hours=12)
     objectives = {}
@@ -132,3 +135,23 @@ def test_multizone_mpc_ipopt_matches_slsqp_and_relaxes_honestly():
 
 def test_model_without_sparsity_is_dense():
     assert Model.jacobian_sparsity(R1C1Model(), [4]) is None
+
+
+def test_model_exchange_and_co_simulation_closed_loops_agree(ou44_csv):
+    """The R1C1 FMU as Model Exchange (compiled Runge-Kutta batches with forward
+    sensitivities) and as Co-Simulation (exact steps, finite differences): same KPIs."""
+    scenario = reference_scenario('ou44', ou44_csv, hours=24)
+    kpis = {}
+    for fmi_type in ('ModelExchange', 'CoSimulation'):
+        with r1c1_fmi_model(fmi_type=fmi_type, tolerance=1e-6) as model:
+            mpc = MPC(model, horizon_steps=6)
+            result = run_closed_loop(mpc, Emulator(R1C1Model(), scenario, [293.15]),
+                                     log_every=0)
+            if fmi_type == 'ModelExchange':
+                assert model.me_batch_plan() is None and model._me_driver
+        kpis[fmi_type] = closed_loop_kpis(result.steps, result.fine, mpc.step_s, result.wall_s)
+    me, cs = kpis['ModelExchange'], kpis['CoSimulation']
+    assert me['solver_failures'] == cs['solver_failures'] == 0
+    assert me['energy_kwh'] > 1.0
+    assert me['energy_kwh'] == pytest.approx(cs['energy_kwh'], rel=1e-4)
+    assert me['discomfort_kh'] == pytest.approx(cs['discomfort_kh'], rel=1e-3, abs=1e-3)

@@ -35,7 +35,7 @@ fi
 fmu=$(PYTHONPATH="$root/ros2_ws/src/mshoot_core${PYTHONPATH:+:$PYTHONPATH}" \
   "$venv/bin/python" -m mshoot_core.fmu_build --cache r1c1) \
   || { echo "[setup] error: building the R1C1 FMU failed (gcc is required)" >&2; exit 1; }
-log "R1C1 FMU and batch driver: $(echo $fmu)"
+log "R1C1 FMU and batch drivers: $(echo $fmu)"
 
 # 3. The workspace (colcon, symlink install: Python edits are live without a rebuild).
 src_files=$(find ros2_ws/src -type f \( -name package.xml -o -name setup.py -o -name setup.cfg \

@@ -236,20 +236,23 @@ def fmu_path(name: str) -> pathlib.Path:
 
 #: C source of the batched Co-Simulation driver (see :mod:`mshoot_core.models.fmi`).
 CS_BATCH_SOURCE = SOURCE_DIR / 'cs_batch.c'
+#: C source of the batched Model Exchange driver (explicit Runge-Kutta, see
+#: :mod:`mshoot_core.models.fmi`).
+ME_BATCH_SOURCE = SOURCE_DIR / 'me_batch.c'
 
 
-def cs_batch_library() -> pathlib.Path | None:
-    """Return the compiled batched Co-Simulation driver, building it on first use.
+def _driver_library(source: pathlib.Path, stem: str) -> pathlib.Path | None:
+    """Return the compiled driver ``source`` (cached by content hash), building it if missing.
 
-    Returns None (with a warning) when no compiler is available: FMUs then run
-    through fmpy's calls interval by interval, slower but the same.
+    Returns None (with a warning) when no compiler is available or the
+    compilation fails: FMUs then run through fmpy's calls, slower but the same.
     """
-    digest = hashlib.sha256(CS_BATCH_SOURCE.read_bytes())
+    digest = hashlib.sha256(source.read_bytes())
     for header in sorted(SOURCE_DIR.glob('fmi2*.h')):
         digest.update(header.read_bytes())
     digest.update(' '.join(CFLAGS).encode())
     _, suffix = _platform()
-    target = fmu_cache_dir() / 'driver' / digest.hexdigest()[:16] / f'mshoot_cs_batch{suffix}'
+    target = fmu_cache_dir() / 'driver' / digest.hexdigest()[:16] / f'{stem}{suffix}'
     if target.is_file():
         return target
     try:
@@ -259,14 +262,34 @@ def cs_batch_library() -> pathlib.Path | None:
         return None
     target.parent.mkdir(parents=True, exist_ok=True)
     staged = target.parent / f'.{target.name}.{os.getpid()}.tmp'
-    command = [compiler, *CFLAGS, '-I', str(SOURCE_DIR), '-o', str(staged), str(CS_BATCH_SOURCE)]
+    command = [compiler, *CFLAGS, '-I', str(SOURCE_DIR), '-o', str(staged), str(source), '-lm']
+    logger.info('compiling the batched FMU driver %s: %s', stem, ' '.join(command))
     result = subprocess.run(command, capture_output=True, text=True, check=False)
     if result.returncode != 0:
-        logger.warning('compiling the batched FMU driver failed, using fmpy calls:\n%s',
-                       result.stderr.strip())
+        logger.warning('compiling the batched FMU driver %s failed, using fmpy calls:\n%s',
+                       stem, result.stderr.strip())
         return None
     os.replace(staged, target)
     return target
+
+
+def cs_batch_library() -> pathlib.Path | None:
+    """Return the compiled batched Co-Simulation driver, building it on first use.
+
+    Returns None (with a warning) when no compiler is available: FMUs then run
+    through fmpy's calls interval by interval, slower but the same.
+    """
+    return _driver_library(CS_BATCH_SOURCE, 'mshoot_cs_batch')
+
+
+def me_batch_library() -> pathlib.Path | None:
+    """Return the compiled batched Model Exchange driver, building it on first use.
+
+    Returns None (with a warning) when no compiler is available: Model
+    Exchange FMUs then integrate with fmpy's CVode, slower and the same up to
+    the integrator tolerance.
+    """
+    return _driver_library(ME_BATCH_SOURCE, 'mshoot_me_batch')
 
 
 def r1c1_fmu_path() -> pathlib.Path:
@@ -282,7 +305,8 @@ def main(argv: list[str] | None = None) -> int:
     where.add_argument('--out', type=pathlib.Path, help='directory to write the .fmu files to')
     where.add_argument('--cache', action='store_true',
                        help=f'build into the cache (${CACHE_ENV} or ~/.cache/mshoot/fmu) '
-                            'unless already there, with the batched Co-Simulation driver')
+                            'unless already there, with the batched Co-Simulation and Model '
+                            'Exchange drivers')
     parser.add_argument('models', nargs='*', metavar='MODEL', default=['r1c1'],
                         help=f'models to build, from {sorted(MODELS)} (default: r1c1)')
     args = parser.parse_args(argv)
@@ -292,9 +316,9 @@ def main(argv: list[str] | None = None) -> int:
             path = fmu_path(name) if args.cache else build_fmu(name, args.out)
             sys.stdout.write(f'{path}\n')
         if args.cache:
-            driver = cs_batch_library()
-            if driver is not None:
-                sys.stdout.write(f'{driver}\n')
+            for driver in (cs_batch_library(), me_batch_library()):
+                if driver is not None:
+                    sys.stdout.write(f'{driver}\n')
     except (ValueError, RuntimeError) as error:
         logger.error('%s', error)
         return 1

@@ -10,7 +10,14 @@ then feeds the inputs held constant over each interval:
 - Model Exchange: fmpy's CVode (BDF, dense Newton) with the relative
   ``tolerance`` and absolute tolerances ``tolerance * nominal``; each input
   switch is an event (event mode, new discrete states, solver re-start), state
-  and time events of the FMU are handled.
+  and time events of the FMU are handled. Batches of independent intervals
+  (:meth:`FmiModel.simulate_intervals`, :meth:`FmiModel.interval_jacobians`)
+  of FMUs without event indicators run in a compiled driver instead
+  (``fmu_src/me_batch.c``): the same FMI calls per interval, integrated by an
+  explicit Dormand-Prince 5(4) method at the same tolerances, one C loop over
+  the batch; an interval with a time or step event, or needing more than
+  :data:`ME_MAX_STEPS` steps (a stiff FMU), sends the model back to CVode with
+  a logged warning (:meth:`FmiModel.me_batch_plan` says which path applies).
 
 Variable names: ``inputs``, ``states`` and ``outputs`` are either sequences of
 FMU variable names, or mappings ``{model name: FMU variable name}`` when the
@@ -25,8 +32,9 @@ Derivatives: for Model Exchange FMUs with ``providesDirectionalDerivative``,
 :meth:`FmiModel.interval_jacobians` integrates the forward sensitivities
 ``Sx' = J_x Sx``, ``Su' = J_x Su + J_u`` along with the states (the Jacobian
 products come from ``fmi2GetDirectionalDerivative``), so the derivatives are
-as accurate as the states. Co-Simulation FMUs return ``None`` there and the
-optimiser falls back to finite differences over :meth:`simulate_intervals`.
+as accurate as the states (in the compiled driver, where it applies, or with
+CVode). Co-Simulation FMUs return ``None`` there and the optimiser falls back
+to finite differences over :meth:`simulate_intervals`.
 """
 from __future__ import annotations
 
@@ -57,6 +65,9 @@ MAX_SOLVER_STEPS = 100_000
 #: Absolute tolerances of the forward sensitivities relative to the states' (see
 #: ``_Sensitivities.get_nominals``); 1e-2 costs ~5 % more steps than 1.
 SENSITIVITY_NOMINAL_FACTOR = 1e-2
+#: Attempted Runge-Kutta steps per interval of the batched Model Exchange driver before it
+#: gives up (a stiff FMU) and the model falls back to CVode.
+ME_MAX_STEPS = 20_000
 #: Longest list of valid names quoted in an error message.
 _MAX_LISTED = 60
 
@@ -127,6 +138,75 @@ def _load_cs_driver(fmu: FMU2Slave) -> tuple[ctypes.CDLL, _CsApi] | None:
     api = _CsApi(*[ctypes.cast(getattr(fmu.dll, name), ctypes.c_void_p) for name in
                    _CS_FUNCTIONS])
     return driver, api
+
+
+class _MeApi(ctypes.Structure):
+    """The FMI functions the batched Model Exchange driver calls (see fmu_src/me_batch.c)."""
+
+    _fields_ = [(name, ctypes.c_void_p) for name in (
+        'reset', 'set_real', 'get_real', 'setup_experiment', 'enter_initialization',
+        'exit_initialization', 'set_fmu_state', 'enter_event_mode', 'new_discrete_states',
+        'enter_continuous_time_mode', 'completed_integrator_step', 'set_time',
+        'set_continuous_states', 'get_derivatives', 'get_continuous_states', 'get_nominals',
+        'get_directional_derivative')]
+
+
+_ME_FUNCTIONS = ('fmi2Reset', 'fmi2SetReal', 'fmi2GetReal', 'fmi2SetupExperiment',
+                 'fmi2EnterInitializationMode', 'fmi2ExitInitializationMode', 'fmi2SetFMUstate',
+                 'fmi2EnterEventMode', 'fmi2NewDiscreteStates', 'fmi2EnterContinuousTimeMode',
+                 'fmi2CompletedIntegratorStep', 'fmi2SetTime', 'fmi2SetContinuousStates',
+                 'fmi2GetDerivatives', 'fmi2GetContinuousStates',
+                 'fmi2GetNominalsOfContinuousStates', 'fmi2GetDirectionalDerivative')
+
+
+class _MeProblem(ctypes.Structure):
+    """What is common to the intervals of a Model Exchange batch (``mshoot_me_problem``)."""
+
+    _fields_ = [('snapshot', ctypes.c_void_p), ('needs_completed_step', ctypes.c_int),
+                ('tolerance', ctypes.c_double), ('dt', ctypes.c_double),
+                ('max_steps', ctypes.c_size_t), ('n', ctypes.c_size_t),
+                ('cstate_vr', _VR_P), ('derivative_vr', _VR_P),
+                ('nx', ctypes.c_size_t), ('x_pos', ctypes.POINTER(ctypes.c_size_t)),
+                ('x_vr', _VR_P), ('ny', ctypes.c_size_t), ('y_vr', _VR_P),
+                ('n_in', ctypes.c_size_t), ('in_vr', _VR_P),
+                ('n_par', ctypes.c_size_t), ('par_vr', _VR_P), ('par_val', _DOUBLE_P),
+                ('n_start', ctypes.c_size_t), ('start_vr', _VR_P),
+                ('start_idx', ctypes.POINTER(ctypes.c_size_t)),
+                ('n_su', ctypes.c_size_t), ('su_vr', _VR_P), ('su_nominal', _DOUBLE_P),
+                ('sensitivity_factor', ctypes.c_double), ('sensitivities', ctypes.c_int),
+                ('n_yo', ctypes.c_size_t), ('yo_vr', _VR_P)]
+
+
+#: Negative return codes of the Model Exchange driver: the batch goes to CVode instead.
+_ME_FALLBACKS = {-1: 'a time event inside the interval', -2: 'a step event',
+                 -3: 'more than {max_steps} steps in one interval (stiff?)',
+                 -4: 'a step size underflow', -5: 'out of memory',
+                 -7: 'an FMI function it needs is not exported'}
+_ME_STAGES = ('restore/reset', 'parameters', 'start values', 'setup', 'enter init', 'inputs',
+              'exit init', 'event iteration', 'continuous-time mode', 'states',
+              'derivatives', 'directional derivatives', 'completed step', 'read')
+
+
+def _load_me_driver(fmu: FMU2Model) -> tuple[ctypes.CDLL, _MeApi] | None:
+    """The compiled Model Exchange batch driver bound to ``fmu``'s functions, or None."""
+    from mshoot_core.fmu_build import me_batch_library
+    path = me_batch_library()
+    if path is None:
+        return None
+    driver = ctypes.CDLL(str(path))
+    driver.mshoot_me_batch.restype = ctypes.c_long
+    ptr = ctypes.c_void_p
+    driver.mshoot_me_batch.argtypes = [ptr, ptr, ptr, ctypes.c_size_t, ptr, ptr, ptr, ptr,
+                                       ptr, ptr, ptr]
+    # functions an FMU may not export (optional capabilities) stay NULL; the driver only
+    # calls them where the model description says they exist
+    api = _MeApi(*[ctypes.cast(getattr(fmu.dll, name), ctypes.c_void_p)
+                   if hasattr(fmu.dll, name) else None for name in _ME_FUNCTIONS])
+    return driver, api
+
+
+def _size_array(values: Sequence[int]) -> ctypes.Array:
+    return (ctypes.c_size_t * max(len(values), 1))(*values)
 
 
 def _real_array(values: Sequence[float]) -> ctypes.Array:
@@ -435,6 +515,8 @@ class FmiModel(Model):
         self._fmu.instantiate(callbacks=_CALLBACKS)
         self._initialized_once = False
         self._cs_driver = None
+        self._me_driver = None
+        self._me_problems: dict[tuple, tuple[_MeProblem, list]] = {}
         logger.debug('instantiated %s as %s', self.fmu_path.name, self.fmi_type)
 
     # -- lifecycle --------------------------------------------------------------------------
@@ -443,6 +525,7 @@ class FmiModel(Model):
         fmu = getattr(self, '_fmu', None)
         self._solver = None
         self._sensitivity_solvers = {}
+        self._me_problems = {}
         if fmu is not None:
             self._fmu = None
             try:
@@ -619,15 +702,7 @@ class FmiModel(Model):
 
     def _check_batch(self, x_start: np.ndarray, u: np.ndarray,
                      dt_s: float) -> tuple[np.ndarray, np.ndarray, float]:
-        x_start = np.atleast_2d(np.asarray(x_start, dtype=float))
-        u = np.atleast_2d(np.asarray(u, dtype=float))
-        nx, nu = len(self.state_names), len(self.input_names)
-        if x_start.ndim != 2 or x_start.shape[1] != nx:
-            raise ValueError(f'x_start must have shape (B, {nx}), got {x_start.shape}')
-        if u.shape != (x_start.shape[0], nu):
-            raise ValueError(f'u must have shape ({x_start.shape[0]}, {nu}), got {u.shape}')
-        if not (np.all(np.isfinite(x_start)) and np.all(np.isfinite(u))):
-            raise ValueError('x_start and u must be finite')
+        x_start, u = super()._check_batch(x_start, u)
         dt_s = float(dt_s)
         if not (math.isfinite(dt_s) and dt_s > 0.0):
             raise ValueError(f'dt_s must be a positive number of seconds, got {dt_s}')
@@ -723,6 +798,8 @@ class FmiModel(Model):
         y_end = np.empty((x_start.shape[0], len(self.output_names)))
         if self._batch_in_c(x_start, u, dt_s, x_end, y_end):
             return x_end, y_end
+        if self.me_batch_plan() is None and self._me_batch_in_c(x_start, u, dt_s, x_end, y_end):
+            return x_end, y_end
         for b in range(x_start.shape[0]):
             self._start_interval(x_start[b], u[b])
             self._advance(0.0, dt_s)
@@ -762,6 +839,138 @@ class FmiModel(Model):
                                f'(0 reset, 1 parameters, 2 start states, 3 setup, 4 enter '
                                f'init, 5 inputs, 6 exit init, 7 doStep, 8/9 read)')
         return True
+
+    def me_batch_plan(self) -> str | None:
+        """Why Model Exchange intervals cannot go to the compiled driver, or None if they can.
+
+        The driver integrates with an explicit Runge-Kutta method and handles
+        no events, so it applies to Model Exchange FMUs without event
+        indicators (time events and step events are detected per interval and
+        send the batch back to CVode). Everything else goes through fmpy's
+        CVode, exactly as before.
+        """
+        if not self.is_model_exchange:
+            return 'Co-Simulation FMU'
+        if self.model_description.numberOfEventIndicators > 0:
+            return 'the FMU has event indicators'
+        if self._n_continuous == 0:
+            return 'no continuous states'
+        if self._me_driver is False:
+            return 'the compiled driver is unavailable or was disabled'
+        if not self.can_snapshot and any(kind != 'Real' for kind in self._parameter_groups):
+            return 'non-Real parameters on an FMU without FMU states'
+        return None
+
+    def _me_problem(self, dt_s: float, wrt: Sequence[int] | None) -> tuple[_MeProblem, list]:
+        """The driver's description of a batch, and the arrays it points to (keep both)."""
+        keep: list[Any] = []
+
+        def refs(values: Sequence[int]) -> Any:
+            array = _vr_array(list(values) or [0])
+            keep.append(array)
+            return ctypes.cast(array, _VR_P)
+
+        def sizes(values: Sequence[int]) -> Any:
+            array = _size_array(values)
+            keep.append(array)
+            return ctypes.cast(array, ctypes.POINTER(ctypes.c_size_t))
+
+        def reals(values: Sequence[float]) -> Any:
+            array = _real_array(list(values) or [0.0])
+            keep.append(array)
+            return ctypes.cast(array, _DOUBLE_P)
+
+        par_refs, par_values = self._parameter_groups.get('Real', ([], []))
+        sensitivities = wrt is not None
+        inputs = [self._input_vars[j] for j in (wrt or [])]
+        nominals = [abs(float(v.nominal)) if v.nominal not in (None, '') and
+                    float(v.nominal) != 0.0 else 1.0 for v in inputs]
+        fmu_outputs = {o.variable.name for o in self.model_description.outputs}
+        yo = [v.valueReference for v in self._output_vars if v.name in fmu_outputs]
+        snapshot = self._snapshot.value if self._snapshot is not None else None
+        problem = _MeProblem(
+            snapshot=snapshot,
+            needs_completed_step=int(bool(self._interface.needsCompletedIntegratorStep)),
+            tolerance=self.tolerance, dt=dt_s, max_steps=ME_MAX_STEPS, n=self._n_continuous,
+            cstate_vr=refs([v.valueReference for v in self._continuous_states]),
+            derivative_vr=refs(self._derivative_refs),
+            nx=len(self._state_vars), x_pos=sizes(self._state_positions),
+            x_vr=refs([v.valueReference for v in self._state_vars]),
+            ny=len(self._output_vars), y_vr=refs([v.valueReference for v in self._output_vars]),
+            n_in=len(self._input_vars), in_vr=refs([v.valueReference for v in self._input_vars]),
+            n_par=len(par_refs), par_vr=refs(par_refs), par_val=reals(par_values),
+            n_start=len(self._start_state_index),
+            start_vr=refs([self._state_vars[i].valueReference for i in self._start_state_index]),
+            start_idx=sizes(self._start_state_index),
+            n_su=len(inputs), su_vr=refs([v.valueReference for v in inputs]),
+            su_nominal=reals(nominals), sensitivity_factor=SENSITIVITY_NOMINAL_FACTOR,
+            sensitivities=int(sensitivities),
+            n_yo=len(yo), yo_vr=refs(yo))
+        return problem, keep
+
+    def _me_batch_in_c(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
+                       x_end: np.ndarray, y_end: np.ndarray,
+                       wrt: Sequence[int] | None = None) -> tuple[np.ndarray, np.ndarray] | bool:
+        """Run a Model Exchange batch in the compiled driver; False where it does not apply.
+
+        Each interval makes the FMI calls of :meth:`_start_interval`, then
+        integrates with Dormand-Prince 5(4) at :attr:`tolerance` (absolute
+        tolerances ``tolerance * nominal``, as CVode here) and reads as
+        :meth:`_read`. With ``wrt`` (input columns) the forward sensitivities
+        are integrated along, as in :class:`_Sensitivities`, and the result is
+        ``(S, output partials)``: S of shape (B, n, nx + m) over the FMU's n
+        continuous states, the partials of the FMU outputs among the model
+        outputs w.r.t. (continuous states, inputs ``wrt``), shape
+        (B, n_yo, n + m). A batch the driver cannot do (a time or step event,
+        too many steps) is logged, the driver disabled for this instance, and
+        False returned: the caller then uses CVode.
+        """
+        if self._me_driver is None:
+            self._me_driver = _load_me_driver(self.fmu) or False
+        if self._me_driver is False:
+            return False
+        if (self._snapshot is None if self.can_snapshot else not self._initialized_once):
+            self._start_interval(x_start[0], u[0])  # first initialisation through fmpy
+        if self._next_event_time is not None:
+            logger.debug('%s: time events, Model Exchange batches use CVode', self.fmu_path.name)
+            return False
+        driver, api = self._me_driver
+        key = (dt_s, None if wrt is None else tuple(wrt),
+               None if self._snapshot is None else self._snapshot.value)
+        if key not in self._me_problems:  # built once per interval length and wrt
+            if len(self._me_problems) >= 16:
+                self._me_problems.clear()
+            self._me_problems[key] = self._me_problem(dt_s, wrt)
+        problem, _ = self._me_problems[key]
+        batch, n = x_start.shape[0], self._n_continuous
+        columns = len(self._state_vars) + len(wrt or [])
+        s_end = np.zeros((batch, n, columns)) if wrt is not None else np.zeros(1)
+        dyo = np.zeros((batch, problem.n_yo, n + len(wrt or []))) if wrt is not None \
+            else np.zeros(1)
+        starts = np.ascontiguousarray(x_start, dtype=float)
+        inputs = np.ascontiguousarray(u, dtype=float)
+        stats = (ctypes.c_long * 4)()
+        code = driver.mshoot_me_batch(
+            ctypes.byref(api), self._fmu.component, ctypes.byref(problem), batch,
+            _pointer(starts), _pointer(inputs), _pointer(x_end), _pointer(y_end),
+            _pointer(s_end), _pointer(dyo), stats)
+        logger.debug('ME batch of %d: %d steps, %d rejected, %d evaluations', batch, stats[0],
+                     stats[1], stats[2])
+        if code == -6:
+            raise RuntimeError(f'{self.fmu_path.name} requested termination in interval '
+                               f'{stats[3]} of a Model Exchange batch')
+        if code < 0:
+            logger.warning('%s: the batched Model Exchange driver stopped at interval %d (%s); '
+                           'this model integrates with CVode from now on', self.fmu_path.name,
+                           stats[3], _ME_FALLBACKS.get(code, f'code {code}').format(
+                               max_steps=problem.max_steps))
+            self._me_driver = False
+            return False
+        if code:
+            raise RuntimeError(f'{self.fmu_path.name}: FMI call ({_ME_STAGES[code % 16 - 1]}) '
+                               f'of interval {code // 16} failed in the batched Model Exchange '
+                               f'driver')
+        return (s_end, dyo) if wrt is not None else True
 
     def _sensitivity_plan(self, wrt: Sequence[int]) -> str | None:
         """Why sensitivities are unavailable, or None when they are."""
@@ -830,8 +1039,10 @@ class FmiModel(Model):
                            wrt_inputs: Sequence[int]) -> IntervalJacobians | None:
         """End values and forward-sensitivity derivatives of B intervals (ME), or None.
 
-        Integrates ``[x, Sx, Su]`` with CVode at the model's tolerance, the
-        Jacobian-vector products from ``fmi2GetDirectionalDerivative``.
+        Integrates ``[x, Sx, Su]`` at the model's tolerance, the Jacobian-vector
+        products from ``fmi2GetDirectionalDerivative``: in the compiled
+        Runge-Kutta driver when :meth:`me_batch_plan` allows it, else with
+        CVode.
         Returns None (finite-difference fallback) for Co-Simulation FMUs and
         for Model Exchange FMUs without directional derivatives or with event
         indicators.
@@ -863,6 +1074,23 @@ class FmiModel(Model):
         dx_du = np.empty((batch, nx, m))
         dy_dx0 = np.empty((batch, ny, nx))
         dy_du = np.empty((batch, ny, m))
+        if self.me_batch_plan() is None:
+            done = self._me_batch_in_c(x_start, u, dt_s, x_end, y_end, wrt)
+            if done is not False:
+                s_end, dyo = done
+                sx, su = s_end[:, :, :nx], s_end[:, :, nx:]  # (B, n, nx), (B, n, m)
+                n = self._n_continuous
+                fmu_outputs = {o.variable.name for o in self.model_description.outputs}
+                rows = [i for i, v in enumerate(self._output_vars) if v.name in fmu_outputs]
+                dy_dx = np.zeros((batch, ny, n))
+                dy_du_direct = np.zeros((batch, ny, m))
+                dy_dx[:, rows] = dyo[:, :, :n]
+                dy_du_direct[:, rows] = dyo[:, :, n:]
+                for i, v in enumerate(self._output_vars):
+                    if v.name not in fmu_outputs:  # a continuous state read as an output
+                        dy_dx[:, i, self._continuous_states.index(v)] = 1.0
+                return IntervalJacobians(x_end, y_end, sx[:, pos], su[:, pos], dy_dx @ sx,
+                                         dy_dx @ su + dy_du_direct)
         wrt_refs = [self._input_vars[j].valueReference for j in wrt]
         for b in range(batch):
             self._start_interval(x_start[b], u[b])
