@@ -309,6 +309,33 @@ def test_closed_loop_progress_and_budget():
     assert len(short.steps) == 1 and len(short.fine) == 61  # the first step always runs
     np.testing.assert_allclose(short.steps['T_end'], result.steps['T_end'].iloc[:1])
 
+
+def test_solve_runs_with_one_blas_thread_and_restores_the_pools(monkeypatch):
+    """During a solve the BLAS pools have the MPC's limit; afterwards their own size again."""
+    from threadpoolctl import threadpool_info
+
+    from mshoot_core import shooting
+    blas = [p for p in threadpool_info() if p['user_api'] == 'blas']
+    if not blas:
+        pytest.skip('no BLAS thread pool loaded (numpy/scipy without OpenBLAS or MKL)')
+    before = [p['num_threads'] for p in blas]
+    seen = []
+    original = shooting.ShootingProblem.solve
+
+    def spy(self, *args, **kwargs):
+        seen.append({p['num_threads'] for p in threadpool_info() if p['user_api'] == 'blas'})
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(shooting.ShootingProblem, 'solve', spy)
+    s = synthetic_scenario(hours=4)
+    MPC(R1C1Model(), horizon_steps=3).solve([294.0], 0.0, forecast_window(s, 0, 3))
+    MPC(R1C1Model(), horizon_steps=3, blas_threads=None).solve([294.0], 0.0,
+                                                               forecast_window(s, 0, 3))
+    assert seen[0] == {1} and seen[1] == set(before)
+    assert [p['num_threads'] for p in threadpool_info() if p['user_api'] == 'blas'] == before
+    with pytest.raises(ValueError, match='blas_threads'):
+        MPC(R1C1Model(), blas_threads=0)
+
 @pytest.mark.parametrize('horizon', [2, 10])
 def test_reference_case_against_published(ou44_csv, horizon):
     """Energy and hourly discomfort may not both be worse than published by more than 3 %."""

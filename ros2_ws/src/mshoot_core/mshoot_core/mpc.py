@@ -6,8 +6,10 @@ by one interval, warm-starts the next solve.
 """
 from __future__ import annotations
 
+import contextlib
+import functools
 import logging
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import pandas as pd
@@ -23,6 +25,26 @@ KELVIN = 273.15
 #: Default state-bound mapping of a thermal zone: state 'T' [K] bounded by the comfort
 #: band columns [degC] plus an offset.
 ZONE_STATE_BOUNDS = {'T': ('comfort_min', 'comfort_max', KELVIN)}
+
+
+@functools.lru_cache(maxsize=1)
+def _threadpools() -> Any:
+    """The process's BLAS/OpenMP thread pools (threadpoolctl), inspected once."""
+    from threadpoolctl import ThreadpoolController
+    return ThreadpoolController()
+
+
+def blas_threads(limit: int | None) -> contextlib.AbstractContextManager:
+    """Limit the BLAS thread pools to ``limit`` threads inside the ``with`` block.
+
+    MPC problems are small (tens to a few thousand variables): a multi-threaded
+    BLAS only adds synchronisation, and on a loaded machine its spinning
+    threads compete with the solve itself (the 72 h reference case ran 2.5x
+    slower next to one other busy process). ``None`` leaves the pools alone.
+    """
+    if limit is None:
+        return contextlib.nullcontext()
+    return _threadpools().limit(limits=int(limit), user_api='blas')
 
 
 class MpcResult(ShootingResult):
@@ -64,6 +86,9 @@ class MPC:
     mode : {'fast', 'naive'}
         Evaluation mode (see :class:`ShootingProblem`); 'naive' reproduces the
         ancestor's algorithm as a baseline.
+    blas_threads : int or None
+        BLAS threads during a solve (default 1, see :func:`blas_threads`; None:
+        the library's default).
     """
 
     def __init__(self, model: Model, *, horizon_steps: int = 10, step_s: float = 3600.0,
@@ -73,7 +98,11 @@ class MPC:
                  solver: str | Solver = 'slsqp', soft_bounds: bool = False,
                  soft_penalty: float = 1e3, state_scaling: Scaling | None = None,
                  solver_options: dict | None = None, mode: str = 'fast',
-                 relaxation: str = 'two-phase', **problem_options) -> None:
+                 relaxation: str = 'two-phase', blas_threads: int | None = 1,
+                 **problem_options) -> None:
+        if blas_threads is not None and int(blas_threads) < 1:
+            raise ValueError(f'blas_threads must be >= 1 or None, got {blas_threads}')
+        self.blas_threads = blas_threads
         self.problem = ShootingProblem(model, control_names=control_names,
                                        control_bounds=control_bounds,
                                        n_intervals=horizon_steps, step_s=step_s, cost=cost,
@@ -185,8 +214,9 @@ class MPC:
         disturbances = forecast[list(self.problem.disturbance_names)].to_numpy(
             dtype=float)[:n]
         lower, upper = self.bounds_from_forecast(forecast)
-        result = self.problem.solve(x0, disturbances, lower, upper, self.solver,
-                                    z0=self._warm_start)
+        with blas_threads(self.blas_threads):
+            result = self.problem.solve(x0, disturbances, lower, upper, self.solver,
+                                        z0=self._warm_start)
         out = MpcResult(result)
         out.t_s = float(t_s)
         times = float(t_s) + np.arange(n) * self.step_s
