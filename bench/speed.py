@@ -1,6 +1,6 @@
 """Speed: the 72 h reference case, fast path vs the ancestor's naive algorithm, side by side.
 
-    python bench/speed.py [--naive-steps 3] [--controls fmu python svr] [--horizons 2 10]
+    python bench/speed.py [--naive-steps 3] [--controls fmu fmu-cs python svr] [--horizons 2 10]
 
 For each control model and horizon: the fast path runs all 72 steps; the naive
 mode runs the first ``--naive-steps`` steps (at H = 10 a naive step costs
@@ -21,9 +21,11 @@ def main(argv: list[str] | None = None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--naive-steps', type=int, default=3,
                         help='MPC steps of the naive baseline (default 3)')
-    parser.add_argument('--controls', nargs='+', default=['fmu', 'python', 'svr'],
+    parser.add_argument('--controls', nargs='+', default=['fmu', 'fmu-cs', 'python', 'svr'],
                         choices=['fmu', 'fmu-cs', 'python', 'svr'])
     parser.add_argument('--horizons', nargs='+', type=int, default=[2, 10])
+    parser.add_argument('--json', default='speed', metavar='NAME',
+                        help='write the figures to out/bench/NAME.json (default speed)')
     args = parser.parse_args(argv)
     setup_logging()
     rows, models = [], {}
@@ -56,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
                        ('speedup', 'speed-up', '.0f'),
                        ('objective_rel_diff', 'obj rel diff', '.1e'),
                        ('energy_kwh', 'kWh', '.2f'), ('discomfort_kh_hourly', 'Kh hourly', '.2f')])
-    write_json('speed', {'naive_steps': args.naive_steps, 'rows': rows})
+    write_json(args.json, {'naive_steps': args.naive_steps, 'rows': rows})
     return 0
 
 
