@@ -41,7 +41,7 @@ STUDY_OUT ?= docs
 STUDY_ARGS ?=
 
 .PHONY: study
-study: setup  ## regenerate every table and figure of the OU44 reference study -> docs/study.md (8-12 min on 2 cores)
+study: setup  ## regenerate every table and figure of the OU44 reference study -> docs/study.md (~6 min on 2 cores)
 	@$(RUN) cd $(ROOT) && python -m mshoot_core.study --data $(OU44_CSV) --out $(STUDY_OUT) $(STUDY_ARGS)
 
 # -- the soak benchmark (issue 6): many simulated days over ROS 2 with faults injected ---------

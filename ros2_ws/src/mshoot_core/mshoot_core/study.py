@@ -224,7 +224,8 @@ def solution_verification(runner: StudyRunner, out: pathlib.Path, *, hours: int 
         f'{hours} h from 2018-04-05 00:00, hourly control, initial T = 20 °C, quadratic cost '
         f'Σ(q/2000 W)², hard comfort band (relaxed to the least-violating trajectory where it '
         f'is unreachable), perfect forecasts; control model: the R1C1 FMU (Model Exchange, '
-        f'CVode at relative tolerance {tolerance:.0e}, gradients from forward sensitivities); '
+        f'Dormand-Prince 5(4) in the compiled batch driver at relative tolerance '
+        f'{tolerance:.0e}, gradients from forward sensitivities); '
         f'emulator: the same FMU in Co-Simulation (exact step), recorded on a 1-minute grid. '
         f'"discomfort" integrates the band violation over the 1-minute grid; '
         f'"hourly samples" sums it at the full hours, as the original reported it.',
@@ -481,9 +482,8 @@ def integration_tolerance(runner: StudyRunner, out: pathlib.Path, *, hours: int 
         f'where the integrator changes its step sequence between the two simulations the '
         f'error jumps (median {min(fd_median):.0e}-{max(fd_median):.0e}, worst '
         f'{max(fd_max):.1e}). Our forward sensitivities integrate the derivative with the '
-        f'state, so their error follows the tolerance ('
-        + ', '.join(f'{e:.0e} at {t:.0e}' for t, e in sens)
-        + ') and has no floor'
+        f'state, so no difference quotient rounds them off: their largest relative error '
+        f'is ' + ', '.join(f'{e:.0e} at {t:.0e}' for t, e in sens)
         + ('; at the loosest tolerance they are less accurate than the median finite '
            'difference, but never erratic' if sens and gradient_rows[0]['fd_median_rel_error']
            < sens[0][1] else '')
