@@ -45,6 +45,7 @@ def main(argv: list[str] | None = None) -> int:
                          'naive_iterations_per_step': naive['iterations'] / naive['steps'],
                          'naive_evaluations_per_step': naive['model_evaluations']
                          / naive['steps'],
+                         'naive_failures': naive['solver_failures'],
                          'speedup': ratio, 'objective_rel_diff': rel})
             logger.info('%s H=%d: fast %.2f s for 72 steps (median %.4f s/step), naive median '
                         '%.3f s/step: %.0fx', control, horizon, fast['wall_s'],
@@ -55,6 +56,7 @@ def main(argv: list[str] | None = None) -> int:
                        ('model_evaluations', 'fast evals', 'd'),
                        ('naive_step_median_s', 'naive/step [s]', '.3f'),
                        ('naive_evaluations_per_step', 'naive evals/step', '.0f'),
+                       ('naive_failures', 'naive fails', 'd'),
                        ('speedup', 'speed-up', '.0f'),
                        ('objective_rel_diff', 'obj rel diff', '.1e'),
                        ('energy_kwh', 'kWh', '.2f'), ('discomfort_kh_hourly', 'Kh hourly', '.2f')])
