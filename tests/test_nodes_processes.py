@@ -2,6 +2,7 @@
 import json
 import pathlib
 import subprocess
+import sys
 
 from mshoot_core.case import r1c1_fmu_model
 from mshoot_core.closed_loop import run_closed_loop
@@ -15,7 +16,7 @@ import pytest
 
 from mshoot_nodes import contract
 from mshoot_nodes.bags import read_bag
-from mshoot_nodes.processes import executable
+from mshoot_nodes.processes import executable, wait_for_recorder
 
 HOURS = 24
 
@@ -36,7 +37,8 @@ def test_separate_processes_complete_a_24_h_run(tmp_path):
     assert kpis['steps'] == HOURS and kpis['solver_failures'] == 0
     assert kpis['transport'] == 'ros2 processes'
     steps = pd.read_csv(out / 'steps.csv', index_col='time_s')
-    assert steps['success'].all() and not steps['fallback'].any()
+    bad = steps[~steps['success'].astype(bool) | steps['fallback'].astype(bool)]
+    assert bad.empty, f'steps without a successful solve:\n{bad.to_string()}\n{logs}'
 
     core = run_closed_loop(MPC(R1C1Model(), horizon_steps=10),
                            Emulator(r1c1_fmu_model(1e-10), synthetic_scenario(hours=HOURS + 1),
@@ -47,3 +49,25 @@ def test_separate_processes_complete_a_24_h_run(tmp_path):
     counts = read_bag(out / 'bag').counts
     assert counts[contract.SETPOINT] >= HOURS and counts[contract.ZONE_STATE] >= HOURS + 1
     assert (out / 'plot.png').stat().st_size > 0
+
+
+def test_bringup_waits_for_the_recorder_to_match_the_publishers(tmp_path):
+    """The emulator starts only after the recorder's ``matched`` lines; else a clear reason."""
+    log = tmp_path / 'recorder.log'
+    recorder = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(30)'])
+    try:
+        log.write_text(contract.RECORDER_MATCHED_LINE.format(topic=contract.FORECAST,
+                                                             publishers=1) + '\n')
+        problem = wait_for_recorder(log, recorder, timeout_s=0.3)
+        assert problem and contract.SETPOINT in problem and contract.STATUS in problem
+        assert contract.FORECAST not in problem.split('within')[0]
+        with log.open('a') as f:
+            for topic in (contract.SETPOINT, contract.STATUS):
+                f.write(contract.RECORDER_MATCHED_LINE.format(topic=topic, publishers=2) + '\n')
+        assert wait_for_recorder(log, recorder, timeout_s=0.3) is None
+    finally:
+        recorder.kill()
+        recorder.wait()
+    log.write_text('')
+    problem = wait_for_recorder(log, recorder, timeout_s=5.0)
+    assert problem and 'exited' in problem

@@ -7,7 +7,9 @@ without the launch package: every node runs from its installed executable
 (``lib/mshoot_nodes/<exe>``, what ``ros2 run`` runs) with the YAML files of
 ``config/`` and ``-p`` overrides, talking over DDS on this host
 (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, a private ``ROS_DOMAIN_ID``).
-The emulator waits for its peers, runs the scenario in lockstep and exits;
+The emulator is started once the recorder has matched the publishers of the
+other nodes (so that no setpoint is missing from the bag); it waits for its
+peers, runs the scenario in lockstep and exits;
 the others then get SIGINT (the recorder closes its bag). The outputs are
 rebuilt from the emulator's files and the bag: ``kpis.json``, ``steps.csv``,
 ``trajectories.csv``, ``plot.png``, ``bag/``, ``emulator/``, ``logs/``.
@@ -56,6 +58,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--out', type=pathlib.Path, default=pathlib.Path('out/processes'))
     parser.add_argument('--timeout', type=float, default=600.0,
                         help='wall-clock limit of the run [s] (default 600)')
+    parser.add_argument('--match-timeout', type=float, default=30.0,
+                        help='wall time the recorder may take to match the forecaster and '
+                             'the MPC before the emulator starts [s] (default 30)')
     parser.add_argument('--domain-id', type=int, default=None,
                         help='ROS_DOMAIN_ID (default: a random one in 1..100)')
     return parser
@@ -73,6 +78,32 @@ def _stop(procs: dict[str, subprocess.Popen], grace_s: float = 10.0) -> None:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+
+
+def wait_for_recorder(log: pathlib.Path, recorder: subprocess.Popen,
+                       timeout_s: float) -> str | None:
+    """Wait until the recorder has matched the forecaster's and the MPC's publishers.
+
+    Reads the recorder's log for its ``matched TOPIC`` lines. Returns None when
+    every topic is matched, else the reason it is not (timeout, recorder exited).
+    """
+    from mshoot_nodes import contract
+
+    topics = (contract.FORECAST, contract.SETPOINT, contract.STATUS)
+    needles = {t: contract.RECORDER_MATCHED_LINE.split('{publishers}')[0].format(topic=t)
+               for t in topics}
+    deadline = time.monotonic() + timeout_s
+    while True:
+        text = log.read_text() if log.exists() else ''
+        missing = [t for t, needle in needles.items() if needle not in text]
+        if not missing:
+            return None
+        if recorder.poll() is not None:
+            return f'the recorder exited with {recorder.returncode}; see {log}'
+        if time.monotonic() > deadline:
+            return (f'the recorder matched no publisher of {", ".join(missing)} within '
+                    f'{timeout_s:.0f} s; see {log}')
+        time.sleep(0.05)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -105,6 +136,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                 command += ['--params-file', str(path)]
             for item in overrides[name]:
                 command += ['-p', item]
+            if name == 'emulator':
+                problem = wait_for_recorder(logs / 'recorder.log', procs['recorder'],
+                                             args.match_timeout)
+                if problem:
+                    print(f'[processes] error: {problem}', file=sys.stderr)
+                    return 1
             log = open(logs / f'{name}.log', 'w')  # noqa: SIM115 - closed with the process
             procs[name] = subprocess.Popen(command, env=env, stdout=log,
                                            stderr=subprocess.STDOUT)

@@ -48,6 +48,9 @@ from mshoot_nodes.params import declare, ParamSpec, values
 from mshoot_nodes.signals import StopSignals
 from mshoot_nodes.startup import construct, EXIT_CONFIG
 
+#: Wall time between checks of the subscriptions' matched publishers [s]
+MATCH_POLL_S = 0.05
+
 PARAMS = (
     ParamSpec('bag_path', 'mshoot_bag', 'bag directory to create', read_only=True),
     ParamSpec('storage', 'mcap', 'storage plugin of the bag', choices=tuple(STORAGES),
@@ -96,7 +99,9 @@ class RecorderNode(Node):
         self._writer = Writer(self.path, version=9, storage_plugin=STORAGES[p['storage']])
         self._writer.open()
         self._connections: dict[str, Any] = {}
+        self._recorded: dict[str, Any] = {}
         self.counts: dict[str, int] = {}
+        self.matched: set[str] = set()
         self._closed = False
         self._unflushed = 0
         self.create_timer(p['flush_period_s'], self.flush,
@@ -106,6 +111,8 @@ class RecorderNode(Node):
             self._discover()
             self._discovery_timer = self.create_timer(1.0, self._discover)
         flush_writer(self._writer)  # the file header and the contract topics' definitions
+        self._match_timer = self.create_timer(MATCH_POLL_S, self._log_matches,
+                                              clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(f"recording {len(p['topics'])} topics to {self.path} "
                                f"({p['storage']})")
 
@@ -133,6 +140,23 @@ class RecorderNode(Node):
         if not self._waiting and hasattr(self, '_discovery_timer'):
             self._discovery_timer.cancel()
 
+    def _log_matches(self) -> None:
+        """Log each topic once when its subscription first matches a publisher.
+
+        A line ``matched TOPIC: N publisher(s)`` tells that the messages of TOPIC
+        published from now on are recorded; the bring-up waits for these lines
+        before it starts the emulator.
+        """
+        for topic, subscription in self._recorded.items():
+            if topic in self.matched:
+                continue
+            publishers = subscription.get_publisher_count()
+            if publishers:
+                self.matched.add(topic)
+                self.get_logger().info(contract.RECORDER_MATCHED_LINE.format(topic=topic, publishers=publishers))
+        if len(self.matched) == len(self.params['topics']):
+            self._match_timer.cancel()
+
     def _subscribe(self, topic: str, type_name: str, offered: QoSProfile) -> None:
         ensure_type(self._store, type_name)
         cls = message_class(type_name)
@@ -149,8 +173,8 @@ class RecorderNode(Node):
             topic, type_name, typestore=self._store,
             offered_qos_profiles=[qos_to_rosbags(offered)])
         self.counts[topic] = 0
-        self.create_subscription(cls, topic, lambda raw, info, t=topic: self._write(t, raw, info),
-                                 qos, raw=True)
+        self._recorded[topic] = self.create_subscription(
+            cls, topic, lambda raw, info, t=topic: self._write(t, raw, info), qos, raw=True)
         self.get_logger().debug(f'recording {topic} [{type_name}]')
 
     def _write(self, topic: str, raw: bytes, info: dict | None = None) -> None:
