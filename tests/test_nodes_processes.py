@@ -56,14 +56,14 @@ def test_bringup_waits_for_the_recorder_to_match_the_publishers(tmp_path):
     log = tmp_path / 'recorder.log'
     recorder = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(30)'])
     try:
-        log.write_text(contract.RECORDER_MATCHED_LINE.format(topic=contract.FORECAST,
-                                                             publishers=1) + '\n')
+        log.write_text(contract.RECORDER_MATCHED.format(topic=contract.FORECAST)
+                       + ' 1 publisher(s)\n')
         problem = wait_for_recorder(log, recorder, timeout_s=0.3)
         assert problem and contract.SETPOINT in problem and contract.STATUS in problem
         assert contract.FORECAST not in problem.split('within')[0]
         with log.open('a') as f:
             for topic in (contract.SETPOINT, contract.STATUS):
-                f.write(contract.RECORDER_MATCHED_LINE.format(topic=topic, publishers=2) + '\n')
+                f.write(contract.RECORDER_MATCHED.format(topic=topic) + ' 2 publisher(s)\n')
         assert wait_for_recorder(log, recorder, timeout_s=0.3) is None
     finally:
         recorder.kill()

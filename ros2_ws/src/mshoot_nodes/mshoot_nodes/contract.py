@@ -36,9 +36,9 @@ TOPIC_TYPES: dict[str, str] = {
 }
 #: The topics a run records by default, in a stable order.
 RECORDED_TOPICS: tuple[str, ...] = tuple(TOPIC_TYPES)
-#: The recorder's log line once a topic's subscription has matched its first publisher:
-#: what is published on it from then on is in the bag (the process bring-up waits for it).
-RECORDER_MATCHED_LINE = 'matched {topic}: {publishers} publisher(s)'
+#: How the recorder's log line starts once a topic's subscription has matched its first
+#: publisher: what is published on it from then on is in the bag (the bring-up waits for it).
+RECORDER_MATCHED = 'matched {topic}:'
 
 #: States, disturbances, setpoints and status: every message matters.
 DATA_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,

@@ -90,8 +90,7 @@ def wait_for_recorder(log: pathlib.Path, recorder: subprocess.Popen,
     from mshoot_nodes import contract
 
     topics = (contract.FORECAST, contract.SETPOINT, contract.STATUS)
-    needles = {t: contract.RECORDER_MATCHED_LINE.split('{publishers}')[0].format(topic=t)
-               for t in topics}
+    needles = {t: contract.RECORDER_MATCHED.format(topic=t) for t in topics}
     deadline = time.monotonic() + timeout_s
     while True:
         text = log.read_text() if log.exists() else ''

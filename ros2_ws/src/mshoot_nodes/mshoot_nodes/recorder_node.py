@@ -153,7 +153,8 @@ class RecorderNode(Node):
             publishers = subscription.get_publisher_count()
             if publishers:
                 self.matched.add(topic)
-                self.get_logger().info(contract.RECORDER_MATCHED_LINE.format(topic=topic, publishers=publishers))
+                self.get_logger().info(f'{contract.RECORDER_MATCHED.format(topic=topic)} '
+                                       f'{publishers} publisher(s)')
         if len(self.matched) == len(self.params['topics']):
             self._match_timer.cancel()
 
