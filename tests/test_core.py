@@ -13,6 +13,7 @@ from mshoot_core.kpis import closed_loop_kpis, discomfort_kh, energy_kwh
 from mshoot_core.models import Model, R1C1Model, R1C1Parameters
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import synthetic_scenario
+from mshoot_core.settings import ComfortSettings, MpcSettings, ProblemSettings, SettingsError
 from mshoot_core.shooting import NlpIndex, ShootingProblem
 from mshoot_core.solvers import SlsqpSolver, make_solver
 
@@ -76,7 +77,7 @@ def test_batch_path_equals_simulate():
 
 def test_analytic_jacobians_match_finite_differences():
     model = R1C1Model()
-    problem = ShootingProblem(model, n_intervals=3)
+    problem = ShootingProblem(model, ProblemSettings(horizon_steps=3))
     problem._x_scaling = problem._state_scaling_for(np.full((3, 1), 292.0),
                                                     np.full((3, 1), 297.0))
     problem.model_evaluations = 0
@@ -123,8 +124,9 @@ def test_unconstrained_quadratic_matches_least_squares():
     def cost(x_hat, y_hat, u_hat):
         return float(np.sum((y_hat[:, 0] - r) ** 2) + rho * np.sum(u_hat ** 2))
 
-    problem = ShootingProblem(model, control_names=('u',), control_bounds=((-100.0, 100.0),),
-                              n_intervals=n, step_s=1.0, cost=cost, control_nominal=[1.0])
+    problem = ShootingProblem(model, ProblemSettings(
+        control_names=('u',), heat_rate_min_w=-100.0, heat_rate_max_w=100.0, horizon_steps=n,
+        step_s=1.0), cost_function=cost, control_nominal=[1.0])
     res = problem.solve([x0], np.zeros((n, 0)), np.full((n, 1), -np.inf),
                         np.full((n, 1), np.inf), SlsqpSolver(tol=1e-12))
     # x = F x0 + G u  ->  u* = argmin |F x0 + G u - r|^2 + rho |u|^2
@@ -139,7 +141,8 @@ def test_unconstrained_quadratic_matches_least_squares():
 def _ou_like_problem(n=8, soft=False, cost='quadratic'):
     scenario = synthetic_scenario(hours=n + 1, seed=3)
     model = R1C1Model()
-    problem = ShootingProblem(model, n_intervals=n, cost=cost, soft_bounds=soft)
+    problem = ShootingProblem(model, ProblemSettings(horizon_steps=n, cost=cost),
+                              ComfortSettings(comfort='soft' if soft else 'hard'))
     dist = scenario[list(problem.disturbance_names)].to_numpy()[:n].copy()
     lower = scenario['comfort_min'].to_numpy()[1:n + 1, None] + KELVIN
     upper = scenario['comfort_max'].to_numpy()[1:n + 1, None] + KELVIN
@@ -225,16 +228,24 @@ def test_nlp_index_named_views():
     np.testing.assert_array_equal(z, z2)
 
 
-@pytest.mark.parametrize('kwargs, match', [
-    ({'control_names': ('power',)}, 'controls must be model inputs'),
-    ({'control_bounds': ((10.0, -10.0),)}, 'min < max'),
-    ({'n_intervals': 0}, 'positive integer'),
-    ({'cost': 'cubic'}, 'cost must be'),
-    ({'soft_penalty': -1.0}, 'soft_penalty'),
-])
-def test_bad_configuration_is_rejected(kwargs, match):
-    with pytest.raises(ValueError, match=match):
-        ShootingProblem(R1C1Model(), **kwargs)
+def test_controls_must_be_model_inputs():
+    with pytest.raises(ValueError, match='controls must be model inputs'):
+        ShootingProblem(R1C1Model(), ProblemSettings(control_names=('power',)))
+
+
+def test_bad_settings_are_reported_all_at_once():
+    with pytest.raises(SettingsError) as info:
+        MPC(R1C1Model(), heat_rate_min_w=10.0, heat_rate_max_w=-10.0, horizon_steps=0,
+            cost='cubic', soft_penalty=-1.0)
+    problems = ' | '.join(info.value.problems)
+    for expected in ('horizon_steps must be in [1, 1000], got 0', "cost must be one of",
+                     'soft_penalty must be in'):
+        assert expected in problems
+    assert len(info.value.problems) == 3  # the bounds rule waits until every field is valid
+    with pytest.raises(SettingsError, match='heat_rate_min_w must be < heat_rate_max_w'):
+        MpcSettings.from_flat(heat_rate_min_w=10.0, heat_rate_max_w=-10.0)
+    with pytest.raises(SettingsError, match=r"unknown setting\(s\) \['horizon'\]"):
+        MpcSettings.from_flat(horizon=3)
 
 
 def test_unknown_solver_rejected():
@@ -329,12 +340,12 @@ def test_solve_runs_with_one_blas_thread_and_restores_the_pools(monkeypatch):
     monkeypatch.setattr(shooting.ShootingProblem, 'solve', spy)
     s = synthetic_scenario(hours=4)
     MPC(R1C1Model(), horizon_steps=3).solve([294.0], 0.0, forecast_window(s, 0, 3))
-    MPC(R1C1Model(), horizon_steps=3, blas_threads=None).solve([294.0], 0.0,
+    MPC(R1C1Model(), horizon_steps=3, blas_threads=0).solve([294.0], 0.0,
                                                                forecast_window(s, 0, 3))
     assert seen[0] == {1} and seen[1] == set(before)
     assert [p['num_threads'] for p in threadpool_info() if p['user_api'] == 'blas'] == before
     with pytest.raises(ValueError, match='blas_threads'):
-        MPC(R1C1Model(), blas_threads=0)
+        MPC(R1C1Model(), blas_threads=-1)
 
 @pytest.mark.parametrize('horizon', [2, 10])
 def test_reference_case_against_published(ou44_csv, horizon):

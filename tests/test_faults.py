@@ -174,8 +174,8 @@ def test_unusable_plan_is_never_published(context):
         core = loop.mpc.mpc
         real_solve = core.solve
 
-        def non_finite_solve(x0, t_s, window):
-            result = real_solve(x0, t_s, window)
+        def non_finite_solve(x0, t_s, window, deadline=None):
+            result = real_solve(x0, t_s, window, deadline)
             result.controls = np.full_like(result.controls, np.nan)
             return result
 

@@ -228,7 +228,11 @@ def test_invalid_parameters_are_rejected_with_a_reason(context, tmp_path):
 
     assert "cost must be one of ['quadratic', 'energy'], got 'cubic'" in rejected(
         MpcNode, cost='cubic')
-    assert 'out of range' in rejected(MpcNode, horizon_steps=0)
+    assert 'horizon_steps must be in [1, 1000], got 0' in rejected(MpcNode, horizon_steps=0)
+    # every problem of the start-up values at once
+    reason = rejected(MpcNode, horizon_steps=0, soft_penalty=-1.0, time_budget_s=-2.0)
+    assert all(text in reason for text in ('horizon_steps must be', 'soft_penalty must be',
+                                           'time_budget_s must be')), reason
     assert 'heat_rate_min_w must be < heat_rate_max_w' in rejected(
         MpcNode, heat_rate_min_w=500.0, heat_rate_max_w=100.0)
     assert 'solver must be one of' in rejected(MpcNode, solver='newton')

@@ -95,8 +95,8 @@ def run_case(scenario: pd.DataFrame, control: Model, emulator_model: Model, *,
     """
     if comfort not in ('hard', 'soft'):
         raise ValueError(f"comfort must be 'hard' or 'soft', got {comfort!r}")
-    mpc = MPC(control, horizon_steps=horizon, cost=cost, solver=solver,
-              soft_bounds=comfort == 'soft', soft_penalty=soft_penalty, mode=mode)
+    mpc = MPC(control, horizon_steps=horizon, cost=cost, solver=solver, comfort=comfort,
+              soft_penalty=soft_penalty, mode=mode)
     emulator = Emulator(emulator_model, scenario, [initial_c + KELVIN])
     result = run_closed_loop(mpc, emulator, steps=steps, log_every=log_every, **loop_options)
     kpis = closed_loop_kpis(result.steps, result.fine, mpc.step_s, result.wall_s)

@@ -1,4 +1,4 @@
-"""The MPC emulation loop: plan, apply the first step to the emulator, advance, repeat."""
+"""The MPC emulation loop: decide, apply the decision to the emulator, advance, repeat."""
 from __future__ import annotations
 
 import dataclasses
@@ -9,26 +9,13 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
+from mshoot_core.controller import Controller, StepOutcome
 from mshoot_core.emulation import Emulator, StepRecord
-from mshoot_core.mpc import MPC, MpcResult
+from mshoot_core.mpc import MPC
+from mshoot_core.safety import NS_PER_S
+from mshoot_core.scenario import forecast_window  # noqa: F401 (API: used by the nodes)
 
 logger = logging.getLogger(__name__)
-
-
-def forecast_window(scenario: pd.DataFrame, index: int, horizon_steps: int) -> pd.DataFrame:
-    """Rows ``index .. index + horizon_steps`` of ``scenario`` (N+1 rows).
-
-    Past the end of the scenario the last row is repeated (a persistence
-    forecast), so the controller can plan the final hours of a run.
-    """
-    if not 0 <= index < len(scenario):
-        raise ValueError(f'index must be in [0, {len(scenario) - 1}], got {index}')
-    rows = np.minimum(np.arange(index, index + horizon_steps + 1), len(scenario) - 1)
-    window = scenario.iloc[rows].copy()
-    step = float(scenario.index[1] - scenario.index[0]) if len(scenario) > 1 else 3600.0
-    window.index = pd.Index(float(scenario.index[index]) + np.arange(horizon_steps + 1) * step,
-                            name=scenario.index.name)
-    return window
 
 
 @dataclasses.dataclass
@@ -55,32 +42,71 @@ class ClosedLoopResult:
     wall_s: float
 
 
-def step_row(result: MpcResult, record: StepRecord, state_names: tuple[str, ...],
+def step_row(outcome: StepOutcome, record: StepRecord, state_names: tuple[str, ...],
              control_names: tuple[str, ...]) -> dict:
-    """The per-step record of one loop iteration (shared with the ROS nodes' tools)."""
+    """The per-step record of one loop iteration (shared with the ROS nodes' tools).
+
+    Columns: ``time_s``, the applied controls, ``{state}_start``, ``{state}_end``,
+    ``{state}_predicted`` (NaN for the safe setpoint), the solve's
+    ``solve_time_s``, ``success``, ``status``, ``iterations``, ``objective``,
+    ``max_defect``, ``relaxed``, ``model_evaluations`` (NaN or False without a
+    solve result), and the decision's ``source`` ('optimum', 'plan', 'safe'),
+    ``fallback``, ``fallback_code`` and ``fallback_reason``.
+    """
+    decision, result = outcome.decision, outcome.result
     row = {'time_s': record.t_start_s}
     for name, value in zip(control_names, record.controls):
         row[name] = float(value)
+    predicted = (decision.predicted_state if decision.predicted_state is not None
+                 else np.full(len(state_names), np.nan))
     for i, name in enumerate(state_names):
         row[f'{name}_start'] = float(record.x_start[i])
         row[f'{name}_end'] = float(record.x_end[i])
-        row[f'{name}_predicted'] = float(result.states[1, i])
-    row.update(solve_time_s=result.solve_time_s, success=bool(result.success),
-               status=int(result.status), iterations=int(result.nit),
-               objective=float(result.fun), max_defect=result.max_defect,
-               relaxed=bool(result.relaxed), model_evaluations=int(result.model_evaluations))
+        row[f'{name}_predicted'] = float(predicted[i])
+    if result is not None:
+        row.update(solve_time_s=float(outcome.solve_time_s), success=bool(result.success),
+                   status=int(result.status), iterations=int(result.nit),
+                   objective=float(result.fun), max_defect=result.max_defect,
+                   relaxed=bool(result.relaxed), model_evaluations=int(result.model_evaluations))
+    else:
+        row.update(solve_time_s=float(outcome.solve_time_s), success=False, status=-1,
+                   iterations=0, objective=np.nan, max_defect=np.nan, relaxed=False,
+                   model_evaluations=0)
+    row.update(source=decision.source, fallback=bool(decision.fallback),
+               fallback_code=decision.code, fallback_reason=decision.reason)
     return row
 
 
-def run_closed_loop(mpc: MPC, emulator: Emulator, steps: int | None = None,
+def offer_scenario_inputs(controller: Controller, emulator: Emulator, now_ns: int) -> None:
+    """Give the controller the emulated state and a perfect forecast (the scenario's next
+    N+1 rows) stamped at the emulator's time, as the emulator and forecaster nodes do."""
+    window = forecast_window(emulator.scenario, emulator.index, controller.mpc.horizon_steps)
+    for stream, rejection in (
+            ('state', controller.offer_state(now_ns, emulator.x, now_ns)),
+            ('forecast', controller.offer_forecast(
+                now_ns, emulator.step_s, {c: window[c].to_numpy() for c in window.columns},
+                now_ns))):
+        if rejection:
+            logger.warning('%s at %.0f s rejected [%s]: %s', stream, now_ns / NS_PER_S,
+                           rejection.kind, rejection.reason)
+
+
+def run_closed_loop(controller: Controller | MPC, emulator: Emulator, steps: int | None = None,
                     progress: Callable[[list[dict], list[pd.DataFrame]], None] | None = None,
                     log_every: int = 12, budget_s: float | None = None) -> ClosedLoopResult:
-    """Run MPC against the emulator for ``steps`` control steps (default: to the end).
+    """Run the controller against the emulator for ``steps`` control steps (default: to the
+    end).
+
+    Every step the controller gets the emulated state and a perfect forecast
+    and decides (:meth:`Controller.poll`): its optimum, or a fallback (the last
+    good plan, the safe setpoint) when the solve fails, raises or overruns its
+    time budget; the emulator applies the decision.
 
     Parameters
     ----------
-    mpc : MPC
-        The controller; its step must equal the emulator's.
+    controller : Controller or MPC
+        The controller (an MPC gets a :class:`Controller` with its settings);
+        its step must equal the emulator's.
     emulator : Emulator
         The emulated building, positioned at the first step.
     steps : int, optional
@@ -93,9 +119,15 @@ def run_closed_loop(mpc: MPC, emulator: Emulator, steps: int | None = None,
     log_every : int
         Log a progress line every so many steps (0: never).
     budget_s : float, optional
-        Wall-time budget [s]: no step is started once it is spent, and the
-        result holds the steps done (at least one).
+        Wall-time budget of the whole run [s]: no step is started once it is
+        spent, and the result holds the steps done (at least one).
     """
+    if isinstance(controller, MPC):
+        controller = Controller(mpc=controller)
+    if controller.executor is not None:
+        raise ValueError('run_closed_loop solves inline: give it a Controller without an '
+                         'executor')
+    mpc = controller.mpc
     if abs(mpc.step_s - emulator.step_s) > 1e-9:
         raise ValueError(f'MPC step {mpc.step_s} s differs from the emulator step '
                          f'{emulator.step_s} s')
@@ -108,19 +140,44 @@ def run_closed_loop(mpc: MPC, emulator: Emulator, steps: int | None = None,
         if k and budget_s is not None and time.perf_counter() - started > budget_s:
             logger.info('budget of %.0f s spent after %d/%d steps', budget_s, k, total)
             break
-        forecast = forecast_window(emulator.scenario, emulator.index, mpc.horizon_steps)
-        result = mpc.solve(emulator.x, emulator.t_s, forecast)
-        record = emulator.advance(result.controls[0])
-        row = step_row(result, record, mpc.model.state_names, mpc.problem.control_names)
+        now_ns = int(round(emulator.t_s * NS_PER_S))
+        offer_scenario_inputs(controller, emulator, now_ns)
+        outcomes = controller.poll(now_ns)
+        if len(outcomes) != 1 or outcomes[0].step_ns != now_ns:
+            raise RuntimeError(f'the controller decided {[o.step_ns for o in outcomes]} at '
+                               f'{now_ns} ns: expected exactly that step')
+        outcome = outcomes[0]
+        record = emulator.advance(outcome.decision.controls)
+        row = step_row(outcome, record, mpc.model.state_names, mpc.problem.control_names)
         rows.append(row)
         fines.append(record.fine if k == 0 else record.fine.iloc[1:])
-        plans.append(result.plan)
+        plans.append(_plan_frame(outcome, mpc))
         if progress is not None:
             progress(rows, fines)
         if log_every and ((k + 1) % log_every == 0 or k + 1 == total):
             logger.info('step %d/%d (t = %.0f h): solve %.3f s, %s', k + 1, total,
                         row['time_s'] / 3600.0, row['solve_time_s'],
-                        'ok' if row['success'] else 'not converged')
+                        'ok' if row['success'] else f"{row['source']} ({row['fallback_code']})"
+                        if row['fallback'] else 'not converged')
+        elif outcome.decision.fallback:
+            logger.info('step %d/%d (t = %.0f h): fallback %s: %s', k + 1, total,
+                        row['time_s'] / 3600.0, outcome.decision.source,
+                        outcome.decision.reason)
     steps_df = pd.DataFrame(rows).set_index('time_s')
     fine = pd.concat(fines)
     return ClosedLoopResult(steps_df, fine, plans, time.perf_counter() - started)
+
+
+def _plan_frame(outcome: StepOutcome, mpc: MPC) -> pd.DataFrame:
+    """The plan of a decision (controls and predicted end states by interval start)."""
+    d = outcome.decision
+    if outcome.result is not None and not d.fallback:
+        return outcome.result.plan
+    times = outcome.t_s + np.arange(len(d.plan_controls)) * mpc.step_s
+    names = mpc.problem.control_names
+    plan = pd.DataFrame(np.asarray(d.plan_controls, dtype=float).reshape(-1, len(names)),
+                        columns=list(names), index=pd.Index(times, name='time_s'))
+    states = np.asarray(d.plan_states, dtype=float)
+    for i, name in enumerate(mpc.model.state_names):
+        plan[f'{name}_end'] = states[:, i] if states.size else np.nan
+    return plan

@@ -95,14 +95,15 @@ class FaultySolver(Solver):
         self.name = f'faulty-{inner.name}'
         self.faults = Faults(SOLVER_FAULTS)
 
-    def solve(self, nlp: Nlp, z0: np.ndarray) -> optimize.OptimizeResult:
+    def solve(self, nlp: Nlp, z0: np.ndarray, deadline: float | None = None
+              ) -> optimize.OptimizeResult:
         fault = self.faults.take()
         if fault is None:
-            return self.inner.solve(nlp, z0)
+            return self.inner.solve(nlp, z0, deadline)
         kind, delay_s = fault
-        if kind == 'overrun':
+        if kind == 'overrun':  # a solver stuck where it cannot see its deadline
             time.sleep(delay_s)
-            return self.inner.solve(nlp, z0)
+            return self.inner.solve(nlp, z0, deadline)
         if kind == 'fail':
             return optimize.OptimizeResult(x=np.asarray(z0, dtype=float).copy(),
                                            fun=float(nlp.fun(z0)), success=False, status=-1,

@@ -16,8 +16,9 @@ import pandas as pd
 
 from mshoot_core.models.base import Model
 from mshoot_core.scenario import COMFORT_COLUMNS
+from mshoot_core.settings import BY_NAME, MpcSettings
 from mshoot_core.shooting import CostFunction, Scaling, ShootingProblem, ShootingResult
-from mshoot_core.solvers import Solver, make_solver
+from mshoot_core.solvers import make_solver, Solver
 
 logger = logging.getLogger(__name__)
 
@@ -60,56 +61,36 @@ class MPC:
     ----------
     model : Model
         The control model.
-    horizon_steps : int
-        Number of control steps N in the horizon.
-    step_s : float
-        Control step [s].
-    control_names, control_bounds :
-        The optimised inputs and their physical bounds.
-    state_bounds : dict
+    settings : MpcSettings, optional
+        The problem, comfort and solver settings (default: the defaults,
+        changed by ``options``).
+    state_bounds : dict, optional
         ``{state: (lower_column, upper_column, offset)}``: the bound of the
         state at time t is ``forecast[column] + offset`` at t (default: zone
         temperature in K from a comfort band in degC). States not listed are
         unbounded.
-    cost : {'quadratic', 'energy'} or callable
-        See :class:`ShootingProblem`.
-    solver : str or Solver
-        'slsqp' (default), 'trust-constr', 'ipopt', or a Solver instance.
-    soft_bounds, soft_penalty :
-        Slack-with-penalty comfort bounds (see :class:`ShootingProblem`).
+    solver : str or Solver, optional
+        A solver name (a setting) or a configured :class:`Solver` instance,
+        which then replaces the one of the settings.
+    cost_function : callable, optional
+        A user cost on normalised quantities (see :class:`ShootingProblem`).
     state_scaling : Scaling, optional
         Fixed normalisation of the states (default: from the bounds).
-    solver_options : dict, optional
-        Keyword arguments of the solver (``max_iter``, ``tol``).
-    relaxation : {'two-phase', 'exact-penalty'}
-        Handling of unreachable comfort bounds (see :class:`ShootingProblem`).
-    mode : {'fast', 'naive'}
-        Evaluation mode (see :class:`ShootingProblem`); 'naive' reproduces the
-        ancestor's algorithm as a baseline.
-    blas_threads : int or None
-        BLAS threads during a solve (default 1, see :func:`blas_threads`; None:
-        the library's default).
+    **options
+        Flat settings (:data:`mshoot_core.settings.PARAMETERS`, e.g.
+        ``horizon_steps=6, cost='energy'``; ``control_names``,
+        ``solver_extra``) applied over ``settings``; validated with every
+        problem at once (:class:`~mshoot_core.settings.SettingsError`).
     """
 
-    def __init__(self, model: Model, *, horizon_steps: int = 10, step_s: float = 3600.0,
-                 control_names: Sequence[str] = ('q',),
-                 control_bounds: Sequence[tuple[float, float]] = ((-2000.0, 2000.0),),
-                 state_bounds: dict | None = None, cost: str | CostFunction = 'quadratic',
-                 solver: str | Solver = 'slsqp', soft_bounds: bool = False,
-                 soft_penalty: float = 1e3, state_scaling: Scaling | None = None,
-                 solver_options: dict | None = None, mode: str = 'fast',
-                 relaxation: str = 'two-phase', blas_threads: int | None = 1,
-                 **problem_options) -> None:
-        if blas_threads is not None and int(blas_threads) < 1:
-            raise ValueError(f'blas_threads must be >= 1 or None, got {blas_threads}')
-        self.blas_threads = blas_threads
-        self.problem = ShootingProblem(model, control_names=control_names,
-                                       control_bounds=control_bounds,
-                                       n_intervals=horizon_steps, step_s=step_s, cost=cost,
-                                       soft_bounds=soft_bounds, soft_penalty=soft_penalty,
-                                       state_scaling=state_scaling, mode=mode,
-                                       relaxation=relaxation,
-                                       **problem_options)
+    def __init__(self, model: Model, settings: MpcSettings | None = None, *,
+                 state_bounds: dict | None = None, solver: str | Solver | None = None,
+                 cost_function: CostFunction | None = None,
+                 state_scaling: Scaling | None = None, **options: Any) -> None:
+        solver_instance = solver if isinstance(solver, Solver) else None
+        if solver is not None and solver_instance is None:
+            options['solver'] = solver
+        self.settings = (settings or MpcSettings()).replace(options)
         bounds = ZONE_STATE_BOUNDS if state_bounds is None else dict(state_bounds)
         unknown = [s for s in bounds if s not in model.state_names]
         if unknown:
@@ -120,9 +101,25 @@ class MPC:
                 raise ValueError(f'state_bounds[{name!r}] must be (lower_column, upper_column, '
                                  f'offset), got {spec!r}')
         self.state_bounds = bounds
-        self.solver = make_solver(solver, **(solver_options or {}))
+        self._cost_function = cost_function
+        self._state_scaling = state_scaling
+        self._model = model
+        self.problem = self._build_problem()
+        self._solver_instance = solver_instance
+        self.solver = solver_instance or make_solver(self.settings.solver.solver,
+                                                     **self.settings.solver.options())
         self._warm_start: np.ndarray | None = None
         self.last_result: MpcResult | None = None
+
+    def _build_problem(self) -> ShootingProblem:
+        return ShootingProblem(self._model, self.settings.problem, self.settings.comfort,
+                               cost_function=self._cost_function,
+                               state_scaling=self._state_scaling)
+
+    @property
+    def blas_threads(self) -> int | None:
+        """BLAS threads during a solve (None: the library's default)."""
+        return self.settings.problem.blas_threads or None
 
     # -- configuration --------------------------------------------------------------------
     @property
@@ -145,22 +142,54 @@ class MPC:
             cols += [c for c in (lo, hi) if c not in cols]
         return cols
 
-    def set_solver(self, solver: str | Solver, **options) -> None:
-        """Replace the solver (no rebuild of the problem)."""
-        self.solver = make_solver(solver, **options)
+    def set_solver(self, solver: Solver) -> None:
+        """Use a configured solver instance from now on (e.g. a custom or instrumented
+        one); a later :meth:`update` of the solver settings does not replace it."""
+        if not isinstance(solver, Solver):
+            raise TypeError(f'solver must be a Solver, got {type(solver).__name__}')
+        self.solver = self._solver_instance = solver
 
-    def set_soft_bounds(self, soft: bool, penalty: float | None = None) -> None:
-        """Switch between hard and soft state bounds at run time."""
-        p = self.problem
-        if penalty is not None:
-            if not penalty > 0:
-                raise ValueError(f'soft_penalty must be > 0, got {penalty}')
-            p.soft_penalty = float(penalty)
-        if bool(soft) != p.soft_bounds:
-            p.soft_bounds = bool(soft)
-            p.index = type(p.index)(p.n_intervals, p.index.n_controls, p.index.n_states,
-                                    p.soft_bounds)
+    def update(self, settings: MpcSettings) -> str:
+        """Apply new settings; say what it took.
+
+        Returns
+        -------
+        str
+            'unchanged'; 'updated' (solver or comfort switched, warm start kept
+            unless the NLP layout changed); or 'rebuilt' (the problem was built
+            again: horizon, cost, bounds, ...; warm start lost).
+
+        Raises
+        ------
+        ValueError
+            If a setting that is fixed once running (``step_s``, ``mode``,
+            ``blas_threads``) or the controls change.
+        """
+        changed = self.settings.changed(settings)
+        fixed = sorted(n for n in changed if n in ('control_names',) or (
+            n in BY_NAME and BY_NAME[n].read_only))
+        if fixed:
+            raise ValueError(f'{fixed} cannot change once the MPC runs: build a new one')
+        if not changed:
+            return 'unchanged'
+        old, self.settings = self.settings, settings
+        applies = set().union(*(BY_NAME[n].applies if n in BY_NAME else {'solver'}
+                                for n in changed))
+        if 'solver' in applies and self._solver_instance is None:
+            self.solver = make_solver(settings.solver.solver, **settings.solver.options())
+        if 'rebuild' in applies:
+            self.problem = self._build_problem()
             self._warm_start = None
+            return 'rebuilt'
+        if 'comfort' in applies:
+            p = self.problem
+            p.soft_penalty = settings.comfort.soft_penalty
+            if settings.comfort.soft != old.comfort.soft:
+                p.soft_bounds = settings.comfort.soft
+                p.index = type(p.index)(p.n_intervals, p.index.n_controls, p.index.n_states,
+                                        p.soft_bounds)
+                self._warm_start = None
+        return 'updated'
 
     def reset(self) -> None:
         """Forget the warm start (e.g. after a jump in the state)."""
@@ -196,7 +225,8 @@ class MPC:
                       > forecast[hi].to_numpy()[:self.horizon_steps + 1]):
                 raise ValueError(f'forecast bound {lo} exceeds {hi}')
 
-    def solve(self, x0: Sequence[float], t_s: float, forecast: pd.DataFrame) -> MpcResult:
+    def solve(self, x0: Sequence[float], t_s: float, forecast: pd.DataFrame,
+              deadline: float | None = None) -> MpcResult:
         """Optimise the horizon starting at ``t_s`` from state ``x0``.
 
         Parameters
@@ -208,6 +238,9 @@ class MPC:
         forecast : DataFrame, N+1 rows
             Row k: disturbances of interval k and the bound columns at its
             start (see :meth:`check_forecast`).
+        deadline : float, optional
+            :func:`time.perf_counter` time [s] at which the solver stops
+            (``budget_exceeded`` in the result).
         """
         self.check_forecast(forecast)
         n = self.horizon_steps
@@ -216,7 +249,7 @@ class MPC:
         lower, upper = self.bounds_from_forecast(forecast)
         with blas_threads(self.blas_threads):
             result = self.problem.solve(x0, disturbances, lower, upper, self.solver,
-                                        z0=self._warm_start)
+                                        z0=self._warm_start, deadline=deadline)
         out = MpcResult(result)
         out.t_s = float(t_s)
         times = float(t_s) + np.arange(n) * self.step_s

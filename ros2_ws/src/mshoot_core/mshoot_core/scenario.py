@@ -194,3 +194,19 @@ def reference_scenario(name: str, data: str | pathlib.Path | None = None,
     scenario = load_ou44(path, start=OU44_START, end=str(end))
     scenario['dpos'] = 0.0  # the MPC case runs with the ventilation off
     return scenario
+
+
+def forecast_window(scenario: pd.DataFrame, index: int, horizon_steps: int) -> pd.DataFrame:
+    """Rows ``index .. index + horizon_steps`` of ``scenario`` (N+1 rows).
+
+    Past the end of the scenario the last row is repeated (a persistence
+    forecast), so the controller can plan the final hours of a run.
+    """
+    if not 0 <= index < len(scenario):
+        raise ValueError(f'index must be in [0, {len(scenario) - 1}], got {index}')
+    rows = np.minimum(np.arange(index, index + horizon_steps + 1), len(scenario) - 1)
+    window = scenario.iloc[rows].copy()
+    step = float(scenario.index[1] - scenario.index[0]) if len(scenario) > 1 else 3600.0
+    window.index = pd.Index(float(scenario.index[index]) + np.arange(horizon_steps + 1) * step,
+                            name=scenario.index.name)
+    return window

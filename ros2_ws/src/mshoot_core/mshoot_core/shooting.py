@@ -26,14 +26,11 @@ from scipy import optimize, sparse
 
 from mshoot_core.models.base import IntervalJacobians, Model
 from mshoot_core.sensitivities import finite_difference_jacobians
+from mshoot_core.settings import ComfortSettings, ProblemSettings, SettingsError
 from mshoot_core.solvers import Nlp, Solver
 
 logger = logging.getLogger(__name__)
 
-#: Evaluation modes of :class:`ShootingProblem`.
-MODES = ('fast', 'naive')
-#: Handling of unreachable hard bounds (see :class:`ShootingProblem`).
-RELAXATIONS = ('two-phase', 'exact-penalty')
 #: Penalties of the least-violation phase on normalised slack: linear (dominant) and
 #: quadratic (keeps the phase-1 problem well posed).
 LEAST_VIOLATION_LINEAR = 1e3
@@ -122,7 +119,8 @@ class ShootingResult(optimize.OptimizeResult):
     predicted outputs at interval ends; ``slacks`` (N, nx) physical slack of the
     bounds; ``solve_time_s``; ``max_defect`` the largest continuity defect in
     physical state units; ``relaxed`` whether state bounds were relaxed;
-    ``model_evaluations`` interval simulations spent.
+    ``model_evaluations`` interval simulations spent; ``budget_exceeded`` whether
+    the solver was stopped at its deadline.
     """
 
 
@@ -133,19 +131,33 @@ class ShootingProblem:
     ----------
     model : Model
         The control model.
-    control_names : sequence of str
-        Model inputs chosen by the optimiser (e.g. ``('q',)``).
-    control_bounds : sequence of (float, float)
-        Physical bounds of each control (e.g. ``((-2000, 2000),)`` [W]).
-    n_intervals : int
-        N, the number of shooting intervals in the horizon.
-    step_s : float
-        Interval length [s].
-    cost : {'quadratic', 'energy'} or callable
-        'quadratic': sum over intervals of sum over controls (u/u_nom)^2 (the
-        reference); 'energy': sum of |u/u_nom| made smooth as
-        sqrt((u/u_nom)^2 + eps^2) - eps; or a callable
-        ``cost(x_hat, y_hat, u_hat) -> float`` on normalised quantities.
+    problem : ProblemSettings, optional
+        The horizon (``horizon_steps`` intervals N of ``step_s`` [s]), the
+        optimised inputs ``control_names`` and their bounds, the cost, the
+        evaluation ``mode`` and the ``relaxation`` of unreachable bounds (see
+        :class:`mshoot_core.settings.ProblemSettings`). The cost 'quadratic' is
+        the sum over intervals of sum over controls (u/u_nom)^2 (the reference);
+        'energy' the sum of |u/u_nom| made smooth as sqrt((u/u_nom)^2 + eps^2) -
+        eps. Relaxation 'two-phase' minimises the violation, relaxes the bounds
+        to it and solves the hard problem again; 'exact-penalty' always solves
+        once with slack and a large linear penalty on the violation (the same
+        plan up to the solver tolerance, in one solve; suits IPOPT on large
+        problems, where a failing hard solve costs as much as a solve). Mode
+        'fast': batched, cached, structured sensitivities (analytic where the
+        model has them); 'naive': the ancestor's algorithm, kept as a
+        side-by-side baseline: every objective and constraint evaluation
+        simulates all intervals one by one through ``simulate`` (DataFrames in
+        the loop, nothing cached, objective and constraints simulated
+        separately), and the solver estimates dense Jacobians over all
+        variables with SciPy's default finite differences.
+    comfort : ComfortSettings, optional
+        Hard bounds, or slack with the penalty w2 * sum(s_hat^2) + w1 *
+        sum(s_hat) on normalised slacks (``soft_penalty`` w2,
+        ``soft_penalty_linear`` w1: with w1 large the solver first minimises
+        the summed violation, then the cost).
+    cost_function : callable, optional
+        ``cost(x_hat, y_hat, u_hat) -> float`` on normalised quantities,
+        replacing the settings' cost.
     control_nominal : sequence of float, optional
         u_nom per control (default: the largest absolute bound).
     state_scaling : Scaling, optional
@@ -153,104 +165,69 @@ class ShootingProblem:
         passed at each solve, falling back to offset 0 and scale 1).
     output_nominal : sequence of float, optional
         Output nominal values for y_hat = y / y_nom (default 1).
-    soft_bounds : bool
-        Use slack variables with penalty instead of hard state bounds.
-    soft_penalty : float
-        Weight w2 of the quadratic penalty w2 * sum(s_hat^2) on normalised slacks.
-    soft_penalty_linear : float
-        Weight w1 of the linear (exact) penalty w1 * sum(s_hat); with w1 large
-        the solver first minimises the summed violation, then the cost.
     energy_epsilon : float
         Smoothing of the energy cost, in normalised control units.
     fd_step : float, optional
         Finite-difference step on normalised variables (default from the
         model's ``tolerance`` attribute: max(1e-7, sqrt(tolerance))).
-    relaxation : {'two-phase', 'exact-penalty'}
-        How hard bounds that cannot be met are handled: 'two-phase' minimises
-        the violation, relaxes the bounds to it and solves the hard problem
-        again; 'exact-penalty' always solves once with slack and a large linear
-        penalty on the violation (the same plan up to the solver tolerance, in
-        one solve; suits IPOPT on large problems, where a failing hard solve
-        costs as much as a solve).
-    mode : {'fast', 'naive'}
-        'fast': batched, cached, structured sensitivities (analytic where the
-        model has them). 'naive': the ancestor's algorithm, kept as a
-        side-by-side baseline: every objective and constraint evaluation
-        simulates all intervals one by one through ``simulate`` (DataFrames in
-        the loop, nothing cached, objective and constraints simulated
-        separately), and the solver estimates dense Jacobians over all
-        variables with SciPy's default finite differences.
     """
 
-    def __init__(self, model: Model, *, control_names: Sequence[str] = ('q',),
-                 control_bounds: Sequence[tuple[float, float]] = ((-2000.0, 2000.0),),
-                 n_intervals: int = 10, step_s: float = 3600.0,
-                 cost: str | CostFunction = 'quadratic',
+    def __init__(self, model: Model, problem: ProblemSettings | None = None,
+                 comfort: ComfortSettings | None = None, *,
+                 cost_function: CostFunction | None = None,
                  control_nominal: Sequence[float] | None = None,
                  state_scaling: Scaling | None = None,
                  output_nominal: Sequence[float] | None = None,
-                 soft_bounds: bool = False, soft_penalty: float = 1e3,
-                 soft_penalty_linear: float = 0.0, energy_epsilon: float = 1e-3,
-                 fd_step: float | None = None, mode: str = 'fast',
-                 relaxation: str = 'two-phase') -> None:
+                 energy_epsilon: float = 1e-3, fd_step: float | None = None) -> None:
         if not isinstance(model, Model):
             raise TypeError(f'model must be a mshoot_core Model, got {type(model).__name__}')
+        problem = ProblemSettings() if problem is None else problem
+        comfort = ComfortSettings() if comfort is None else comfort
+        problems = problem.problems() + comfort.problems()
+        if problems:
+            raise SettingsError(problems)
+        control_names = problem.control_names
         unknown = [c for c in control_names if c not in model.input_names]
-        if unknown or not control_names:
+        if unknown:
             raise ValueError(f'controls must be model inputs {list(model.input_names)}, '
                              f'got {list(control_names)}')
-        if len(control_bounds) != len(control_names):
-            raise ValueError(f'need one (min, max) per control, got {len(control_bounds)} '
-                             f'for {list(control_names)}')
-        bounds = np.asarray(control_bounds, dtype=float)
-        if not np.all(np.isfinite(bounds)) or np.any(bounds[:, 0] >= bounds[:, 1]):
-            raise ValueError(f'control bounds must be finite with min < max, got {bounds}')
-        if int(n_intervals) != n_intervals or n_intervals < 1:
-            raise ValueError(f'n_intervals must be a positive integer, got {n_intervals}')
-        if not step_s > 0:
-            raise ValueError(f'step_s must be > 0, got {step_s}')
-        if isinstance(cost, str) and cost not in ('quadratic', 'energy'):
-            raise ValueError(f"cost must be 'quadratic', 'energy' or a callable, got {cost!r}")
-        if not isinstance(cost, str) and not callable(cost):
-            raise TypeError(f'cost must be a string or a callable, got {type(cost).__name__}')
-        if not soft_penalty > 0:
-            raise ValueError(f'soft_penalty must be > 0, got {soft_penalty}')
-        if mode not in MODES:
-            raise ValueError(f'mode must be one of {MODES}, got {mode!r}')
-        if relaxation not in RELAXATIONS:
-            raise ValueError(f'relaxation must be one of {RELAXATIONS}, got {relaxation!r}')
-        self.relaxation = relaxation
-        self.mode = mode
+        if cost_function is not None and not callable(cost_function):
+            raise TypeError(f'cost_function must be callable, got '
+                            f'{type(cost_function).__name__}')
+        self.settings = problem
+        self.relaxation = problem.relaxation
+        self.mode = problem.mode
         self.model = model
         self.control_names = tuple(control_names)
         self.control_cols = [model.input_names.index(c) for c in self.control_names]
         self.disturbance_names = tuple(n for n in model.input_names
                                        if n not in self.control_names)
         self.disturbance_cols = [model.input_names.index(c) for c in self.disturbance_names]
+        bounds = np.asarray(problem.control_bounds, dtype=float)
         self.control_bounds = bounds
         nominal = (np.abs(bounds).max(axis=1) if control_nominal is None
                    else np.asarray(control_nominal, dtype=float))
         self.control_scaling = Scaling(np.zeros(len(control_names)), nominal)
-        self.n_intervals = int(n_intervals)
-        self.step_s = float(step_s)
-        self.cost = cost
+        self.n_intervals = problem.horizon_steps
+        self.step_s = problem.step_s
+        self.cost: str | CostFunction = problem.cost if cost_function is None else cost_function
         self.state_scaling = state_scaling
         ny = len(model.output_names)
         self.output_nominal = (np.ones(ny) if output_nominal is None
                                else np.asarray(output_nominal, dtype=float))
         if self.output_nominal.shape != (ny,) or np.any(self.output_nominal == 0):
             raise ValueError(f'output_nominal must be {ny} non-zero values')
-        self.soft_bounds = bool(soft_bounds)
-        self.soft_penalty = float(soft_penalty)
-        if not soft_penalty_linear >= 0:
-            raise ValueError(f'soft_penalty_linear must be >= 0, got {soft_penalty_linear}')
-        self.soft_penalty_linear = float(soft_penalty_linear)
+        self.soft_bounds = comfort.soft
+        self.soft_penalty = comfort.soft_penalty
+        self.soft_penalty_linear = comfort.soft_penalty_linear
         self.energy_epsilon = float(energy_epsilon)
         tol = getattr(model, 'tolerance', None)
         self.fd_step = float(fd_step) if fd_step is not None else (
             max(1e-7, float(np.sqrt(tol))) if tol else 1e-7)
         self.index = NlpIndex(self.n_intervals, len(control_names), len(model.state_names),
                               self.soft_bounds)
+        self.model_evaluations = 0
+        self._deadline: float | None = None
 
     # -- model evaluation ------------------------------------------------------------------
     def _full_inputs(self, controls: np.ndarray, disturbances: np.ndarray) -> np.ndarray:
@@ -349,7 +326,7 @@ class ShootingProblem:
 
     def solve(self, x0: Sequence[float], disturbances: np.ndarray, lower: np.ndarray,
               upper: np.ndarray, solver: Solver, z0: np.ndarray | None = None,
-              relax: bool = True) -> ShootingResult:
+              relax: bool = True, deadline: float | None = None) -> ShootingResult:
         """Optimise the horizon from ``x0``.
 
         With hard bounds, where the band cannot be reached from ``x0`` (the
@@ -375,6 +352,9 @@ class ShootingProblem:
             controls 0 and states x0.
         relax : bool
             Relax unreachable hard bounds (ignored with soft bounds).
+        deadline : float, optional
+            :func:`time.perf_counter` time [s] at which the solver stops (the
+            result then has ``success=False`` and ``budget_exceeded=True``).
 
         Returns
         -------
@@ -382,6 +362,7 @@ class ShootingProblem:
         """
         started = time.perf_counter()
         self.model_evaluations = 0
+        self._deadline = deadline
         n, nx = self.n_intervals, len(self.model.state_names)
         x0 = np.asarray(x0, dtype=float).reshape(-1)
         disturbances = np.asarray(disturbances, dtype=float).reshape(n, len(self.disturbance_cols))
@@ -410,7 +391,8 @@ class ShootingProblem:
                 result = self._solve_nlp(x0, disturbances, lower, upper, solver, z0,
                                          self.index, 0.0, 0.0)
                 result.relaxed = False
-            if relax and (unreachable or not result.success):
+            if relax and (unreachable or not result.success) and not (
+                    result is not None and result.budget_exceeded):
                 result = self._solve_least_violation(x0, disturbances, lower, upper, solver, z0)
         result.solve_time_s = time.perf_counter() - started
         result.model_evaluations = self.model_evaluations
@@ -425,7 +407,7 @@ class ShootingProblem:
         phase1 = self._solve_nlp(x0, disturbances, lower, upper, solver,
                                  soft.pack(self.index.u(z0), self.index.x(z0)), soft,
                                  LEAST_VIOLATION_QUADRATIC, LEAST_VIOLATION_LINEAR)
-        if self.relaxation == 'exact-penalty':
+        if self.relaxation == 'exact-penalty' or phase1.budget_exceeded:
             # the large linear penalty already made phase 1 lexicographic: keep its plan
             phase1.x = self.index.pack(soft.u(phase1.x), soft.x(phase1.x))
             phase1.fun = float(self._cost_functions(lambda z: None, self.index)[0](phase1.x))
@@ -539,14 +521,17 @@ class ShootingProblem:
         if self.mode == 'naive':
             nlp = self._naive_nlp(nlp, idx, x0, disturbances, fun)
         try:
-            raw = solver.solve(nlp, np.asarray(z0, dtype=float))
+            raw = solver.solve(nlp, np.asarray(z0, dtype=float),
+                               deadline=self._deadline)
             z = np.asarray(raw.x, dtype=float)
             success, status, message = bool(raw.success), int(raw.status), str(raw.message)
             nit, nfev = int(getattr(raw, 'nit', 0)), int(getattr(raw, 'nfev', 0))
+            budget_exceeded = bool(getattr(raw, 'budget_exceeded', False))
         except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
             logger.warning('solver %s raised %s: %s', solver.name, type(exc).__name__, exc)
             z = np.clip(np.asarray(z0, dtype=float), lb, ub)
             success, status, message, nit, nfev = False, -1, f'solver error: {exc}', 0, 0
+            budget_exceeded = False
         if not np.all(np.isfinite(z)):
             z = np.clip(np.asarray(z0, dtype=float), lb, ub)
             success, status, message = False, -2, 'solver returned non-finite values'
@@ -562,7 +547,7 @@ class ShootingProblem:
             slacks=(idx.s(z) * xs.scale if idx.soft else np.zeros((n, nx))),
             max_defect=float(defect.max()), lower=lower, upper=upper,
             simulated_states=np.vstack([x0[None, :], jac.x_end]),
-            solve_time_s=0.0, model_evaluations=0)
+            solve_time_s=0.0, model_evaluations=0, budget_exceeded=budget_exceeded)
         return result
 
     def simulate_serially(self, x_start: np.ndarray, controls: np.ndarray,

@@ -8,6 +8,11 @@ with callables for values and (dense) Jacobians plus an optional sparsity
 pattern of the constraint Jacobian. A solver takes an :class:`Nlp` and a start
 point and returns a :class:`scipy.optimize.OptimizeResult`; non-convergence is
 a status (``success=False``), never an exception.
+
+A solve can be given a wall-clock deadline (:func:`time.perf_counter` seconds):
+the solver itself stops at its first iteration past it (SciPy's methods
+through their ``callback``, IPOPT through its ``intermediate`` callback) and
+returns its last iterate with ``success=False`` and ``budget_exceeded=True``.
 """
 from __future__ import annotations
 
@@ -77,9 +82,34 @@ class Solver(abc.ABC):
         self.tol = float(tol)
 
     @abc.abstractmethod
-    def solve(self, nlp: Nlp, z0: Vector) -> optimize.OptimizeResult:
+    def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None
+              ) -> optimize.OptimizeResult:
         """Solve ``nlp`` from ``z0``; return an OptimizeResult (x, fun, success, status,
-        message, nit, nfev)."""
+        message, nit, nfev, budget_exceeded).
+
+        ``deadline`` is a :func:`time.perf_counter` time [s]: the solver stops at
+        its first iteration past it (``success=False``, ``budget_exceeded=True``).
+        """
+
+
+def _deadline_callback(deadline: float | None) -> Callable | None:
+    """A SciPy ``callback(intermediate_result)`` that stops the solve past ``deadline``."""
+    if deadline is None:
+        return None
+
+    def callback(intermediate_result: optimize.OptimizeResult) -> None:
+        if time.perf_counter() > deadline:
+            raise StopIteration
+    return callback
+
+
+def _mark_budget(res: optimize.OptimizeResult, deadline: float | None) -> None:
+    """Flag a result stopped by its deadline (SciPy reports it as status 99)."""
+    stopped = deadline is not None and time.perf_counter() > deadline and not res.success
+    res.budget_exceeded = bool(stopped)
+    if stopped:
+        res.success = False
+        res.message = f'time budget exceeded after {int(getattr(res, "nit", 0))} iterations'
 
 
 class SlsqpSolver(Solver):
@@ -87,7 +117,8 @@ class SlsqpSolver(Solver):
 
     name = 'slsqp'
 
-    def solve(self, nlp: Nlp, z0: Vector) -> optimize.OptimizeResult:
+    def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None
+              ) -> optimize.OptimizeResult:
         constraints = [_scipy_constraint('eq', nlp.eq_fun, nlp.eq_jac)]
         if nlp.ineq_fun is not None:
             constraints.append(_scipy_constraint('ineq', nlp.ineq_fun, nlp.ineq_jac))
@@ -95,8 +126,10 @@ class SlsqpSolver(Solver):
         z0 = np.clip(z0, nlp.lb, nlp.ub)
         res = optimize.minimize(nlp.fun, z0, jac=nlp.grad, bounds=bounds,
                                 constraints=constraints, method='SLSQP',
-                                options={'maxiter': self.max_iter, 'ftol': self.tol})
+                                options={'maxiter': self.max_iter, 'ftol': self.tol},
+                                callback=_deadline_callback(deadline))
         res.nit = int(getattr(res, 'nit', 0))
+        _mark_budget(res, deadline)
         return res
 
 
@@ -114,7 +147,8 @@ class TrustConstrSolver(Solver):
 
     name = 'trust-constr'
 
-    def solve(self, nlp: Nlp, z0: Vector) -> optimize.OptimizeResult:
+    def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None
+              ) -> optimize.OptimizeResult:
         n_eq = nlp.eq_fun(z0).size
         def sparse_jac(jac: Callable | None) -> Callable | str:
             return '2-point' if jac is None else (lambda z: sparse.csr_array(jac(z)))
@@ -132,8 +166,10 @@ class TrustConstrSolver(Solver):
                                 bounds=optimize.Bounds(nlp.lb, nlp.ub),
                                 constraints=constraints, method='trust-constr',
                                 options={'maxiter': self.max_iter, 'gtol': self.tol,
-                                         'xtol': self.tol, 'verbose': 0})
+                                         'xtol': self.tol, 'verbose': 0},
+                                callback=_deadline_callback(deadline))
         res.success = bool(res.status in (1, 2))
+        _mark_budget(res, deadline)
         return res
 
 
@@ -156,7 +192,8 @@ class IpoptSolver(Solver):
         if cyipopt_logger.getEffectiveLevel() < logging.WARNING:
             cyipopt_logger.setLevel(logging.WARNING)
 
-    def solve(self, nlp: Nlp, z0: Vector) -> optimize.OptimizeResult:
+    def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None
+              ) -> optimize.OptimizeResult:
         if nlp.grad is None or nlp.eq_jac is None:
             raise ValueError('IPOPT needs derivatives: use mode "fast" or the slsqp solver')
         import cyipopt
@@ -204,7 +241,8 @@ class IpoptSolver(Solver):
 
             def intermediate(self, *args):
                 counter['nit'] = int(args[1])
-                return True
+                # False stops IPOPT (status 5, user requested stop) past the deadline
+                return deadline is None or time.perf_counter() <= deadline
 
         cu = np.zeros(m)
         cu[n_eq:] = 2e19
@@ -223,12 +261,14 @@ class IpoptSolver(Solver):
         start = time.perf_counter()
         z, info = problem.solve(z_start)
         status = int(info['status'])
-        return optimize.OptimizeResult(
+        res = optimize.OptimizeResult(
             x=z, fun=float(info['obj_val']), success=status in (0, 1), status=status,
             message=info['status_msg'].decode() if isinstance(info['status_msg'], bytes)
             else str(info['status_msg']),
             nit=counter['nit'], nfev=counter['nfev'],
             wall_s=time.perf_counter() - start)
+        _mark_budget(res, deadline)
+        return res
 
 
 SOLVERS: dict[str, type[Solver]] = {cls.name: cls for cls in (SlsqpSolver, TrustConstrSolver,

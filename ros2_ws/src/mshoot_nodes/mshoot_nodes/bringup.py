@@ -24,6 +24,7 @@ from typing import Any, Callable, Sequence
 
 from mshoot_core.case import PUBLISHED
 from mshoot_core.closed_loop import run_closed_loop
+from mshoot_core.controller import Controller
 from mshoot_core.models.r1c1 import KELVIN
 import rclpy
 from rclpy.context import Context
@@ -38,7 +39,7 @@ from mshoot_nodes.conversions import mpc_records_frame
 from mshoot_nodes.emulator_node import build_emulator, EmulatorNode
 from mshoot_nodes.forecaster_node import ForecasterNode
 from mshoot_nodes.logbridge import bridge_core_logging
-from mshoot_nodes.mpc_node import build_mpc, MpcNode
+from mshoot_nodes.mpc_node import MpcNode, settings_from
 from mshoot_nodes.recorder_node import RecorderNode
 from mshoot_nodes.results import kpi_summary, run_outputs
 from mshoot_nodes.signals import StopSignals
@@ -195,9 +196,10 @@ def core_only(emulator: EmulatorNode, mpc: MpcNode) -> tuple[float, float]:
     The models are built afresh, the scenario is the emulator node's own.
     """
     core_emulator = build_emulator(emulator.params)
-    core_mpc = build_mpc(build_model(mpc.params['model'], mpc.params['fmu_tolerance']),
-                         mpc.params)
-    result = run_closed_loop(core_mpc, core_emulator, steps=len(emulator.records), log_every=0)
+    controller = Controller(build_model(mpc.params['model'], mpc.params['fmu_tolerance']),
+                            settings_from(mpc.params))
+    result = run_closed_loop(controller, core_emulator, steps=len(emulator.records),
+                             log_every=0)
     ros_t = emulator.applied_frame()['T_end'].to_numpy()
     core_t = result.steps['T_end'].to_numpy()
     return result.wall_s, float(abs(ros_t - core_t).max())

@@ -14,6 +14,7 @@ from typing import Any, Callable, Iterable, Sequence
 
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
+from rclpy.exceptions import InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
@@ -67,6 +68,16 @@ class ParamSpec:
         return descriptor
 
 
+    @classmethod
+    def from_setting(cls, field: Any, default: Any = None) -> ParamSpec:
+        """The parameter of a described core setting
+        (:class:`mshoot_core.settings.SettingField`): same name, default, description,
+        range and choices; read-only when fixed once running."""
+        return cls(field.name, field.default if default is None else default,
+                   field.description, low=field.low, high=field.high, choices=field.choices,
+                   read_only=field.read_only)
+
+
 Check = Callable[[dict[str, Any]], str | None]
 
 
@@ -105,8 +116,12 @@ def declare(node: Node, specs: Sequence[ParamSpec], checks: Iterable[Check] = ()
                 return SetParametersResult(
                     successful=False,
                     reason=f'{name} must be one of {list(spec.choices)}, got {value!r}')
-        values = {name: node.get_parameter(name).value for name in by_name
-                  if node.has_parameter(name)}
+        # Start-up overrides of parameters not declared yet count too (they were judged
+        # as a whole before the first declaration).
+        values = {name: spec.default for name, spec in by_name.items()}
+        values.update(startup)
+        values.update({name: node.get_parameter(name).value for name in by_name
+                       if node.has_parameter(name)})
         values.update(proposed)
         for check in checks:
             reason = check(values)
@@ -114,8 +129,16 @@ def declare(node: Node, specs: Sequence[ParamSpec], checks: Iterable[Check] = ()
                 return SetParametersResult(successful=False, reason=reason)
         return SetParametersResult(successful=True)
 
+    overrides = getattr(node, '_parameter_overrides', {})
+    startup = {name: overrides[name].value for name in by_name if name in overrides}
     node.add_on_set_parameters_callback(on_set)
     try:
+        if startup:  # every start-up value at once: the reason names the real conflict
+            result = on_set([Parameter(name, value=value) for name, value in startup.items()])
+            if not result.successful:
+                raise InvalidParameterValueException(
+                    ', '.join(sorted(startup)), [startup[n] for n in sorted(startup)],
+                    result.reason)
         for spec in specs:
             node.declare_parameter(spec.name, spec.default, spec.descriptor())
         unknown = sorted(name for name in getattr(node, '_parameter_overrides', {})

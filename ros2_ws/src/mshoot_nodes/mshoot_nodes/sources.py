@@ -1,5 +1,8 @@
 """Scenarios, models and the simulated-time origin, built from parameter values.
 
+Models come from the one registry of :mod:`mshoot_core.models.registry`
+(re-exported here as ``build_model``, ``check_model``).
+
 A small adapter between node parameters and :mod:`mshoot_core`: the emulator
 and the forecaster read the same scenario parameters, so they must build the
 same DataFrame and place it at the same ROS time.
@@ -9,8 +12,8 @@ from __future__ import annotations
 import logging
 import pathlib
 
-from mshoot_core.models.base import Model
-from mshoot_core.models.r1c1 import R1C1Model
+from mshoot_core.models.registry import BUILTIN as MODELS  # noqa: F401 (API)
+from mshoot_core.models.registry import build_model, check_model  # noqa: F401 (API)
 from mshoot_core.scenario import reference_scenario
 import pandas as pd
 
@@ -20,8 +23,6 @@ logger = logging.getLogger(__name__)
 
 #: Scenario names understood besides a CSV path.
 SCENARIOS = ('synthetic', 'ou44')
-#: Model names understood besides a path to an .fmu file.
-MODELS = ('python', 'fmu', 'fmu-cs')
 #: First row of the OU44 reference case (5 April 2018, local time).
 #: Used when a scenario carries no start time in ``attrs['start']``.
 DEFAULT_START = '2018-04-05T00:00:00'
@@ -90,46 +91,6 @@ def check_start_time(text: str) -> str | None:
     if stamp <= pd.Timestamp(0, tz='UTC'):
         return f'start_time must be after 1970-01-01, got {text!r}'
     return None
-
-
-def check_model(kind: str) -> str | None:
-    """Reason why a model parameter is invalid, or None."""
-    if kind in MODELS:
-        return None
-    if kind.endswith('.fmu'):
-        return None if pathlib.Path(kind).is_file() else f'FMU file {kind!r} not found'
-    return f'model must be one of {list(MODELS)} or a path to an .fmu file, got {kind!r}'
-
-
-def build_model(kind: str, tolerance: float = 1e-10) -> Model:
-    """The zone model named by a parameter.
-
-    Parameters
-    ----------
-    kind : str
-        'python' (exact R1C1), 'fmu' (the built-in R1C1 FMU, Model Exchange),
-        'fmu-cs' (Co-Simulation) or a path to an .fmu with the R1C1 zone's
-        variables (as the built-in one: inputs solrad, Tout, occ, dpos, q; state
-        heatCapacitor.T [K]; outputs T [degC], Qr [J]), run as Model Exchange.
-    tolerance : float
-        Relative tolerance of the FMU integrator.
-
-    Raises
-    ------
-    ValueError
-        Unknown kind, or FMU support missing from the installed mshoot_core.
-    """
-    if kind == 'python':
-        return R1C1Model()
-    if kind not in MODELS and not kind.endswith('.fmu'):
-        raise ValueError(check_model(kind))
-    try:
-        from mshoot_core.models.fmi import r1c1_fmi_model
-    except ImportError as exc:
-        raise ValueError(f'model {kind!r} needs FMU support in mshoot_core ({exc})') from exc
-    fmi_type = 'CoSimulation' if kind == 'fmu-cs' else 'ModelExchange'
-    return r1c1_fmi_model(fmi_type=fmi_type, tolerance=tolerance,
-                          fmu_path=None if kind in MODELS else pathlib.Path(kind))
 
 
 def fmu_available() -> bool:

@@ -29,6 +29,9 @@ class RejectionLog:
         Whose logger to use.
     period_s : float
         Shortest time between two lines of one (stream, kind) [s] (wall time).
+    counter : RejectionCounter, optional
+        Where rejections are counted (e.g. the core controller's own counter);
+        default: a new one.
 
     Attributes
     ----------
@@ -36,10 +39,11 @@ class RejectionLog:
         Every rejection, by stream and kind.
     """
 
-    def __init__(self, node: Node, period_s: float = 5.0) -> None:
+    def __init__(self, node: Node, period_s: float = 5.0,
+                 counter: RejectionCounter | None = None) -> None:
         self._name = node.get_logger().name
         self.period_s = float(period_s)
-        self.counter = RejectionCounter()
+        self.counter = counter if counter is not None else RejectionCounter()
         # One logger object per (stream, kind): rclpy keeps a throttle state per logger
         # object and call site, so each kind gets its own rate limit.
         self._loggers: dict[tuple[str, str], RcutilsLogger] = {}
@@ -47,7 +51,12 @@ class RejectionLog:
 
     def reject(self, stream: str, topic: str, stamp_ns: int, rejection: Rejection) -> int:
         """Count a rejected message and log it (throttled); return the stream's total."""
-        total = self.counter.add(stream, rejection)
+        self.counter.add(stream, rejection)
+        return self.log(stream, topic, stamp_ns, rejection)
+
+    def log(self, stream: str, topic: str, stamp_ns: int, rejection: Rejection) -> int:
+        """Log a rejection already counted (throttled); return the stream's total."""
+        total = self.counter.total(stream)
         key = (stream, rejection.kind)
         now = time.monotonic()
         if key in self._logged_at and now - self._logged_at[key] < self.period_s:

@@ -132,11 +132,11 @@ def multizone_mpc_options(model: MultiZoneModel, solver: str = 'ipopt') -> dict:
     state and heat rate, the cost is quadratic).
     """
     options = {'control_names': tuple(f'q_{i}' for i in range(model.n_zones)),
-               'control_bounds': ((-2000.0, 2000.0),) * model.n_zones,
+               'heat_rate_min_w': -2000.0, 'heat_rate_max_w': 2000.0,
                'state_bounds': {name: ('comfort_min', 'comfort_max', KELVIN)
                                 for name in model.state_names},
                'solver': solver}
     if solver == 'ipopt':
         options.update(relaxation='exact-penalty',
-                       solver_options={'options': {'mehrotra_algorithm': 'yes'}})
+                       solver_extra={'options': {'mehrotra_algorithm': 'yes'}})
     return options

@@ -1,0 +1,520 @@
+"""The supervisory controller: every per-step decision of the MPC, in one place.
+
+A :class:`Controller` owns the MPC, the validation and staleness rules of its
+inputs, the due-step logic, the solve in flight and its time budget, and the
+fallback chain (:class:`~mshoot_core.safety.SetpointSupervisor`). It is driven
+by plain values and clocks, so the offline loop
+(:func:`mshoot_core.closed_loop.run_closed_loop`) and the ROS MPC node make
+the same decisions through the same code:
+
+- :meth:`Controller.offer_state` and :meth:`Controller.offer_forecast` take a
+  measured state or a forecast with its stamp; a rejected one gets a
+  :class:`~mshoot_core.safety.Rejection` (counted) and never reaches the
+  optimiser;
+- :meth:`Controller.poll` is called whenever something may have changed (a new
+  input, a timer, a finished solve) with the controller's clock ``now_ns``
+  (simulated or real time) and a steady wall clock ``steady_ns``; it returns
+  the :class:`StepOutcome` of every step decided since the last call.
+
+A step is due when the clock enters it. It is solved once, from the newest
+state stamped within the step (or at most ``max_state_age_s`` before it) and
+the newest forecast starting at or before the step (at most
+``max_forecast_age_s`` before it, then shifted). A step gets a fallback (the
+last good plan's interval, else the safe setpoint) when its inputs stay missing
+for ``input_wait_s`` of wall time or ``input_deadline_s`` of clock time, when
+its solve raises (a model error), returns an unusable plan, does not converge
+(with ``on_failure='fallback'``), or overruns ``time_budget_s`` (the solver
+itself stops at the budget; a solve that still runs past it, e.g. in a hung
+model call, gets its fallback on the next poll and its late result only warms
+the next start).
+
+Solves run inline (the offline loop, tests) or on an executor (a
+:class:`concurrent.futures.Executor`; the ROS node uses one worker thread so it
+keeps taking messages): then :meth:`poll` returns the outcome of a solve on
+the first call after it finished (``on_solve_done`` tells when).
+"""
+from __future__ import annotations
+
+import concurrent.futures
+import dataclasses
+import logging
+import time
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from mshoot_core.models.base import Model
+from mshoot_core.mpc import MPC, MpcResult
+from mshoot_core.safety import (check_forecast, check_series, Decision, InputWait, LIMITS,
+                                NS_PER_S, Rejection, RejectionCounter, SetpointSupervisor,
+                                StampGate)
+from mshoot_core.scenario import forecast_window
+from mshoot_core.settings import BY_NAME, MpcSettings
+
+logger = logging.getLogger(__name__)
+
+#: Input streams of the controller (keys of its rejection counts).
+STREAMS = ('state', 'forecast')
+#: States and forecasts kept, by stamp.
+KEEP_INPUTS = 8
+
+
+@dataclasses.dataclass(frozen=True)
+class StepOutcome:
+    """The decision of one control step, with what led to it.
+
+    Attributes
+    ----------
+    step_ns : int
+        Start of the step on the controller's clock [ns].
+    decision : Decision
+        What to apply (controls, source, fallback code and reason, plan).
+    result : MpcResult or None
+        The step's solve result, when it has one (also when it was not used).
+    solve_time_s : float
+        Wall time of the solve, or of the wait that ended in a fallback [s].
+    x0 : ndarray or None
+        The state the step was solved from.
+    """
+
+    step_ns: int
+    decision: Decision
+    result: MpcResult | None
+    solve_time_s: float
+    x0: np.ndarray | None
+
+    @property
+    def t_s(self) -> float:
+        """Start of the step [s]."""
+        return self.step_ns / NS_PER_S
+
+
+@dataclasses.dataclass
+class _Solve:
+    """A solve in flight."""
+
+    step_ns: int
+    x0: np.ndarray
+    started_ns: int
+    future: concurrent.futures.Future
+    fallback_given: bool = False
+
+
+class Controller:
+    """Supervisory MPC: inputs in, one decision per control step out (see the module).
+
+    Parameters
+    ----------
+    model : Model
+        The control model.
+    settings : MpcSettings, optional
+        Every setting (default: the defaults).
+    mpc : MPC, optional
+        A configured MPC to use instead of building one from ``model`` and
+        ``settings`` (its settings are then the controller's).
+    executor : Executor, optional
+        Where solves run (default: inline, inside :meth:`poll`).
+    state_bounds : dict, optional
+        Passed to :class:`~mshoot_core.mpc.MPC`.
+    assumed_inputs : mapping, optional
+        Model inputs that forecasts do not carry, held constant over the
+        horizon (e.g. ``{'dpos': 0.0}``: ventilation off).
+    on_solve_done : callable, optional
+        Called (from the executor's thread) when a solve finishes: the owner
+        should then call :meth:`poll`.
+
+    Attributes
+    ----------
+    mpc : MPC
+    supervisor : SetpointSupervisor
+    rejections : RejectionCounter
+        Rejected inputs by stream ('state', 'forecast') and kind.
+    results : dict
+        Step stamp [ns] -> MpcResult of the latest steps (late ones included).
+    """
+
+    def __init__(self, model: Model | None = None, settings: MpcSettings | None = None, *,
+                 mpc: MPC | None = None, executor: concurrent.futures.Executor | None = None,
+                 state_bounds: dict | None = None,
+                 assumed_inputs: Mapping[str, float] | None = None,
+                 on_solve_done: Callable[[], None] | None = None,
+                 history_length: int = 1000) -> None:
+        if mpc is None:
+            if model is None:
+                raise TypeError('Controller needs a model or an MPC')
+            mpc = MPC(model, settings, state_bounds=state_bounds)
+        elif settings is not None:
+            mpc.update(settings)
+        self.mpc = mpc
+        self.executor = executor
+        self.assumed_inputs = dict(assumed_inputs or {})
+        self.on_solve_done = on_solve_done
+        self.history_length = int(history_length)
+        self.rejections = RejectionCounter()
+        self.results: dict[int, MpcResult] = {}
+        step_ns = int(round(self.settings.problem.step_s * NS_PER_S))
+        self.step_ns = step_ns
+        self._state_gate = StampGate(step_ns)
+        self._forecast_gate = StampGate(step_ns)
+        self._states: dict[int, np.ndarray] = {}
+        self._forecasts: dict[int, pd.DataFrame] = {}
+        self._last_step_ns: int | None = None
+        self._inflight: _Solve | None = None
+        self._due_since: tuple[int, int, int] | None = None
+        self._pending: MpcSettings | None = None
+        self.supervisor = self._build_supervisor()
+        self._configure_inputs()
+
+    # -- configuration --------------------------------------------------------------------
+    @property
+    def settings(self) -> MpcSettings:
+        return self.mpc.settings
+
+    @property
+    def model(self) -> Model:
+        return self.mpc.model
+
+    def state_range(self) -> tuple[np.ndarray, np.ndarray]:
+        """Plausible (lower, upper) values of the states: zone temperatures (the states
+        bounded by a comfort band) within :data:`~mshoot_core.safety.LIMITS`, others
+        unbounded (physical units)."""
+        names = self.model.state_names
+        low, high = np.full(len(names), -np.inf), np.full(len(names), np.inf)
+        for name, (_, _, offset) in self.mpc.state_bounds.items():
+            i = names.index(name)
+            low[i] = LIMITS.zone_temperature_c[0] + offset
+            high[i] = LIMITS.zone_temperature_c[1] + offset
+        return low, high
+
+    def _build_supervisor(self) -> SetpointSupervisor:
+        p, s = self.settings.problem, self.settings.supervisor
+        return SetpointSupervisor(p.control_bounds, p.step_s,
+                                  (s.safe_heat_rate_w,) * len(p.control_names),
+                                  max_plan_age_steps=s.max_plan_age_steps,
+                                  state_range=self.state_range())
+
+    def _configure_inputs(self, settings: MpcSettings | None = None) -> None:
+        i = (settings or self.settings).inputs
+        self._state_gate.max_age_ns = _ns(i.max_state_age_s)
+        self._forecast_gate.max_age_ns = _ns(i.max_forecast_age_s)
+        for gate in (self._state_gate, self._forecast_gate):
+            gate.max_future_ns = _ns(i.max_future_s)
+        self._input_wait = InputWait(i.input_wait_s, i.input_deadline_s)
+
+    def update(self, settings: MpcSettings) -> str:
+        """Apply new settings between solves (deferred while one runs).
+
+        Returns
+        -------
+        str
+            What it took: 'unchanged', 'deferred', or the MPC's 'updated' /
+            'rebuilt', with '+supervisor' when the fallback chain was rebuilt
+            (the last good plan forgotten).
+
+        Raises
+        ------
+        ValueError
+            If a setting fixed once running changes (see :meth:`MPC.update`).
+        """
+        fixed = self._fixed_changes(settings)
+        if fixed:
+            raise ValueError(f'{fixed} cannot change once the controller runs')
+        if self._inflight is not None:
+            self._pending = settings
+            self._configure_inputs(settings)
+            return 'deferred'
+        return self._apply(settings)
+
+    def _fixed_changes(self, settings: MpcSettings) -> list[str]:
+        return sorted(n for n in self.settings.changed(settings)
+                      if n == 'control_names' or (n in BY_NAME and BY_NAME[n].read_only))
+
+    def _apply(self, settings: MpcSettings) -> str:
+        changed = self.settings.changed(settings)
+        what = self.mpc.update(settings)
+        self._configure_inputs()
+        if any('supervisor' in BY_NAME[n].applies for n in changed if n in BY_NAME):
+            self.supervisor = self._build_supervisor()
+            what += '+supervisor'
+        return what
+
+    # -- inputs ---------------------------------------------------------------------------
+    def reject(self, stream: str, rejection: Rejection) -> Rejection:
+        """Count a rejection found outside the controller (e.g. a malformed message)."""
+        self.rejections.add(stream, rejection)
+        return rejection
+
+    def offer_state(self, stamp_ns: int, x: Sequence[float], now_ns: int) -> Rejection | None:
+        """A measured state (physical units, e.g. [K]) stamped ``stamp_ns``.
+
+        Returns
+        -------
+        Rejection or None
+            Why it was refused (non-finite, implausible, wrong length, stamp
+            stale, in the future or backwards), or None when it was taken.
+        """
+        names = self.model.state_names
+        values = np.asarray(x, dtype=float).reshape(-1)
+        if values.size != len(names):
+            rejection = Rejection('length', f'state has {values.size} values, expected '
+                                  f'{len(names)} ({list(names)})')
+        else:
+            low, high = self.state_range()
+            rejection = next((r for r in (check_series(name, values[i:i + 1], low[i], high[i])
+                                          for i, name in enumerate(names)) if r), None)
+        rejection = rejection or self._state_gate.check(stamp_ns, now_ns)
+        if rejection:
+            return self.reject('state', rejection)
+        self._state_gate.accept(stamp_ns, now_ns)
+        self._states[int(stamp_ns)] = values.copy()
+        _trim(self._states)
+        return None
+
+    def is_repeat_of_decided_step(self, stamp_ns: int) -> bool:
+        """True when a state stamped ``stamp_ns`` was already taken and its step decided:
+        a heartbeat of the same state (the decision may have been lost: send it again)."""
+        return (int(stamp_ns) in self._states and self._last_step_ns == int(stamp_ns)
+                and self._inflight is None)
+
+    def offer_forecast(self, stamp_ns: int, step_s: float,
+                       series: Mapping[str, Sequence[float]], now_ns: int) -> Rejection | None:
+        """A forecast: samples every ``step_s`` [s] from ``stamp_ns`` on, by column
+        (Tout [degC], solrad [W/m2], occ, comfort_min, comfort_max [degC], and any
+        other model input).
+
+        Returns
+        -------
+        Rejection or None
+            Why it was refused, or None when it was taken.
+        """
+        rejection = (check_forecast(step_s, series,
+                                    expected_step_s=self.settings.problem.step_s)
+                     or self._forecast_gate.check(stamp_ns, now_ns))
+        if rejection is None:
+            n = len(next(iter(series.values())))
+            frame = pd.DataFrame({name: np.asarray(values, dtype=float).reshape(-1)
+                                  for name, values in series.items()})
+            bad = [c for c in frame.columns if not np.all(np.isfinite(frame[c]))]
+            if bad or len(frame) != n:
+                rejection = Rejection('non_finite', f'forecast series {bad} hold non-finite '
+                                      'values')
+        if rejection:
+            return self.reject('forecast', rejection)
+        for name, value in self.assumed_inputs.items():
+            if name not in frame.columns:
+                frame[name] = float(value)
+        frame.index = pd.Index(stamp_ns / NS_PER_S + np.arange(n) * float(step_s),
+                               name='time_s')
+        self._forecast_gate.accept(stamp_ns, now_ns)
+        self._forecasts[int(stamp_ns)] = frame
+        _trim(self._forecasts)
+        return None
+
+    def _state_for(self, step_ns: int) -> np.ndarray | None:
+        oldest = step_ns - self._state_gate.max_age_ns
+        stamps = [s for s in self._states if oldest <= s < step_ns + self.step_ns]
+        return self._states[max(stamps)] if stamps else None
+
+    def _forecast_for(self, step_ns: int) -> tuple[int, pd.DataFrame] | None:
+        oldest = step_ns - self._forecast_gate.max_age_ns
+        stamps = [s for s in self._forecasts if oldest <= s <= step_ns]
+        return (max(stamps), self._forecasts[max(stamps)]) if stamps else None
+
+    def _missing(self, step_ns: int, state: Any, forecast: Any) -> str:
+        """One sentence on which input of a step is missing or stale."""
+        parts = []
+        i = self.settings.inputs
+        for name, have, stamps, age in (
+                ('zone state', state, self._states, i.max_state_age_s),
+                ('forecast', forecast, self._forecasts, i.max_forecast_age_s)):
+            if have is not None:
+                continue
+            older = [s for s in stamps if s < step_ns]
+            if older:
+                parts.append(f'the {name} is stale (newest {(step_ns - max(older)) / NS_PER_S:g}'
+                             f' s before the step, max age {age:g} s)')
+            else:
+                parts.append(f'no {name} for the step')
+        return ' and '.join(parts)
+
+    # -- deciding -------------------------------------------------------------------------
+    @property
+    def busy(self) -> bool:
+        """True while a solve runs."""
+        return self._inflight is not None
+
+    @property
+    def last_step_ns(self) -> int | None:
+        """The newest step decided or being solved [ns] (None before the first)."""
+        return self._last_step_ns
+
+    def poll(self, now_ns: int, steady_ns: int | None = None) -> list[StepOutcome]:
+        """Decide what is due at ``now_ns`` (see the module docstring).
+
+        Parameters
+        ----------
+        now_ns : int
+            The controller's clock [ns] (simulated or real time).
+        steady_ns : int, optional
+            A steady wall clock [ns] (default :func:`time.monotonic_ns`):
+            waits and budgets are measured on it.
+
+        Returns
+        -------
+        list of StepOutcome
+            The steps decided by this call, in order (usually none or one).
+        """
+        steady_ns = time.monotonic_ns() if steady_ns is None else int(steady_ns)
+        now_ns = int(now_ns)
+        outcomes: list[StepOutcome] = []
+        self._collect(outcomes, steady_ns)
+        job = self._inflight
+        budget = self.settings.supervisor.time_budget_s
+        if job is not None and not job.fallback_given and budget > 0:
+            elapsed = (steady_ns - job.started_ns) / NS_PER_S
+            if elapsed >= budget:  # the solver did not stop at its deadline (e.g. a hung model)
+                job.fallback_given = True
+                outcomes.append(self._fallback(job.step_ns, 'budget', f'time budget exceeded '
+                                               f'({budget:g} s)', elapsed, job.x0))
+        step = (now_ns // self.step_ns) * self.step_ns
+        last = self._last_step_ns
+        if last is not None and step < last and job is None:
+            self._clock_went_back(step)
+            last = None
+        if last is not None and step <= last:
+            return outcomes
+        waited_s, waited_clock_s = self._due(step, now_ns, steady_ns)
+        if job is not None:
+            elapsed = (steady_ns - job.started_ns) / NS_PER_S
+            limit = budget or self.settings.inputs.input_wait_s
+            if job.fallback_given and waited_s >= limit and step > job.step_ns:
+                self._last_step_ns = step
+                outcomes.append(self._fallback(
+                    step, 'budget', f'the solve for {job.step_ns / NS_PER_S:.0f} s is still '
+                    f'running after {elapsed:.3f} s', waited_s, None))
+            return outcomes
+        if self._pending is not None:
+            self._apply(self._pending)
+            self._pending = None
+        state = self._state_for(step)
+        forecast = self._forecast_for(step)
+        if state is None or forecast is None:
+            if self._input_wait.overdue(waited_s, waited_clock_s):
+                self._last_step_ns = step
+                outcomes.append(self._fallback(
+                    step, 'inputs_missing',
+                    f'{self._missing(step, state, forecast)} after {waited_s:.2f} s',
+                    waited_s, None))
+            return outcomes
+        stamp, frame = forecast
+        offset = (step - stamp) // self.step_ns
+        horizon = self.mpc.horizon_steps
+        if len(frame) < offset + horizon + 1:
+            logger.debug('forecast covers %d of the %d samples needed: the last one is '
+                         'repeated', len(frame) - offset, horizon + 1)
+        window = forecast_window(frame, int(min(offset, len(frame) - 1)), horizon)
+        self._last_step_ns = step
+        self._dispatch(step, state, window, steady_ns)
+        self._collect(outcomes, time.monotonic_ns())
+        return outcomes
+
+    def _due(self, step: int, now_ns: int, steady_ns: int) -> tuple[float, float]:
+        """How long the step has been due: (wall time, clock time) [s]."""
+        if self._due_since is None or self._due_since[0] != step:
+            self._due_since = (step, steady_ns, now_ns)
+        return ((steady_ns - self._due_since[1]) / NS_PER_S,
+                (now_ns - self._due_since[2]) / NS_PER_S)
+
+    def _clock_went_back(self, step: int) -> None:
+        logger.warning('the clock went back from step %.0f s to %.0f s (a restarted '
+                       'simulation?): inputs, plan and warm start forgotten',
+                       (self._last_step_ns or 0) / NS_PER_S, step / NS_PER_S)
+        self._states.clear()
+        self._forecasts.clear()
+        for gate in (self._state_gate, self._forecast_gate):
+            gate.reset()
+        self.supervisor.reset()
+        self.mpc.reset()
+        self._last_step_ns = None
+
+    def _dispatch(self, step_ns: int, x0: np.ndarray, window: pd.DataFrame,
+                  steady_ns: int) -> None:
+        budget = self.settings.supervisor.time_budget_s
+        deadline = time.perf_counter() + budget if budget > 0 else None
+        t_s = step_ns / NS_PER_S
+        if self.executor is None:
+            future: concurrent.futures.Future = concurrent.futures.Future()
+            self._inflight = _Solve(step_ns, x0.copy(), steady_ns, future)
+            try:
+                future.set_result(self.mpc.solve(x0, t_s, window, deadline=deadline))
+            except Exception as exc:  # noqa: BLE001 - a failed solve is a decision
+                future.set_exception(exc)
+            return
+        future = self.executor.submit(self.mpc.solve, x0, t_s, window, deadline)
+        self._inflight = _Solve(step_ns, x0.copy(), steady_ns, future)
+        if self.on_solve_done is not None:
+            callback = self.on_solve_done
+            future.add_done_callback(lambda _: callback())
+
+    def _collect(self, outcomes: list[StepOutcome], steady_ns: int) -> None:
+        """The outcome of a finished solve, if there is one."""
+        job = self._inflight
+        if job is None or not job.future.done():
+            return
+        self._inflight = None
+        elapsed = (steady_ns - job.started_ns) / NS_PER_S
+        step_s = job.step_ns / NS_PER_S
+        try:
+            result = job.future.result()
+        except Exception as exc:  # noqa: BLE001 - a model error is a fallback, not a crash
+            if job.fallback_given:
+                logger.error('solve for %.0f s failed after its fallback was given: %s: %s',
+                             step_s, type(exc).__name__, exc)
+            else:
+                outcomes.append(self._fallback(job.step_ns, 'solve_failed', f'solve failed: '
+                                               f'{type(exc).__name__}: {exc}', elapsed, job.x0))
+            return
+        self.results[job.step_ns] = result
+        _trim(self.results, self.history_length)
+        budget = self.settings.supervisor.time_budget_s
+        if job.fallback_given:
+            logger.warning('solve for %.0f s finished after its time budget (%.3f s): result '
+                           'not used, warm start kept', step_s, result.solve_time_s)
+            return
+        if getattr(result, 'budget_exceeded', False) or (budget > 0 and
+                                                          result.solve_time_s > budget):
+            outcomes.append(self._fallback(job.step_ns, 'budget', f'time budget exceeded '
+                                           f'({budget:g} s): solver stopped after '
+                                           f'{result.nit} iterations', result.solve_time_s,
+                                           job.x0, result))
+            return
+        decision = self.supervisor.review(
+            step_s, result, accept_unconverged=self.settings.supervisor.on_failure == 'plan')
+        outcomes.append(StepOutcome(job.step_ns, decision, result, result.solve_time_s,
+                                    job.x0))
+
+    def _fallback(self, step_ns: int, code: str, reason: str, waited_s: float,
+                  x0: np.ndarray | None, result: MpcResult | None = None) -> StepOutcome:
+        decision = self.supervisor.fallback(step_ns / NS_PER_S, code, reason)
+        return StepOutcome(step_ns, decision, result, waited_s, x0)
+
+    def safe_decision(self, t_s: float, reason: str) -> Decision:
+        """The safe setpoint, e.g. when the controller hands the building back."""
+        return self.supervisor.safe(t_s, 'inputs_missing', reason)
+
+    def close(self) -> None:
+        """Wait for a solve in flight and drop it."""
+        if self._inflight is not None:
+            concurrent.futures.wait([self._inflight.future])
+            self._inflight = None
+
+
+def _ns(seconds: float) -> int:
+    return int(round(float(seconds) * NS_PER_S))
+
+
+def _trim(items: dict[int, Any], keep: int = KEEP_INPUTS) -> None:
+    for stamp in sorted(items)[:-keep]:
+        del items[stamp]
+

@@ -1,0 +1,414 @@
+"""Settings of the controller as data: frozen, validated dataclasses described once.
+
+Every setting of the MPC and of its supervisor is a field of one of the
+groups below, with its default, a description with its unit, its range or
+choices, and what a change at run time implies (:data:`APPLY`). The same
+description serves the command line (:func:`add_arguments`), the ROS node's
+parameter table (:data:`PARAMETERS`) and :meth:`mshoot_core.controller.Controller.update`,
+which decides from it whether a change is a setter or a rebuild.
+
+Settings are validated once, with every problem reported at once
+(:class:`SettingsError` lists them all), and flat names are unique across the
+groups, so a flat mapping (CLI options, node parameters) maps to one setting.
+
+>>> s = MpcSettings.from_flat(horizon_steps=6, cost='energy')
+>>> s.problem.horizon_steps, s.replace(soft_penalty=10.0).comfort.soft_penalty
+(6, 10.0)
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+from typing import Any, Iterable, Mapping
+
+#: What a run-time change of a setting implies, in increasing cost:
+#: 'inputs' (input gating, applied at once), 'supervisor' (the fallback chain is
+#: rebuilt: the last good plan is forgotten), 'solver' (the solver is replaced,
+#: warm start kept), 'comfort' (hard/soft bounds switched), 'rebuild' (the MPC is
+#: rebuilt: warm start lost), 'fixed' (cannot change once running).
+APPLY = ('inputs', 'supervisor', 'solver', 'comfort', 'rebuild', 'fixed')
+#: Names of the NLP solvers (see :mod:`mshoot_core.solvers`).
+SOLVER_NAMES = ('ipopt', 'slsqp', 'trust-constr')
+
+
+class SettingsError(ValueError):
+    """Invalid settings; ``problems`` holds one sentence per problem."""
+
+    def __init__(self, problems: Iterable[str]) -> None:
+        self.problems = list(problems)
+        super().__init__('; '.join(self.problems))
+
+
+def setting(default: Any, description: str, *, low: float | None = None,
+            high: float | None = None, choices: tuple[str, ...] = (), apply: str = 'rebuild',
+            cli: str | None = None, also: tuple[str, ...] = ()) -> Any:
+    """A dataclass field described for the CLI and the node parameters.
+
+    Parameters
+    ----------
+    default :
+        Default value (fixes the type).
+    description : str
+        What it is, with its unit.
+    low, high : float, optional
+        Inclusive range.
+    choices : tuple of str
+        Allowed values of a string setting.
+    apply : str
+        One of :data:`APPLY`.
+    cli : str, optional
+        Command-line option (default ``--name-with-dashes``).
+    also : tuple of str
+        Other groups a change also reconfigures (from :data:`APPLY`).
+    """
+    return dataclasses.field(default=default, metadata={
+        'description': description, 'low': low, 'high': high, 'choices': tuple(choices),
+        'apply': apply, 'cli': cli, 'also': tuple(also)})
+
+
+@dataclasses.dataclass(frozen=True)
+class SettingField:
+    """The description of one setting (a row of :data:`PARAMETERS`)."""
+
+    name: str
+    group: str
+    default: Any
+    description: str
+    low: float | None
+    high: float | None
+    choices: tuple[str, ...]
+    apply: str
+    cli: str | None
+    also: tuple[str, ...]
+
+    @property
+    def read_only(self) -> bool:
+        """True when the setting cannot change once a controller runs."""
+        return self.apply == 'fixed'
+
+    @property
+    def applies(self) -> set[str]:
+        """Every part a change reconfigures."""
+        return {self.apply, *self.also}
+
+    def problem(self, value: Any) -> str | None:
+        """Why ``value`` is not valid for this setting, or None."""
+        kind = type(self.default)
+        if kind is bool:
+            ok = isinstance(value, bool)
+        elif kind is int:
+            ok = isinstance(value, int) and not isinstance(value, bool)
+        elif kind is float:
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        else:
+            ok = isinstance(value, kind)
+        if not ok:
+            return f'{self.name} must be a {kind.__name__}, got {value!r}'
+        if kind is float and not math.isfinite(value):
+            return f'{self.name} must be finite, got {value!r}'
+        if self.choices and value not in self.choices:
+            return f'{self.name} must be one of {list(self.choices)}, got {value!r}'
+        if self.low is not None and value < self.low or self.high is not None and \
+                value > self.high:
+            return (f'{self.name} must be in [{_g(self.low)}, {_g(self.high)}], '
+                    f'got {value!r}')
+        return None
+
+
+def _g(bound: float | None) -> str:
+    return '-inf' if bound is None else f'{bound:g}'
+
+
+class SettingsGroup:
+    """Shared behaviour of the settings groups (field checks; cross-field rules in
+    :meth:`rules`)."""
+
+    def problems(self) -> list[str]:
+        """Every problem of this group (empty when valid)."""
+        out = []
+        for f in fields_of(type(self)):
+            problem = f.problem(getattr(self, f.name))
+            if problem:
+                out.append(problem)
+        return out if out else self.rules()
+
+    def rules(self) -> list[str]:
+        """Cross-field rules (checked once every field is valid)."""
+        return []
+
+
+@dataclasses.dataclass(frozen=True)
+class ProblemSettings(SettingsGroup):
+    """The optimal control problem over one horizon."""
+
+    horizon_steps: int = setting(10, 'horizon N in control steps [-]', low=1, high=1000,
+                                 cli='--horizon')
+    step_s: float = setting(3600.0, 'control step [s]', low=1.0, high=86400.0, apply='fixed')
+    cost: str = setting('quadratic', "'quadratic': sum (q/q_nom)^2; 'energy': sum |q/q_nom|",
+                        choices=('quadratic', 'energy'))
+    heat_rate_min_w: float = setting(-2000.0, 'lower bound of every heat rate (largest '
+                                     'cooling) [W]', low=-1e7, high=1e7, also=('supervisor',))
+    heat_rate_max_w: float = setting(2000.0, 'upper bound of every heat rate (largest '
+                                     'heating) [W]', low=-1e7, high=1e7, also=('supervisor',))
+    relaxation: str = setting('two-phase', "unreachable hard bounds: 'two-phase' (least "
+                              "violation, then least cost) or 'exact-penalty' (one solve)",
+                              choices=('two-phase', 'exact-penalty'))
+    mode: str = setting('fast', "'fast': batched structured sensitivities; 'naive': the "
+                        "original MShoot algorithm (slow, for comparison)",
+                        choices=('fast', 'naive'), apply='fixed')
+    blas_threads: int = setting(1, 'BLAS threads during a solve (0: the library default) [-]',
+                                low=0, high=256, apply='fixed')
+    #: Optimised model inputs (not a parameter: fixed by the model).
+    control_names: tuple[str, ...] = ('q',)
+
+    @property
+    def control_bounds(self) -> tuple[tuple[float, float], ...]:
+        """(min, max) of every control [W]."""
+        return ((self.heat_rate_min_w, self.heat_rate_max_w),) * len(self.control_names)
+
+    def rules(self) -> list[str]:
+        out = []
+        if not self.heat_rate_min_w < self.heat_rate_max_w:
+            out.append(f'heat_rate_min_w must be < heat_rate_max_w, got {self.heat_rate_min_w}'
+                       f' and {self.heat_rate_max_w}')
+        if not self.control_names or not all(isinstance(c, str) for c in self.control_names):
+            out.append(f'control_names must be a non-empty tuple of names, got '
+                       f'{self.control_names!r}')
+        return out
+
+
+@dataclasses.dataclass(frozen=True)
+class ComfortSettings(SettingsGroup):
+    """How the comfort band bounds the zone states."""
+
+    comfort: str = setting('hard', "'hard': the band as bounds, relaxed where unreachable; "
+                           "'soft': slack with penalty", choices=('hard', 'soft'),
+                           apply='comfort')
+    soft_penalty: float = setting(1e3, "weight of the quadratic penalty on normalised slack "
+                                  "(comfort 'soft') [-]", low=1e-9, high=1e12, apply='comfort')
+    soft_penalty_linear: float = setting(0.0, "weight of the linear penalty on normalised "
+                                         "slack (comfort 'soft') [-]", low=0.0, high=1e12)
+
+    @property
+    def soft(self) -> bool:
+        return self.comfort == 'soft'
+
+
+@dataclasses.dataclass(frozen=True)
+class SolverSettings(SettingsGroup):
+    """The NLP solver."""
+
+    solver: str = setting('slsqp', 'NLP solver', choices=SOLVER_NAMES, apply='solver')
+    solver_max_iter: int = setting(200, 'iteration limit of the solver [-]', low=1,
+                                   high=1_000_000, apply='solver')
+    solver_tol: float = setting(0.0, "solver tolerance (0 = the solver's default) [-]",
+                                low=0.0, high=1.0, apply='solver')
+    #: Further keyword arguments of the solver class (e.g. IPOPT ``options``); not a
+    #: parameter.
+    extra: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+
+    def options(self) -> dict[str, Any]:
+        """Keyword arguments of :func:`mshoot_core.solvers.make_solver`."""
+        out: dict[str, Any] = {'max_iter': self.solver_max_iter, **self.extra}
+        if self.solver_tol > 0:
+            out['tol'] = self.solver_tol
+        return out
+
+    def rules(self) -> list[str]:
+        from mshoot_core.solvers import make_solver
+        try:
+            make_solver(self.solver, **self.options())
+        except (TypeError, ValueError) as exc:
+            return [f'solver {self.solver!r} cannot be used: {exc}']
+        return []
+
+
+@dataclasses.dataclass(frozen=True)
+class SupervisorSettings(SettingsGroup):
+    """The fallback chain and the time budget."""
+
+    time_budget_s: float = setting(0.0, 'wall time allowed per solve: the solver stops there '
+                                   'and the step gets a fallback setpoint (0 = no budget) [s]',
+                                   low=0.0, high=86400.0, apply='inputs')
+    on_failure: str = setting('plan', "when the solver does not converge: 'plan' applies its "
+                              "best plan if it is sane, 'fallback' the fallback chain",
+                              choices=('plan', 'fallback'), apply='inputs')
+    safe_heat_rate_w: float = setting(0.0, 'the safe setpoint: heat rate applied when no '
+                                      'good plan is left to fall back on [W]', low=-1e7,
+                                      high=1e7, apply='supervisor')
+    safe_temperature_c: float = setting(21.0, 'temperature setpoint sent with the safe heat '
+                                        'rate (for the HVAC loop) [degC]', low=-50.0,
+                                        high=80.0, apply='inputs')
+    max_plan_age_steps: int = setting(4, 'a failed step falls back on the last good plan '
+                                      'while it is at most this many steps old, then on the '
+                                      'safe setpoint [-]', low=0, high=10_000,
+                                      apply='supervisor')
+
+
+@dataclasses.dataclass(frozen=True)
+class InputSettings(SettingsGroup):
+    """When inputs are fresh enough, and how long a due step waits for them."""
+
+    input_wait_s: float = setting(5.0, 'wall time a due step waits for a missing or stale '
+                                  'zone state or forecast before its fallback [s]',
+                                  low=0.001, high=86400.0, apply='inputs')
+    input_deadline_s: float = setting(1800.0, 'controller-clock time a due step waits for a '
+                                      'missing or stale input before its fallback (0 = only '
+                                      'input_wait_s) [s]', low=0.0, high=86400.0,
+                                      apply='inputs')
+    max_state_age_s: float = setting(0.0, 'oldest zone state accepted for a step, before the '
+                                     'step start [s]', low=0.0, high=86400.0, apply='inputs')
+    max_forecast_age_s: float = setting(0.0, 'oldest forecast accepted for a step (shifted '
+                                        'to the step) [s]', low=0.0, high=7 * 86400.0,
+                                        apply='inputs')
+    max_future_s: float = setting(3600.0, 'inputs stamped further ahead of the clock are '
+                                  'rejected (data and clock are not ordered: allow a step) '
+                                  '[s]', low=0.0, high=86400.0, apply='inputs')
+
+
+#: The groups of :class:`MpcSettings`, by attribute name.
+GROUPS: dict[str, type] = {'problem': ProblemSettings, 'comfort': ComfortSettings,
+                           'solver': SolverSettings, 'supervisor': SupervisorSettings,
+                           'inputs': InputSettings}
+
+
+def fields_of(group: type) -> tuple[SettingField, ...]:
+    """The described settings of one group (fields without a description are left out)."""
+    out = []
+    for f in dataclasses.fields(group):
+        if 'description' not in f.metadata:
+            continue
+        name = next((g for g, cls in GROUPS.items() if cls is group), group.__name__)
+        m = f.metadata
+        out.append(SettingField(f.name, name, f.default, m['description'], m['low'],
+                                m['high'], m['choices'], m['apply'], m['cli'], m['also']))
+    return tuple(out)
+
+
+@dataclasses.dataclass(frozen=True)
+class MpcSettings:
+    """Every setting of the controller; validated on construction.
+
+    Raises
+    ------
+    SettingsError
+        With every problem of every group.
+    """
+
+    problem: ProblemSettings = dataclasses.field(default_factory=ProblemSettings)
+    comfort: ComfortSettings = dataclasses.field(default_factory=ComfortSettings)
+    solver: SolverSettings = dataclasses.field(default_factory=SolverSettings)
+    supervisor: SupervisorSettings = dataclasses.field(default_factory=SupervisorSettings)
+    inputs: InputSettings = dataclasses.field(default_factory=InputSettings)
+
+    def __post_init__(self) -> None:
+        problems = []
+        for name, cls in GROUPS.items():
+            group = getattr(self, name)
+            if not isinstance(group, cls):
+                problems.append(f'{name} must be {cls.__name__}, got {type(group).__name__}')
+            else:
+                problems += group.problems()
+        if not problems:
+            p, s = self.problem, self.supervisor
+            if not p.heat_rate_min_w <= s.safe_heat_rate_w <= p.heat_rate_max_w:
+                problems.append(f'safe_heat_rate_w must be within [heat_rate_min_w, '
+                                f'heat_rate_max_w] = [{p.heat_rate_min_w:g}, '
+                                f'{p.heat_rate_max_w:g}], got {s.safe_heat_rate_w:g}')
+        if problems:
+            raise SettingsError(problems)
+
+    @classmethod
+    def from_flat(cls, values: Mapping[str, Any] | None = None, /, **more: Any) -> MpcSettings:
+        """Settings from flat names (those of :data:`PARAMETERS`, plus ``control_names``
+        and ``solver_extra``); unknown names are problems too."""
+        return cls().replace(values, **more)
+
+    def replace(self, values: Mapping[str, Any] | None = None, /, **more: Any) -> MpcSettings:
+        """A copy with the flat-named settings changed, validated (every problem at once)."""
+        changes = {**(values or {}), **more}
+        by_group: dict[str, dict[str, Any]] = {name: {} for name in GROUPS}
+        unknown = []
+        for key, value in changes.items():
+            if key == 'control_names':
+                by_group['problem'][key] = tuple(value)
+            elif key == 'solver_extra':
+                by_group['solver']['extra'] = dict(value)
+            elif key in BY_NAME:
+                by_group[BY_NAME[key].group][key] = _coerce(BY_NAME[key], value)
+            else:
+                unknown.append(key)
+        problems = [f'unknown setting(s) {sorted(unknown)}; valid: {sorted(BY_NAME)}'
+                    ] if unknown else []
+        try:
+            settings = MpcSettings(**{name: dataclasses.replace(getattr(self, name), **kw)
+                                      for name, kw in by_group.items()})
+        except SettingsError as exc:
+            problems += exc.problems
+        if problems:
+            raise SettingsError(problems)
+        return settings
+
+    def flat(self) -> dict[str, Any]:
+        """Flat name -> value of every described setting."""
+        return {f.name: getattr(getattr(self, f.group), f.name) for f in PARAMETERS}
+
+    def changed(self, other: MpcSettings) -> set[str]:
+        """Flat names whose value differs in ``other`` (plus 'control_names', 'solver_extra')."""
+        a, b = self.flat(), other.flat()
+        out = {name for name in a if a[name] != b[name]}
+        if self.problem.control_names != other.problem.control_names:
+            out.add('control_names')
+        if dict(self.solver.extra) != dict(other.solver.extra):
+            out.add('solver_extra')
+        return out
+
+
+def _coerce(f: SettingField, value: Any) -> Any:
+    """Ints given for float settings become floats (a CLI or YAML habit)."""
+    if type(f.default) is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    return value
+
+
+#: Every described setting, in group order: the node parameter table and the CLI options.
+PARAMETERS: tuple[SettingField, ...] = tuple(f for cls in GROUPS.values() for f in fields_of(cls))
+#: Flat name -> description.
+BY_NAME: dict[str, SettingField] = {f.name: f for f in PARAMETERS}
+assert len(BY_NAME) == len(PARAMETERS), 'flat setting names must be unique'
+
+
+# -- the command line ---------------------------------------------------------------------
+def add_arguments(parser: argparse.ArgumentParser, names: Iterable[str],
+                  defaults: Mapping[str, Any] | None = None) -> None:
+    """Add the settings ``names`` as options of ``parser`` (help from their descriptions).
+
+    Options are parsed as strings of the setting's type; validation is left to
+    :meth:`MpcSettings.replace`, so every problem is reported at once.
+    """
+    for name in names:
+        f = BY_NAME[name]
+        default = (defaults or {}).get(name, f.default)
+        option = f.cli or '--' + name.replace('_', '-')
+        kind = type(f.default)
+        extra: dict[str, Any] = {}
+        if f.choices:
+            extra['choices'] = f.choices
+        help_text = f'{f.description} (default {default!r})'
+        parser.add_argument(option, dest=name, type=_parse_bool if kind is bool else kind,
+                            default=default, help=help_text.replace('%', '%%'), **extra)
+
+
+def _parse_bool(text: str) -> bool:
+    if text.lower() in ('1', 'true', 'yes', 'on'):
+        return True
+    if text.lower() in ('0', 'false', 'no', 'off'):
+        return False
+    raise argparse.ArgumentTypeError(f'expected true or false, got {text!r}')
+
+
+def from_arguments(args: argparse.Namespace, names: Iterable[str],
+                   base: MpcSettings | None = None) -> MpcSettings:
+    """Settings from parsed options (see :func:`add_arguments`)."""
+    return (base or MpcSettings()).replace({name: getattr(args, name) for name in names})

@@ -1,0 +1,273 @@
+"""The controller in core: every per-step decision, the same offline and over ROS.
+
+Plain tests of :class:`mshoot_core.controller.Controller` (input validation and
+gating, waiting, the fallback chain, the time budget that stops the solver
+itself, settings updates), then the same faults injected into a core run and
+into a ROS run (real nodes in one process, lockstep): the decisions must agree
+step by step.
+"""
+import concurrent.futures
+import os
+import threading
+import time
+
+from mshoot_core.closed_loop import forecast_window, run_closed_loop
+from mshoot_core.controller import Controller
+from mshoot_core.emulation import Emulator
+from mshoot_core.faults import FaultyModel, FaultySolver
+from mshoot_core.models.r1c1 import KELVIN, R1C1Model
+from mshoot_core.mpc import MPC
+from mshoot_core.scenario import reference_scenario, synthetic_scenario
+from mshoot_core.settings import MpcSettings
+from mshoot_core.solvers import make_solver
+import numpy as np
+import pandas as pd
+import pytest
+
+NS = 1_000_000_000
+STEP_NS = 3600 * NS
+
+
+class SlowModel(R1C1Model):
+    """The exact R1C1 whose every batched call sleeps ``delay_s`` while ``slow`` is set
+    (a control model that cannot finish a solve within its budget)."""
+
+    def __init__(self, delay_s: float) -> None:
+        super().__init__()
+        self.delay_s = delay_s
+        self.slow = threading.Event()
+        self.calls = 0
+
+    def _maybe_sleep(self) -> None:
+        if self.slow.is_set():
+            self.calls += 1
+            time.sleep(self.delay_s)
+
+    def simulate_intervals(self, x_start, u, dt_s):
+        self._maybe_sleep()
+        return super().simulate_intervals(x_start, u, dt_s)
+
+    def interval_jacobians(self, x_start, u, dt_s, wrt_inputs):
+        self._maybe_sleep()
+        return super().interval_jacobians(x_start, u, dt_s, wrt_inputs)
+
+
+def offer(controller, scenario, k, state_c=None, now_ns=None):
+    """Offer the state and a perfect forecast of step ``k`` (scenario-relative time)."""
+    now = k * STEP_NS if now_ns is None else now_ns
+    window = forecast_window(scenario, k, controller.mpc.horizon_steps)
+    x = [(20.0 if state_c is None else state_c) + KELVIN]
+    return (controller.offer_state(k * STEP_NS, x, now),
+            controller.offer_forecast(k * STEP_NS, 3600.0,
+                                      {c: window[c].to_numpy() for c in window.columns}, now))
+
+
+# -- the controller alone -----------------------------------------------------------------
+def test_bad_inputs_are_rejected_counted_and_never_solved():
+    scenario = synthetic_scenario(hours=6)
+    controller = Controller(R1C1Model(), MpcSettings.from_flat(horizon_steps=3))
+    assert controller.offer_state(0, [np.nan], 0).kind == 'non_finite'
+    assert controller.offer_state(0, [900.0], 0).kind == 'out_of_range'
+    assert controller.offer_state(0, [293.0, 1.0], 0).kind == 'length'
+    window = forecast_window(scenario, 0, 3)
+    series = {c: window[c].to_numpy() for c in window.columns}
+    inverted = dict(series, comfort_min=series['comfort_max'] + 1.0)
+    assert controller.offer_forecast(0, 3600.0, inverted, 0).kind == 'band'
+    assert controller.offer_forecast(0, 60.0, series, 0).kind == 'step'
+    assert controller.rejections.by_kind() == {'band': 1, 'length': 1, 'non_finite': 1,
+                                               'out_of_range': 1, 'step': 1}
+    # Nothing valid yet: the step waits, then falls back on the safe setpoint.
+    assert controller.poll(1, steady_ns=0) == []
+    [outcome] = controller.poll(1, steady_ns=int(5.1 * NS))
+    assert outcome.decision.source == 'safe' and outcome.decision.code == 'inputs_missing'
+    assert 'no zone state for the step and no forecast for the step' in outcome.decision.reason
+    # Valid inputs for the next step: an optimum. Backwards stamps are rejected.
+    assert offer(controller, scenario, 1) == (None, None)
+    [outcome] = controller.poll(STEP_NS + 1)
+    assert outcome.decision.source == 'optimum' and outcome.result.success
+    assert controller.offer_state(0, [293.15], STEP_NS + 2).kind == 'backwards'
+
+
+def test_stale_state_falls_back_on_the_last_good_plan():
+    scenario = synthetic_scenario(hours=6)
+    controller = Controller(R1C1Model(), MpcSettings.from_flat(horizon_steps=4,
+                                                               input_deadline_s=600.0))
+    offer(controller, scenario, 0)
+    [first] = controller.poll(0)
+    assert first.decision.source == 'optimum'
+    # Step 1: only the forecast comes; after 600 s of controller clock the plan is used.
+    window = forecast_window(scenario, 1, 4)
+    controller.offer_forecast(STEP_NS, 3600.0, {c: window[c].to_numpy() for c in window},
+                              STEP_NS)
+    assert controller.poll(STEP_NS, steady_ns=0) == []
+    [outcome] = controller.poll(STEP_NS + 600 * NS, steady_ns=1)
+    d = outcome.decision
+    assert d.source == 'plan' and d.code == 'inputs_missing'
+    assert 'the zone state is stale (newest 3600 s before the step' in d.reason
+    np.testing.assert_allclose(d.controls, first.decision.plan_controls[1])
+
+
+@pytest.mark.parametrize('solver', ['slsqp', 'ipopt'])
+def test_time_budget_stops_the_solver_itself(solver):
+    scenario = synthetic_scenario(hours=12)
+    model = SlowModel(delay_s=0.05)
+    settings = MpcSettings.from_flat(horizon_steps=10, solver=solver)
+    free = Controller(model, settings)
+    offer(free, scenario, 8, state_c=17.0)
+    model.slow.set()
+    [unbudgeted] = free.poll(8 * STEP_NS)
+    assert unbudgeted.decision.source == 'optimum' and unbudgeted.result.success
+    calls_free = model.calls
+    model.calls = 0
+    budgeted = Controller(model, settings.replace(time_budget_s=0.2))
+    offer(budgeted, scenario, 8, state_c=17.0)
+    [outcome] = budgeted.poll(8 * STEP_NS)
+    # The solver stopped itself: far fewer model calls than the full solve, no optimum.
+    assert outcome.result.budget_exceeded and not outcome.result.success
+    assert model.calls < calls_free / 2, (model.calls, calls_free)
+    assert outcome.decision.code == 'budget' and outcome.decision.source == 'safe'
+    assert 'time budget exceeded (0.2 s): solver stopped after' in outcome.decision.reason
+
+
+def test_update_is_a_setter_or_a_rebuild():
+    scenario = synthetic_scenario(hours=6)
+    controller = Controller(R1C1Model(), MpcSettings.from_flat(horizon_steps=4))
+    offer(controller, scenario, 0)
+    controller.poll(0)
+    warm = controller.mpc._warm_start
+    s = controller.settings
+    assert controller.update(s) == 'unchanged'
+    assert controller.update(s.replace(solver='ipopt', solver_max_iter=50)) == 'updated'
+    assert controller.mpc.solver.name == 'ipopt' and controller.mpc.solver.max_iter == 50
+    assert controller.mpc._warm_start is warm  # a solver change keeps the warm start
+    assert controller.update(controller.settings.replace(soft_penalty=5.0)) == 'updated'
+    assert controller.mpc.problem.soft_penalty == 5.0
+    assert controller.update(controller.settings.replace(safe_heat_rate_w=100.0)) == \
+        'updated+supervisor'
+    assert controller.supervisor.safe_controls.tolist() == [100.0]
+    assert controller.update(controller.settings.replace(horizon_steps=6)) == 'rebuilt'
+    assert controller.mpc.horizon_steps == 6 and controller.mpc._warm_start is None
+    with pytest.raises(ValueError, match=r"\['step_s'\] cannot change"):
+        controller.update(controller.settings.replace(step_s=1800.0))
+
+
+def test_solves_on_an_executor_decide_as_inline():
+    scenario = synthetic_scenario(hours=8)
+    inline = Controller(R1C1Model(), MpcSettings.from_flat(horizon_steps=4))
+    done = threading.Event()
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:
+        threaded = Controller(R1C1Model(), MpcSettings.from_flat(horizon_steps=4),
+                              executor=pool, on_solve_done=done.set)
+        for k in range(4):
+            offer(inline, scenario, k)
+            offer(threaded, scenario, k)
+            [expected] = inline.poll(k * STEP_NS)
+            done.clear()
+            outcomes = threaded.poll(k * STEP_NS)  # dispatched to the worker
+            if not outcomes:  # not finished yet: the owner polls again when told
+                assert done.wait(30.0)
+                outcomes = threaded.poll(k * STEP_NS)
+            [outcome] = outcomes
+            assert not threaded.busy
+            assert outcome.decision.source == expected.decision.source
+            np.testing.assert_allclose(outcome.decision.plan_controls,
+                                       expected.decision.plan_controls, rtol=0, atol=1e-9)
+
+
+# -- the same decisions in a core run and over ROS ------------------------------------------
+HOURS = 8
+FAULT_STEP = 3
+
+
+def inject(fault, model, solver, on):
+    """Switch a fault on (before step FAULT_STEP) or off (after it)."""
+    if fault == 'raise':
+        model.faults.arm('raise', times=100_000) if on else model.faults.clear()
+    elif fault == 'nan':
+        solver.faults.arm('nan', times=100_000) if on else solver.faults.clear()
+    elif fault == 'fail':
+        solver.faults.arm('fail', times=100_000) if on else solver.faults.clear()
+    elif fault == 'late':
+        model.inner.slow.set() if on else model.inner.slow.clear()
+
+
+FAULT_MPC = {'horizon_steps': 4, 'on_failure': 'fallback', 'time_budget_s': 1.0,
+             'max_plan_age_steps': 2}
+
+
+def fault_setup(fault):
+    inner = SlowModel(delay_s=0.1) if fault == 'late' else R1C1Model()
+    return FaultyModel(inner), FaultySolver(make_solver('slsqp'))
+
+
+def core_decisions(fault, hours=HOURS, fault_steps=(FAULT_STEP,)):
+    model, solver = fault_setup(fault)
+    mpc = MPC(model, MpcSettings.from_flat(FAULT_MPC))
+    mpc.set_solver(solver)
+    scenario = reference_scenario('synthetic', None, hours)  # as the emulator node's
+
+    def progress(rows, fines):
+        if len(rows) == fault_steps[0]:
+            inject(fault, model, solver, True)
+        if len(rows) == fault_steps[-1] + 1:
+            inject(fault, model, solver, False)
+
+    result = run_closed_loop(Controller(mpc=mpc), Emulator(R1C1Model(), scenario, [293.15]),
+                             progress=progress, log_every=0)
+    return result.steps
+
+
+@pytest.mark.parametrize('fault', ['raise', 'nan', 'fail', 'late'])
+def test_core_and_ros_make_the_same_decisions(fault, ros_context):
+    from mshoot_nodes.harness import ClosedLoop
+    steps = core_decisions(fault)
+    model, solver = fault_setup(fault)
+    params = {'emulator': {'hours': HOURS, 'model': 'python'},
+              'forecaster': {'hours': HOURS},
+              'mpc': {'model': 'python', **FAULT_MPC}}
+    loop = ClosedLoop(ros_context, params, mpc_model=model)
+    try:
+        loop.mpc.mpc.set_solver(solver)
+        loop.run_steps(FAULT_STEP)
+        inject(fault, model, solver, True)
+        loop.run_steps(1)
+        inject(fault, model, solver, False)
+        loop.run_to_end(60.0)
+        # (the MPC may also decide the step of the emulator's final state: not compared)
+        statuses = [status for _, status in loop.mpc_history()][:HOURS]
+        setpoints = [setpoint for setpoint, _ in loop.mpc_history()][:HOURS]
+    finally:
+        loop.close()
+    assert [s.source for s in statuses] == steps['source'].tolist()
+    assert [s.fallback_reason for s in statuses] == steps['fallback_code'].tolist()
+    np.testing.assert_allclose([s.heat_rate_w for s in setpoints], steps['q'], rtol=0,
+                               atol=1e-9)
+    expected = {'raise': 'solve_failed', 'nan': 'not_converged', 'fail': 'not_converged',
+                'late': 'budget'}[fault]
+    assert steps['fallback_code'].iloc[FAULT_STEP] == expected
+    assert steps['source'].iloc[FAULT_STEP] == 'plan'
+    assert (steps['source'].drop(steps.index[FAULT_STEP]) == 'optimum').all()
+
+
+def test_core_run_whose_model_raises_from_hour_20_completes(tmp_path):
+    """72 steps; the control model raises from hour 20 on: the last good plan for
+    max_plan_age_steps steps, then the safe setpoint, all recorded in steps.csv."""
+    steps = core_decisions('raise', hours=72, fault_steps=(20, 72))
+    steps.to_csv(tmp_path / 'steps.csv')
+    read = pd.read_csv(tmp_path / 'steps.csv', index_col='time_s', keep_default_na=False)
+    assert len(read) == 72
+    assert read['source'].tolist() == ['optimum'] * 20 + ['plan'] * 2 + ['safe'] * 50
+    assert set(read['fallback_code'].iloc[20:]) == {'solve_failed'}
+    assert read['fallback_reason'].iloc[25].startswith(
+        'solve failed: InjectedModelError: injected model error')
+    assert (read['q'].iloc[22:] == 0.0).all()  # the safe setpoint
+
+
+@pytest.fixture
+def ros_context():
+    import rclpy
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'OFF'
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=os.getpid() % 100 + 1)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)
