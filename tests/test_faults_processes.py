@@ -112,7 +112,7 @@ def test_mpc_killed_and_restarted_picks_up_within_one_step(tmp_path, monkeypatch
 @pytest.fixture(scope='module')
 def r2c2_fmu():
     try:
-        return fmu_build.fmu_path('r2c2')
+        return fmu_build.ensure_fmu('r2c2')
     except Exception as exc:  # noqa: BLE001 - no compiler: skip, as the FMU tests do
         pytest.skip(f'R2C2 FMU not available: {exc}')
 

@@ -15,7 +15,8 @@ import pandas as pd
 import pytest
 import scipy.linalg
 
-from mshoot_core import fmu_build
+from mshoot_core import fmu_build, fmu_cache
+from mshoot_core.models import fmi_me
 from mshoot_core.models.fmi import FmiModel, r1c1_fmi_model, R1C1_VARIABLES
 from mshoot_core.models.r1c1 import R1C1Model, R1C1Parameters
 
@@ -30,12 +31,12 @@ R2C2_PARAMETERS = {'Cair': 5.0e6, 'Cwall': 5.0e7, 'Raw': 0.002, 'Rwa': 0.01, 'Rw
 
 @pytest.fixture(scope='module')
 def r1c1_fmu():
-    return fmu_build.r1c1_fmu_path()
+    return fmu_cache.find_fmu('r1c1')  # built by make setup, as the runtime expects
 
 
 @pytest.fixture(scope='module')
 def r2c2_fmu():
-    return fmu_build.fmu_path('r2c2')
+    return fmu_build.ensure_fmu('r2c2')  # a test FMU: the tests build it
 
 
 @pytest.fixture(scope='module')
@@ -161,10 +162,11 @@ def test_cache_dir_from_env_builds_once(tmp_path, monkeypatch):
     real_build = fmu_build.build_fmu
     monkeypatch.setattr(fmu_build, 'build_fmu',
                         lambda name, out: calls.append(name) or real_build(name, out))
-    first = fmu_build.r1c1_fmu_path()
-    second = fmu_build.r1c1_fmu_path()
-    assert first == second == tmp_path / fmu_build.source_hash('r1c1') / 'R1C1.fmu'
+    first = fmu_build.ensure_fmu('r1c1')
+    second = fmu_build.ensure_fmu('r1c1')
+    assert first == second == tmp_path / fmu_cache.source_hash('r1c1') / 'R1C1.fmu'
     assert first.is_file() and calls == ['r1c1']
+    assert fmu_cache.find_fmu('r1c1') == first
 
 
 def test_missing_compiler_is_a_clear_error(tmp_path, monkeypatch):
@@ -439,9 +441,6 @@ def test_instance_is_extracted_and_instantiated_once(r1c1_fmu, monkeypatch, fmi_
 
 def test_batched_co_simulation_driver_equals_fmpy_calls():
     """The compiled batch driver makes the same FMI calls as the fmpy path: same numbers."""
-    from mshoot_core.fmu_build import cs_batch_library
-    if cs_batch_library() is None:
-        pytest.skip('no C compiler for the batched driver')
     model = r1c1_fmi_model(fmi_type='CoSimulation')
     rng = np.random.default_rng(5)
     batch = 25
@@ -476,7 +475,7 @@ def _me_batch_cases(which, batch, seed):
 
 def _me_model(which, tolerance=1e-10):
     if which == 'r2c2':
-        return FmiModel(fmu_build.fmu_path('r2c2'), inputs=['Tamb', 'Qhvac', 'Qsun'],
+        return FmiModel(fmu_build.ensure_fmu('r2c2'), inputs=['Tamb', 'Qhvac', 'Qsun'],
                         states={'Ta': 'air.T', 'Tw': 'wall.T'}, outputs=['Tair', 'Pwin'],
                         parameters=R2C2_PARAMETERS, tolerance=tolerance)
     return r1c1_fmi_model(fmi_type='ModelExchange', tolerance=tolerance)
@@ -485,8 +484,6 @@ def _me_model(which, tolerance=1e-10):
 @pytest.mark.parametrize('which', ['r1c1', 'r2c2'])  # with / without FMU state snapshots
 def test_batched_model_exchange_driver_matches_cvode_and_exact(which):
     """The compiled Runge-Kutta batch equals CVode within the integration tolerance."""
-    if fmu_build.me_batch_library() is None:
-        pytest.skip('no C compiler for the batched driver')
     x, u = _me_batch_cases(which, 12, seed=21)
     with _me_model(which) as fast, _me_model(which) as slow:
         x_c, y_c = fast.simulate_intervals(x, u, HOUR)
@@ -509,8 +506,6 @@ def test_batched_model_exchange_driver_matches_cvode_and_exact(which):
 @pytest.mark.parametrize('which', ['r1c1', 'r2c2'])
 def test_batched_model_exchange_sensitivities_match_cvode(which):
     """Forward sensitivities integrated in C equal those integrated by CVode."""
-    if fmu_build.me_batch_library() is None:
-        pytest.skip('no C compiler for the batched driver')
     x, u = _me_batch_cases(which, 8, seed=22)
     wrt = [1, 0, 2] if which == 'r2c2' else [4, 0, 1, 3]
     with _me_model(which) as fast, _me_model(which) as slow:
@@ -544,34 +539,22 @@ def test_event_indicators_keep_model_exchange_on_cvode(monkeypatch):
         assert model.interval_jacobians(x, u, HOUR, [4]) is None  # finite differences
         x_ref, _ = cs.simulate_intervals(x, u, HOUR)
         np.testing.assert_allclose(x_end, x_ref, rtol=0, atol=1e-6)
-        assert model._me_driver is None and model._solver is not None
+        assert model._solver is not None
 
 
 def test_stiff_model_exchange_batch_falls_back_to_cvode(monkeypatch, caplog):
     """Too many Runge-Kutta steps: a logged warning, then CVode for this model."""
-    import mshoot_core.models.fmi as fmi
-    if fmu_build.me_batch_library() is None:
-        pytest.skip('no C compiler for the batched driver')
     x, u = _me_batch_cases('r1c1', 4, seed=24)
-    monkeypatch.setattr(fmi, 'ME_MAX_STEPS', 0)
-    with _me_model('r1c1') as model, caplog.at_level('WARNING', logger=fmi.__name__):
+    monkeypatch.setattr(fmi_me, 'ME_MAX_STEPS', 0)
+    with _me_model('r1c1') as model, caplog.at_level('WARNING', logger=fmi_me.__name__):
         x_end, y_end = model.simulate_intervals(x, u, HOUR)
         assert 'stopped at interval 0 (more than 0 steps' in caplog.text
+        assert 'integrates with CVode from now on' in caplog.text
         assert model._me_driver is False
-        assert model.me_batch_plan() == 'the compiled driver is unavailable or was disabled'
+        assert model.me_batch_plan() == 'the compiled driver was disabled'
         with r1c1_fmi_model(fmi_type='CoSimulation') as cs:
             x_ref, _ = cs.simulate_intervals(x, u, HOUR)
         np.testing.assert_allclose(x_end, x_ref, rtol=0, atol=1e-6)
-
-
-def test_model_exchange_driver_is_cached_by_source(tmp_path, monkeypatch):
-    monkeypatch.setenv('MSHOOT_FMU_DIR', str(tmp_path))
-    if fmu_build.me_batch_library() is None:
-        pytest.skip('no C compiler for the batched driver')
-    first = fmu_build.me_batch_library()
-    assert first.is_file() and first.parent.parent == tmp_path / 'driver'
-    assert fmu_build.me_batch_library() == first
-    assert first != fmu_build.cs_batch_library()
 
 
 @pytest.mark.parametrize('fmi_type', ['CoSimulation', 'ModelExchange'])

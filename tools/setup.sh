@@ -30,11 +30,13 @@ else
   log "requirements unchanged, skipping install"
 fi
 
-# 2. The FMUs: compile the R1C1 FMU (gcc) into the cache, $MSHOOT_FMU_DIR or ~/.cache/mshoot/fmu,
-#    under a hash of its sources; a quick no-op when that build is already there.
+# 2. The FMUs and the batch drivers: compile the R1C1 FMU and the batched Co-Simulation and
+#    Model Exchange drivers (gcc) into the cache, $MSHOOT_FMU_DIR or ~/.cache/mshoot/fmu, each
+#    under a hash of its sources; a quick no-op when those builds are already there. The
+#    runtime only finds them there (mshoot_core.fmu_cache): it never compiles.
 fmu=$(PYTHONPATH="$root/ros2_ws/src/mshoot_core${PYTHONPATH:+:$PYTHONPATH}" \
   "$venv/bin/python" -m mshoot_core.fmu_build --cache r1c1) \
-  || { echo "[setup] error: building the R1C1 FMU failed (gcc is required)" >&2; exit 1; }
+  || { echo "[setup] error: building the R1C1 FMU and the batch drivers failed (gcc is required; see above)" >&2; exit 1; }
 log "R1C1 FMU and batch drivers: $(echo $fmu)"
 
 # 3. The workspace (colcon, symlink install: Python edits are live without a rebuild).

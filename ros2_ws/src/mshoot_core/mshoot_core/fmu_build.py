@@ -1,4 +1,4 @@
-"""Build the project's FMI 2.0 FMUs from the C sources in ``fmu_src/`` with gcc.
+"""Build the project's FMI 2.0 FMUs and batch drivers from the C sources in ``fmu_src/``.
 
 Two models ship as C sources:
 
@@ -9,108 +9,44 @@ Two models ship as C sources:
   Exchange only, no FMU state), used by the tests to show that any FMI 2.0 FMU
   works through :class:`mshoot_core.models.fmi.FmiModel`.
 
-:func:`fmu_path` returns a cached build, compiled on first use into
-``$MSHOOT_FMU_DIR/<hash>/`` (default ``~/.cache/mshoot/fmu/<hash>/``) where
-``<hash>`` covers the model's sources, the FMI headers and this builder, so an
-edited source is rebuilt and an unchanged one never is. This module needs only
-the standard library and a C compiler (``$CC``, default ``gcc``).
+and two batch drivers (``cs_batch.c``, ``me_batch.c``) that
+:class:`~mshoot_core.models.fmi.FmiModel` loads with ctypes
+(:mod:`mshoot_core.models.fmi_drivers`).
+
+This is the build side: ``make setup`` runs ``--cache r1c1``, which compiles
+the R1C1 FMU and both drivers into the cache of :mod:`mshoot_core.fmu_cache`
+(``$MSHOOT_FMU_DIR``, default ``~/.cache/mshoot/fmu``) unless they are already
+built for the current sources; the runtime only finds them there and never
+imports this module. It needs only the standard library and a C compiler
+(``$CC``, default ``gcc``).
 
 Command line::
 
-    python -m mshoot_core.fmu_build --out DIR [MODEL ...]   # build into DIR
-    python -m mshoot_core.fmu_build --cache [MODEL ...]     # build into the cache if missing
+    python -m mshoot_core.fmu_build --out DIR [MODEL ...]   # build FMUs into DIR
+    python -m mshoot_core.fmu_build --cache [MODEL ...]     # FMUs + drivers into the cache
 """
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import datetime
-import hashlib
 import logging
 import os
 import pathlib
 import shutil
-import struct
 import subprocess
 import sys
 import tempfile
 import uuid
 import zipfile
 
+from mshoot_core.fmu_cache import (CACHE_ENV, cached_driver_file, cached_fmu_file,
+                                   driver_source, DRIVERS, model_source, MODELS, platform,
+                                   SOURCE_DIR, source_hash)
+
 logger = logging.getLogger(__name__)
 
-#: Directory of the C sources, modelDescription templates and FMI 2.0 headers.
-SOURCE_DIR = pathlib.Path(__file__).resolve().parent / 'fmu_src'
-#: The standard FMI 2.0 headers (2-clause BSD, Modelica Association), as shipped by fmpy.
-FMI2_HEADERS = ('fmi2Functions.h', 'fmi2FunctionTypes.h', 'fmi2TypesPlatform.h')
 #: Compiler flags; -fvisibility=hidden leaves only the FMI functions exported.
 CFLAGS = ('-shared', '-fPIC', '-O2', '-std=c99', '-Wall', '-fvisibility=hidden')
-#: Environment variable naming the cache base directory.
-CACHE_ENV = 'MSHOOT_FMU_DIR'
-
-
-@dataclasses.dataclass(frozen=True)
-class FmuSource:
-    """One FMU's sources in :data:`SOURCE_DIR`.
-
-    Attributes
-    ----------
-    model_identifier : str
-        The FMI modelIdentifier: the shared library's and the FMU file's stem.
-    c_file : str
-        The single C source file.
-    description_template : str
-        The modelDescription.xml template (``@GUID@`` and ``@DATETIME@`` are
-        filled in by the builder).
-    """
-
-    model_identifier: str
-    c_file: str
-    description_template: str
-
-    def files(self) -> list[pathlib.Path]:
-        """Every file the build depends on (sources, template, headers)."""
-        names = [self.c_file, self.description_template, *FMI2_HEADERS]
-        return [SOURCE_DIR / name for name in names]
-
-
-#: The FMUs this module can build, by name.
-MODELS: dict[str, FmuSource] = {
-    'r1c1': FmuSource('R1C1', 'r1c1.c', 'r1c1.xml'),
-    'r2c2': FmuSource('R2C2', 'r2c2.c', 'r2c2.xml'),
-}
-
-
-def _model(name: str) -> FmuSource:
-    if name not in MODELS:
-        raise ValueError(f'unknown FMU {name!r}: expected one of {sorted(MODELS)}')
-    return MODELS[name]
-
-
-def _platform() -> tuple[str, str]:
-    """Return the FMI 2.0 binaries folder and the shared-library suffix of this host."""
-    if struct.calcsize('P') != 8:
-        raise RuntimeError('building FMUs needs a 64-bit Python/host')
-    if sys.platform.startswith('linux'):
-        return 'linux64', '.so'
-    if sys.platform == 'darwin':
-        return 'darwin64', '.dylib'
-    raise RuntimeError(f'building FMUs with gcc is supported on Linux and macOS, '
-                       f'not on {sys.platform}')
-
-
-def source_hash(name: str) -> str:
-    """Hash of everything the build of ``name`` depends on (16 hex digits).
-
-    Covers the model's C file and template, the FMI headers, this builder
-    and the compiler flags.
-    """
-    digest = hashlib.sha256()
-    for path in [*_model(name).files(), pathlib.Path(__file__).resolve()]:
-        digest.update(path.name.encode())
-        digest.update(path.read_bytes())
-    digest.update(' '.join(CFLAGS).encode())
-    return digest.hexdigest()[:16]
 
 
 def _guid(name: str) -> str:
@@ -148,7 +84,7 @@ def build_fmu(name: str, out_dir: str | os.PathLike) -> pathlib.Path:
     Parameters
     ----------
     name : str
-        A key of :data:`MODELS` (``'r1c1'`` or ``'r2c2'``).
+        A key of :data:`~mshoot_core.fmu_cache.MODELS` (``'r1c1'`` or ``'r2c2'``).
     out_dir : path
         Target directory, created if missing.
 
@@ -164,9 +100,9 @@ def build_fmu(name: str, out_dir: str | os.PathLike) -> pathlib.Path:
     RuntimeError
         If the compiler is missing or the compilation fails.
     """
-    source = _model(name)
+    source = model_source(name)
     compiler = find_compiler()
-    platform_dir, suffix = _platform()
+    platform_dir, suffix = platform()
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     guid = _guid(name)
@@ -200,32 +136,28 @@ def build_fmu(name: str, out_dir: str | os.PathLike) -> pathlib.Path:
     return target
 
 
-def fmu_cache_dir() -> pathlib.Path:
-    """Return the FMU cache's base directory: ``$MSHOOT_FMU_DIR`` or ``~/.cache/mshoot/fmu``."""
-    base = os.environ.get(CACHE_ENV)
-    if base:
-        return pathlib.Path(base).expanduser()
-    return pathlib.Path.home() / '.cache' / 'mshoot' / 'fmu'
+def ensure_fmu(name: str) -> pathlib.Path:
+    """Return the FMU ``name`` from the cache, building it first if it is not there.
 
-
-def cached_fmu_file(name: str) -> pathlib.Path:
-    """Where the cached build of ``name`` lives (whether or not it exists yet)."""
-    source = _model(name)
-    return fmu_cache_dir() / source_hash(name) / f'{source.model_identifier}.fmu'
-
-
-def fmu_path(name: str) -> pathlib.Path:
-    """Return the cached FMU ``name``, building it with gcc on first use.
+    For setup and tests; the runtime uses :func:`mshoot_core.fmu_cache.find_fmu`,
+    which never builds.
 
     Parameters
     ----------
     name : str
-        A key of :data:`MODELS`.
+        A key of :data:`~mshoot_core.fmu_cache.MODELS`.
 
     Returns
     -------
     pathlib.Path
         ``<cache>/<source hash>/<modelIdentifier>.fmu``.
+
+    Raises
+    ------
+    ValueError
+        For an unknown model name.
+    RuntimeError
+        If the compiler is missing or the compilation fails.
     """
     path = cached_fmu_file(name)
     if not path.is_file():
@@ -234,94 +166,104 @@ def fmu_path(name: str) -> pathlib.Path:
     return path
 
 
-#: C source of the batched Co-Simulation driver (see :mod:`mshoot_core.models.fmi`).
-CS_BATCH_SOURCE = SOURCE_DIR / 'cs_batch.c'
-#: C source of the batched Model Exchange driver (explicit Runge-Kutta, see
-#: :mod:`mshoot_core.models.fmi`).
-ME_BATCH_SOURCE = SOURCE_DIR / 'me_batch.c'
+def build_driver(name: str, target: str | os.PathLike) -> pathlib.Path:
+    """Compile the batch driver ``name`` (``'cs'`` or ``'me'``) into the file ``target``.
 
+    The library appears atomically (compiled to a temporary name, then renamed).
 
-def _driver_library(source: pathlib.Path, stem: str) -> pathlib.Path | None:
-    """Return the compiled driver ``source`` (cached by content hash), building it if missing.
-
-    Returns None (with a warning) when no compiler is available or the
-    compilation fails: FMUs then run through fmpy's calls, slower but the same.
+    Raises
+    ------
+    ValueError
+        For an unknown driver name.
+    RuntimeError
+        If the compiler is missing or the compilation fails.
     """
-    digest = hashlib.sha256(source.read_bytes())
-    for header in sorted(SOURCE_DIR.glob('fmi2*.h')):
-        digest.update(header.read_bytes())
-    digest.update(' '.join(CFLAGS).encode())
-    _, suffix = _platform()
-    target = fmu_cache_dir() / 'driver' / digest.hexdigest()[:16] / f'{stem}{suffix}'
-    if target.is_file():
-        return target
-    try:
-        compiler = find_compiler()
-    except RuntimeError as exc:
-        logger.warning('no batched FMU driver: %s', exc)
-        return None
+    source = driver_source(name)
+    compiler = find_compiler()
+    target = pathlib.Path(target)
     target.parent.mkdir(parents=True, exist_ok=True)
     staged = target.parent / f'.{target.name}.{os.getpid()}.tmp'
-    command = [compiler, *CFLAGS, '-I', str(SOURCE_DIR), '-o', str(staged), str(source), '-lm']
-    logger.info('compiling the batched FMU driver %s: %s', stem, ' '.join(command))
+    command = [compiler, *CFLAGS, '-I', str(SOURCE_DIR), '-o', str(staged),
+               str(SOURCE_DIR / source.c_file), '-lm']
+    logger.info('compiling the %s: %s', source.description, ' '.join(command))
     result = subprocess.run(command, capture_output=True, text=True, check=False)
     if result.returncode != 0:
-        logger.warning('compiling the batched FMU driver %s failed, using fmpy calls:\n%s',
-                       stem, result.stderr.strip())
-        return None
+        staged.unlink(missing_ok=True)
+        raise RuntimeError(f'compiling the {source.description} failed (exit '
+                           f'{result.returncode}):\n{" ".join(command)}\n'
+                           f'{result.stderr.strip()}')
+    if result.stderr.strip():
+        logger.warning('compiler warnings for the %s:\n%s', source.description,
+                       result.stderr.strip())
     os.replace(staged, target)
+    logger.info('built %s', target)
     return target
 
 
-def cs_batch_library() -> pathlib.Path | None:
-    """Return the compiled batched Co-Simulation driver, building it on first use.
+def ensure_driver(name: str) -> pathlib.Path:
+    """Return the batch driver ``name`` from the cache, building it first if it is not there.
 
-    Returns None (with a warning) when no compiler is available: FMUs then run
-    through fmpy's calls interval by interval, slower but the same.
+    For setup and tests; the runtime uses
+    :func:`mshoot_core.fmu_cache.find_driver`, which never builds.
+
+    Raises
+    ------
+    ValueError
+        For an unknown driver name.
+    RuntimeError
+        If the compiler is missing or the compilation fails.
     """
-    return _driver_library(CS_BATCH_SOURCE, 'mshoot_cs_batch')
+    path = cached_driver_file(name)
+    if not path.is_file():
+        build_driver(name, path)
+    return path
 
 
-def me_batch_library() -> pathlib.Path | None:
-    """Return the compiled batched Model Exchange driver, building it on first use.
+def ensure_cache(models: list[str] | tuple[str, ...] = ('r1c1',)) -> list[pathlib.Path]:
+    """Build what the runtime needs into the cache: the FMUs ``models`` and every driver.
 
-    Returns None (with a warning) when no compiler is available: Model
-    Exchange FMUs then integrate with fmpy's CVode, slower and the same up to
-    the integrator tolerance.
+    What is already built for the current sources is kept. Returns the paths
+    (FMUs first, then the drivers).
+
+    Raises
+    ------
+    ValueError
+        For an unknown model name.
+    RuntimeError
+        If the compiler is missing or a compilation fails.
     """
-    return _driver_library(ME_BATCH_SOURCE, 'mshoot_me_batch')
-
-
-def r1c1_fmu_path() -> pathlib.Path:
-    """Return the cached R1C1 FMU (ME + CS), building it on first use."""
-    return fmu_path('r1c1')
+    return [*(ensure_fmu(name) for name in models), *(ensure_driver(name) for name in DRIVERS)]
 
 
 def main(argv: list[str] | None = None) -> int:
     """Command line: build FMUs into a directory or into the cache; print their paths."""
     parser = argparse.ArgumentParser(prog='python -m mshoot_core.fmu_build',
-                                     description='Build the mshoot FMUs with gcc.')
+                                     description='Build the mshoot FMUs and batch drivers '
+                                                 'with gcc.')
     where = parser.add_mutually_exclusive_group(required=True)
     where.add_argument('--out', type=pathlib.Path, help='directory to write the .fmu files to')
     where.add_argument('--cache', action='store_true',
-                       help=f'build into the cache (${CACHE_ENV} or ~/.cache/mshoot/fmu) '
-                            'unless already there, with the batched Co-Simulation and Model '
-                            'Exchange drivers')
-    parser.add_argument('models', nargs='*', metavar='MODEL', default=['r1c1'],
-                        help=f'models to build, from {sorted(MODELS)} (default: r1c1)')
+                       help=f'build into the cache (${CACHE_ENV} or ~/.cache/mshoot/fmu), '
+                            'where the runtime finds them, the FMUs and the batched '
+                            'Co-Simulation and Model Exchange drivers; what is already built '
+                            'for these sources is kept')
+    parser.add_argument('models', nargs='*', metavar='MODEL',
+                        help=f'FMUs to build, from {sorted(MODELS)} (default: r1c1)')
     args = parser.parse_args(argv)
+    models = args.models or ['r1c1']
+    unknown = [name for name in models if name not in MODELS]
+    if unknown:
+        parser.error(f'unknown FMUs {unknown}: expected names from {sorted(MODELS)}')
     logging.basicConfig(level=logging.INFO, format='[fmu_build] %(message)s', stream=sys.stderr)
     try:
-        for name in args.models:
-            path = fmu_path(name) if args.cache else build_fmu(name, args.out)
-            sys.stdout.write(f'{path}\n')
         if args.cache:
-            for driver in (cs_batch_library(), me_batch_library()):
-                if driver is not None:
-                    sys.stdout.write(f'{driver}\n')
+            paths = ensure_cache(models)
+        else:
+            paths = [build_fmu(name, args.out) for name in models]
     except (ValueError, RuntimeError) as error:
         logger.error('%s', error)
         return 1
+    sys.stdout.write(''.join(f'{path}\n' for path in paths))
     return 0
 
 

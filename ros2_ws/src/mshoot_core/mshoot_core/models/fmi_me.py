@@ -1,0 +1,255 @@
+"""Model Exchange integration of an :class:`~mshoot_core.models.fmi.FmiModel`.
+
+Two integrators, the same FMI calls around them:
+
+- fmpy's CVode (BDF, dense Newton) with the relative ``tolerance`` and
+  absolute tolerances ``tolerance * nominal``; each input switch is an event
+  (event mode, new discrete states, solver re-start), and the FMU's state,
+  step and time events are handled;
+- for batches of independent intervals of FMUs without event indicators, the
+  compiled driver (:class:`~mshoot_core.models.fmi_drivers.MeBatchDriver`):
+  the same FMI calls per interval, integrated by an explicit Dormand-Prince
+  5(4) method at the same tolerances in one C loop over the batch
+  (:meth:`ModelExchangeIntegration.me_batch_plan` says when it applies). An
+  interval with a time or step event, or needing more than
+  :data:`ME_MAX_STEPS` steps (a stiff FMU), sends the model back to CVode for
+  good, with a logged warning: a numerical limit of the method, not a missing
+  build (a missing driver is an error).
+
+FMUs that support FMU states start each interval by restoring a snapshot
+taken after the first initialisation instead of re-initialising.
+"""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from mshoot_core.models.fmi_drivers import (double_pointer, DriverGaveUp, me_problem,
+                                            MeBatchDriver, MeProblem, SensitivityRequest)
+
+logger = logging.getLogger(__name__)
+
+#: CVode's limit on internal steps per call (one call per interval or event).
+MAX_SOLVER_STEPS = 100_000
+#: Attempted Runge-Kutta steps per interval of the batched Model Exchange driver before it
+#: gives up (a stiff FMU) and the model falls back to CVode.
+ME_MAX_STEPS = 20_000
+
+
+class HeldInputs:
+    """The ``input`` object fmpy's CVode solver expects; inputs are set per interval."""
+
+    def apply(self, time: float, continuous: bool = True, discrete: bool = True,
+              after_event: bool = False) -> None:
+        """Do nothing: the inputs are already set on the FMU for the interval."""
+
+
+class ModelExchangeIntegration:
+    """Model Exchange part of :class:`~mshoot_core.models.fmi.FmiModel` (a mixin).
+
+    Works on the model's FMU instance and configuration; keeps on the
+    instance the CVode solver (``_solver``), the FMU-state snapshot
+    (``_snapshot``, ``_snapshot_event_time``), the next time event
+    (``_next_event_time``), the compiled driver (``_me_driver``: None until
+    first needed, False once disabled) and its batch descriptions
+    (``_me_problems``).
+    """
+
+    # -- CVode and events ---------------------------------------------------------------------
+    def _event_iteration(self) -> None:
+        """Iterate fmi2NewDiscreteStates to convergence (event mode); note time events."""
+        fmu = self._fmu
+        needed = True
+        while needed:
+            (needed, terminate, _, _, time_defined, next_time) = fmu.newDiscreteStates()
+            if terminate:
+                raise RuntimeError(f'{self.fmu_path.name} requested termination at an event')
+        self._next_event_time = next_time if time_defined else None
+
+    def _write_states(self, x0: np.ndarray) -> None:
+        """Write the model states into the FMU's continuous-state vector."""
+        n = self._n_continuous
+        if n == 0 or not self._state_positions:
+            return
+        fmu = self._fmu
+        fmu.getContinuousStates(double_pointer(self._x_full), n)
+        self._x_full[self._state_positions] = x0
+        fmu.setContinuousStates(double_pointer(self._x_full), n)
+
+    def _ensure_solver(self, t0: float) -> None:
+        """Create the CVode solver on first use, else re-start it at ``t0``."""
+        if self._solver is None:
+            from fmpy.sundials import CVodeSolver
+            fmu = self._fmu
+            self._solver = CVodeSolver(
+                nx=self._n_continuous, nz=self.model_description.numberOfEventIndicators,
+                get_x=fmu.getContinuousStates, set_x=fmu.setContinuousStates,
+                get_dx=fmu.getDerivatives, get_z=fmu.getEventIndicators,
+                get_nominals=fmu.getNominalsOfContinuousStates, set_time=fmu.setTime,
+                input=HeldInputs(), startTime=t0, relativeTolerance=self.tolerance,
+                maxNumSteps=MAX_SOLVER_STEPS)
+        else:
+            self._solver.reset(t0)
+
+    def _enter_continuous_time(self, t0: float, x0: np.ndarray) -> None:
+        """After initialisation: settle the events, enter continuous time, write ``x0``."""
+        self._event_iteration()
+        self._fmu.enterContinuousTimeMode()
+        self._write_states(x0)
+        self._ensure_solver(t0)
+
+    def _input_event(self, t: float, u: np.ndarray) -> None:
+        """Apply new inputs at ``t`` as an event, and re-start the solver."""
+        fmu = self._fmu
+        fmu.enterEventMode()
+        self._set_inputs(u)
+        self._event_iteration()
+        fmu.enterContinuousTimeMode()
+        self._solver.reset(t)
+
+    def _integrate(self, t: float, t_end: float) -> None:
+        """Integrate from ``t`` to ``t_end`` with CVode, handling the FMU's events."""
+        fmu = self._fmu
+        needs_step_call = bool(self._interface.needsCompletedIntegratorStep)
+        eps = 1e-12 * max(1.0, abs(t_end))
+        while t_end - t > eps:
+            t_next = t_end
+            event_time = self._next_event_time
+            if event_time is not None and t + eps < event_time < t_end - eps:
+                t_next = event_time
+            state_event, _, t = self._solver.step(t, t_next)
+            fmu.setTime(t)
+            step_event = False
+            if needs_step_call:
+                step_event, terminate = fmu.completedIntegratorStep()
+                if terminate:
+                    raise RuntimeError(f'{self.fmu_path.name} requested termination at t={t}')
+            time_event = event_time is not None and abs(t - event_time) <= eps
+            if state_event or step_event or time_event:
+                fmu.enterEventMode()
+                self._event_iteration()
+                fmu.enterContinuousTimeMode()
+                self._solver.reset(t)
+
+    def _restore_snapshot(self, x0: np.ndarray, u: np.ndarray) -> None:
+        """Bring the instance to t = 0 with ``x0`` and ``u`` through its FMU-state snapshot.
+
+        The first call initialises and takes the snapshot; later ones restore
+        it (no re-initialisation), write the states and apply the inputs as
+        an event.
+        """
+        fmu = self._fmu
+        if self._snapshot is None:
+            self._initialize(0.0, x0, u)
+            self._snapshot = fmu.getFMUstate()
+            self._snapshot_event_time = self._next_event_time
+            return
+        fmu.setFMUstate(self._snapshot)
+        self._next_event_time = self._snapshot_event_time
+        self._write_states(x0)
+        self._input_event(0.0, u)
+
+    # -- the compiled batch ---------------------------------------------------------------
+    def me_batch_plan(self) -> str | None:
+        """Why Model Exchange intervals cannot go to the compiled driver, or None if they can.
+
+        The driver integrates with an explicit Runge-Kutta method and handles
+        no events, so it applies to Model Exchange FMUs without event
+        indicators (time events and step events are detected per interval and
+        send the batch back to CVode). Everything else goes through fmpy's
+        CVode, exactly as before.
+        """
+        if not self.is_model_exchange:
+            return 'Co-Simulation FMU'
+        if self.model_description.numberOfEventIndicators > 0:
+            return 'the FMU has event indicators'
+        if self._n_continuous == 0:
+            return 'no continuous states'
+        if self._me_driver is False:
+            return 'the compiled driver was disabled'
+        if not self.can_snapshot and any(kind != 'Real' for kind in self._parameter_groups):
+            return 'non-Real parameters on an FMU without FMU states'
+        return None
+
+    def _me_problem(self, dt_s: float,
+                    sensitivities: SensitivityRequest | None) -> tuple[MeProblem, list]:
+        """The driver's description of a batch, and the arrays it points to (keep both)."""
+        par_refs, par_values = self._parameter_groups.get('Real', ([], []))
+        fmu_outputs = {o.variable.name for o in self.model_description.outputs}
+        return me_problem(
+            snapshot=self._snapshot.value if self._snapshot is not None else None,
+            needs_completed_step=bool(self._interface.needsCompletedIntegratorStep),
+            tolerance=self.tolerance, dt_s=dt_s, max_steps=ME_MAX_STEPS,
+            n=self._n_continuous,
+            cstate_refs=[v.valueReference for v in self._continuous_states],
+            derivative_refs=self._derivative_refs, state_positions=self._state_positions,
+            state_refs=[v.valueReference for v in self._state_vars],
+            output_refs=[v.valueReference for v in self._output_vars],
+            input_refs=[v.valueReference for v in self._input_vars],
+            par_refs=par_refs, par_values=par_values,
+            start_refs=[self._state_vars[i].valueReference for i in self._start_state_index],
+            start_index=self._start_state_index,
+            fmu_output_refs=[v.valueReference for v in self._output_vars
+                             if v.name in fmu_outputs],
+            sensitivities=sensitivities)
+
+    def _me_batch_in_c(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
+                       x_end: np.ndarray, y_end: np.ndarray,
+                       sensitivities: SensitivityRequest | None = None
+                       ) -> tuple[np.ndarray, np.ndarray] | bool:
+        """Run a Model Exchange batch in the compiled driver; False where it does not apply.
+
+        Each interval makes the FMI calls of :meth:`_start_interval`, then
+        integrates with Dormand-Prince 5(4) at :attr:`tolerance` (absolute
+        tolerances ``tolerance * nominal``, as CVode here) and reads as
+        :meth:`_read`. With ``sensitivities`` (m input columns) the forward
+        sensitivities are integrated along, as in
+        :class:`~mshoot_core.models.fmi_sensitivities._Sensitivities`, and
+        the result is ``(S, output partials)``: S of shape (B, n, nx + m) over
+        the FMU's n continuous states, the partials of the FMU outputs among
+        the model outputs w.r.t. (continuous states, those inputs), shape
+        (B, n_yo, n + m). A batch the driver gives up on (a time or step
+        event, too many steps) is logged, the driver disabled for this
+        instance, and False returned: the caller then uses CVode.
+
+        Raises
+        ------
+        NotBuiltError
+            If the driver is not built (``make setup``).
+        """
+        if self._me_driver is False:
+            return False
+        if self._me_driver is None:
+            self._me_driver = MeBatchDriver(self.fmu, self.fmu_path.name)
+        if (self._snapshot is None if self.can_snapshot else not self._initialized_once):
+            self._start_interval(x_start[0], u[0])  # first initialisation through fmpy
+        if self._next_event_time is not None:
+            logger.debug('%s: time events, Model Exchange batches use CVode', self.fmu_path.name)
+            return False
+        # a model's requests differ by their inputs only (their nominals follow)
+        key = (dt_s, None if sensitivities is None else sensitivities.input_refs,
+               None if self._snapshot is None else self._snapshot.value)
+        if key not in self._me_problems:  # built once per interval length and request
+            if len(self._me_problems) >= 16:
+                self._me_problems.clear()
+            self._me_problems[key] = self._me_problem(dt_s, sensitivities)
+        problem, _ = self._me_problems[key]
+        batch, n = x_start.shape[0], self._n_continuous
+        m = len(sensitivities.input_refs) if sensitivities is not None else 0
+        columns = len(self._state_vars) + m
+        s_end = np.zeros((batch, n, columns)) if sensitivities is not None else np.zeros(1)
+        dyo = np.zeros((batch, problem.n_yo, n + m)) if sensitivities is not None \
+            else np.zeros(1)
+        starts = np.ascontiguousarray(x_start, dtype=float)
+        inputs = np.ascontiguousarray(u, dtype=float)
+        try:
+            self._me_driver.run(self._fmu.component, problem, starts, inputs, x_end, y_end,
+                                s_end, dyo)
+        except DriverGaveUp as gave_up:
+            logger.warning('%s: the batched Model Exchange driver stopped at interval %d (%s); '
+                           'this model integrates with CVode from now on', self.fmu_path.name,
+                           gave_up.interval, gave_up.reason)
+            self._me_driver = False
+            return False
+        return (s_end, dyo) if sensitivities is not None else True

@@ -1,0 +1,279 @@
+"""Forward sensitivities of Model Exchange intervals of an FMU model (:mod:`.fmi`).
+
+For Model Exchange FMUs with ``providesDirectionalDerivative``,
+:meth:`ForwardSensitivities.interval_jacobians` integrates the forward
+sensitivities ``Sx' = J_x Sx``, ``Su' = J_x Su + J_u`` along with the states
+(the Jacobian products come from ``fmi2GetDirectionalDerivative``), so the
+derivatives are as accurate as the states: in the compiled Model Exchange
+driver where :meth:`~mshoot_core.models.fmi_me.ModelExchangeIntegration.me_batch_plan`
+allows it, else with CVode on the augmented system :class:`_Sensitivities`.
+Co-Simulation FMUs, and FMUs without directional derivatives or with event
+indicators, return ``None``: the optimiser falls back to finite differences
+over ``simulate_intervals``.
+"""
+from __future__ import annotations
+
+import logging
+from typing import Any, Sequence
+
+from fmpy.fmi2 import FMU2Model
+import numpy as np
+
+from mshoot_core.models.base import IntervalJacobians
+from mshoot_core.models.fmi_drivers import double_pointer, SensitivityRequest, vr_array
+from mshoot_core.models.fmi_me import HeldInputs, MAX_SOLVER_STEPS
+
+logger = logging.getLogger(__name__)
+
+#: Absolute tolerances of the forward sensitivities relative to the states' (see
+#: ``_Sensitivities.get_nominals``); 1e-2 costs ~5 % more steps than 1.
+SENSITIVITY_NOMINAL_FACTOR = 1e-2
+
+
+class _Sensitivities:
+    """The augmented ODE [x, S] for fmpy's CVode solver (callbacks on raw buffers).
+
+    Only the columns the model needs are integrated: ``S = [Sx | Su]`` of
+    shape (n, k + m), Sx the derivatives w.r.t. the k model states among the
+    n FMU continuous states (positions ``state_positions``), Su those w.r.t.
+    the m requested inputs; stored row-major after x. Column j obeys
+    ``S_j' = J_x S_j (+ J_u e_j)``, one directional-derivative call per
+    column with the FMU states (and input j) as knowns.
+    """
+
+    def __init__(self, fmu: FMU2Model, derivative_refs: Sequence[int],
+                 state_refs: Sequence[int], state_positions: Sequence[int],
+                 input_refs: Sequence[int], input_nominals: Sequence[float]) -> None:
+        self.fmu = fmu
+        self.n = len(state_refs)
+        self.positions = list(state_positions)
+        self.k = len(self.positions)
+        self.m = len(input_refs)
+        self.columns = self.k + self.m
+        self.size = self.n * (1 + self.columns)
+        self.y = np.zeros(self.size)
+        self.input_nominals = np.asarray(input_nominals, dtype=float)
+        self._unknowns = vr_array(derivative_refs)
+        self._state_knowns = vr_array(state_refs)
+        self._input_knowns = [vr_array([*state_refs, ref]) for ref in input_refs]
+        self._seed = np.zeros(self.n + 1)
+        self._column = np.zeros(self.n)
+        self._x_nominal = np.ones(self.n)
+        # The arrays are only ever updated in place, so their pointers stay valid.
+        self._y_ptr = double_pointer(self.y)
+        self._seed_ptr = double_pointer(self._seed)
+        self._column_ptr = double_pointer(self._column)
+
+    def load(self, x: np.ndarray) -> None:
+        """Start from FMU states ``x`` with Sx = the unit columns, Su = 0."""
+        self.y[:] = 0.0
+        self.y[:self.n] = x
+        self.matrix()[self.positions, np.arange(self.k)] = 1.0
+
+    def matrix(self) -> np.ndarray:
+        """View of S = [Sx | Su], shape (n, k + m)."""
+        return self.y[self.n:].reshape(self.n, self.columns)
+
+    def get_x(self, buffer: Any, size: int) -> None:
+        np.ctypeslib.as_array(buffer, (size,))[:] = self.y
+
+    def set_x(self, buffer: Any, size: int) -> None:
+        self.y[:] = np.ctypeslib.as_array(buffer, (size,))
+        self.fmu.setContinuousStates(self._y_ptr, self.n)
+
+    def get_dx(self, buffer: Any, size: int) -> None:
+        n, fmu = self.n, self.fmu
+        dy = np.ctypeslib.as_array(buffer, (size,))
+        fmu.getDerivatives(buffer, n)
+        ds = dy[n:].reshape(n, self.columns)
+        s = self.y[n:].reshape(n, self.columns)
+        seed, column = self._seed, self._column
+        for j in range(self.columns):
+            seed[:n] = s[:, j]
+            if j < self.k:
+                knowns, n_known = self._state_knowns, n
+            else:
+                knowns, n_known = self._input_knowns[j - self.k], n + 1
+                seed[n] = 1.0
+            fmu.fmi2GetDirectionalDerivative(fmu.component, self._unknowns, n, knowns, n_known,
+                                             self._seed_ptr, self._column_ptr)
+            ds[:, j] = column
+
+    def get_nominals(self, buffer: Any, size: int) -> None:
+        """Nominals (absolute tolerance = tolerance * nominal) of [x, S].
+
+        The FMU's nominals for x; for S_ij the change of x_i per nominal
+        change of state or input j (x_nom_i / nom_j), tightened by
+        :data:`SENSITIVITY_NOMINAL_FACTOR`, since a derivative is a difference
+        of states and needs more absolute accuracy than the states.
+        """
+        self.fmu.getNominalsOfContinuousStates(double_pointer(self._x_nominal), self.n)
+        nominal = np.ctypeslib.as_array(buffer, (size,))
+        nominal[:self.n] = self._x_nominal
+        x_nom = np.abs(self._x_nominal)
+        scale = np.concatenate([x_nom[self.positions], self.input_nominals])
+        nominal[self.n:] = (SENSITIVITY_NOMINAL_FACTOR * x_nom[:, None] / scale[None, :]).ravel()
+
+    @staticmethod
+    def get_z(buffer: Any, size: int) -> None:
+        """No event indicators (FMUs with events get no sensitivities)."""
+
+
+class ForwardSensitivities:
+    """Forward-sensitivity part of :class:`~mshoot_core.models.fmi.FmiModel` (a mixin).
+
+    Keeps on the instance, per set of input columns, the CVode solvers of
+    the augmented systems (``_sensitivity_solvers``) and the requests to the
+    compiled driver (``_sensitivity_requests``).
+    """
+
+    def _sensitivity_plan(self, wrt: Sequence[int]) -> str | None:
+        """Why sensitivities are unavailable, or None when they are."""
+        md = self.model_description
+        if not self.is_model_exchange:
+            return 'Co-Simulation FMU'
+        if not md.modelExchange.providesDirectionalDerivative:
+            return 'no directional derivatives'
+        if md.numberOfEventIndicators > 0:
+            return 'the FMU has event indicators'
+        if self._n_continuous == 0:
+            return 'no continuous states'
+        output_vars = {u.variable.name for u in md.outputs}
+        states = {v.name for v in self._continuous_states}
+        odd = [v.name for v in self._output_vars
+               if v.name not in output_vars and v.name not in states]
+        if odd:
+            return f'outputs {odd} are neither FMU outputs nor states'
+        return None
+
+    def _sensitivity_request(self, wrt: Sequence[int]) -> SensitivityRequest:
+        """The input columns ``wrt`` (indices of :attr:`input_names`) with their nominals."""
+        key = tuple(wrt)
+        request = self._sensitivity_requests.get(key)
+        if request is None:
+            inputs = [self._input_vars[j] for j in wrt]
+            nominals = [abs(float(v.nominal)) if v.nominal not in (None, '') and
+                        float(v.nominal) != 0.0 else 1.0 for v in inputs]
+            request = SensitivityRequest(tuple(v.valueReference for v in inputs),
+                                         tuple(nominals), SENSITIVITY_NOMINAL_FACTOR)
+            self._sensitivity_requests[key] = request
+        return request
+
+    def _sensitivity_solver(self, wrt: Sequence[int]) -> tuple[_Sensitivities, Any]:
+        """The augmented system and its CVode solver for the input columns ``wrt`` (cached)."""
+        key = tuple(wrt)
+        if key not in self._sensitivity_solvers:
+            from fmpy.sundials import CVodeSolver
+            request = self._sensitivity_request(wrt)
+            system = _Sensitivities(self._fmu, self._derivative_refs,
+                                    [v.valueReference for v in self._continuous_states],
+                                    self._state_positions, request.input_refs,
+                                    request.input_nominals)
+            system.load(self._x_full)
+            solver = CVodeSolver(nx=system.size, nz=0, get_x=system.get_x, set_x=system.set_x,
+                                 get_dx=system.get_dx, get_z=system.get_z,
+                                 get_nominals=system.get_nominals, set_time=self._fmu.setTime,
+                                 input=HeldInputs(), startTime=0.0,
+                                 relativeTolerance=self.tolerance,
+                                 maxNumSteps=MAX_SOLVER_STEPS)
+            self._sensitivity_solvers[key] = (system, solver)
+        return self._sensitivity_solvers[key]
+
+    def _output_partials(self, wrt_refs: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
+        """(dy/dx over all continuous states (ny, n), dy/du for ``wrt_refs`` (ny, m))."""
+        fmu = self._fmu
+        n = self._n_continuous
+        ny = len(self._output_vars)
+        outputs = {u.variable.name for u in self.model_description.outputs}
+        rows = [i for i, v in enumerate(self._output_vars) if v.name in outputs]
+        dy_dx = np.zeros((ny, n))
+        dy_du = np.zeros((ny, len(wrt_refs)))
+        for i, v in enumerate(self._output_vars):
+            if v.name not in outputs:  # a continuous state read as an output
+                dy_dx[i, self._continuous_states.index(v)] = 1.0
+        if rows:
+            refs = [self._output_vars[i].valueReference for i in rows]
+            knowns = [v.valueReference for v in self._continuous_states] + list(wrt_refs)
+            for j, known in enumerate(knowns):
+                column = fmu.getDirectionalDerivative(refs, [known], [1.0])
+                if j < n:
+                    dy_dx[rows, j] = column
+                else:
+                    dy_du[rows, j - n] = column
+        return dy_dx, dy_du
+
+    def interval_jacobians(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
+                           wrt_inputs: Sequence[int]) -> IntervalJacobians | None:
+        """End values and forward-sensitivity derivatives of B intervals (ME), or None.
+
+        Integrates ``[x, Sx, Su]`` at the model's tolerance, the Jacobian-vector
+        products from ``fmi2GetDirectionalDerivative``: in the compiled
+        Runge-Kutta driver when :meth:`me_batch_plan` allows it, else with
+        CVode.
+        Returns None (finite-difference fallback) for Co-Simulation FMUs and
+        for Model Exchange FMUs without directional derivatives or with event
+        indicators.
+
+        Parameters
+        ----------
+        x_start : ndarray, shape (B, nx)
+        u : ndarray, shape (B, nu)
+        dt_s : float
+            Interval length [s].
+        wrt_inputs : sequence of int
+            Column indices of ``u`` to differentiate with respect to.
+        """
+        wrt = [int(j) for j in wrt_inputs]
+        bad = [j for j in wrt if not 0 <= j < len(self.input_names)]
+        if bad:
+            raise ValueError(f'wrt_inputs must index {list(self.input_names)}, got {wrt}')
+        reason = self._sensitivity_plan(wrt)
+        if reason is not None:
+            logger.debug('interval_jacobians unavailable (%s): finite differences', reason)
+            return None
+        x_start, u, dt_s = self._check_batch(x_start, u, dt_s)
+        batch, m = x_start.shape[0], len(wrt)
+        nx, ny = len(self.state_names), len(self.output_names)
+        pos = self._state_positions
+        x_end = np.empty((batch, nx))
+        y_end = np.empty((batch, ny))
+        dx_dx0 = np.empty((batch, nx, nx))
+        dx_du = np.empty((batch, nx, m))
+        dy_dx0 = np.empty((batch, ny, nx))
+        dy_du = np.empty((batch, ny, m))
+        if self.me_batch_plan() is None:
+            done = self._me_batch_in_c(x_start, u, dt_s, x_end, y_end,
+                                       self._sensitivity_request(wrt))
+            if done is not False:
+                s_end, dyo = done
+                sx, su = s_end[:, :, :nx], s_end[:, :, nx:]  # (B, n, nx), (B, n, m)
+                n = self._n_continuous
+                fmu_outputs = {o.variable.name for o in self.model_description.outputs}
+                rows = [i for i, v in enumerate(self._output_vars) if v.name in fmu_outputs]
+                dy_dx = np.zeros((batch, ny, n))
+                dy_du_direct = np.zeros((batch, ny, m))
+                dy_dx[:, rows] = dyo[:, :, :n]
+                dy_du_direct[:, rows] = dyo[:, :, n:]
+                for i, v in enumerate(self._output_vars):
+                    if v.name not in fmu_outputs:  # a continuous state read as an output
+                        dy_dx[:, i, self._continuous_states.index(v)] = 1.0
+                return IntervalJacobians(x_end, y_end, sx[:, pos], su[:, pos], dy_dx @ sx,
+                                         dy_dx @ su + dy_du_direct)
+        wrt_refs = [self._input_vars[j].valueReference for j in wrt]
+        for b in range(batch):
+            self._start_interval(x_start[b], u[b])
+            system, solver = self._sensitivity_solver(wrt)
+            self._fmu.getContinuousStates(double_pointer(self._x_full), self._n_continuous)
+            system.load(self._x_full)
+            solver.reset(0.0)
+            _, _, t = solver.step(0.0, dt_s)
+            self._fmu.setTime(t)
+            s = system.matrix()
+            sx, su = s[:, :nx], s[:, nx:]  # (n, nx): d x_FMU / d x0_model; (n, m)
+            x_end[b], y_end[b] = self._read()
+            dy_dx, dy_du_direct = self._output_partials(wrt_refs)
+            dx_dx0[b] = sx[pos]
+            dx_du[b] = su[pos]
+            dy_dx0[b] = dy_dx @ sx
+            dy_du[b] = dy_dx @ su + dy_du_direct
+        return IntervalJacobians(x_end, y_end, dx_dx0, dx_du, dy_dx0, dy_du)
