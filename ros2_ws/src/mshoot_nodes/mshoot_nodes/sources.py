@@ -94,10 +94,16 @@ def check_start_time(text: str) -> str | None:
 
 
 def fmu_available() -> bool:
-    """True if the installed mshoot_core can build and load the R1C1 FMU."""
+    """True if the R1C1 FMU and its batch drivers are built where the runtime finds them
+    (``make setup``)."""
     try:
-        from mshoot_core import fmu_build  # noqa: F401
-        from mshoot_core.models import fmi  # noqa: F401
+        from mshoot_core.fmu_cache import find_driver, find_fmu, NotBuiltError
     except ImportError:
+        return False
+    try:
+        find_fmu('r1c1')
+        find_driver('cs')
+        find_driver('me')
+    except NotBuiltError:
         return False
     return True
