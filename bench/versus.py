@@ -342,46 +342,90 @@ def zone_figures(controls_w: list, states_k: list, scenario: Any, kelvin: float)
             'discomfort_kh': float(violation.sum())}
 
 
-def zones_ours(n_zones: int, steps: int, profile: bool = False) -> dict:
-    """Our per-step times of the scale problem (``bench/scale.py``, IPOPT), the time in the
-    model's batch functions per step, the warnings raised, and with ``profile`` a cProfile
-    of one more (warm) step."""
-    import warnings
-    from mshoot_core.closed_loop import forecast_window
-    from mshoot_core.models.r1c1 import KELVIN
-    from scale import zone_case
-    started = time.perf_counter()
-    model, mpc, scenario, x = zone_case(n_zones, HORIZON, 'ipopt', steps + 1)
-    build_s = time.perf_counter() - started
-    timers = Timers()
-    for name in ('simulate_intervals', 'interval_jacobians'):  # on the instance only
-        setattr(model, name, timers.wrap('simulations', getattr(model, name)))
-    times, model_s, iterations, failures, controls, states = [], [], [], 0, [], []
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter('always')
-        for k in range(steps):
-            before = timers.total['simulations']
-            started = time.perf_counter()
-            result = mpc.solve(x, scenario.index[k], forecast_window(scenario, k, HORIZON))
-            times.append(time.perf_counter() - started)
-            model_s.append(timers.total['simulations'] - before)
-            iterations.append(result.nit)
-            failures += not result.success
-            x = result.simulated_states[1]
-            controls.append(result.controls[0])
-            states.append(x)
-        top = []
-        if profile:
-            profiler = cProfile.Profile()
-            profiler.runcall(mpc.solve, x, scenario.index[steps],
-                             forecast_window(scenario, steps, HORIZON))
-            top = profile_figures(pstats.Stats(profiler))['top_tottime']
-    found = sorted({f'{w.category.__name__} at {pathlib.Path(w.filename).name}:{w.lineno}: '
-                    f'{str(w.message).split(".")[0]}' for w in caught})
-    return {'build_s': build_s, 'times_s': times, 'model_s': model_s,
-            'iterations': iterations, 'failures': failures,
-            'variables': mpc.problem.index.size, 'warnings': found, 'profile_top': top,
-            'controls_w': controls, **zone_figures(controls, states, scenario, KELVIN)}
+class ZoneLoop:
+    """A closed loop on the scale problem, one MPC step at a time, with its records.
+
+    Subclasses set ``build_s`` and ``variables`` and implement :meth:`solve`; the plant is
+    the exact multi-zone model (``MultiZoneModel.simulate_intervals``), as in ``scale.py``.
+    """
+
+    def __init__(self, n_zones: int, steps: int) -> None:
+        from scale import zone_case
+        self.model, self.mpc, self.scenario, self.x = zone_case(n_zones, HORIZON, 'ipopt',
+                                                                steps + 1)
+        self.times_s: list[float] = []
+        self.model_s: list[float] = []
+        self.iterations: list[int] = []
+        self.failures = 0
+        self.controls_w: list = []
+        self.states_k: list = []
+
+    def solve(self, k: int) -> tuple[Any, int, bool, float]:
+        """Plan step k from ``self.x``: (applied heat rates [W] (Z,), iterations, success,
+        model or function evaluation time [s])."""
+        raise NotImplementedError
+
+    def step(self, k: int) -> None:
+        import numpy as np
+        started = time.perf_counter()
+        q, iterations, success, model_s = self.solve(k)
+        self.times_s.append(time.perf_counter() - started)
+        self.model_s.append(model_s)
+        self.iterations.append(iterations)
+        self.failures += not success
+        inputs = np.concatenate([self.scenario[['solrad', 'Tout', 'occ', 'dpos']].to_numpy(
+            dtype=float)[k], q])[None, :]
+        self.x = self.model.simulate_intervals(self.x[None, :], inputs, 3600.0)[0][0]
+        self.controls_w.append(q)
+        self.states_k.append(self.x)
+
+    def summary(self) -> dict:
+        import numpy as np
+        from mshoot_core.models.r1c1 import KELVIN
+        return {'variables': self.variables, 'build_s': self.build_s,
+                'first_s': self.times_s[0], 'warm_s': float(np.median(self.times_s[1:])),
+                'iterations': float(np.mean(self.iterations[1:])),
+                'model_warm_s': float(np.median(self.model_s[1:])),
+                'failures': self.failures, 'times_s': self.times_s,
+                **zone_figures(self.controls_w, self.states_k, self.scenario, KELVIN)}
+
+
+class OurZones(ZoneLoop):
+    """Ours: ``bench/scale.py``'s MPC (IPOPT); model time = our model's batch functions."""
+
+    def __init__(self, n_zones: int, steps: int) -> None:
+        started = time.perf_counter()
+        super().__init__(n_zones, steps)
+        self.build_s = time.perf_counter() - started
+        self.variables = self.mpc.problem.index.size
+        self.timers = Timers()
+        self._plant = self.model.simulate_intervals
+        for name in ('simulate_intervals', 'interval_jacobians'):  # on the instance only
+            setattr(self.model, name, self.timers.wrap('simulations', getattr(self.model,
+                                                                              name)))
+
+    def solve(self, k: int) -> tuple[Any, int, bool, float]:
+        from mshoot_core.closed_loop import forecast_window
+        before = self.timers.total['simulations']
+        result = self.mpc.solve(self.x, self.scenario.index[k],
+                                forecast_window(self.scenario, k, HORIZON))
+        model_s = self.timers.total['simulations'] - before
+        return result.controls[0], result.nit, result.success, model_s
+
+    def step(self, k: int) -> None:
+        timed, self.model.simulate_intervals = self.model.simulate_intervals, self._plant
+        try:
+            super().step(k)  # the plant's simulation is not the MPC's
+        finally:
+            self.model.simulate_intervals = timed
+
+    def profile_step(self, k: int) -> list[dict]:
+        """cProfile of one more (warm) step: the top functions by own time."""
+        from mshoot_core.closed_loop import forecast_window
+        profiler = cProfile.Profile()
+        profiler.runcall(self.mpc.solve, self.x, self.scenario.index[k],
+                         forecast_window(self.scenario, k, HORIZON))
+        return profile_figures(pstats.Stats(profiler))['top_tottime']
 
 
 def our_ipopt_options(mpc: Any) -> dict:
@@ -391,72 +435,66 @@ def our_ipopt_options(mpc: Any) -> dict:
             **{f'ipopt.{key}': value for key, value in mpc.solver.options.items()}}
 
 
-def zones_casadi(n_zones: int, steps: int, tuned: bool) -> dict:
-    """CasADi's per-step times of the same zones, scenario, band and initial state: with
-    IPOPT's defaults, or (``tuned``) with the IPOPT options of ours."""
-    import numpy as np
-    from casadi_ref import CasadiMpc, ZoneParameters
-    from mshoot_core.models.r1c1 import KELVIN
-    from mshoot_core.scenario import DISTURBANCE_COLUMNS
-    from scale import zone_case
-    model, ours, scenario, x = zone_case(n_zones, HORIZON, 'ipopt', steps)
-    options = our_ipopt_options(ours) if tuned else {}
-    started = time.perf_counter()
-    mpc = CasadiMpc(ZoneParameters.from_multizone(model), HORIZON, ipopt_options=options)
-    build_s = time.perf_counter() - started
-    disturbances = scenario[list(DISTURBANCE_COLUMNS)].to_numpy(dtype=float)
-    band = scenario[['comfort_min', 'comfort_max']].to_numpy(dtype=float)
-    times, iterations, failures, controls, states, evaluations = [], [], 0, [], [], []
-    for k in range(steps):
-        rows = np.arange(k, k + HORIZON + 1)
+class CasadiZones(ZoneLoop):
+    """CasADi's formulation of the same zones, scenario, band and initial state: with IPOPT's
+    defaults, or (``tuned``) with our IPOPT options; model time = its function evaluations."""
+
+    def __init__(self, n_zones: int, steps: int, tuned: bool) -> None:
+        from casadi_ref import CasadiMpc, ZoneParameters
+        super().__init__(n_zones, steps)
+        self.ipopt_options = our_ipopt_options(self.mpc) if tuned else {}
         started = time.perf_counter()
-        plan = mpc.solve(x - KELVIN, disturbances[rows[:-1]],
-                         np.repeat(band[rows[1:], :1], n_zones, axis=1),
-                         np.repeat(band[rows[1:], 1:], n_zones, axis=1))
-        times.append(time.perf_counter() - started)
-        iterations.append(plan['iterations'])
-        evaluations.append(sum(plan['stats'].get(f't_wall_{n}', 0.0) for n in (
-            'nlp_f', 'nlp_g', 'nlp_grad_f', 'nlp_jac_g', 'nlp_hess_l')))
-        failures += not plan['success']
-        inputs = np.concatenate([disturbances[k], plan['q'][0]])[None, :]
-        x = model.simulate_intervals(x[None, :], inputs, 3600.0)[0][0]  # the exact plant
-        controls.append(plan['q'][0])
-        states.append(x)
-    return {'build_s': build_s, 'times_s': times, 'iterations': iterations,
-            'failures': failures, 'variables': 3 * n_zones * HORIZON, 'ipopt_options': options,
-            'function_evaluations_s': evaluations, 'controls_w': controls,
-            **zone_figures(controls, states, scenario, KELVIN)}
+        self.casadi = CasadiMpc(ZoneParameters.from_multizone(self.model), HORIZON,
+                                ipopt_options=self.ipopt_options)
+        self.build_s = time.perf_counter() - started
+        self.variables = 3 * n_zones * HORIZON
+        self.disturbances = self.scenario[['solrad', 'Tout', 'occ', 'dpos']].to_numpy(float)
+        self.band = self.scenario[['comfort_min', 'comfort_max']].to_numpy(dtype=float)
+
+    def solve(self, k: int) -> tuple[Any, int, bool, float]:
+        import numpy as np
+        from casadi_ref import function_time_s
+        from mshoot_core.models.r1c1 import KELVIN
+        rows = np.arange(k, k + HORIZON + 1)
+        zones = self.x.size
+        plan = self.casadi.solve(self.x - KELVIN, self.disturbances[rows[:-1]],
+                                 np.repeat(self.band[rows[1:], :1], zones, axis=1),
+                                 np.repeat(self.band[rows[1:], 1:], zones, axis=1))
+        return (plan['q'][0], plan['iterations'], plan['success'],
+                function_time_s(plan['stats']))
 
 
 def zone_rows(zones: Sequence[int], steps: int) -> list[dict]:
-    """One row per Z: build, cold first solve, warm median per step and iterations of ours,
-    CasADi with IPOPT's defaults ('casadi') and with our IPOPT options ('casadi_tuned')."""
+    """One row per Z: build, cold first solve, warm median per step, iterations and model
+    time of ours, CasADi with IPOPT's defaults ('casadi') and with our IPOPT options
+    ('casadi_tuned'); the three loops step in turn, so load on the machine hits them alike."""
+    import warnings
+
     import numpy as np
+    for loop in (OurZones(1, 1), CasadiZones(1, 1, tuned=False)):  # one-time imports, plugins
+        loop.step(0)
     rows = []
     for n_zones in zones:
-        runs = {'ours': zones_ours(n_zones, steps, profile=n_zones == max(zones)),
-                'casadi': zones_casadi(n_zones, steps, tuned=False),
-                'casadi_tuned': zones_casadi(n_zones, steps, tuned=True)}
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter('always')
+            loops = {'ours': OurZones(n_zones, steps),
+                     'casadi': CasadiZones(n_zones, steps, tuned=False),
+                     'casadi_tuned': CasadiZones(n_zones, steps, tuned=True)}
+            for k in range(steps):
+                for loop in loops.values():
+                    loop.step(k)
+            profile = loops['ours'].profile_step(steps) if n_zones == max(zones) else []
         row = {'zones': n_zones, 'horizon_h': HORIZON, 'steps': steps,
-               'casadi_tuned_ipopt_options': runs['casadi_tuned']['ipopt_options']}
-        for name, run in runs.items():
-            row.update({f'{name}_variables': run['variables'],
-                        f'{name}_build_s': run['build_s'],
-                        f'{name}_first_s': run['times_s'][0],
-                        f'{name}_warm_s': float(np.median(run['times_s'][1:])),
-                        f'{name}_iterations': float(np.mean(run['iterations'][1:])),
-                        f'{name}_failures': run['failures'],
-                        f'{name}_energy_kwh': run['energy_kwh'],
-                        f'{name}_discomfort_kh': run['discomfort_kh'],
-                        f'{name}_times_s': run['times_s']})
-            if name == 'ours':
-                row.update(ours_model_warm_s=float(np.median(run['model_s'][1:])),
-                           ours_warnings=run['warnings'], ours_profile_top=run['profile_top'])
-            else:
-                row[f'{name}_function_evaluations_warm_s'] = float(
-                    np.median(run['function_evaluations_s'][1:]))
+               'casadi_tuned_ipopt_options': loops['casadi_tuned'].ipopt_options,
+               'ours_profile_top': profile,
+               'ours_warnings': sorted({f'{w.category.__name__} at '
+                                        f'{pathlib.Path(w.filename).name}:{w.lineno}: '
+                                        f'{str(w.message).split(".")[0]}' for w in caught})}
+        for name, loop in loops.items():
+            row.update({f'{name}_{key}': value for key, value in loop.summary().items()})
+            if name != 'ours':
                 row[f'{name}_first_step_max_dq_w'] = float(np.max(np.abs(
-                    runs['ours']['controls_w'][0] - run['controls_w'][0])))
+                    loops['ours'].controls_w[0] - loop.controls_w[0])))
                 row[f'{name}_warm_ratio'] = row['ours_warm_s'] / row[f'{name}_warm_s']
                 row[f'{name}_first_ratio'] = row['ours_first_s'] / row[f'{name}_first_s']
         rows.append(row)
@@ -499,7 +537,7 @@ def report(whole: dict, zones: list[dict], parts: dict) -> None:
                         ('casadi_first_s', 'casadi first', '.3f'),
                         ('casadi_warm_s', 'casadi warm', '.3f'),
                         ('casadi_iterations', 'casadi iters', '.1f'),
-                        ('casadi_function_evaluations_warm_s', 'casadi evals', '.3f'),
+                        ('casadi_model_warm_s', 'casadi evals', '.3f'),
                         ('casadi_first_ratio', 'ratio first', '.2f'),
                         ('casadi_warm_ratio', 'ratio warm', '.2f')])
     logger.info('CasADi with our IPOPT options (%s):', ', '.join(
@@ -507,7 +545,7 @@ def report(whole: dict, zones: list[dict], parts: dict) -> None:
     print_table(zones, [('zones', 'Z', 'd'), ('casadi_tuned_first_s', 'tuned first', '.3f'),
                         ('casadi_tuned_warm_s', 'tuned warm', '.3f'),
                         ('casadi_tuned_iterations', 'tuned iters', '.1f'),
-                        ('casadi_tuned_function_evaluations_warm_s', 'tuned evals', '.3f'),
+                        ('casadi_tuned_model_warm_s', 'tuned evals', '.3f'),
                         ('casadi_tuned_first_ratio', 'ratio first', '.2f'),
                         ('casadi_tuned_warm_ratio', 'ratio warm', '.2f')])
     logger.info('the same problem: energy of the applied heat rates [kWh], discomfort of the '
