@@ -34,7 +34,7 @@ import logging
 import pathlib
 import sys
 import time
-from typing import Sequence
+from typing import Any, Sequence
 
 import casadi as ca
 import numpy as np
@@ -95,7 +95,7 @@ class ZoneParameters:
         zones = np.broadcast(np.asarray(p.Vi), np.asarray(solar_share),
                              np.asarray(occupancy_share)).shape or (1,)
 
-        def per_zone(value) -> np.ndarray:
+        def per_zone(value: Any) -> np.ndarray:
             return np.broadcast_to(np.asarray(value, dtype=float), zones).copy()
 
         return cls(per_zone(p.capacity_j_k), per_zone(p.resistance_k_w),
@@ -104,7 +104,7 @@ class ZoneParameters:
                    float(p.Tve))
 
     @classmethod
-    def from_multizone(cls, model) -> 'ZoneParameters':
+    def from_multizone(cls, model: Any) -> 'ZoneParameters':
         """From a :class:`mshoot_core.models.multizone.MultiZoneModel` (its seeded zones)."""
         return cls.from_r1c1(model.zones.parameters, model.solar_share, model.occupancy_share)
 
@@ -285,8 +285,7 @@ def run_case(data: pathlib.Path | None, horizon: int, hours: int, substeps: int,
     kpis = closed_loop_kpis(steps, pd.concat(fines), 3600.0, loop_s)
     kpis.update(iterations=int(steps['iterations'].sum()))
     timing.update(loop_s=loop_s, solves_s=solves, function_evaluations_s=evaluations,
-                  plant_s=plant,
-                  kpis_s=time.perf_counter() - started)
+                  plant_s=plant, kpis_s=time.perf_counter() - started)
     return kpis, steps, timing
 
 
