@@ -4,7 +4,7 @@ ROOT := $(abspath $(dir $(lastword $(MAKEFILE_LIST))))
 RUN := source $(ROOT)/env.sh &&
 PYTEST_ARGS ?=
 
-.PHONY: setup test test-all bench clean help
+.PHONY: setup test test-all bench bench-setup versus clean help
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:.*## /\t/'
@@ -18,8 +18,15 @@ test: setup  ## run the whole default test suite (slow tests excluded)
 test-all: setup  ## run every test, slow ones included
 	@$(RUN) cd $(ROOT) && python -m pytest -m '' $(PYTEST_ARGS)
 
-bench: setup  ## run the benchmarks (speed, tolerance, scale); figures in out/bench/*.json
-	@$(RUN) cd $(ROOT) && python bench/speed.py && python bench/tolerance.py && python bench/scale.py
+bench-setup: setup  ## install the benchmark-only packages (bench/requirements.txt: CasADi) into .venv
+	@VIRTUAL_ENV=$(ROOT)/.venv $(ROOT)/.venv/bin/uv pip install -q --compile-bytecode -r $(ROOT)/bench/requirements.txt
+
+bench: bench-setup  ## run the benchmarks (speed, tolerance, scale, versus); figures in out/bench/*.json
+	@$(RUN) cd $(ROOT) && python bench/speed.py && python bench/tolerance.py && python bench/scale.py \
+		&& python bench/versus.py
+
+versus: bench-setup  ## mshoot next to CasADi/IPOPT on the same cases (~1 min) -> out/bench/versus.json
+	@$(RUN) cd $(ROOT) && python bench/versus.py
 
 clean:  ## remove build products (keeps .venv)
 	rm -rf $(ROOT)/ros2_ws/build $(ROOT)/ros2_ws/install $(ROOT)/ros2_ws/log $(ROOT)/out

@@ -16,6 +16,7 @@ import time
 import warnings
 
 import numpy as np
+import pandas as pd
 
 from common import logger, print_table, setup_logging, write_json
 from mshoot_core.closed_loop import forecast_window
@@ -24,12 +25,27 @@ from mshoot_core.mpc import MPC
 from mshoot_core.scenario import synthetic_scenario
 
 
-def time_steps(n_zones: int, horizon: int, solver: str, steps: int) -> dict:
-    """Median wall time [s] of ``steps`` consecutive MPC steps, and solver figures."""
+#: Initial temperature of every zone [degC].
+INITIAL_C = 20.5
+
+
+def zone_case(n_zones: int, horizon: int, solver: str, steps: int) -> tuple[
+        MultiZoneModel, MPC, pd.DataFrame, np.ndarray]:
+    """The scale problem: Z independent R1C1 zones on the built-in scenario.
+
+    Returns the model, the configured MPC, a scenario long enough for
+    ``steps`` steps at ``horizon`` and the initial state [K] (``bench/versus.py``
+    builds its CasADi counterpart from the same pieces).
+    """
     model = MultiZoneModel(n_zones)
     mpc = MPC(model, horizon_steps=horizon, **multizone_mpc_options(model, solver))
     scenario = synthetic_scenario(hours=steps + horizon + 1)
-    x = np.full(n_zones, 20.5 + 273.15)
+    return model, mpc, scenario, np.full(n_zones, INITIAL_C + 273.15)
+
+
+def time_steps(n_zones: int, horizon: int, solver: str, steps: int) -> dict:
+    """Median wall time [s] of ``steps`` consecutive MPC steps, and solver figures."""
+    _, mpc, scenario, x = zone_case(n_zones, horizon, solver, steps)
     times, iterations, failures, relaxed = [], 0, 0, 0
     for k in range(steps):
         started = time.perf_counter()

@@ -1,0 +1,668 @@
+"""Versus: mshoot next to a CasADi/IPOPT multiple-shooting implementation of the same cases.
+
+    python bench/versus.py [--repeats 3] [--zones 10 50 100] [--zone-steps 6]
+
+In one run (issue 16, part 1):
+
+1. the reference case (OU44, 1 zone, H = 10 h, 72 h, FMU control model at its
+   default tolerance) as a whole command, ours (:data:`CASE_MODULE`, SLSQP by
+   default, and with ``--solver ipopt``) and ``bench/casadi_ref.py`` (RK4,
+   exact derivatives, IPOPT), each run ``--repeats`` times as a subprocess,
+   interleaved, medians; with the control loop, the median solve and the KPIs
+   of both (so a reader sees they solve the same problem);
+2. the Z-zone scale problem of ``bench/scale.py`` (Z independent R1C1 zones,
+   IPOPT) at Z = 10, 50, 100 and H = 10 h, ours next to CasADi's formulation
+   of the same zones: build, cold first solve, warm median per step;
+3. where the time of both whole commands goes: interpreter, imports, data,
+   models, solves (ours: model evaluations vs glue; CasADi: its function
+   evaluations vs IPOPT), plant, output, by timers wrapped around the
+   functions of an instrumented run (medians of ``--repeats``), the imports
+   per package (``python -X importtime``), and a cProfile run of ours for
+   the top functions inside the solves.
+
+Prints the tables with ratios ours/CasADi and writes ``out/bench/versus.json``.
+Needs ``casadi`` (``make bench-setup`` installs ``bench/requirements.txt``).
+"""
+from __future__ import annotations
+
+import argparse
+import cProfile
+import csv
+import functools
+import importlib
+import importlib.util
+import json
+import os
+import pathlib
+import pstats
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from typing import Any, Callable, Sequence
+
+#: The module of the case command timed as ours (``python -m CASE_MODULE ...``): the one place
+#: to change when the command moves. Its ``main(argv)`` is run by the instrumented breakdown,
+#: which times its ``reference_scenario``, ``control_model``, ``run_case`` and
+#: ``write_outputs`` where the module has them.
+CASE_MODULE = 'mshoot_core.case'
+BENCH = pathlib.Path(__file__).resolve().parent
+ROOT = BENCH.parent
+CASADI_SCRIPT = BENCH / 'casadi_ref.py'
+HORIZON = 10
+
+
+def data_file() -> pathlib.Path:
+    """The OU44 measurements (``../shared/data/ou44`` from the project root)."""
+    path = (ROOT / '..' / 'shared' / 'data' / 'ou44' / 'measurements.csv').resolve()
+    if not path.is_file():
+        raise SystemExit(f'benchmark data missing: {path}')
+    return path
+
+
+def ours_command(out: pathlib.Path, *extra: str, python_flags: Sequence[str] = ()) -> list[str]:
+    """Our whole command of the reference case (the issue's command line)."""
+    return [sys.executable, *python_flags, '-m', CASE_MODULE, 'ou44', '--data', str(data_file()),
+            '--horizon', str(HORIZON), '--control', 'fmu', '--out', str(out), *extra]
+
+
+def casadi_command(out: pathlib.Path, python_flags: Sequence[str] = ()) -> list[str]:
+    """The CasADi script of the same case."""
+    return [sys.executable, *python_flags, str(CASADI_SCRIPT), '--data', str(data_file()),
+            '--horizon', str(HORIZON), '--out', str(out)]
+
+
+def run_timed(command: list[str]) -> tuple[float, str, float, float]:
+    """Wall time [s] of a subprocess (which must succeed), its stderr, and its launch and
+    exit times (epoch [s])."""
+    launched = time.time()
+    started = time.perf_counter()
+    done = subprocess.run(command, capture_output=True, text=True, cwd=ROOT)
+    wall = time.perf_counter() - started
+    exited = time.time()
+    if done.returncode:
+        raise SystemExit(f'{" ".join(command)} failed ({done.returncode}):\n{done.stderr}')
+    return wall, done.stderr, launched, exited
+
+
+# -- the instrumented run of our command (a subprocess of its own) --------------------------------
+class Timers:
+    """Wall-time totals [s] and call counts of wrapped functions, by group.
+
+    Nested calls within one group count once (the outermost call), so a batch
+    function calling another batch function is not counted twice.
+    """
+
+    def __init__(self) -> None:
+        self.total: dict[str, float] = {}
+        self.calls: dict[str, int] = {}
+        self._depth: dict[str, int] = {}
+
+    def wrap(self, group: str, function: Callable) -> Callable:
+        self.total.setdefault(group, 0.0)
+        self.calls.setdefault(group, 0)
+        self._depth.setdefault(group, 0)
+
+        @functools.wraps(function)
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            if self._depth[group]:
+                return function(*args, **kwargs)
+            self._depth[group] += 1
+            started = time.perf_counter()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                self.total[group] += time.perf_counter() - started
+                self.calls[group] += 1
+                self._depth[group] -= 1
+        return timed
+
+    def patch(self, owner: Any, name: str, group: str) -> bool:
+        """Replace ``owner.name`` by its timed version; False if ``owner`` has no ``name``."""
+        function = getattr(owner, name, None)
+        if function is None:
+            return False
+        setattr(owner, name, self.wrap(group, function))
+        return True
+
+
+def timed_drivers(timers: Timers, fmi: Any) -> None:
+    """Time the compiled batch drivers' C entry points (native integration)."""
+    for loader_name, entry in (('_load_me_driver', 'mshoot_me_batch'),
+                               ('_load_cs_driver', 'mshoot_cs_batch')):
+        loader = getattr(fmi, loader_name, None)
+        if loader is None:
+            continue
+
+        def load(fmu: Any, _loader: Callable = loader, _entry: str = entry) -> Any:
+            loaded = _loader(fmu)
+            if not loaded:
+                return loaded
+            driver, api = loaded
+            proxy = type('TimedDriver', (), {})()
+            setattr(proxy, _entry, timers.wrap('native', getattr(driver, _entry)))
+            return proxy, api
+        setattr(fmi, loader_name, load)
+
+
+def instrumented_case(argv: list[str], report: pathlib.Path, profile: bool) -> int:
+    """Run our case command's ``main(argv)`` with timers (or with cProfile on inside the
+    solves); write the figures to ``report``."""
+    script_start_epoch = time.time()
+    started = time.perf_counter()
+    module = importlib.import_module(CASE_MODULE)
+    imports_s = time.perf_counter() - started
+    from mshoot_core.emulation import Emulator
+    from mshoot_core.models import fmi, r1c1
+    from mshoot_core.mpc import MPC
+    timers = Timers()
+    profiler = cProfile.Profile()
+    if profile:
+        solve = MPC.solve
+
+        def profiled_solve(*args: Any, **kwargs: Any) -> Any:
+            return profiler.runcall(solve, *args, **kwargs)
+        MPC.solve = profiled_solve
+        patched = {}
+    else:
+        patched = {name: timers.patch(module, name, group) for name, group in (
+            ('reference_scenario', 'data'), ('control_model', 'models'),
+            ('run_case', 'loop'), ('write_outputs', 'output'))}
+        timers.patch(MPC, 'solve', 'solves')
+        timers.patch(Emulator, 'advance', 'plant')
+        for cls in (fmi.FmiModel, r1c1.R1C1Model):
+            for name in ('simulate_intervals', 'interval_jacobians'):
+                if name in cls.__dict__:
+                    timers.patch(cls, name, 'simulations')
+        timed_drivers(timers, fmi)
+    started = time.perf_counter()
+    code = module.main(argv)
+    main_s = time.perf_counter() - started
+    figures = {'imports_s': imports_s, 'main_s': main_s, 'code': code, 'patched': patched,
+               'total_s': timers.total, 'calls': timers.calls,
+               'script_start_epoch': script_start_epoch}
+    if profile:
+        figures['profile'] = profile_figures(pstats.Stats(profiler))
+    figures['main_end_epoch'] = time.time()
+    report.write_text(json.dumps(figures, indent=2))
+    return code
+
+
+def profile_figures(stats: pstats.Stats, top: int = 12) -> dict:
+    """cProfile totals of the solve and the model's batch functions, and the top functions
+    by own time (tottime) [s]."""
+    def label(key: tuple) -> str:
+        path, line, name = key
+        return f'{pathlib.Path(path).name}:{line}({name})' if line else name
+
+    batch = {'simulate_intervals', 'interval_jacobians'}
+    totals = {'solves_s': 0.0, 'simulations_s': 0.0, 'simulation_calls': 0}
+    rows = []
+    for key, (calls, primitive, tottime, cumtime, _) in stats.stats.items():
+        path, _, name = key
+        if name == 'solve' and path.endswith('mpc.py'):
+            totals['solves_s'] += cumtime
+        if name in batch and path.endswith(('fmi.py', 'r1c1.py', 'multizone.py')):
+            totals['simulations_s'] += cumtime
+            totals['simulation_calls'] += primitive
+        rows.append((tottime, calls, cumtime, label(key)))
+    rows.sort(reverse=True)
+    totals['top_tottime'] = [{'function': f, 'tottime_s': t, 'calls': c, 'cumtime_s': cum}
+                             for t, c, cum, f in rows[:top]]
+    return totals
+
+
+# -- the whole commands ---------------------------------------------------------------------------
+def whole_commands(repeats: int, tmp: pathlib.Path) -> dict:
+    """Both whole commands ``repeats`` times, interleaved; walls and each run's figures."""
+    runs: dict[str, list] = {'ours': [], 'ours_ipopt': [], 'casadi': []}
+    for repeat in range(repeats):
+        for name, command in (('ours', ours_command(tmp / 'ours')),
+                              ('ours_ipopt', ours_command(tmp / 'ours_ipopt', '--solver',
+                                                          'ipopt')),
+                              ('casadi', casadi_command(tmp / 'casadi'))):
+            wall = run_timed(command)[0]
+            kpis = json.loads((tmp / name / 'kpis.json').read_text())
+            with open(tmp / name / 'steps.csv', newline='') as steps:
+                kpis['iterations'] = sum(int(row['iterations']) for row in csv.DictReader(steps))
+            runs[name].append({'wall_s': wall, 'loop_s': kpis['wall_s'],
+                               'solve_s_median': kpis['solve_s_median'],
+                               'solve_s_total': kpis['solve_s_total'], 'kpis': kpis})
+    summary = {}
+    for name, items in runs.items():
+        kpis = items[-1]['kpis']
+        summary[name] = {
+            'walls_s': [r['wall_s'] for r in items],
+            'wall_s': statistics.median(r['wall_s'] for r in items),
+            'loop_s': statistics.median(r['loop_s'] for r in items),
+            'solve_s_median': statistics.median(r['solve_s_median'] for r in items),
+            'solve_s_total': statistics.median(r['solve_s_total'] for r in items),
+            'iterations': kpis.get('iterations'),
+            **{k: kpis[k] for k in ('energy_kwh', 'heating_kwh', 'cooling_kwh', 'discomfort_kh',
+                                    'discomfort_kh_hourly', 'solver_failures')}}
+    return summary
+
+
+def interpreter_s(repeats: int) -> float:
+    """Median wall time [s] of ``python -c pass`` (interpreter start and exit)."""
+    return statistics.median(run_timed([sys.executable, '-c', 'pass'])[0]
+                             for _ in range(max(repeats, 3)))
+
+
+def import_packages(stderr: str, floor_s: float = 0.005) -> dict[str, float]:
+    """Import time [s] per top-level package from ``-X importtime`` output (own times summed,
+    so packages add up to the whole import time); packages under ``floor_s`` as 'other'."""
+    per_package: dict[str, float] = {}
+    for line in stderr.splitlines():
+        if not line.startswith('import time:') or 'self [us]' in line:
+            continue
+        self_us, _, name = line[len('import time:'):].split('|')
+        root = name.strip().split('.')[0]
+        per_package[root] = per_package.get(root, 0.0) + int(self_us) * 1e-6
+    packages = dict(sorted(per_package.items(), key=lambda kv: -kv[1]))
+    out = {k: v for k, v in packages.items() if v >= floor_s}
+    out['other'] = sum(v for v in packages.values() if v < floor_s)
+    out['total'] = sum(packages.values())
+    return out
+
+
+def breakdown(repeats: int, tmp: pathlib.Path) -> dict:
+    """Where the time of both whole commands goes (medians of ``repeats`` runs) [s].
+
+    interpreter: a bare ``python -c pass`` (start and exit); imports: ours, the import of
+    :data:`CASE_MODULE` timed inside the run; CasADi's, from launch to its ``main`` less the
+    bare interpreter; exit: from the end of ``main`` to the end of the process; other: the
+    rest (argparse, logging, and for ours the instrumenting driver's own start).
+    """
+    python_s = interpreter_s(repeats)
+    this = str(pathlib.Path(__file__).resolve())
+    ours_runs, casadi_runs = [], []
+    for repeat in range(repeats):
+        report = tmp / f'instrumented_{repeat}.json'
+        argv = ours_command(tmp / 'instrumented')[3:]  # after python -m MODULE
+        wall, _, _, exited = run_timed([sys.executable, this, '--instrument', str(report), '--',
+                                        *argv])
+        figures = json.loads(report.read_text())
+        missing = [name for name, ok in figures['patched'].items() if not ok]
+        if missing:
+            raise SystemExit(f'{CASE_MODULE} has no {missing}: update instrumented_case()')
+        t, c = figures['total_s'], figures['calls']
+        run = {'total': wall, 'interpreter': python_s, 'imports': figures['imports_s'],
+               'data': t['data'], 'models': t['models'], 'loop': t['loop'],
+               'solves': t['solves'], 'simulations': t['simulations'], 'native': t['native'],
+               'glue': t['solves'] - t['simulations'], 'plant': t['plant'],
+               'loop_other': t['loop'] - t['solves'] - t['plant'], 'output': t['output'],
+               'exit': exited - figures['main_end_epoch'],
+               'simulation_calls': c['simulations'], 'solve_calls': c['solves']}
+        run['other'] = wall - sum(run[k] for k in ('interpreter', 'imports', 'data', 'models',
+                                                   'loop', 'output', 'exit'))
+        ours_runs.append(run)
+        wall, _, launched, exited = run_timed(casadi_command(tmp / 'casadi_instrumented'))
+        t = json.loads((tmp / 'casadi_instrumented' / 'kpis.json').read_text())['timing']
+        run = {'total': wall, 'interpreter': python_s,
+               'imports': t['main_start_epoch'] - launched - python_s, 'data': t['data_s'],
+               'models': t['build_s'], 'loop': t['loop_s'] + t['kpis_s'],
+               'solves': t['solves_s'], 'simulations': t['function_evaluations_s'],
+               'glue': t['solves_s'] - t['function_evaluations_s'], 'plant': t['plant_s'],
+               'loop_other': t['loop_s'] + t['kpis_s'] - t['solves_s'] - t['plant_s'],
+               'output': t['output_s'], 'exit': exited - t['main_end_epoch']}
+        run['other'] = wall - sum(run[k] for k in ('interpreter', 'imports', 'data', 'models',
+                                                   'loop', 'output', 'exit'))
+        casadi_runs.append(run)
+    result = {name: {key: statistics.median(run[key] for run in runs) for key in runs[0]}
+              for name, runs in (('ours', ours_runs), ('casadi', casadi_runs))}
+    ours = result['ours']
+    ours['glue_per_simulation_call_us'] = ours['glue'] / max(ours['simulation_calls'], 1) * 1e6
+    # imports per package, over the whole run (lazy imports included: fmpy, matplotlib, ...)
+    stderr = run_timed(ours_command(tmp / 'importtime', python_flags=('-X', 'importtime')))[1]
+    result['ours_imports_by_package'] = import_packages(stderr)
+    stderr = run_timed(casadi_command(tmp / 'importtime_casadi',
+                                      python_flags=('-X', 'importtime')))[1]
+    result['casadi_imports_by_package'] = import_packages(stderr)
+    # cProfile of ours inside the solves: totals of the batch functions, the top functions
+    report = tmp / 'profiled.json'
+    run_timed([sys.executable, this, '--instrument', str(report), '--profile', '--',
+               *ours_command(tmp / 'profiled')[3:]])
+    result['ours_cprofile'] = json.loads(report.read_text())['profile']
+    return result
+
+
+# -- the Z-zone scale problem (in this process) ---------------------------------------------------
+def zone_figures(controls_w: list, states_k: list, scenario: Any, kelvin: float) -> dict:
+    """Energy [kWh] of the applied heat rates and discomfort [Kh] of the hourly end states."""
+    import numpy as np
+    q = np.array(controls_w)
+    x = np.array(states_k) - kelvin
+    rows = np.arange(1, len(x) + 1)
+    lower = scenario['comfort_min'].to_numpy()[rows][:, None]
+    upper = scenario['comfort_max'].to_numpy()[rows][:, None]
+    violation = np.maximum(lower - x, 0.0) + np.maximum(x - upper, 0.0)
+    return {'energy_kwh': float(np.abs(q).sum() / 1000.0),
+            'discomfort_kh': float(violation.sum())}
+
+
+class ZoneLoop:
+    """A closed loop on the scale problem, one MPC step at a time, with its records.
+
+    Subclasses set ``build_s`` and ``variables`` and implement :meth:`solve`; the plant is
+    the exact multi-zone model (``MultiZoneModel.simulate_intervals``), as in ``scale.py``.
+    """
+
+    def __init__(self, n_zones: int, steps: int) -> None:
+        from scale import zone_case
+        self.model, self.mpc, self.scenario, self.x = zone_case(n_zones, HORIZON, 'ipopt',
+                                                                steps + 1)
+        self.times_s: list[float] = []
+        self.model_s: list[float] = []
+        self.iterations: list[int] = []
+        self.failures = 0
+        self.controls_w: list = []
+        self.states_k: list = []
+
+    def solve(self, k: int) -> tuple[Any, int, bool, float]:
+        """Plan step k from ``self.x``: (applied heat rates [W] (Z,), iterations, success,
+        model or function evaluation time [s])."""
+        raise NotImplementedError
+
+    def step(self, k: int) -> None:
+        import numpy as np
+        started = time.perf_counter()
+        q, iterations, success, model_s = self.solve(k)
+        self.times_s.append(time.perf_counter() - started)
+        self.model_s.append(model_s)
+        self.iterations.append(iterations)
+        self.failures += not success
+        inputs = np.concatenate([self.scenario[['solrad', 'Tout', 'occ', 'dpos']].to_numpy(
+            dtype=float)[k], q])[None, :]
+        self.x = self.model.simulate_intervals(self.x[None, :], inputs, 3600.0)[0][0]
+        self.controls_w.append(q)
+        self.states_k.append(self.x)
+
+    def summary(self) -> dict:
+        import numpy as np
+        from mshoot_core.models.r1c1 import KELVIN
+        return {'variables': self.variables, 'build_s': self.build_s,
+                'first_s': self.times_s[0], 'warm_s': float(np.median(self.times_s[1:])),
+                'iterations': float(np.mean(self.iterations[1:])),
+                'model_warm_s': float(np.median(self.model_s[1:])),
+                'failures': self.failures, 'times_s': self.times_s,
+                **zone_figures(self.controls_w, self.states_k, self.scenario, KELVIN)}
+
+
+class OurZones(ZoneLoop):
+    """Ours: ``bench/scale.py``'s MPC (IPOPT); model time = our model's batch functions."""
+
+    def __init__(self, n_zones: int, steps: int) -> None:
+        started = time.perf_counter()
+        super().__init__(n_zones, steps)
+        self.build_s = time.perf_counter() - started
+        self.variables = self.mpc.problem.index.size
+        self.timers = Timers()
+        self._plant = self.model.simulate_intervals
+        for name in ('simulate_intervals', 'interval_jacobians'):  # on the instance only
+            setattr(self.model, name, self.timers.wrap('simulations', getattr(self.model,
+                                                                              name)))
+
+    def solve(self, k: int) -> tuple[Any, int, bool, float]:
+        from mshoot_core.closed_loop import forecast_window
+        before = self.timers.total['simulations']
+        result = self.mpc.solve(self.x, self.scenario.index[k],
+                                forecast_window(self.scenario, k, HORIZON))
+        model_s = self.timers.total['simulations'] - before
+        return result.controls[0], result.nit, result.success, model_s
+
+    def step(self, k: int) -> None:
+        timed, self.model.simulate_intervals = self.model.simulate_intervals, self._plant
+        try:
+            super().step(k)  # the plant's simulation is not the MPC's
+        finally:
+            self.model.simulate_intervals = timed
+
+    def profile_step(self, k: int) -> list[dict]:
+        """cProfile of one more (warm) step: the top functions by own time."""
+        from mshoot_core.closed_loop import forecast_window
+        profiler = cProfile.Profile()
+        profiler.runcall(self.mpc.solve, self.x, self.scenario.index[k],
+                         forecast_window(self.scenario, k, HORIZON))
+        return profile_figures(pstats.Stats(profiler))['top_tottime']
+
+
+def our_ipopt_options(mpc: Any) -> dict:
+    """The IPOPT options our scale problem runs with, in CasADi's spelling: the solver's own
+    (``IpoptSolver``: adaptive barrier update) and ``multizone_mpc_options``' (Mehrotra)."""
+    return {'ipopt.mu_strategy': 'adaptive',
+            **{f'ipopt.{key}': value for key, value in mpc.solver.options.items()}}
+
+
+class CasadiZones(ZoneLoop):
+    """CasADi's formulation of the same zones, scenario, band and initial state: with IPOPT's
+    defaults, or (``tuned``) with our IPOPT options; model time = its function evaluations."""
+
+    def __init__(self, n_zones: int, steps: int, tuned: bool) -> None:
+        from casadi_ref import CasadiMpc, ZoneParameters
+        super().__init__(n_zones, steps)
+        self.ipopt_options = our_ipopt_options(self.mpc) if tuned else {}
+        started = time.perf_counter()
+        self.casadi = CasadiMpc(ZoneParameters.from_multizone(self.model), HORIZON,
+                                ipopt_options=self.ipopt_options)
+        self.build_s = time.perf_counter() - started
+        self.variables = 3 * n_zones * HORIZON
+        self.disturbances = self.scenario[['solrad', 'Tout', 'occ', 'dpos']].to_numpy(float)
+        self.band = self.scenario[['comfort_min', 'comfort_max']].to_numpy(dtype=float)
+
+    def solve(self, k: int) -> tuple[Any, int, bool, float]:
+        import numpy as np
+        from casadi_ref import function_time_s
+        from mshoot_core.models.r1c1 import KELVIN
+        rows = np.arange(k, k + HORIZON + 1)
+        zones = self.x.size
+        plan = self.casadi.solve(self.x - KELVIN, self.disturbances[rows[:-1]],
+                                 np.repeat(self.band[rows[1:], :1], zones, axis=1),
+                                 np.repeat(self.band[rows[1:], 1:], zones, axis=1))
+        return (plan['q'][0], plan['iterations'], plan['success'],
+                function_time_s(plan['stats']))
+
+
+def zone_rows(zones: Sequence[int], steps: int) -> list[dict]:
+    """One row per Z: build, cold first solve, warm median per step, iterations and model
+    time of ours, CasADi with IPOPT's defaults ('casadi') and with our IPOPT options
+    ('casadi_tuned'); the three loops step in turn, so load on the machine hits them alike."""
+    import warnings
+
+    import numpy as np
+    for loop in (OurZones(1, 1), CasadiZones(1, 1, tuned=False)):  # one-time imports, plugins
+        loop.step(0)
+    rows = []
+    for n_zones in zones:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter('always')
+            loops = {'ours': OurZones(n_zones, steps),
+                     'casadi': CasadiZones(n_zones, steps, tuned=False),
+                     'casadi_tuned': CasadiZones(n_zones, steps, tuned=True)}
+            for k in range(steps):
+                for loop in loops.values():
+                    loop.step(k)
+            profile = loops['ours'].profile_step(steps) if n_zones == max(zones) else []
+        row = {'zones': n_zones, 'horizon_h': HORIZON, 'steps': steps,
+               'casadi_tuned_ipopt_options': loops['casadi_tuned'].ipopt_options,
+               'ours_profile_top': profile,
+               'ours_warnings': sorted({f'{w.category.__name__} at '
+                                        f'{pathlib.Path(w.filename).name}:{w.lineno}: '
+                                        f'{str(w.message).split(".")[0]}' for w in caught})}
+        for name, loop in loops.items():
+            row.update({f'{name}_{key}': value for key, value in loop.summary().items()})
+            if name != 'ours':
+                row[f'{name}_first_step_max_dq_w'] = float(np.max(np.abs(
+                    loops['ours'].controls_w[0] - loop.controls_w[0])))
+                row[f'{name}_warm_ratio'] = row['ours_warm_s'] / row[f'{name}_warm_s']
+                row[f'{name}_first_ratio'] = row['ours_first_s'] / row[f'{name}_first_s']
+        rows.append(row)
+    return rows
+
+
+# -- report ---------------------------------------------------------------------------------------
+def report(whole: dict, zones: list[dict], parts: dict) -> None:
+    from common import logger, print_table
+    ours, ipopt, theirs = whole['ours'], whole['ours_ipopt'], whole['casadi']
+    logger.info('\n== 1 zone, H = %d h, 72 h (OU44): whole command and control loop, medians '
+                'of %d runs ==', HORIZON, len(ours['walls_s']))
+    width = 24
+    logger.info('%s %14s %14s %14s %10s %10s', 'what'.ljust(width), 'ours (slsqp)',
+                'ours (ipopt)', 'casadi', 'ratio', 'ratio ipopt')
+    for label, key, fmt, scale, ratio in (
+            ('whole command [s]', 'wall_s', '.3f', 1.0, True),
+            ('control loop [s]', 'loop_s', '.3f', 1.0, True),
+            ('solves, total [s]', 'solve_s_total', '.3f', 1.0, True),
+            ('median solve [ms]', 'solve_s_median', '.2f', 1e3, True),
+            ('IPOPT/SLSQP iterations', 'iterations', '', None, False),
+            ('energy [kWh]', 'energy_kwh', '.3f', 1.0, False),
+            ('discomfort [Kh]', 'discomfort_kh', '.3f', 1.0, False),
+            ('discomfort hourly [Kh]', 'discomfort_kh_hourly', '.3f', 1.0, False),
+            ('solver failures', 'solver_failures', '', None, False)):
+        cells = ['-' if run.get(key) is None else
+                 format(run[key] if scale is None else run[key] * scale, fmt)
+                 for run in (ours, ipopt, theirs)]
+        ratios = [f'{run[key] / theirs[key]:.2f}' if ratio else '' for run in (ours, ipopt)]
+        logger.info('%s %14s %14s %14s %10s %10s', label.ljust(width), *cells, *ratios)
+
+    logger.info('\n== Z zones, H = %d h, IPOPT: seconds per MPC step (first: cold; warm: '
+                'median of the others) ==', HORIZON)
+    print_table(zones, [('zones', 'Z', 'd'), ('ours_build_s', 'ours build', '.3f'),
+                        ('ours_first_s', 'ours first', '.3f'),
+                        ('ours_warm_s', 'ours warm', '.3f'),
+                        ('ours_iterations', 'ours iters', '.1f'),
+                        ('ours_model_warm_s', 'ours model', '.3f'),
+                        ('casadi_build_s', 'casadi build', '.3f'),
+                        ('casadi_first_s', 'casadi first', '.3f'),
+                        ('casadi_warm_s', 'casadi warm', '.3f'),
+                        ('casadi_iterations', 'casadi iters', '.1f'),
+                        ('casadi_model_warm_s', 'casadi evals', '.3f'),
+                        ('casadi_first_ratio', 'ratio first', '.2f'),
+                        ('casadi_warm_ratio', 'ratio warm', '.2f')])
+    logger.info('CasADi with our IPOPT options (%s):', ', '.join(
+        f'{k}={v}' for k, v in zones[0]['casadi_tuned_ipopt_options'].items()))
+    print_table(zones, [('zones', 'Z', 'd'), ('casadi_tuned_first_s', 'tuned first', '.3f'),
+                        ('casadi_tuned_warm_s', 'tuned warm', '.3f'),
+                        ('casadi_tuned_iterations', 'tuned iters', '.1f'),
+                        ('casadi_tuned_model_warm_s', 'tuned evals', '.3f'),
+                        ('casadi_tuned_first_ratio', 'ratio first', '.2f'),
+                        ('casadi_tuned_warm_ratio', 'ratio warm', '.2f')])
+    logger.info('the same problem: energy of the applied heat rates [kWh], discomfort of the '
+                'hourly states [Kh], largest difference of the first applied heat rates [W]')
+    print_table(zones, [('zones', 'Z', 'd'), ('ours_energy_kwh', 'ours kWh', '.2f'),
+                        ('casadi_energy_kwh', 'casadi kWh', '.2f'),
+                        ('casadi_tuned_energy_kwh', 'tuned kWh', '.2f'),
+                        ('ours_discomfort_kh', 'ours Kh', '.3f'),
+                        ('casadi_discomfort_kh', 'casadi Kh', '.3f'),
+                        ('casadi_first_step_max_dq_w', 'max dq0 [W]', '.3f'),
+                        ('ours_failures', 'ours fails', 'd'),
+                        ('casadi_failures', 'casadi fails', 'd'),
+                        ('casadi_tuned_failures', 'tuned fails', 'd')])
+
+    logger.info("'model' / 'evals': time per warm step in our model's batch functions / in "
+                "CasADi's function and derivative evaluations [s]")
+    for row in zones:
+        for warning in row['ours_warnings']:
+            logger.info('ours, Z = %d: %s', row['zones'], warning)
+    largest = zones[-1]
+    if largest['ours_profile_top']:
+        logger.info('cProfile of one warm step of ours at Z = %d, top own times:',
+                    largest['zones'])
+        for item in largest['ours_profile_top'][:10]:
+            logger.info('  %8.3f s %8d calls  %s', item['tottime_s'], item['calls'],
+                        item['function'])
+
+    ours_b, theirs_b = parts['ours'], parts['casadi']
+    logger.info('\n== Where the whole command goes (1 zone, H = %d h, 72 h; medians) [s] ==',
+                HORIZON)
+    lines = (('interpreter start + exit', 'interpreter', ''),
+             ('imports (before main)', 'imports', ''),
+             ('data (scenario)', 'data', ''),
+             ('models / NLP build', 'models', ''),
+             ('control loop', 'loop', ''),
+             ('  solves', 'solves', '  '),
+             ('    model evaluations', 'simulations', '    '),
+             ('      (native C integration)', 'native', '      '),
+             ('    glue / solver', 'glue', '    '),
+             ('  plant (emulator)', 'plant', '  '),
+             ('  loop other', 'loop_other', '  '),
+             ('output (files, figure)', 'output', ''),
+             ('exit (after main)', 'exit', ''),
+             ('other (argparse, logging)', 'other', ''),
+             ('total (instrumented run)', 'total', ''))
+    logger.info('%s %10s %7s %10s %7s', 'phase'.ljust(34), 'ours', '%', 'casadi', '%')
+    for label, key, _ in lines:
+        ours_v = ours_b.get(key)
+        theirs_v = theirs_b.get(key)
+        logger.info('%s %10s %7s %10s %7s', label.ljust(34),
+                    '-' if ours_v is None else f'{ours_v:.3f}',
+                    '-' if ours_v is None else f'{100 * ours_v / ours_b["total"]:.0f}',
+                    '-' if theirs_v is None else f'{theirs_v:.3f}',
+                    '-' if theirs_v is None else f'{100 * theirs_v / theirs_b["total"]:.0f}')
+    logger.info('ours: %d solves, %d batched model calls, glue %.0f us per model call; '
+                'casadi: model evaluations = its function/derivative evaluations, glue = IPOPT '
+                'and the call', ours_b['solve_calls'], ours_b['simulation_calls'],
+                ours_b['glue_per_simulation_call_us'])
+    for name in ('ours', 'casadi'):
+        packages = parts[f'{name}_imports_by_package']
+        logger.info('imports of %s by package (-X importtime, whole run, lazy imports '
+                    'included): %s', name, ', '.join(f'{k} {v:.3f}' for k, v in
+                                                     packages.items()))
+    prof = parts['ours_cprofile']
+    logger.info('cProfile of ours inside the solves (its overhead inflates Python-heavy code): '
+                'solves %.3f s, model batch functions %.3f s in %d calls; top own times:',
+                prof['solves_s'], prof['simulations_s'], prof['simulation_calls'])
+    for item in prof['top_tottime'][:10]:
+        logger.info('  %8.3f s %8d calls  %s', item['tottime_s'], item['calls'],
+                    item['function'])
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('--repeats', type=int, default=3,
+                        help='runs of each whole command (default 3; medians)')
+    parser.add_argument('--zones', nargs='+', type=int, default=[10, 50, 100])
+    parser.add_argument('--zone-steps', type=int, default=6,
+                        help='MPC steps per zone count (default 6: one cold, five warm)')
+    parser.add_argument('--instrument', type=pathlib.Path, help=argparse.SUPPRESS)
+    parser.add_argument('--profile', action='store_true', help=argparse.SUPPRESS)
+    parser.add_argument('case_argv', nargs='*', help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.instrument is not None:
+        return instrumented_case(args.case_argv, args.instrument, args.profile)
+    if args.repeats < 1 or args.zone_steps < 2 or min(args.zones) < 1:
+        parser.error('--repeats >= 1, --zone-steps >= 2 and --zones >= 1 expected')
+    try:
+        import casadi  # noqa: F401
+    except ImportError:
+        parser.exit(2, 'bench/versus.py needs casadi: make bench-setup\n')
+    sys.path.insert(0, str(BENCH))
+    from common import logger, setup_logging, write_json
+    setup_logging()
+    with tempfile.TemporaryDirectory(prefix='versus-') as tmp_name:
+        tmp = pathlib.Path(tmp_name)
+        logger.info('whole commands (%d runs each) ...', args.repeats)
+        whole = whole_commands(args.repeats, tmp)
+        logger.info('breakdown (%d instrumented runs each, importtime, cProfile) ...',
+                    args.repeats)
+        parts = breakdown(args.repeats, tmp)
+    logger.info('Z-zone problem (%d steps each) ...', args.zone_steps)
+    zones = zone_rows(args.zones, args.zone_steps)
+    report(whole, zones, parts)
+    import casadi
+    cached = importlib.util.find_spec(CASE_MODULE).cached
+    byte_compiled = bool(cached) and pathlib.Path(cached).is_file()
+    logger.info('%s byte-compiled (__pycache__): %s; PYTHONDONTWRITEBYTECODE=%s', CASE_MODULE,
+                byte_compiled, os.environ.get('PYTHONDONTWRITEBYTECODE', ''))
+    write_json('versus', {'case_module': CASE_MODULE, 'casadi': casadi.__version__,
+                          'case_module_byte_compiled': byte_compiled,
+                          'repeats': args.repeats, 'whole': whole, 'zones': [
+                              {k: v for k, v in row.items() if not k.endswith('controls_w')}
+                              for row in zones], 'breakdown': parts})
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
