@@ -42,9 +42,6 @@ RECORDED_TOPICS: tuple[str, ...] = tuple(TOPIC_TYPES)
 #: a publisher: what is published from then on is in the bag. A run waits for its publisher
 #: in the graph (:mod:`mshoot_nodes.readiness`).
 RECORDER_READY = '/recorder/ready'
-#: How the recorder's log line starts once a topic's subscription has matched its first
-#: publisher: what is published on it from then on is in the bag (the bring-up waits for it).
-RECORDER_MATCHED = 'matched {topic}:'
 
 #: States, disturbances, setpoints and status: every message matters.
 DATA_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
