@@ -25,7 +25,7 @@ from mshoot_nodes.conversions import fallback_setpoint_msg, ns_to_stamp, stamp_t
 from mshoot_nodes.diagnostics import (DiagnosticsPublisher, format_value, Level, Report,
                                       status_values)
 from mshoot_nodes.emulator_node import EmulatorNode
-from mshoot_nodes.lifecycle import FAILURE, ManagedNode, SUCCESS
+from mshoot_nodes.lifecycle import ERROR, FAILURE, ManagedNode, SUCCESS
 from mshoot_nodes.readiness import (parse_requirement, parse_requirements, ReadinessGate,
                                     Requirement, run_requirements)
 from mshoot_nodes.recorder_node import RecorderNode
@@ -268,6 +268,13 @@ def test_managed_node_hooks_ownership_and_simulated_time(context):
         assert not any(t.timer_period_ns == 3600 * 10 ** 9 for t in toy.timers)
         toy.fail_in = set()
         assert toy.trigger_activate() == SUCCESS
+        # deactivate raising: error processing releases everything, the node is unconfigured.
+        toy.fail_in, toy.calls = {'deactivate'}, []
+        assert toy.trigger_deactivate() == ERROR
+        assert toy.lifecycle_state == 'unconfigured' and toy.calls == ['deactivate', 'cleanup']
+        assert not toy.is_configured and toy.out not in list(toy.publishers)
+        toy.fail_in = set()
+        assert toy.trigger_configure() == SUCCESS and toy.trigger_activate() == SUCCESS
         toy.calls.clear()
         assert toy.trigger_shutdown() == SUCCESS
         assert toy.calls == ['deactivate', 'cleanup'] and toy.lifecycle_state == 'finalized'

@@ -80,6 +80,7 @@ _OWNER = {StateMsg.PRIMARY_STATE_INACTIVE: 'configuration',
           StateMsg.TRANSITION_STATE_ACTIVATING: 'activation'}
 
 RCLError = _rclpy.RCLError
+ServiceHandler = Callable[[Any, Any], Any]
 SUCCESS = TransitionCallbackReturn.SUCCESS
 FAILURE = TransitionCallbackReturn.FAILURE
 ERROR = TransitionCallbackReturn.ERROR
@@ -117,6 +118,7 @@ class ManagedNode(LifecycleNode):
         self.transition_error: Exception | None = None
         self.diagnostics: Any = None
         self._reporting_state = ''
+        self._autostarting = False
         super().__init__(node_name, **kwargs)
         self.steady_clock = Clock(clock_type=ClockType.STEADY_TIME)
         self.declare_parameter(AUTOSTART, bool(autostart), ParameterDescriptor(
@@ -127,8 +129,7 @@ class ManagedNode(LifecycleNode):
         if service is not None:
             service.callback = self._guarded_change_state(service.callback)
 
-    def _guarded_change_state(self, handler: Callable[[Any, Any], Any]) -> Callable[[Any, Any],
-                                                                                    Any]:
+    def _guarded_change_state(self, handler: ServiceHandler) -> ServiceHandler:
         """Answer a transition the current state does not have with success=False.
 
         rclpy 7.1.6 raises RCLError out of the service callback instead, which ends
@@ -191,8 +192,15 @@ class ManagedNode(LifecycleNode):
             self.get_logger().info('autostart is false: unconfigured, waiting for '
                                    f'{self.get_fully_qualified_name()}/change_state')
             return
-        for trigger in (self.trigger_configure, self.trigger_activate):
-            if trigger() != SUCCESS:
+        self._autostarting = True  # a failure raises from here: the caller reports it
+        try:
+            results = [self.trigger_configure()]
+            if results[0] == SUCCESS:
+                results.append(self.trigger_activate())
+        finally:
+            self._autostarting = False
+        for result in results:
+            if result != SUCCESS:
                 error = self.transition_error or RuntimeError(
                     f'{self.get_name()}: autostart failed in state {self.lifecycle_state}')
                 self.destroy_node()
@@ -299,6 +307,8 @@ class ManagedNode(LifecycleNode):
             hook()
         except Exception as exc:  # noqa: BLE001 - a failed transition, reported, not a crash
             self.transition_error = exc
+            if self._autostarting:
+                return False
             self.get_logger().error(f'{name} failed: {exc}' if isinstance(
                 exc, (ValueError, FileNotFoundError)) else
                 f'{name} failed: {type(exc).__name__}: {exc}')
