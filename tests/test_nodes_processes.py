@@ -89,9 +89,18 @@ def _call(executor, client, request, timeout_s=30.0):
     return future.result()
 
 
-# The MPC joins this list once it is a lifecycle node (the same pattern).
+#: Lifecycle executables started alone: their parameters, what their active status says and a
+#: topic they publish once configured ({ns}: the test's namespace). The MPC joins the table
+#: once it is a lifecycle node (the same pattern).
+ALONE = {
+    'emulator': (['model:=python', 'ready_timeout_s:=0.0',
+                  "ready_endpoints:=['{ns}/never publishers>=1']"],
+                 'waiting for peers: {ns}/never: 0 of 1 publishers', contract.ZONE_STATE),
+}
+
+
 @pytest.mark.ros
-@pytest.mark.parametrize('exe', ['emulator'])
+@pytest.mark.parametrize('exe', sorted(ALONE))
 def test_executable_alone_is_a_lifecycle_node_on_diagnostics(exe, graph, tmp_path):
     env, context = graph
     command = executable(exe, f'{exe}_node')
@@ -99,13 +108,12 @@ def test_executable_alone_is_a_lifecycle_node_on_diagnostics(exe, graph, tmp_pat
     # A namespace of its own (services, status name) and a start gate nothing opens: other
     # processes on this host and domain cannot be mistaken for it, nor start it.
     namespace = f'/test_{os.getpid()}'
-    never = f'{namespace}/never'
+    params, message, topic = ALONE[exe]
+    command += ['--ros-args', '-r', f'__ns:={namespace}', '-p', 'autostart:=false']
+    for param in params:
+        command += ['-p', param.format(ns=namespace)]
     log = open(tmp_path / f'{exe}.log', 'w')  # noqa: SIM115 - closed below
-    proc = subprocess.Popen(command + ['--ros-args', '-r', f'__ns:={namespace}', '-p',
-                                       'autostart:=false', '-p', 'model:=python', '-p',
-                                       'ready_timeout_s:=0.0', '-p',
-                                       f"ready_endpoints:=['{never} publishers>=1']"],
-                            env=env, stdout=log, stderr=subprocess.STDOUT)
+    proc = subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT)
     probe = rclpy.create_node('probe', context=context)
     statuses = []
     probe.create_subscription(DiagnosticArray, '/diagnostics',
@@ -138,8 +146,8 @@ def test_executable_alone_is_a_lifecycle_node_on_diagnostics(exe, graph, tmp_pat
         assert _call(executor, get_state, GetState.Request()).current_state.label == 'active'
         status = latest('active')
         assert status.hardware_id and status.level == bytes([0])
-        assert status.message == f'waiting for peers: {never}: 0 of 1 publishers'
-        assert probe.count_publishers(contract.ZONE_STATE) >= 1  # configured: its publishers
+        assert status.message == message.format(ns=namespace)
+        assert probe.count_publishers(topic) >= 1  # configured: its publishers
     finally:
         proc.terminate()
         proc.wait(timeout=30)
