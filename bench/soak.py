@@ -4,7 +4,7 @@
 
 Emulator (the R1C1 FMU, lockstep; on a lockstep timeout it holds the last
 setpoint, then the safe default), forecaster, MPC and the bag recorder run in
-one process (:class:`mshoot_nodes.harness.ClosedLoop`). Before every control
+one process (:class:`mshoot_testing.harness.ClosedLoop`). Before every control
 step a seeded generator may inject:
 
 - a solver that fails (reports non-convergence) for 1-3 solves;
@@ -40,7 +40,6 @@ import time
 import tracemalloc
 from typing import Any
 
-from mshoot_core.faults import FaultyModel, FaultySolver
 from mshoot_core.models.r1c1 import R1C1Model
 from mshoot_core.solvers import make_solver
 from mshoot_msgs.msg import Forecast, Setpoint, ZoneState
@@ -54,9 +53,10 @@ from mshoot_nodes import contract, sources
 from mshoot_nodes.bags import read_bag
 from mshoot_nodes.contract import message_class
 from mshoot_nodes.conversions import NS_PER_S, stamp_to_ns
-from mshoot_nodes.harness import (ClosedLoop, FORECAST_DEFECTS, MALFORMED, malformed_forecast,
-                                  malformed_setpoint, malformed_zone_state, SETPOINT_DEFECTS,
-                                  STATE_DEFECTS)
+from mshoot_testing.faults import FaultyModel, FaultySolver
+from mshoot_testing.harness import (ClosedLoop, FORECAST_DEFECTS, MALFORMED, malformed_forecast,
+                                    malformed_setpoint, malformed_zone_state, SETPOINT_DEFECTS,
+                                    STATE_DEFECTS)
 
 STEP_NS = 3600 * NS_PER_S
 #: Probability per control step of each fault (scaled by --fault-scale).

@@ -14,7 +14,7 @@ import time
 from mshoot_core.closed_loop import forecast_window, run_closed_loop
 from mshoot_core.controller import Controller
 from mshoot_core.emulation import Emulator
-from mshoot_core.faults import FaultyModel, FaultySolver
+from mshoot_testing.faults import FaultyModel, FaultySolver
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import reference_scenario, synthetic_scenario
@@ -219,7 +219,7 @@ def core_decisions(fault, hours=HOURS, fault_steps=(FAULT_STEP,)):
 
 @pytest.mark.parametrize('fault', ['raise', 'nan', 'fail', 'late'])
 def test_core_and_ros_make_the_same_decisions(fault, ros_context):
-    from mshoot_nodes.harness import ClosedLoop
+    from mshoot_testing.harness import ClosedLoop
     steps = core_decisions(fault)
     model, solver = fault_setup(fault)
     params = {'emulator': {'hours': HOURS, 'model': 'python'},

@@ -1,10 +1,10 @@
 """Fault injection in one process: every step gets a sane setpoint, with the fallback and
 the reason in /mpc/status.
 
-Faults go in at the real seams (:mod:`mshoot_core.faults`: a solver that fails or
+Faults go in at the real seams (:mod:`mshoot_testing.faults`: a solver that fails or
 overruns, a model that raises), through the forecaster's ``enabled`` parameter
 (the forecast stops) and by destroying and re-creating the MPC node (a restart).
-Each test runs a short lockstep loop (:class:`mshoot_nodes.harness.ClosedLoop`,
+Each test runs a short lockstep loop (:class:`mshoot_testing.harness.ClosedLoop`,
 python R1C1 emulator) in a private context, with wall-clock guards.
 """
 import os
@@ -12,7 +12,6 @@ import time
 
 from mshoot_core.closed_loop import run_closed_loop
 from mshoot_core.emulation import Emulator
-from mshoot_core.faults import FaultyModel, FaultySolver
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.safety import SetpointSupervisor
@@ -28,7 +27,8 @@ from rclpy.parameter import Parameter
 from mshoot_nodes import contract
 from mshoot_nodes.conversions import fallback_setpoint_msg, NS_PER_S, stamp_to_ns
 from mshoot_nodes.emulator_node import EmulatorNode
-from mshoot_nodes.harness import ClosedLoop
+from mshoot_testing.faults import FaultyModel, FaultySolver
+from mshoot_testing.harness import ClosedLoop
 
 pytestmark = pytest.mark.ros
 EPOCH_NS = 1522886400 * NS_PER_S  # the synthetic scenario's start
@@ -282,7 +282,7 @@ def test_free_running_emulator_holds_then_applies_the_safe_default(context):
     emulator = EmulatorNode(context=context, parameter_overrides=[
         Parameter('hours', value=4), Parameter('model', value='python'),
         Parameter('mode', value='free'), Parameter('speedup', value=3600.0 / 0.25),
-        Parameter('clock_period_s', value=0.01), Parameter('min_state_subscribers', value=0),
+        Parameter('clock_period_s', value=0.01), Parameter('ready_endpoints', value=['']),
         Parameter('hold_s', value=3600.0), Parameter('safe_heat_rate_w', value=250.0)])
     talker = rclpy.create_node('talker', context=context)
     publisher = talker.create_publisher(Setpoint, contract.SETPOINT, contract.DATA_QOS)

@@ -1,9 +1,17 @@
-"""The separate-process bring-up: four processes over DDS on this host complete a 24 h run."""
+"""Separate processes over DDS on this host: the four-process bring-up completes a 24 h run
+with every setpoint in the bag; a node executable started alone is a lifecycle node (its
+``~/get_state`` and ``~/change_state`` services) reporting on ``/diagnostics``; the start
+gate ends a run without peers with an error naming the missing endpoints.
+"""
 import json
+import os
 import pathlib
 import subprocess
-import sys
+import time
 
+from diagnostic_msgs.msg import DiagnosticArray
+from lifecycle_msgs.msg import State, Transition
+from lifecycle_msgs.srv import ChangeState, GetState
 from mshoot_core.case import r1c1_fmu_model
 from mshoot_core.closed_loop import run_closed_loop
 from mshoot_core.emulation import Emulator
@@ -13,10 +21,13 @@ from mshoot_core.scenario import synthetic_scenario
 import numpy as np
 import pandas as pd
 import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
 
 from mshoot_nodes import contract
 from mshoot_nodes.bags import read_bag
-from mshoot_nodes.processes import executable, wait_for_recorder
+from mshoot_nodes.diagnostics import status_values
+from mshoot_nodes.processes import executable
 
 HOURS = 24
 
@@ -46,28 +57,117 @@ def test_separate_processes_complete_a_24_h_run(tmp_path):
     # Lockstep across processes reproduces the core-only loop too.
     assert np.max(np.abs(steps['T_end'].to_numpy() - core.steps['T_end'].to_numpy())) < 1e-9
 
-    counts = read_bag(out / 'bag').counts
-    assert counts[contract.SETPOINT] >= HOURS and counts[contract.ZONE_STATE] >= HOURS + 1
+    # The start gate waited for the recorder's /recorder/ready: every setpoint is in the bag.
+    bag = read_bag(out / 'bag')
+    counts = bag.counts
+    assert counts[contract.SETPOINT] >= HOURS and counts[contract.STATUS] >= HOURS
+    assert counts[contract.ZONE_STATE] >= HOURS + 1
+    recorded = {m.rawdata for m in bag.messages if m.topic == contract.SETPOINT}
+    assert len(recorded) == HOURS, 'a setpoint is missing from the bag'
     assert (out / 'plot.png').stat().st_size > 0
 
 
-def test_bringup_waits_for_the_recorder_to_match_the_publishers(tmp_path):
-    """The emulator starts only after the recorder's ``matched`` lines; else a clear reason."""
-    log = tmp_path / 'recorder.log'
-    recorder = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(30)'])
+@pytest.fixture
+def graph(monkeypatch):
+    """A private domain over DDS on this host: (environment for processes, context)."""
+    domain = 120 + (os.getpid() + 11) % 90
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED='1')
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain)
+    yield env, context
+    rclpy.try_shutdown(context=context)
+
+
+def _call(executor, client, request, timeout_s=30.0):
+    assert client.wait_for_service(timeout_sec=timeout_s), f'{client.srv_name} not offered'
+    future = client.call_async(request)
+    deadline = time.monotonic() + timeout_s
+    while not future.done():
+        assert time.monotonic() < deadline, f'no answer from {client.srv_name}'
+        executor.spin_once(timeout_sec=0.05)
+    return future.result()
+
+
+#: Lifecycle executables started alone: their parameters, what their active status says and a
+#: topic they publish once configured ({ns}: the test's namespace). The MPC joins the table
+#: once it is a lifecycle node (the same pattern).
+ALONE = {
+    'emulator': (['model:=python', 'ready_timeout_s:=0.0',
+                  "ready_endpoints:=['{ns}/never publishers>=1']"],
+                 'waiting for peers: {ns}/never: 0 of 1 publishers', contract.ZONE_STATE),
+}
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('exe', sorted(ALONE))
+def test_executable_alone_is_a_lifecycle_node_on_diagnostics(exe, graph, tmp_path):
+    env, context = graph
+    command = executable(exe, f'{exe}_node')
+    assert pathlib.Path(command[0]).name == exe, 'not installed: make setup'
+    # A namespace of its own (services, status name) and a start gate nothing opens: other
+    # processes on this host and domain cannot be mistaken for it, nor start it.
+    namespace = f'/test_{os.getpid()}'
+    params, message, topic = ALONE[exe]
+    command += ['--ros-args', '-r', f'__ns:={namespace}', '-p', 'autostart:=false']
+    for param in params:
+        command += ['-p', param.format(ns=namespace)]
+    log = open(tmp_path / f'{exe}.log', 'w')  # noqa: SIM115 - closed below
+    proc = subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT)
+    probe = rclpy.create_node('probe', context=context)
+    statuses = []
+    probe.create_subscription(DiagnosticArray, '/diagnostics',
+                              lambda m: statuses.extend(m.status), 10)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(probe)
+    get_state = probe.create_client(GetState, f'{namespace}/{exe}/get_state')
+    change_state = probe.create_client(ChangeState, f'{namespace}/{exe}/change_state')
+    name = f'mshoot{namespace}/{exe}'
+
+    def latest(state, timeout_s=30.0):
+        """The node's newest status once it reports ``state`` (seconds: a 1 Hz timer)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            mine = [s for s in statuses if s.name == name]
+            if mine and status_values(mine[-1]).get('lifecycle_state') == state:
+                return mine[-1]
+            assert proc.poll() is None, (tmp_path / f'{exe}.log').read_text()
+            assert time.monotonic() < deadline, f'no {state!r} status of {name} on /diagnostics'
+            executor.spin_once(timeout_sec=0.05)
+
     try:
-        log.write_text(contract.RECORDER_MATCHED.format(topic=contract.FORECAST)
-                       + ' 1 publisher(s)\n')
-        problem = wait_for_recorder(log, recorder, timeout_s=0.3)
-        assert problem and contract.SETPOINT in problem and contract.STATUS in problem
-        assert contract.FORECAST not in problem.split('within')[0]
-        with log.open('a') as f:
-            for topic in (contract.SETPOINT, contract.STATUS):
-                f.write(contract.RECORDER_MATCHED.format(topic=topic) + ' 2 publisher(s)\n')
-        assert wait_for_recorder(log, recorder, timeout_s=0.3) is None
+        assert _call(executor, get_state, GetState.Request()).current_state.id == \
+            State.PRIMARY_STATE_UNCONFIGURED
+        latest('unconfigured')
+        for transition, state in ((Transition.TRANSITION_CONFIGURE, 'inactive'),
+                                  (Transition.TRANSITION_ACTIVATE, 'active')):
+            request = ChangeState.Request(transition=Transition(id=transition))
+            assert _call(executor, change_state, request).success
+        assert _call(executor, get_state, GetState.Request()).current_state.label == 'active'
+        status = latest('active')
+        assert status.hardware_id and status.level == bytes([0])
+        assert status.message == message.format(ns=namespace)
+        assert probe.count_publishers(topic) >= 1  # configured: its publishers
     finally:
-        recorder.kill()
-        recorder.wait()
-    log.write_text('')
-    problem = wait_for_recorder(log, recorder, timeout_s=5.0)
-    assert problem and 'exited' in problem
+        proc.terminate()
+        proc.wait(timeout=30)
+        log.close()
+        executor.shutdown()
+        probe.destroy_node()
+
+
+@pytest.mark.ros
+def test_emulator_without_peers_stops_naming_the_missing_endpoints(graph, tmp_path):
+    env, _ = graph
+    prefix = f'/test_{os.getpid()}'  # topics no other process on this host has
+    done = subprocess.run(executable('emulator', 'emulator_node') + [
+        '--ros-args', '-p', 'model:=python', '-p', 'ready_timeout_s:=1.0', '-p',
+        f"ready_endpoints:=['{prefix}/state subscribers>=1', '{prefix}/setpoint publishers>=1']",
+        '-p', f'output_dir:={tmp_path}'], env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 1, done.stdout + done.stderr
+    text = done.stdout + done.stderr
+    assert 'not ready after' in text
+    assert f'{prefix}/state: 0 of 1 subscribers' in text
+    assert f'{prefix}/setpoint: 0 of 1 publishers' in text
+    run = json.loads((tmp_path / 'run.json').read_text())
+    assert run['steps'] == 0 and 'not ready' in run['failed']

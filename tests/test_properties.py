@@ -3,7 +3,7 @@ the optimiser or the building, is always counted, and nothing non-finite is publ
 
 The core rules (:mod:`mshoot_core.safety`) are checked on arbitrary values; the MPC
 and the emulator nodes get batches of malformed messages (one defect each, from
-:mod:`mshoot_nodes.harness`) mixed with valid ones, over real topics in one process
+:mod:`mshoot_testing.harness`) mixed with valid ones, over real topics in one process
 (a private context, SingleThreadedExecutor, wall-clock guards). Thousands of
 malformed messages go in per run: the last test of the module checks the totals.
 """
@@ -28,9 +28,9 @@ from mshoot_nodes import contract
 from mshoot_nodes.conversions import (clock_msg, fallback_setpoint_msg, forecast_msg, NS_PER_S,
                                       zone_state_msg)
 from mshoot_nodes.emulator_node import EmulatorNode
-from mshoot_nodes.harness import (FORECAST_DEFECTS, malformed_forecast, malformed_setpoint,
-                                  malformed_zone_state, SETPOINT_DEFECTS, STATE_DEFECTS)
 from mshoot_nodes.mpc_node import MpcNode
+from mshoot_testing.harness import (FORECAST_DEFECTS, malformed_forecast, malformed_setpoint,
+                                    malformed_zone_state, SETPOINT_DEFECTS, STATE_DEFECTS)
 
 EPOCH_NS = 1522886400 * NS_PER_S
 STEP_NS = 3600 * NS_PER_S
@@ -293,7 +293,7 @@ def emulator_rig():
     context = _context()
     emulator = EmulatorNode(context=context, parameter_overrides=[
         Parameter('hours', value=2000), Parameter('model', value='python'),
-        Parameter('min_state_subscribers', value=0), Parameter('reject_log_period_s', value=60.0),
+        Parameter('ready_endpoints', value=['']), Parameter('reject_log_period_s', value=60.0),
         Parameter('lockstep_timeout_s', value=600.0)])
     probe = Probe(context, [emulator], [
         (ZoneState, contract.ZONE_STATE, contract.DATA_QOS),

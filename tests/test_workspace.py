@@ -9,7 +9,9 @@ from rclpy.serialization import deserialize_message, serialize_message
 from conftest import ROOT
 
 msg = pytest.importorskip('mshoot_msgs.msg')
-PACKAGES = ('mshoot_core', 'mshoot_nodes', 'mshoot_msgs')
+PACKAGES = ('mshoot_core', 'mshoot_nodes', 'mshoot_msgs', 'mshoot_testing')
+#: What ships; test support lives in mshoot_testing.
+PRODUCTION = ('mshoot_core', 'mshoot_nodes', 'mshoot_msgs')
 
 
 def _filled(msg_type):
@@ -89,3 +91,16 @@ def test_core_never_imports_ros():
                                                                                  '.cfg')
                  and pattern.search(p.read_text(errors='replace'))]
     assert not offenders, f'mshoot_core must not depend on ROS: {offenders}'
+
+
+def test_test_doubles_live_outside_the_production_packages():
+    """Fault injection and the test harness are in mshoot_testing, which nothing ships."""
+    src = ROOT / 'ros2_ws' / 'src'
+    testing = {p.stem for p in (src / 'mshoot_testing' / 'mshoot_testing').glob('*.py')}
+    assert {'faults', 'harness'} <= testing
+    for package in PRODUCTION:
+        files = [p for p in (src / package).rglob('*')
+                 if p.is_file() and p.suffix in ('.py', '.xml')]
+        assert not [p for p in files if p.stem in ('faults', 'harness')], package
+        offenders = [str(p) for p in files if 'mshoot_testing' in p.read_text(errors='replace')]
+        assert not offenders, f'{package} must not depend on the test support: {offenders}'

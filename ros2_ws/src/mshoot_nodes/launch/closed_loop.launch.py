@@ -6,7 +6,12 @@
 
 Parameters come from the package's config/*.yaml, then the launch arguments.
 With record:=true the run is recorded with `ros2 bag record -s mcap` (rosbag2);
-recorder:=mshoot uses the package's own recorder node instead. The PyPI
+recorder:=mshoot uses the package's own recorder node instead. The emulator
+starts once the ROS graph shows the endpoints of the run (the MPC, the
+forecaster and the recorder): the readiness check every bring-up shares
+(mshoot_nodes.readiness.run_requirements). The emulator and the MPC are
+lifecycle nodes that configure and activate themselves (autostart:=true);
+`ros2 lifecycle set /mpc deactivate` hands the building back to its own control. The PyPI
 wheels used for development have no launch package: there, use the
 `bringup` (one process) or `bringup_processes` executables.
 """
@@ -19,6 +24,8 @@ from launch.conditions import IfCondition
 from launch.event_handlers import OnProcessExit
 from launch.substitutions import LaunchConfiguration, PythonExpression
 from launch_ros.actions import Node
+
+from mshoot_nodes.readiness import RECORDERS, run_requirements
 
 TOPICS = ['/clock', '/zone/state', '/zone/disturbances', '/forecast', '/mpc/setpoint',
           '/mpc/status']
@@ -35,14 +42,15 @@ def generate_launch_description() -> LaunchDescription:
                                        LaunchConfiguration('recorder'), "' == 'rosbag2'"])
     record_mshoot = PythonExpression(["'", LaunchConfiguration('record'), "' == 'true' and '",
                                       LaunchConfiguration('recorder'), "' == 'mshoot'"])
+    # The endpoints the emulator waits for, by recorder: a list (the parameter reads it as YAML).
+    by_recorder = {recorder: run_requirements(recorder) for recorder in RECORDERS}
+    ready = PythonExpression([repr(by_recorder), "['", LaunchConfiguration('recorder'), "' if '",
+                              LaunchConfiguration('record'), "' == 'true' else 'none']"])
     emulator = Node(package='mshoot_nodes', executable='emulator', name='emulator',
                     output='screen',
                     parameters=[os.path.join(config, 'emulator.yaml'), shared,
                                 {'exit_when_done': True, 'start_delay_s': 1.0,
-                                 # wait for the MPC, and for the recorder when recording
-                                 'min_state_subscribers': PythonExpression(
-                                     ["2 if '", LaunchConfiguration('record'),
-                                      "' == 'true' else 1"])}])
+                                 'ready_endpoints': ready}])
     return LaunchDescription([
         DeclareLaunchArgument('scenario', default_value='synthetic',
                               description='synthetic | ou44 | path to an OU44-format CSV'),

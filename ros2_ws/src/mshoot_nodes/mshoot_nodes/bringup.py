@@ -40,6 +40,7 @@ from mshoot_nodes.emulator_node import build_emulator, EmulatorNode
 from mshoot_nodes.forecaster_node import ForecasterNode
 from mshoot_nodes.logbridge import bridge_core_logging
 from mshoot_nodes.mpc_node import MpcNode, settings_from
+from mshoot_nodes.readiness import run_requirements
 from mshoot_nodes.recorder_node import RecorderNode
 from mshoot_nodes.results import kpi_summary, run_outputs
 from mshoot_nodes.signals import StopSignals
@@ -88,10 +89,18 @@ def run_in_process(context: Context, node_params: dict[str, dict[str, Any]], *,
         InterruptedError (e.g. on SIGTERM: the nodes are still destroyed, the bag
         closed with everything received).
 
+    The emulator starts once the graph shows the MPC, the forecaster and (with
+    ``record``) the recorder's ``/recorder/ready``: the same readiness check as
+    the other bring-ups (:func:`mshoot_nodes.readiness.run_requirements`), unless
+    ``node_params['emulator']`` sets ``ready_endpoints``.
+
     The nodes are destroyed before returning (the recorder's bag is closed);
     their records stay readable.
     """
     nodes: list[Any] = []
+    node_params = {name: dict(values) for name, values in node_params.items()}
+    node_params.setdefault('emulator', {}).setdefault(
+        'ready_endpoints', run_requirements('mshoot' if record else 'none'))
 
     def make(cls: type, name: str) -> Any:
         node = cls(context=context, parameter_overrides=overrides(node_params.get(name, {})))

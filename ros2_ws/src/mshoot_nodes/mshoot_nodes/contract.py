@@ -8,6 +8,8 @@
 | ``/forecast``        | mshoot_msgs/Forecast      | forecaster | reliable, transient local, 1   |
 | ``/mpc/setpoint``    | mshoot_msgs/Setpoint      | mpc        | reliable, volatile, depth 10   |
 | ``/mpc/status``      | mshoot_msgs/MpcStatus     | mpc        | reliable, volatile, depth 10   |
+| ``/recorder/ready``  | std_msgs/String           | recorder   | reliable, transient local, 1   |
+| ``/diagnostics``     | diagnostic_msgs/DiagnosticArray | every node | reliable, volatile, 10   |
 
 Every name is remappable (``-r /zone/state:=/building/zone1/state``); the
 nodes use the names below as their defaults.
@@ -36,9 +38,10 @@ TOPIC_TYPES: dict[str, str] = {
 }
 #: The topics a run records by default, in a stable order.
 RECORDED_TOPICS: tuple[str, ...] = tuple(TOPIC_TYPES)
-#: How the recorder's log line starts once a topic's subscription has matched its first
-#: publisher: what is published on it from then on is in the bag (the bring-up waits for it).
-RECORDER_MATCHED = 'matched {topic}:'
+#: Latched (std_msgs/String) by the recorder node once each of its subscriptions has matched
+#: a publisher: what is published from then on is in the bag. A run waits for its publisher
+#: in the graph (:mod:`mshoot_nodes.readiness`).
+RECORDER_READY = '/recorder/ready'
 
 #: States, disturbances, setpoints and status: every message matters.
 DATA_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,

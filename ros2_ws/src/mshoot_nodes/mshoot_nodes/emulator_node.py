@@ -33,6 +33,22 @@ Safety (the rules are in :mod:`mshoot_core.safety`):
 - ``start_step`` and ``initial_temperature_c`` restart a run mid-scenario
   from a given time and state.
 
+Lifecycle (:mod:`mshoot_nodes.lifecycle`; ``autostart`` true by default, so a
+plain ``ros2 run`` configures and activates at once): *configure* loads the
+scenario and the model (the FMU) and creates the publishers; *activate*
+subscribes to the setpoints and opens the start gate, or resumes a paused run;
+*deactivate* pauses the run (no clock, no steps); *cleanup* frees the FMU (the
+records stay readable; a new configure starts a fresh run).
+
+Start gate (:mod:`mshoot_nodes.readiness`): the scenario starts once the ROS
+graph shows every endpoint of ``ready_endpoints`` (by default a subscriber of
+``/zone/state`` and a publisher of ``/mpc/setpoint``; the bring-ups add the
+forecaster and the recorder), then ``start_delay_s`` later; after
+``ready_timeout_s`` it stops with an error naming what is missing (exit code 1).
+
+Health on ``/diagnostics`` (``mshoot/emulator``): step, applied sources
+(setpoint, held, safe), rejected setpoints, lockstep waits and timeouts.
+
 The node drives itself with STEADY_TIME timers (the node publishing /clock
 must not wait on a simulated-time timer).
 """
@@ -51,14 +67,15 @@ from mshoot_core.safety import (check_setpoint, check_stamp_fields, Rejection, S
 from mshoot_msgs.msg import Disturbances, Setpoint, ZoneState
 import numpy as np
 import pandas as pd
-from rclpy.clock import Clock, ClockType
-from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from mshoot_nodes import contract, sources
 from mshoot_nodes.conversions import (clock_msg, disturbances_msg, NS_PER_S, seconds_to_ns,
                                       setpoint_to_controls, stamp_to_ns, zone_state_msg)
+from mshoot_nodes.diagnostics import DiagnosticsPublisher, Level, Report
+from mshoot_nodes.lifecycle import ManagedNode
 from mshoot_nodes.params import declare, ordered, ParamSpec, values
+from mshoot_nodes.readiness import check_requirements, parse_requirements, ReadinessGate
 from mshoot_nodes.startup import run_node
 from mshoot_nodes.validation import RejectionLog
 
@@ -111,11 +128,15 @@ PARAMS = (
               '[W]', low=-1e7, high=1e7),
     ParamSpec('reject_log_period_s', 5.0, 'at most one log line per kind of rejected '
               'setpoint in this wall time [s]', low=0.0, high=3600.0, read_only=True),
-    ParamSpec('min_state_subscribers', 1, 'start once /zone/state has this many subscribers '
-              '(and, in lockstep, /mpc/setpoint a publisher) [-]', low=0, high=1000,
-              read_only=True),
-    ParamSpec('start_delay_s', 0.0, 'wall time to wait once the peers are found, so that they '
-              'also find each other (separate processes) [s]', low=0.0, high=600.0,
+    ParamSpec('ready_endpoints', [f'{contract.ZONE_STATE} subscribers>=1',
+                                  f'{contract.SETPOINT} publishers>=1'],
+              "start once the ROS graph shows these endpoints ('TOPIC publishers>=N', "
+              "'TOPIC subscribers>=N'; [''] = start at once)", read_only=True),
+    ParamSpec('ready_timeout_s', 120.0, 'wall time the start gate waits for ready_endpoints '
+              'before the run stops with an error naming the missing ones (0 = forever) [s]',
+              low=0.0, high=86400.0, read_only=True),
+    ParamSpec('start_delay_s', 0.0, 'wall time to wait once the endpoints are there, so that '
+              'the peers also find each other (separate processes) [s]', low=0.0, high=600.0,
               read_only=True),
     ParamSpec('output_dir', '', 'folder for trajectories.csv, applied.csv and run.json when '
               "the scenario ends ('' = write nothing)", read_only=True),
@@ -147,6 +168,8 @@ def _check_sources(v: dict[str, Any]) -> str | None:
             v['heat_rate_min_w'] <= v['safe_heat_rate_w'] <= v['heat_rate_max_w']):
         return (f"safe_heat_rate_w must be within the actuator limits [{v['heat_rate_min_w']}, "
                 f"{v['heat_rate_max_w']}], got {v['safe_heat_rate_w']}")
+    if 'ready_endpoints' in v and (reason := check_requirements(v['ready_endpoints'])):
+        return f'ready_endpoints: {reason}'
     return None
 
 
@@ -160,26 +183,38 @@ def build_emulator(p: dict[str, Any]) -> Emulator:
                     start_index=p.get('start_step', 0))
 
 
-class EmulatorNode(Node):
+class EmulatorNode(ManagedNode):
     """The emulated building (see the module docstring).
 
     Attributes
     ----------
-    emulator : Emulator
-        The core emulator; the node only converts and times.
+    emulator : Emulator or None
+        The core emulator (None before the first configure); the node only
+        converts and times.
     records : list of StepRecord
         What every step did (controls, start and end states, fine trajectory);
         the last ``records_kept`` when that is set.
     steps_done : int
         Steps applied so far.
+    started : bool
+        True once the start gate opened.
     done : bool
         True once the scenario is over (or the run failed).
     failed : str
-        '' or why the run stopped early (a lockstep timeout, a model error).
+        '' or why the run stopped early (a lockstep timeout, a model error, peers
+        not ready in time).
     rejections : RejectionLog
         Rejected setpoints by kind.
     applied_sources : list of str
         Per step: 'setpoint', 'held' or 'safe' (see SetpointHold).
+    lockstep_waits : int
+        Times a step was published again because its setpoint had not come.
+    lockstep_timeouts : int
+        Steps that went on without their setpoint (on_lockstep_timeout 'hold').
+    gate : ReadinessGate or None
+        The start gate while it waits.
+    diagnostics : DiagnosticsPublisher
+        Publishes :meth:`health` on /diagnostics.
     """
 
     def __init__(self, **kwargs: Any) -> None:
@@ -188,9 +223,20 @@ class EmulatorNode(Node):
         self.params = values(self, PARAMS)
         self.add_post_set_parameters_callback(self._on_parameters_set)
         p = self.params
-        self.emulator = build_emulator(p)
-        self.epoch_ns = sources.start_ns(self.emulator.scenario, p['start_time'])
+        self.emulator: Emulator | None = None
+        self.epoch_ns = 0
         self.step_ns = seconds_to_ns(p['step_s'])
+        self._speedup = float(p['speedup'])
+        self._steady = self.steady_clock
+        self.gate: ReadinessGate | None = None
+        self._run_timer = None
+        self._reset_run()
+        self.diagnostics = DiagnosticsPublisher(self, self.health, hardware_id=p['zone'])
+        self.autostart()
+
+    def _reset_run(self) -> None:
+        """Fresh run state (at construction and at every configure)."""
+        p = self.params
         self.records: list[StepRecord] = []
         self.steps_done = 0
         self.done = False
@@ -198,35 +244,123 @@ class EmulatorNode(Node):
         self.started = False
         self.rejections = RejectionLog(self, p['reject_log_period_s'])
         self.applied_sources: list[str] = []
+        self.lockstep_waits = 0
+        self.lockstep_timeouts = 0
+        self._reported_rejections = 0
         self._hold = SetpointHold((p['safe_heat_rate_w'],), p['hold_s'])
         self._setpoint_gate = StampGate(self.step_ns, max_age_ns=(
             0 if p['mode'] == 'lockstep' else seconds_to_ns(p['hold_s'])))
-        self._speedup = float(p['speedup'])
         self._last_heat_rate_w = 0.0
-        self._sim_ns = self.stamp_ns
-        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._sim_ns = self.stamp_ns if self.emulator is not None else 0
         self._last_publish_ns = 0
-        self._wait_started_ns = 0
-        self._peers_found_ns = 0
         self._step_started_ns = 0
         self._last_wait_warning_ns = 0
         self._run_started_ns = 0
         self.wall_s = 0.0
 
-        self._clock_pub = self.create_publisher(ClockMsg, contract.CLOCK, contract.CLOCK_QOS)
-        self._state_pub = self.create_publisher(ZoneState, contract.ZONE_STATE,
-                                                contract.DATA_QOS)
-        self._disturbance_pub = self.create_publisher(Disturbances, contract.ZONE_DISTURBANCES,
-                                                      contract.DATA_QOS)
-        self._setpoint_sub = self.create_subscription(Setpoint, contract.SETPOINT,
-                                                      self._on_setpoint, contract.DATA_QOS)
-        self._start_timer = self.create_timer(0.05, self._try_start, clock=self._steady)
-        self._run_timer = None
+    # -- lifecycle --------------------------------------------------------------------------
+    def configure(self) -> None:
+        """Load the scenario and the model (the FMU), create the publishers."""
+        p = self.params
+        self.emulator = build_emulator(p)
+        self.epoch_ns = sources.start_ns(self.emulator.scenario, p['start_time'])
+        self._reset_run()
+        self._clock_pub = self.create_lifecycle_publisher(ClockMsg, contract.CLOCK,
+                                                          contract.CLOCK_QOS)
+        self._state_pub = self.create_lifecycle_publisher(ZoneState, contract.ZONE_STATE,
+                                                          contract.DATA_QOS)
+        self._disturbance_pub = self.create_lifecycle_publisher(
+            Disturbances, contract.ZONE_DISTURBANCES, contract.DATA_QOS)
         self.get_logger().info(
             f"{p['scenario']} scenario, {p['hours']} steps of {p['step_s']:.0f} s from "
             f"{pd.Timestamp(self.epoch_ns, tz='UTC').isoformat()}, model {p['model']}, "
             f"{p['mode']} mode; T0 = {p['initial_temperature_c']:.2f} degC, actuator "
             f"[{p['heat_rate_min_w']:.0f}, {p['heat_rate_max_w']:.0f}] W")
+
+    def activate(self) -> None:
+        """Take setpoints; open the start gate, or resume a paused run."""
+        p = self.params
+        self._setpoint_sub = self.create_subscription(Setpoint, contract.SETPOINT,
+                                                      self._on_setpoint, contract.DATA_QOS)
+        if self.done:
+            return
+        if not self.started:
+            self.gate = ReadinessGate(
+                self, parse_requirements(p['ready_endpoints']), on_ready=self._start,
+                on_timeout=self._not_ready, timeout_s=p['ready_timeout_s'],
+                settle_s=p['start_delay_s'])
+            return
+        self.get_logger().info(f'resuming at step {self.steps_done + 1} '
+                               f'({self.stamp_ns / NS_PER_S:.0f} s)')
+        self._step_started_ns = self._steady_ns()
+        self._publish_step()
+        self._start_run_timer()
+
+    def deactivate(self) -> None:
+        """Pause: no more clock, steps or setpoints (resumed by activate)."""
+        if self.started and not self.done:
+            self.get_logger().info(f'paused before step {self.steps_done + 1} '
+                                   f'({self.stamp_ns / NS_PER_S:.0f} s)')
+        self.gate = None
+        self._run_timer = None  # destroyed with what the activation created
+
+    def cleanup(self) -> None:
+        """Free the model (an FMU instance); the records stay readable."""
+        self.gate = None
+        self._run_timer = None
+        close = getattr(getattr(self.emulator, 'model', None), 'close', None)
+        if close is not None:
+            close()
+
+    # -- health -----------------------------------------------------------------------------
+    def health(self) -> Report:
+        """The emulator's status for /diagnostics."""
+        sources_count = collections.Counter(self.applied_sources)
+        rejected = self.rejections.total()
+        values_ = {
+            'mode': self.params['mode'],
+            'step': self.steps_done,
+            'steps_total': (self.steps_done + self.emulator.steps_left
+                            if self.emulator is not None else self.params['hours']),
+            'sim_time': (pd.Timestamp(self.stamp_ns, tz='UTC').isoformat()
+                         if self.emulator is not None else ''),
+            'applied_setpoint': sources_count['setpoint'],
+            'applied_held': sources_count['held'],
+            'applied_safe': sources_count['safe'],
+            'rejected_setpoints': rejected,
+            'rejected_by_kind': self.rejections.counter.by_kind() or 'none',
+            'lockstep_waits': self.lockstep_waits,
+            'lockstep_timeouts': self.lockstep_timeouts,
+        }
+        new_rejections, self._reported_rejections = (rejected - self._reported_rejections,
+                                                     rejected)
+        if self.failed:
+            return Report(Level.ERROR, f'run stopped: {self.failed}', values_)
+        if self.done:
+            return Report(Level.OK, f'scenario over: {self.steps_done} steps', values_)
+        if not self.is_configured:
+            return Report(Level.OK, 'unconfigured', values_)
+        if not self.is_active:
+            if self.started:
+                return Report(Level.WARN, f'paused before step {self.steps_done + 1}', values_)
+            return Report(Level.OK, 'inactive', values_)
+        if not self.started:
+            missing = self.gate.missing if self.gate is not None else []
+            values_['waiting_for'] = missing or 'none'
+            text = f": {'; '.join(missing)}" if missing else ''
+            return Report(Level.OK, f'waiting for peers{text}', values_)
+        message = f'step {self.steps_done + 1} of {values_["steps_total"]}'
+        if self.applied_sources and self.applied_sources[-1] != 'setpoint':
+            return Report(Level.WARN, f'{message}: the last step applied the '
+                          f'{self.applied_sources[-1]} setpoint', values_)
+        if new_rejections:
+            return Report(Level.WARN, f'{message}: {new_rejections} setpoints rejected since '
+                          'the last report', values_)
+        waited_s = (self._steady_ns() - self._step_started_ns) / NS_PER_S
+        if self.params['mode'] == 'lockstep' and waited_s > 10.0:
+            return Report(Level.WARN, f'{message}: waiting {waited_s:.0f} s for its setpoint',
+                          values_)
+        return Report(Level.OK, message, values_)
 
     # -- time -----------------------------------------------------------------------------
     @property
@@ -251,42 +385,28 @@ class EmulatorNode(Node):
                     self._setpoint_gate.max_age_ns = seconds_to_ns(self.params['hold_s'])
 
     # -- start ----------------------------------------------------------------------------
-    def _try_start(self) -> None:
-        """Start once the peers are there (polled on a steady timer)."""
-        wanted = self.params['min_state_subscribers']
-        have = self.count_subscribers(self._state_pub.topic_name)
-        mpc_ok = (self.params['mode'] != 'lockstep' or wanted == 0
-                  or self.count_publishers(self._setpoint_sub.topic_name) > 0)
-        now = self._steady_ns()
-        if not self._wait_started_ns:
-            self._wait_started_ns = now
-        if have < wanted or not mpc_ok:
-            self._peers_found_ns = 0
-            if now - self._last_wait_warning_ns > 5 * NS_PER_S:
-                if self._last_wait_warning_ns:
-                    self.get_logger().warning(
-                        f'waiting for peers: {have}/{wanted} subscribers of '
-                        f'{self._state_pub.topic_name}, setpoint publisher '
-                        f"{'found' if mpc_ok else 'missing'}")
-                self._last_wait_warning_ns = now
-            return
-        if not self._peers_found_ns:
-            self._peers_found_ns = now
-        if now - self._peers_found_ns < seconds_to_ns(self.params['start_delay_s']):
-            return
-        self._start_timer.cancel()
-        self.destroy_timer(self._start_timer)
+    def _start(self) -> None:
+        """The start gate opened: publish the first step and start the run timer."""
+        self.gate = None
         self.started = True
-        self._run_started_ns = self._step_started_ns = now
+        self._run_started_ns = self._step_started_ns = self._steady_ns()
         self.get_logger().info(f'starting the scenario at {self.stamp_ns / NS_PER_S:.0f} s '
                                'ROS time')
         self._publish_step()
+        self._start_run_timer()
+
+    def _start_run_timer(self) -> None:
         if self.params['mode'] == 'lockstep':
             self._run_timer = self.create_timer(self.params['heartbeat_period_s'],
                                                 self._heartbeat, clock=self._steady)
         else:
             self._run_timer = self.create_timer(self.params['clock_period_s'], self._tick,
                                                 clock=self._steady)
+
+    def _not_ready(self, reason: str) -> None:
+        self.gate = None
+        self._fail(f'{reason} (ready_endpoints, ready_timeout_s = '
+                   f"{self.params['ready_timeout_s']:g} s): are the other nodes running?")
 
     # -- publishing -----------------------------------------------------------------------
     def _publish_step(self) -> None:
@@ -320,6 +440,7 @@ class EmulatorNode(Node):
                 f'{self.steps_done + self.emulator.steps_left}): is the MPC running?')
             self._last_wait_warning_ns = now
         self.get_logger().debug('no setpoint yet: publishing the step again')
+        self.lockstep_waits += 1
         self._publish_step()
 
     # -- stepping -------------------------------------------------------------------------
@@ -331,6 +452,7 @@ class EmulatorNode(Node):
                        f"{self.params['lockstep_timeout_s']:g} s: is the MPC running? Stopping "
                        '(on_lockstep_timeout:=hold goes on with held or safe setpoints)')
             return
+        self.lockstep_timeouts += 1
         decision = self._hold.controls_for(self._scenario_s(self.stamp_ns))
         self.get_logger().error(f'no setpoint for {step} after {waited_s:.1f} s (lockstep '
                                 f'timeout): {decision.reason}')
@@ -369,7 +491,8 @@ class EmulatorNode(Node):
             self._advance(controls, 'setpoint')
 
     def _reject(self, stamp_ns: int, rejection: Rejection) -> None:
-        self.rejections.reject('setpoint', self._setpoint_sub.topic_name, stamp_ns, rejection)
+        self.rejections.reject('setpoint', self.resolve_topic_name(contract.SETPOINT), stamp_ns,
+                               rejection)
 
     def _tick(self) -> None:
         """Free mode: advance simulated time by ``clock_period_s * speedup``."""
@@ -426,18 +549,20 @@ class EmulatorNode(Node):
 
     def _finish(self) -> None:
         self.done = True
-        self.wall_s = (self._steady_ns() - self._run_started_ns) / NS_PER_S
+        self.wall_s = ((self._steady_ns() - self._run_started_ns) / NS_PER_S
+                       if self._run_started_ns else 0.0)
         if self._run_timer is not None:
             self._run_timer.cancel()
         temps = [r.x_end[0] - KELVIN for r in self.records] or [float('nan')]
-        sources = dict(collections.Counter(self.applied_sources))
+        applied = dict(collections.Counter(self.applied_sources))
         rejected = self.rejections.total()
         self.get_logger().info(
             f"{'run stopped' if self.failed else 'scenario over'}: {self.steps_done} steps in "
             f'{self.wall_s:.2f} s wall, zone temperature {min(temps):.2f} to {max(temps):.2f} '
-            f'degC; applied {sources}; {rejected} setpoints rejected')
+            f'degC; applied {applied}; {rejected} setpoints rejected')
         if self.params['output_dir']:
             self.write_outputs(pathlib.Path(self.params['output_dir']))
+        self.diagnostics.publish()
 
     # -- records --------------------------------------------------------------------------
     def fine_frame(self) -> pd.DataFrame:
@@ -454,6 +579,8 @@ class EmulatorNode(Node):
         ``<state>_start``, ``<state>_end``.
         """
         rows = []
+        if not self.records:
+            return pd.DataFrame(rows, index=pd.Index([], name='time_s', dtype=float))
         for record in self.records:
             row = {'time_s': record.t_start_s,
                    'stamp_ns': self.epoch_ns + seconds_to_ns(record.t_start_s)}
@@ -464,12 +591,6 @@ class EmulatorNode(Node):
                 row[f'{name}_end'] = float(record.x_end[i])
             rows.append(row)
         return pd.DataFrame(rows).set_index('time_s')
-
-    def destroy_node(self) -> None:
-        close = getattr(self.emulator.model, 'close', None)
-        if close is not None:  # an FMU instance
-            close()
-        super().destroy_node()
 
     def write_outputs(self, out: pathlib.Path) -> None:
         """Write trajectories.csv, applied.csv and run.json to ``out``."""

@@ -7,6 +7,9 @@ of the step and the ``horizon_steps`` that follow, from
 loop see the same forecasts. By default the forecasts are perfect; the
 ``random_walk`` error model adds seeded errors that grow with the lead time
 (the current step stays exact: it is measured).
+
+Health on ``/diagnostics`` (``mshoot/forecaster``): forecasts published, the
+last forecast's step, whether forecasts are paused (WARN).
 """
 from __future__ import annotations
 
@@ -20,6 +23,7 @@ from rclpy.node import Node
 
 from mshoot_nodes import contract, sources
 from mshoot_nodes.conversions import (floor_to_step, forecast_msg, NS_PER_S, seconds_to_ns)
+from mshoot_nodes.diagnostics import DiagnosticsPublisher, Level, Report
 from mshoot_nodes.params import declare, ParamSpec, values
 from mshoot_nodes.startup import run_node
 
@@ -102,6 +106,7 @@ class ForecasterNode(Node):
         self._publisher = self.create_publisher(Forecast, contract.FORECAST, contract.LATCHED_QOS)
         # Fires on whole simulated steps when use_sim_time is true (never before a /clock).
         self._timer = self.create_timer(p['step_s'], self._on_step)
+        self.diagnostics = DiagnosticsPublisher(self, self.health, hardware_id=p['zone'])
         self.get_logger().info(
             f"{p['scenario']} scenario from {pd.Timestamp(self.epoch_ns, tz='UTC').isoformat()}: "
             f"{p['horizon_steps'] + 1}-sample forecasts every {p['step_s']:.0f} s, "
@@ -136,6 +141,27 @@ class ForecasterNode(Node):
                 f'clock at {now / NS_PER_S:.0f} s is outside the scenario '
                 f'({self.epoch_ns / NS_PER_S:.0f} s + {last_step + 1} steps); is use_sim_time '
                 'set?', throttle_duration_sec=30.0)
+
+    def health(self) -> Report:
+        """The forecaster's status for /diagnostics."""
+        p = self.params
+        last = self.last_index
+        values_ = {'forecasts_published': self.published, 'enabled': p['enabled'],
+                   'error_model': p['error_model'], 'horizon_steps': p['horizon_steps'],
+                   'last_step': last if last is not None else 'none',
+                   'scenario_steps': len(self.scenario) - 1}
+        if last is not None:
+            values_['last_stamp'] = pd.Timestamp(self.epoch_ns + last * self.step_ns,
+                                                 tz='UTC').isoformat()
+        if not p['enabled']:
+            return Report(Level.WARN, 'forecasts paused (enabled = false)', values_)
+        if last is None:
+            return Report(Level.OK, 'waiting for the first step of the scenario (/clock)',
+                          values_)
+        if last > len(self.scenario) - 2:
+            return Report(Level.OK, f'scenario over: {self.published} forecasts', values_)
+        return Report(Level.OK, f'{self.published} forecasts, the last for step {last}',
+                      values_)
 
     def publish_forecast(self, index: int) -> Forecast:
         """Publish the forecast starting at scenario row ``index``."""

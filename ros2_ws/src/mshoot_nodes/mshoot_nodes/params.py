@@ -149,6 +149,9 @@ def declare(node: Node, specs: Sequence[ParamSpec], checks: Iterable[Check] = ()
                              f'valid: {sorted(spec.name for spec in specs)} (and use_sim_time)')
     except Exception:
         Node.destroy_node(node)  # the base class: the node's own attributes do not exist yet
+        machine = getattr(node, '_state_machine', None)
+        if machine is not None:  # a lifecycle node: its state machine holds the rcl node
+            machine.destroy_when_not_in_use()
         raise
 
 

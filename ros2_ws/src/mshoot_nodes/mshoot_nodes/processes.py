@@ -7,10 +7,12 @@ without the launch package: every node runs from its installed executable
 (``lib/mshoot_nodes/<exe>``, what ``ros2 run`` runs) with the YAML files of
 ``config/`` and ``-p`` overrides, talking over DDS on this host
 (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, a private ``ROS_DOMAIN_ID``).
-The emulator is started once the recorder has matched the publishers of the
-other nodes (so that no setpoint is missing from the bag); it waits for its
-peers, runs the scenario in lockstep and exits;
-the others then get SIGINT (the recorder closes its bag). The outputs are
+All four start at once; the emulator's start gate waits until the ROS graph
+shows the MPC, the forecaster and the recorder's ``/recorder/ready`` (published
+once the recorder has matched every publisher: no setpoint is missing from the
+bag), the same readiness check as the other bring-ups
+(:mod:`mshoot_nodes.readiness`); it then runs the scenario in lockstep and
+exits; the others then get SIGINT (the recorder closes its bag). The outputs are
 rebuilt from the emulator's files and the bag: ``kpis.json``, ``steps.csv``,
 ``trajectories.csv``, ``plot.png``, ``bag/``, ``emulator/``, ``logs/``.
 """
@@ -30,6 +32,7 @@ from typing import Sequence
 from ament_index_python.packages import get_package_prefix, PackageNotFoundError
 
 from mshoot_nodes.config import default_params_files
+from mshoot_nodes.readiness import run_requirements
 
 #: Executable and module of every process, in start order (the emulator last).
 PROCESSES = (('recorder', 'recorder_node'), ('forecaster', 'forecaster_node'),
@@ -58,9 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--out', type=pathlib.Path, default=pathlib.Path('out/processes'))
     parser.add_argument('--timeout', type=float, default=600.0,
                         help='wall-clock limit of the run [s] (default 600)')
-    parser.add_argument('--match-timeout', type=float, default=30.0,
-                        help='wall time the recorder may take to match the forecaster and '
-                             'the MPC before the emulator starts [s] (default 30)')
+    parser.add_argument('--ready-timeout', type=float, default=60.0,
+                        help='wall time the emulator waits for the other nodes (and the '
+                             "recorder's /recorder/ready) before it gives up [s] (default 60)")
     parser.add_argument('--domain-id', type=int, default=None,
                         help='ROS_DOMAIN_ID (default: a random one in 1..100)')
     return parser
@@ -80,29 +83,11 @@ def _stop(procs: dict[str, subprocess.Popen], grace_s: float = 10.0) -> None:
             proc.wait()
 
 
-def wait_for_recorder(log: pathlib.Path, recorder: subprocess.Popen,
-                       timeout_s: float) -> str | None:
-    """Wait until the recorder has matched the forecaster's and the MPC's publishers.
-
-    Reads the recorder's log for its ``matched TOPIC`` lines. Returns None when
-    every topic is matched, else the reason it is not (timeout, recorder exited).
-    """
-    from mshoot_nodes import contract
-
-    topics = (contract.FORECAST, contract.SETPOINT, contract.STATUS)
-    needles = {t: contract.RECORDER_MATCHED.format(topic=t) for t in topics}
-    deadline = time.monotonic() + timeout_s
-    while True:
-        text = log.read_text() if log.exists() else ''
-        missing = [t for t, needle in needles.items() if needle not in text]
-        if not missing:
-            return None
-        if recorder.poll() is not None:
-            return f'the recorder exited with {recorder.returncode}; see {log}'
-        if time.monotonic() > deadline:
-            return (f'the recorder matched no publisher of {", ".join(missing)} within '
-                    f'{timeout_s:.0f} s; see {log}')
-        time.sleep(0.05)
+def last_error(log: pathlib.Path) -> str:
+    """The last ERROR or FATAL line of a node's log ('' when there is none)."""
+    lines = log.read_text(errors='replace').splitlines() if log.exists() else []
+    errors = [line for line in lines if '[ERROR]' in line or '[FATAL]' in line]
+    return errors[-1] if errors else ''
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -122,8 +107,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         'forecaster': scenario,
         'mpc': [],
         'emulator': scenario + [f'output_dir:={emulator_dir}', 'exit_when_done:=true',
-                                # the MPC and the recorder, then time for them to match
-                                'min_state_subscribers:=2', 'start_delay_s:=1.0'],
+                                f'ready_endpoints:={run_requirements("mshoot")!r}',
+                                f'ready_timeout_s:={args.ready_timeout}',
+                                # the gate is the recorder's; a little slack for the others
+                                'start_delay_s:=0.5'],
     }
     print(f'[processes] ROS_DOMAIN_ID={domain}, logs in {logs}', flush=True)
     started = time.perf_counter()
@@ -135,12 +122,6 @@ def main(argv: Sequence[str] | None = None) -> int:
                 command += ['--params-file', str(path)]
             for item in overrides[name]:
                 command += ['-p', item]
-            if name == 'emulator':
-                problem = wait_for_recorder(logs / 'recorder.log', procs['recorder'],
-                                             args.match_timeout)
-                if problem:
-                    print(f'[processes] error: {problem}', file=sys.stderr)
-                    return 1
             log = open(logs / f'{name}.log', 'w')  # noqa: SIM115 - closed with the process
             procs[name] = subprocess.Popen(command, env=env, stdout=log,
                                            stderr=subprocess.STDOUT)
@@ -152,8 +133,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                   file=sys.stderr)
             return 1
         if code != 0:
-            print(f'[processes] error: the emulator exited with {code}; see {logs}',
-                  file=sys.stderr)
+            why = last_error(logs / 'emulator.log')
+            print(f'[processes] error: the emulator exited with {code}; see {logs}'
+                  + (f'\n  {why}' if why else ''), file=sys.stderr)
             return 1
     except KeyboardInterrupt:
         return 130

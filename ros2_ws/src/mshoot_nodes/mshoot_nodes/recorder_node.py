@@ -20,6 +20,13 @@ recovered with ``python -m mshoot_nodes.bags recover BAG``. SIGINT and
 SIGTERM end the process cleanly: the messages already received (waiting in
 the subscriptions) are written, then the bag is closed with its metadata.
 
+Readiness: once each subscription of ``ready_topics`` (default: every recorded
+topic) has matched a publisher, the recorder creates its latched ``~/ready``
+publisher (``/recorder/ready``, std_msgs/String naming the matched topics):
+from then on what those publishers send is in the bag. A run's start gate
+waits for that publisher in the ROS graph (:mod:`mshoot_nodes.readiness`).
+Health on ``/diagnostics`` (``mshoot/recorder``): messages written per topic.
+
 On a full ROS 2 install the equivalent is::
 
     ros2 bag record -s mcap /clock /zone/state /zone/disturbances /forecast \\
@@ -40,16 +47,20 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rosbags.rosbag2 import Writer
+from std_msgs.msg import String
 
 from mshoot_nodes import contract
 from mshoot_nodes.bags import ensure_type, flush_writer, qos_to_rosbags, STORAGES, typestore
 from mshoot_nodes.contract import message_class
+from mshoot_nodes.diagnostics import DiagnosticsPublisher, Level, Report
 from mshoot_nodes.params import declare, ParamSpec, values
 from mshoot_nodes.signals import StopSignals
 from mshoot_nodes.startup import construct, EXIT_CONFIG
 
 #: Wall time between checks of the subscriptions' matched publishers [s]
 MATCH_POLL_S = 0.05
+#: The readiness topic, relative to the node (``/recorder/ready`` by default).
+READY_TOPIC = '~/ready'
 
 PARAMS = (
     ParamSpec('bag_path', 'mshoot_bag', 'bag directory to create', read_only=True),
@@ -61,6 +72,9 @@ PARAMS = (
               low=1, high=100_000, read_only=True),
     ParamSpec('flush_period_s', 1.0, 'wall time between flushes to disk: a crash loses at '
               'most this much [s]', low=0.01, high=3600.0, read_only=True),
+    ParamSpec('ready_topics', [''], 'topics whose subscriptions must each have matched a '
+              "publisher before ~/ready is published ([''] = every recorded topic)",
+              read_only=True),
 )
 
 
@@ -71,6 +85,10 @@ def _check(v: dict[str, Any]) -> str | None:
             return f'topics must be absolute topic names, got {topics}'
     if 'bag_path' in v and not v['bag_path']:
         return 'bag_path must not be empty'
+    if {'ready_topics', 'topics'} <= v.keys():
+        extra = sorted({t for t in v['ready_topics'] if t} - set(v['topics']))
+        if extra:
+            return f'ready_topics must be recorded topics, got {extra} not in topics'
     if {'bag_path', 'overwrite'} <= v.keys() and not v['overwrite'] \
             and pathlib.Path(v['bag_path']).exists():
         return f"bag_path {v['bag_path']!r} exists (set overwrite:=true to replace it)"
@@ -84,6 +102,10 @@ class RecorderNode(Node):
     ----------
     counts : dict
         Topic -> messages written so far.
+    matched : set of str
+        Topics whose subscription has matched a publisher.
+    ready : bool
+        True once ``~/ready`` is published.
     """
 
     def __init__(self, **kwargs: Any) -> None:
@@ -102,6 +124,10 @@ class RecorderNode(Node):
         self._recorded: dict[str, Any] = {}
         self.counts: dict[str, int] = {}
         self.matched: set[str] = set()
+        self.ready = False
+        self._ready_topics = {self.resolve_topic_name(t)
+                              for t in ([t for t in p['ready_topics'] if t] or p['topics'])}
+        self._ready_pub = None
         self._closed = False
         self._unflushed = 0
         self.create_timer(p['flush_period_s'], self.flush,
@@ -111,8 +137,9 @@ class RecorderNode(Node):
             self._discover()
             self._discovery_timer = self.create_timer(1.0, self._discover)
         flush_writer(self._writer)  # the file header and the contract topics' definitions
-        self._match_timer = self.create_timer(MATCH_POLL_S, self._log_matches,
+        self._match_timer = self.create_timer(MATCH_POLL_S, self._check_matches,
                                               clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.diagnostics = DiagnosticsPublisher(self, self.health)
         self.get_logger().info(f"recording {len(p['topics'])} topics to {self.path} "
                                f"({p['storage']})")
 
@@ -140,23 +167,38 @@ class RecorderNode(Node):
         if not self._waiting and hasattr(self, '_discovery_timer'):
             self._discovery_timer.cancel()
 
-    def _log_matches(self) -> None:
-        """Log each topic once when its subscription first matches a publisher.
-
-        A line ``matched TOPIC: N publisher(s)`` tells that the messages of TOPIC
-        published from now on are recorded; the bring-up waits for these lines
-        before it starts the emulator.
-        """
+    def _check_matches(self) -> None:
+        """Note each subscription's first matched publisher; publish ``~/ready`` once the
+        ready topics have all matched (polled on a steady timer)."""
         for topic, subscription in self._recorded.items():
             if topic in self.matched:
                 continue
             publishers = subscription.get_publisher_count()
             if publishers:
                 self.matched.add(topic)
-                self.get_logger().info(f'{contract.RECORDER_MATCHED.format(topic=topic)} '
-                                       f'{publishers} publisher(s)')
-        if len(self.matched) == len(self.params['topics']):
+                self.get_logger().info(f'matched {topic}: {publishers} publisher(s)')
+        if not self.ready and self._ready_topics <= self.matched:
+            self.ready = True
+            self._ready_pub = self.create_publisher(String, READY_TOPIC, contract.LATCHED_QOS)
+            self._ready_pub.publish(String(data='matched: ' + ', '.join(sorted(self.matched))))
+            self.get_logger().info(f'ready: {self._ready_pub.topic_name}')
+        if self.ready and len(self.matched) == len(self.params['topics']):
             self._match_timer.cancel()
+
+    def health(self) -> Report:
+        """The recorder's status for /diagnostics."""
+        values_: dict[str, Any] = {'bag': str(self.path), 'storage': self.params['storage'],
+                                   'messages_total': self.total, 'ready': self.ready}
+        values_.update({f'messages {topic}': count for topic, count in self.counts.items()})
+        unmatched = sorted(set(self._recorded) - self.matched) + list(self._waiting)
+        values_['unmatched'] = unmatched or 'none'
+        if self._closed:
+            return Report(Level.OK, f'closed: {self.total} messages', values_)
+        if not self.ready:
+            return Report(Level.OK, 'recording, waiting for publishers of '
+                          + ', '.join(sorted(self._ready_topics - self.matched)), values_)
+        return Report(Level.OK, f'recording {len(self.counts)} topics: {self.total} messages',
+                      values_)
 
     def _subscribe(self, topic: str, type_name: str, offered: QoSProfile) -> None:
         ensure_type(self._store, type_name)

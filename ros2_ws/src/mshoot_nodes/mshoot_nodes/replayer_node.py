@@ -5,7 +5,8 @@ on publishers with the recorded type and offered QoS (so ``/forecast`` stays
 latched). Message k is published ``(t_k - t_0) / rate`` wall seconds after the
 start; ``/clock`` is replayed like any other topic, so nodes with use_sim_time
 follow the recorded simulated time. On a full ROS 2 install the equivalent is
-``ros2 bag play BAG --rate R``.
+``ros2 bag play BAG --rate R``. Health on ``/diagnostics`` (``mshoot/replayer``):
+messages published of the total.
 """
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from rclpy.publisher import Publisher
 
 from mshoot_nodes.bags import qos_from_rosbags, read_bag
 from mshoot_nodes.contract import message_class
+from mshoot_nodes.diagnostics import DiagnosticsPublisher, Level, Report
 from mshoot_nodes.params import declare, ParamSpec, values
 from mshoot_nodes.startup import run_node
 
@@ -85,6 +87,7 @@ class ReplayerNode(Node):
             self._timer = self.create_timer(max(p['start_delay_s'], 1e-3), self._on_timer,
                                             clock=self._steady)
         span = (self.messages[-1].timestamp_ns - self._t0) / 1e9 if self.messages else 0.0
+        self.diagnostics = DiagnosticsPublisher(self, self.health)
         self.get_logger().info(f"{p['bag_path']}: {len(self.messages)} messages on "
                                f'{len(topics)} topics over {span:.1f} s, rate {self._rate:g}')
 
@@ -98,6 +101,16 @@ class ReplayerNode(Node):
                 self._start_ns = now - int(position / self._rate)
             elif param.name == 'rate':
                 self._rate = float(param.value)
+
+    def health(self) -> Report:
+        """The replayer's status for /diagnostics."""
+        values_ = {'bag': self.params['bag_path'], 'published': self.published,
+                   'messages': len(self.messages), 'rate': self._rate,
+                   'topics': len(self._topic_publishers)}
+        if self.done:
+            return Report(Level.OK, f'replay finished: {self.published} messages', values_)
+        return Report(Level.OK, f'replaying: {self.published} of {len(self.messages)} '
+                      'messages', values_)
 
     def publish_until(self, bag_offset_ns: int) -> int:
         """Publish every message recorded at most ``bag_offset_ns`` after the first one.

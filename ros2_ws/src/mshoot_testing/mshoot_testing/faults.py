@@ -1,6 +1,7 @@
 """Fault injection at the real seams of the controller: the solver and the model.
 
-For tests and the soak benchmark. :class:`FaultySolver` wraps any
+Test support (package mshoot_testing, not a production package), for tests
+and the soak benchmark. :class:`FaultySolver` wraps any
 :class:`~mshoot_core.solvers.Solver` and :class:`FaultyModel` any
 :class:`~mshoot_core.models.base.Model`; both behave exactly like the wrapped
 object until a fault is armed with :meth:`Faults.arm`, then inject it on the
@@ -23,12 +24,11 @@ import threading
 import time
 from typing import Any, Sequence
 
+from mshoot_core.models.base import IntervalJacobians, Model
+from mshoot_core.solvers import Nlp, Solver
 import numpy as np
 import pandas as pd
 from scipy import optimize
-
-from mshoot_core.models.base import IntervalJacobians, Model
-from mshoot_core.solvers import Nlp, Solver
 
 #: Faults a :class:`FaultySolver` can inject.
 SOLVER_FAULTS = ('fail', 'nan', 'overrun')

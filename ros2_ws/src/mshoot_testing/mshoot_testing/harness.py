@@ -1,6 +1,7 @@
 """An in-process closed loop to poke at: faults, restarts and malformed messages.
 
-Used by the fault-injection tests and the soak benchmark (``bench/soak.py``).
+Test support (package mshoot_testing), used by the fault-injection tests and
+the soak benchmark (``bench/soak.py``).
 :class:`ClosedLoop` runs emulator, forecaster, MPC (and optionally the bag
 recorder) in one SingleThreadedExecutor of a private context, like
 :func:`mshoot_nodes.bringup.run_in_process`, but step by step, so a caller can
@@ -30,6 +31,7 @@ from mshoot_nodes.conversions import (fallback_setpoint_msg, forecast_msg, NS_PE
 from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_nodes.forecaster_node import ForecasterNode
 from mshoot_nodes.mpc_node import MpcNode
+from mshoot_nodes.readiness import run_requirements
 from mshoot_nodes.recorder_node import RecorderNode
 
 #: ``header.frame_id`` of the malformed messages (tells them apart in a bag).
@@ -159,7 +161,7 @@ class ClosedLoop:
     record : bool
         Also run the bag recorder (needs ``node_params['recorder']['bag_path']``).
     mpc_model : Model, optional
-        The MPC's control model instance (e.g. a :class:`~mshoot_core.faults.FaultyModel`).
+        The MPC's control model instance (e.g. a :class:`~mshoot_testing.faults.FaultyModel`).
 
     Attributes
     ----------
@@ -175,6 +177,9 @@ class ClosedLoop:
         self.node_params = {name: dict(values) for name, values in node_params.items()}
         for name in ('forecaster', 'mpc'):
             self.node_params.setdefault(name, {}).setdefault('use_sim_time', True)
+        # The bring-ups' readiness check: the MPC, the forecaster (and the recorder's ready).
+        self.node_params.setdefault('emulator', {}).setdefault(
+            'ready_endpoints', run_requirements('mshoot' if record else 'none'))
         self.executor = SingleThreadedExecutor(context=context)
         self.retired: list[MpcNode] = []
         self._nodes: list[Node] = []
