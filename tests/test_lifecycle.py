@@ -319,7 +319,8 @@ def test_every_node_reports_on_diagnostics(context, tmp_path):
                     and values.get('mshoot/forecaster', {}).get('forecasts_published')
                     == str(hours)
                     and values.get('mshoot/recorder', {}).get(f'messages {contract.STATUS}')
-                    == str(recorder.counts[contract.STATUS]))
+                    == str(recorder.counts[contract.STATUS])
+                    and int(values.get('mshoot/mpc', {}).get('decisions', 0)) >= hours)
         loop.spin_until(reported, GUARD_S, 'the final reports')
 
         emu = latest['mshoot/emulator']
@@ -332,6 +333,10 @@ def test_every_node_reports_on_diagnostics(context, tmp_path):
         assert values['lockstep_timeouts'] == '0'
         assert int(values['lockstep_waits']) >= 0
         assert status_values(latest['mshoot/recorder'])['ready'] == 'true'
+        mpc = status_values(latest['mshoot/mpc'])
+        assert mpc['lifecycle_state'] == 'active' and int(mpc['optimum']) >= hours
+        assert mpc['safe'] == '0' and mpc['rejected_states'] == '0'
+        assert float(mpc['last_solve_s']) > 0
         assert recorder.counts[contract.STATUS] >= hours
 
         loop.forecaster.set_parameters([Parameter('enabled', value=False)])
@@ -458,3 +463,36 @@ def test_emulator_gate_waits_for_the_run_and_times_out_naming_what_is_missing(co
         assert report.level == Level.ERROR and 'not ready' in report.message
     finally:
         rig.close()
+
+
+# -- the MPC's lifecycle ------------------------------------------------------------------------
+def test_mpc_deactivate_hands_the_building_back_with_one_safe_setpoint(context):
+    hours = 6
+    loop = ClosedLoop(context, {
+        'emulator': {'hours': hours, 'model': 'python', 'lockstep_timeout_s': 60.0},
+        'forecaster': {'hours': hours},
+        'mpc': {'model': 'python', 'horizon_steps': 4, 'safe_heat_rate_w': 300.0}})
+    try:
+        loop.run_steps(2)
+        mpc = loop.mpc
+        assert mpc.lifecycle_state == 'active'
+        before = len(mpc.history)
+        assert mpc.trigger_deactivate() == SUCCESS
+        assert len(mpc.history) == before + 1
+        setpoint, status = mpc.history[-1]
+        assert status.source == 'safe' and status.fallback
+        assert status.fallback_reason == 'deactivated' and 'deactivated' in status.message
+        assert setpoint.heat_rate_w == 300.0 and list(setpoint.plan_heat_rate_w) == []
+        health = mpc.diagnostics.publish().status[0]
+        assert status_values(health)['lifecycle_state'] == 'inactive'
+        loop.spin_for(0.5)  # inactive: the emulator's heartbeats get no answer
+        assert len(mpc.history) == before + 1
+        assert mpc.trigger_activate() == SUCCESS
+        loop.run_to_end()
+        after = [s.source for _, s in list(mpc.history)[before + 1:]]
+        assert after and set(after) == {'optimum'}
+        assert loop.emulator.steps_done == hours
+        assert mpc.trigger_deactivate() == SUCCESS and mpc.trigger_cleanup() == SUCCESS
+        assert mpc.controller is None and mpc.lifecycle_state == 'unconfigured'
+    finally:
+        loop.close()

@@ -96,6 +96,7 @@ ALONE = {
     'emulator': (['model:=python', 'ready_timeout_s:=0.0',
                   "ready_endpoints:=['{ns}/never publishers>=1']"],
                  'waiting for peers: {ns}/never: 0 of 1 publishers', contract.ZONE_STATE),
+    'mpc': (['model:=python'], 'waiting for the first step', contract.SETPOINT),
 }
 
 

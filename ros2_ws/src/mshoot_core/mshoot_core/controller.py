@@ -499,9 +499,18 @@ class Controller:
         decision = self.supervisor.fallback(step_ns / NS_PER_S, code, reason)
         return StepOutcome(step_ns, decision, result, waited_s, x0)
 
-    def safe_decision(self, t_s: float, reason: str) -> Decision:
-        """The safe setpoint, e.g. when the controller hands the building back."""
-        return self.supervisor.safe(t_s, 'inputs_missing', reason)
+    def hand_back(self, now_ns: int) -> StepOutcome:
+        """The safe setpoint for the current step, when the controller stops controlling
+        (hands the building back to its own control); no further steps are decided until
+        the clock passes this one."""
+        step = (int(now_ns) // self.step_ns) * self.step_ns
+        self._last_step_ns = max(step, self._last_step_ns or step)
+        if self._inflight is not None:  # its result will only warm the next start
+            self._inflight.fallback_given = True
+        decision = self.supervisor.safe(step / NS_PER_S, 'deactivated', 'the controller was '
+                                        'deactivated: the safe setpoint, then no more '
+                                        'setpoints (the building is back on its own control)')
+        return StepOutcome(step, decision, None, 0.0, None)
 
     def close(self) -> None:
         """Wait for a solve in flight and drop it."""

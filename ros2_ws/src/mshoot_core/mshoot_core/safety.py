@@ -39,7 +39,8 @@ NS_PER_S = 1_000_000_000
 REJECTION_KINDS = ('non_finite', 'out_of_range', 'length', 'band', 'step', 'stamp', 'future',
                    'stale', 'backwards')
 #: Why a setpoint is a fallback (codes of :attr:`Decision.code`).
-FALLBACK_CODES = ('solve_failed', 'budget', 'not_converged', 'invalid_plan', 'inputs_missing')
+FALLBACK_CODES = ('solve_failed', 'budget', 'not_converged', 'invalid_plan', 'inputs_missing',
+                  'deactivated')
 #: Where a published setpoint comes from.
 SOURCES = ('optimum', 'plan', 'safe')
 #: Forecast series, in the column names of :mod:`mshoot_core.scenario`.

@@ -40,12 +40,12 @@ from mshoot_core.mpc import MpcResult
 from mshoot_core.safety import check_setpoint, check_stamp_fields, check_zone_state, Rejection
 from mshoot_core.settings import MpcSettings, PARAMETERS, SettingsError
 from mshoot_msgs.msg import Forecast, MpcStatus, Setpoint, ZoneState
-from rclpy.clock import Clock, ClockType
-from rclpy.node import Node
 
 from mshoot_nodes import contract
 from mshoot_nodes.conversions import (decision_setpoint_msg, decision_status_msg,
                                       forecast_series, NS_PER_S, stamp_to_ns, zone_state_to_x)
+from mshoot_nodes.diagnostics import DiagnosticsPublisher, Level, Report
+from mshoot_nodes.lifecycle import ManagedNode
 from mshoot_nodes.params import declare, ParamSpec, values
 from mshoot_nodes.startup import run_node
 from mshoot_nodes.validation import RejectionLog
@@ -86,30 +86,33 @@ def _check(proposed: dict[str, Any]) -> str | None:
     return '; '.join(problems) or None
 
 
-class MpcNode(Node):
-    """Supervisory MPC over topics (see the module docstring).
+class MpcNode(ManagedNode):
+    """Supervisory MPC over topics (see the module docstring); a lifecycle node.
+
+    Configure builds the model, the controller and the publishers; activate
+    subscribes and starts the step timers; deactivate publishes the safe
+    setpoint once and stops controlling (the building is back on its own
+    control); cleanup frees the model (an FMU) and the solver thread. With
+    ``autostart`` (default true) the node configures and activates itself.
 
     Parameters
     ----------
     model : Model, optional
         The control model instance (default: built from the ``model``
-        parameter). For embedding and fault-injection tests.
+        parameter on configure). For embedding and fault-injection tests.
     **kwargs
         Passed to :class:`rclpy.node.Node` (context, parameter_overrides, ...).
 
     Attributes
     ----------
-    controller : Controller
-        The core controller: every decision.
-    mpc : MPC
-        Its MPC.
+    controller : Controller or None
+        The core controller: every decision (None while unconfigured).
     rejections : RejectionLog
         Rejected inputs by stream ('state', 'forecast') and kind.
     history : deque of (Setpoint, MpcStatus)
         Everything published, in order (the last ``history_length``).
-    results : dict
-        Step stamp [ns] -> the MpcResult of that step's solve (the last
-        ``history_length``).
+    diagnostics : DiagnosticsPublisher
+        Publishes :meth:`health` on /diagnostics.
     """
 
     def __init__(self, model: Model | None = None, **kwargs: Any) -> None:
@@ -117,49 +120,113 @@ class MpcNode(Node):
         declare(self, PARAMS, [_check])
         self.params = p = values(self, PARAMS)
         self.add_post_set_parameters_callback(self._on_parameters_set)
-        self.model = (model if model is not None
+        self._given_model = model
+        self.model: Model | None = None
+        self.controller: Controller | None = None
+        self._pool: concurrent.futures.ThreadPoolExecutor | None = None
+        self.history: collections.deque[tuple[Setpoint, MpcStatus]] = collections.deque(
+            maxlen=p['history_length'])
+        self.rejections = RejectionLog(self, p['reject_log_period_s'])
+        self._last_setpoint: Setpoint | None = None
+        self._steady = self.steady_clock
+        self._done_gc = self.create_guard_condition(self.try_solve)
+        self.diagnostics = DiagnosticsPublisher(self, self.health, hardware_id=p['zone'])
+        self.autostart()
+
+    # -- lifecycle ------------------------------------------------------------------------
+    def configure(self) -> None:
+        """Build the model (unless given), the controller and the publishers."""
+        p = self.params
+        self.model = (self._given_model if self._given_model is not None
                       else ModelSettings(p['model'], p['fmu_tolerance']).build())
         self._pool = (concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix='mpc_solve')
                       if p['async_solve'] else None)
-        self._done_gc = self.create_guard_condition(self.try_solve)
         self.controller = Controller(self.model, settings_from(p), executor=self._pool,
                                      assumed_inputs={'dpos': p['ventilation_dpos']},
                                      on_solve_done=self._done_gc.trigger,
                                      history_length=p['history_length'])
-        self.history: collections.deque[tuple[Setpoint, MpcStatus]] = collections.deque(
-            maxlen=p['history_length'])
         self.rejections = RejectionLog(self, p['reject_log_period_s'],
                                        self.controller.rejections)
-        self._last_setpoint: Setpoint | None = None
-        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._setpoint_pub = self.create_lifecycle_publisher(Setpoint, contract.SETPOINT,
+                                                             contract.DATA_QOS)
+        self._status_pub = self.create_lifecycle_publisher(MpcStatus, contract.STATUS,
+                                                           contract.DATA_QOS)
+        self.get_logger().info(
+            f"model {p['model'] if self._given_model is None else type(self.model).__name__}, "
+            f"horizon {p['horizon_steps']} x {p['step_s']:.0f} s, cost {p['cost']}, comfort "
+            f"{p['comfort']}, solver {p['solver']}, heat rate [{p['heat_rate_min_w']:.0f}, "
+            f"{p['heat_rate_max_w']:.0f}] W, time budget {p['time_budget_s'] or 'none'}, "
+            f"safe setpoint {p['safe_heat_rate_w']:.0f} W / {p['safe_temperature_c']:.1f} degC")
 
-        self._setpoint_pub = self.create_publisher(Setpoint, contract.SETPOINT,
-                                                   contract.DATA_QOS)
-        self._status_pub = self.create_publisher(MpcStatus, contract.STATUS, contract.DATA_QOS)
+    def activate(self) -> None:
+        """Take inputs and decide on whole steps and every 50 ms of wall time."""
         self.create_subscription(ZoneState, contract.ZONE_STATE, self._on_state,
                                  contract.DATA_QOS)
         self.create_subscription(Forecast, contract.FORECAST, self._on_forecast,
                                  contract.LATCHED_READER_QOS)
         # On whole (simulated) steps; the clock is read, never assumed, in try_solve.
-        self.create_timer(p['step_s'], self.try_solve)
+        self.create_timer(self.params['step_s'], self.try_solve)
         # Wall-clock checks of steps waiting for inputs or for a busy solver.
         self.create_timer(0.05, self.try_solve, clock=self._steady)
-        self.get_logger().info(
-            f"model {p['model'] if model is None else type(model).__name__}, horizon "
-            f"{p['horizon_steps']} x {p['step_s']:.0f} s, cost {p['cost']}, comfort "
-            f"{p['comfort']}, solver {p['solver']}, heat rate [{p['heat_rate_min_w']:.0f}, "
-            f"{p['heat_rate_max_w']:.0f}] W, time budget {p['time_budget_s'] or 'none'}, "
-            f"safe setpoint {p['safe_heat_rate_w']:.0f} W / {p['safe_temperature_c']:.1f} degC")
+
+    def deactivate(self) -> None:
+        """Publish the safe setpoint once and stop controlling."""
+        now = self._now_ns()
+        if now > 0 and self.controller is not None:
+            self._publish(self.controller.hand_back(now))
+
+    def cleanup(self) -> None:
+        """Free the solver thread and the model this node built (an FMU instance)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+        if self._given_model is None:
+            close = getattr(self.model, 'close', None)
+            if close is not None:
+                close()
+        self.controller = None
+        self.model = None
 
     @property
     def mpc(self) -> Any:
-        """The controller's MPC."""
-        return self.controller.mpc
+        """The controller's MPC (None while unconfigured)."""
+        return None if self.controller is None else self.controller.mpc
 
     @property
     def results(self) -> dict[int, MpcResult]:
         """Step stamp [ns] -> MpcResult of the latest solves."""
-        return self.controller.results
+        return {} if self.controller is None else self.controller.results
+
+    # -- health ---------------------------------------------------------------------------
+    def health(self) -> Report:
+        """The MPC's status for /diagnostics."""
+        c = self.controller
+        if c is None:
+            return Report(Level.OK, 'unconfigured', {'model': self.params['model']})
+        last_step = c.last_step_ns
+        now = self._now_ns()
+        behind = (0 if last_step is None or now <= 0
+                  else max(0, (now - last_step) // c.step_ns))
+        last = self.history[-1][1] if self.history else None
+        sources = c.supervisor.sources
+        values_ = {
+            'step': '' if last_step is None else f'{last_step / NS_PER_S:.0f}',
+            'steps_behind': behind,
+            'decisions': sum(sources.values()),
+            'optimum': sources['optimum'], 'plan': sources['plan'], 'safe': sources['safe'],
+            'consecutive_fallbacks': c.supervisor.consecutive_fallbacks,
+            'rejected_states': c.rejections.total('state'),
+            'rejected_forecasts': c.rejections.total('forecast'),
+            'last_solve_s': '' if last is None else last.solve_time_s,
+            'solving': c.busy,
+            'horizon_steps': c.mpc.horizon_steps, 'solver': c.mpc.solver.name,
+        }
+        if last is None:
+            return Report(Level.OK, 'waiting for the first step', values_)
+        if last.fallback:
+            return Report(Level.WARN, f'fallback ({last.source}, {last.fallback_reason}): '
+                          f'{last.message}', values_)
+        return Report(Level.OK, f'{last.source}, {last.iterations} iterations', values_)
 
     # -- configuration --------------------------------------------------------------------
     def _on_parameters_set(self, params: list) -> None:
@@ -167,6 +234,8 @@ class MpcNode(Node):
         self.params = values(self, PARAMS)
         names = ', '.join(f'{p.name} = {p.value}' for p in params)
         self.get_logger().info(f'parameters changed: {names}')
+        if self.controller is None:  # applied on configure
+            return
         self.controller.assumed_inputs['dpos'] = float(self.params['ventilation_dpos'])
         what = self.controller.update(settings_from(self.params))
         if what not in ('unchanged', 'updated'):
@@ -217,7 +286,7 @@ class MpcNode(Node):
     def try_solve(self) -> None:
         """Let the controller decide what is due; publish its decisions."""
         now = self._now_ns()
-        if now <= 0:  # simulated time before the first /clock
+        if now <= 0 or not self.is_active:  # no /clock yet, or not controlling
             return
         for outcome in self.controller.poll(now, self._steady.now().nanoseconds):
             self._publish(outcome)
@@ -264,14 +333,6 @@ class MpcNode(Node):
         else:
             self.get_logger().warning(f'step {step_s:.0f} s: fallback {setpoint.heat_rate_w:.1f} '
                                       f'W ({decision.source}): {decision.reason}')
-
-    def destroy_node(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
-        close = getattr(self.model, 'close', None)
-        if close is not None:  # an FMU instance
-            close()
-        super().destroy_node()
 
 
 def main(args: list[str] | None = None) -> None:
