@@ -43,13 +43,13 @@ demo: setup  ## 72 h MPC over ROS 2 (emulator, forecaster, mpc, bag) -> out/demo
 	@$(RUN) cd $(ROOT) && python -m mshoot_nodes.bringup --scenario $(SCENARIO) \
 		$(if $(filter ou44,$(SCENARIO)),--data $(OU44_CSV)) --out $(DEMO_OUT) $(DEMO_ARGS)
 
-# -- the reference study (mshoot_core.study): every table and figure -> docs/ ------------------
+# -- the reference study (mshoot study): every table and figure -> docs/ -----------------------
 STUDY_OUT ?= docs
 STUDY_ARGS ?=
 
 .PHONY: study
 study: setup  ## regenerate every table and figure of the OU44 reference study -> docs/study.md (~6 min on 2 cores)
-	@$(RUN) cd $(ROOT) && python -m mshoot_core.study --data $(OU44_CSV) --out $(STUDY_OUT) $(STUDY_ARGS)
+	@$(RUN) cd $(ROOT) && mshoot study --data $(OU44_CSV) --out $(STUDY_OUT) $(STUDY_ARGS)
 
 # -- the soak benchmark (issue 6): many simulated days over ROS 2 with faults injected ---------
 SOAK_DAYS ?= 30

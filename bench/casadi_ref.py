@@ -10,7 +10,7 @@ multiple shooting over the horizon (one SX graph), exact first and second
 derivatives from CasADi, IPOPT with its default settings (MUMPS, tolerance
 1e-8), the previous plan shifted as the initial guess of the next solve.
 
-Same data and settings as ``mshoot_core.case``: the scenario of
+Same data and settings as ``mshoot_studies.case``: the scenario of
 ``reference_scenario`` (5-8 April 2018, hourly means, ventilation off), the
 comfort band as bounds on the state at the end of every interval, the cost
 sum (q/q_nom)^2 with q_nom = 2000 W, -2000 <= q <= 2000 W, initial 20 degC,

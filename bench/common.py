@@ -9,12 +9,13 @@ import time
 
 import numpy as np
 
-from mshoot_core.case import DEFAULT_DATA, control_model, reference_scenario
 from mshoot_core.closed_loop import run_closed_loop
 from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.mpc import MPC
+from mshoot_core.scenario import DEFAULT_DATA, reference_scenario
+from mshoot_studies.case import control_model
 
 logger = logging.getLogger('bench')
 OUT = pathlib.Path(__file__).resolve().parents[1] / 'out' / 'bench'

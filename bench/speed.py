@@ -21,7 +21,7 @@ import numpy as np
 
 from common import logger, print_table, setup_logging, timed_run, write_json
 
-#: Control models of the reference case (``mshoot_core.case.control_model``)
+#: Control models of the reference case (``mshoot_studies.case.control_model``)
 CONTROLS = ('fmu', 'fmu-cs', 'python', 'svr')
 
 

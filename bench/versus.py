@@ -46,7 +46,7 @@ from typing import Any, Callable, Sequence
 #: to change when the command moves. Its ``main(argv)`` is run by the instrumented breakdown,
 #: which times its ``reference_scenario``, ``control_model``, ``run_case`` and
 #: ``write_outputs`` where the module has them.
-CASE_MODULE = 'mshoot_core.case'
+CASE_MODULE = 'mshoot_studies.case'
 BENCH = pathlib.Path(__file__).resolve().parent
 ROOT = BENCH.parent
 CASADI_SCRIPT = BENCH / 'casadi_ref.py'

@@ -1,4 +1,4 @@
-"""mshoot_core: R1C1 analytics, multiple shooting, MPC loop, KPIs, the reference case."""
+"""mshoot_core: R1C1 analytics, multiple shooting, MPC loop, KPIs, scenarios and outputs."""
 import json
 
 import numpy as np
@@ -6,12 +6,12 @@ import pandas as pd
 import pytest
 from scipy import optimize
 
-from mshoot_core.case import PUBLISHED, main as case_main, reference_scenario, run_case
 from mshoot_core.closed_loop import forecast_window, run_closed_loop
 from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis, discomfort_kh, energy_kwh
 from mshoot_core.models import Model, R1C1Model, R1C1Parameters
 from mshoot_core.mpc import MPC
+from mshoot_core.outputs import write_outputs
 from mshoot_core.scenario import synthetic_scenario
 from mshoot_core.settings import ComfortSettings, MpcSettings, ProblemSettings, SettingsError
 from mshoot_core.shooting import NlpIndex, ShootingProblem
@@ -302,7 +302,6 @@ def test_closed_loop_warm_start_and_records():
     assert kpis['steps'] == 12 and kpis['solver_failures'] == 0
 
 
-
 def test_closed_loop_progress_and_budget():
     """Progress sees every step's records as they accrue; a spent budget ends the run early."""
     s = synthetic_scenario(hours=7, seed=3)
@@ -347,35 +346,17 @@ def test_solve_runs_with_one_blas_thread_and_restores_the_pools(monkeypatch):
     with pytest.raises(ValueError, match='blas_threads'):
         MPC(R1C1Model(), blas_threads=-1)
 
-@pytest.mark.parametrize('horizon', [2, 10])
-def test_reference_case_against_published(ou44_csv, horizon):
-    """Energy and hourly discomfort may not both be worse than published by more than 3 %."""
-    scenario = reference_scenario('ou44', ou44_csv)
-    result, kpis = run_case(scenario, R1C1Model(), R1C1Model(), horizon=horizon, log_every=0)
-    published = PUBLISHED[horizon]
-    worse_energy = kpis['energy_kwh'] > 1.03 * published['energy_kwh']
-    worse_comfort = kpis['discomfort_kh_hourly'] > 1.03 * published['discomfort_kh_hourly']
-    assert not (worse_energy and worse_comfort), kpis
-    assert kpis['solver_failures'] == 0
-    assert result.steps['max_defect'].max() <= 1e-6
-    assert kpis['steps'] == 72
 
-
-def test_case_command_writes_outputs(tmp_path):
-    out = tmp_path / 'case'
-    assert case_main(['synthetic', '--horizon', '3', '--hours', '6', '--out', str(out)]) == 0
-    kpis = json.loads((out / 'kpis.json').read_text())
-    for key in ('energy_kwh', 'heating_kwh', 'cooling_kwh', 'discomfort_kh',
-                'discomfort_kh_hourly', 'steps', 'horizon_h', 'wall_s', 'solve_s_median',
-                'solver_failures'):
-        assert key in kpis
-    assert kpis['steps'] == 6
-    assert (out / 'plot.png').stat().st_size > 10_000
-    traj = pd.read_csv(out / 'trajectories.csv')
-    assert len(traj) == 6 * 60 + 1
-
-
-def test_case_command_reports_bad_data_path(tmp_path, caplog):
-    assert case_main(['ou44', '--data', str(tmp_path / 'nope.csv'), '--out',
-                      str(tmp_path)]) == 2
-    assert 'not found' in caplog.text
+def test_write_outputs_writes_the_run_files(tmp_path):
+    scenario = synthetic_scenario(hours=7)
+    result = run_closed_loop(MPC(R1C1Model(), horizon_steps=3),
+                             Emulator(R1C1Model(), scenario, [20.0 + KELVIN]), log_every=0)
+    kpis = closed_loop_kpis(result.steps, result.fine, 3600.0, result.wall_s)
+    write_outputs(tmp_path / 'run', result, dict(kpis, note='synthetic'), 'a title')
+    assert json.loads((tmp_path / 'run' / 'kpis.json').read_text()) == pytest.approx(
+        dict(kpis, note='synthetic'))
+    traj = pd.read_csv(tmp_path / 'run' / 'trajectories.csv', index_col='time_s')
+    np.testing.assert_allclose(traj['y_T'].to_numpy(), result.fine['y_T'].to_numpy())
+    steps = pd.read_csv(tmp_path / 'run' / 'steps.csv', index_col='time_s')
+    np.testing.assert_allclose(steps['q'].to_numpy(), result.steps['q'].to_numpy())
+    assert (tmp_path / 'run' / 'plot.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'

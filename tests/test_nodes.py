@@ -8,9 +8,9 @@ Every spin loop has a wall-clock guard, so a deadlock fails instead of hanging.
 import os
 import time
 
-from mshoot_core.case import r1c1_fmu_model
 from mshoot_core.closed_loop import run_closed_loop
 from mshoot_core.emulation import Emulator
+from mshoot_core.models.fmi import r1c1_fmi_model
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import synthetic_scenario
@@ -76,8 +76,8 @@ def ros_run(tmp_path_factory):
     finally:
         rclpy.try_shutdown(context=ctx)
     mpc = MPC(R1C1Model(), horizon_steps=10)
-    emulator = Emulator(r1c1_fmu_model(1e-10), synthetic_scenario(hours=HOURS + 1),
-                        [20.0 + KELVIN])
+    emulator = Emulator(r1c1_fmi_model(fmi_type='ModelExchange', tolerance=1e-10),
+                        synthetic_scenario(hours=HOURS + 1), [20.0 + KELVIN])
     core = run_closed_loop(mpc, emulator, steps=HOURS, log_every=0)
     return run, core, bag
 

@@ -1,9 +1,8 @@
 """mshoot_nodes without spinning: message conversions, scenarios and parameter helpers."""
-from mshoot_core.case import reference_scenario
 from mshoot_core.closed_loop import forecast_window
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.mpc import MPC
-from mshoot_core.scenario import synthetic_scenario
+from mshoot_core.scenario import reference_scenario, synthetic_scenario
 import numpy as np
 import pandas as pd
 import pytest

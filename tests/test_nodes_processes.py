@@ -12,9 +12,9 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 from lifecycle_msgs.msg import State, Transition
 from lifecycle_msgs.srv import ChangeState, GetState
-from mshoot_core.case import r1c1_fmu_model
 from mshoot_core.closed_loop import run_closed_loop
 from mshoot_core.emulation import Emulator
+from mshoot_core.models.fmi import r1c1_fmi_model
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import synthetic_scenario
@@ -52,8 +52,9 @@ def test_separate_processes_complete_a_24_h_run(tmp_path):
     assert bad.empty, f'steps without a successful solve:\n{bad.to_string()}\n{logs}'
 
     core = run_closed_loop(MPC(R1C1Model(), horizon_steps=10),
-                           Emulator(r1c1_fmu_model(1e-10), synthetic_scenario(hours=HOURS + 1),
-                                    [20.0 + KELVIN]), steps=HOURS, log_every=0)
+                           Emulator(r1c1_fmi_model(fmi_type='ModelExchange', tolerance=1e-10),
+                                    synthetic_scenario(hours=HOURS + 1), [20.0 + KELVIN]),
+                           steps=HOURS, log_every=0)
     # Lockstep across processes reproduces the core-only loop too.
     assert np.max(np.abs(steps['T_end'].to_numpy() - core.steps['T_end'].to_numpy())) < 1e-9
 

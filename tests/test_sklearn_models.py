@@ -1,4 +1,4 @@
-"""Data-driven zone models: training, batch/sequential agreement, errors, OU44 Setup 2."""
+"""Data-driven zone models: training, batch/sequential agreement, errors."""
 import logging
 
 import numpy as np
@@ -13,8 +13,7 @@ from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.models.sklearn_model import (AnalyticOutput, ESTIMATOR_FACTORIES,
                                               evaluate, input_integral, make_estimator,
                                               make_excitation_data, make_zone_model,
-                                              SETUP2_SPLIT, SETUP2_START, SklearnModel,
-                                              state_output, train_setup2)
+                                              SklearnModel, state_output)
 from mshoot_core.scenario import synthetic_scenario
 
 TRAIN_DAYS = 5
@@ -343,20 +342,3 @@ def test_bad_configuration_raises(caplog):
         SklearnModel(LinearRegression(), ['x1', 'x2'], ['u', 'c'], step_s=600.0).fit(
             states, inputs.assign(c=1.0))
     assert "'c' is constant" in caplog.text
-
-
-# -- the OU44 reference case ---------------------------------------------------------------------
-@pytest.mark.parametrize('ventilation', ['measured', 'off'])
-def test_setup2_svr_on_ou44(ou44_csv, ventilation):
-    model, report = train_setup2(ou44_csv, 'svr', seed=0, ventilation=ventilation)
-    assert model.is_fitted and report.estimator == 'svr'
-    split_s = (pd.Timestamp(SETUP2_SPLIT) - pd.Timestamp(SETUP2_START)).total_seconds()
-    assert report.validation.index[0] == split_s
-    assert report.n_validation == len(report.validation) > 90  # 9-13 April, hourly
-    assert report.n_train > 100  # 4 April 08:00 to 9 April, hourly
-    assert report.rmse_free_run_k < 0.5
-    assert report.rmse_one_step_k < 0.05
-    assert report.rmse_one_step_k <= report.rmse_free_run_k
-    table = report.validation
-    np.testing.assert_allclose(table['T_free_run'].iloc[0], table['T_true'].iloc[0])
-    assert 15.0 < table['T_true'].mean() < 35.0  # degC, not K

@@ -2,7 +2,6 @@
 import numpy as np
 import pytest
 
-from mshoot_core.case import reference_scenario
 from mshoot_core.closed_loop import forecast_window, run_closed_loop
 from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis
@@ -11,7 +10,7 @@ from mshoot_core.models.base import Model
 from mshoot_core.models.fmi import r1c1_fmi_model
 from mshoot_core.models.multizone import MultiZoneModel, multizone_mpc_options
 from mshoot_core.mpc import MPC
-from mshoot_core.scenario import synthetic_scenario
+from mshoot_core.scenario import reference_scenario, synthetic_scenario
 from mshoot_core.sensitivities import column_groups, finite_difference_jacobians
 from mshoot_core.shooting import ContinuityStructure, NlpIndex
 

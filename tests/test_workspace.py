@@ -1,4 +1,5 @@
 """The workspace: messages round-trip, packages are indexed, layers stay apart."""
+import importlib
 import pathlib
 import re
 
@@ -9,9 +10,10 @@ from rclpy.serialization import deserialize_message, serialize_message
 from conftest import ROOT
 
 msg = pytest.importorskip('mshoot_msgs.msg')
-PACKAGES = ('mshoot_core', 'mshoot_nodes', 'mshoot_msgs', 'mshoot_testing')
+PACKAGES = ('mshoot_core', 'mshoot_nodes', 'mshoot_msgs', 'mshoot_studies', 'mshoot_testing')
 #: What ships; test support lives in mshoot_testing.
-PRODUCTION = ('mshoot_core', 'mshoot_nodes', 'mshoot_msgs')
+PRODUCTION = ('mshoot_core', 'mshoot_nodes', 'mshoot_msgs', 'mshoot_studies')
+SRC = ROOT / 'ros2_ws' / 'src'
 
 
 def _filled(msg_type):
@@ -104,3 +106,38 @@ def test_test_doubles_live_outside_the_production_packages():
         assert not [p for p in files if p.stem in ('faults', 'harness')], package
         offenders = [str(p) for p in files if 'mshoot_testing' in p.read_text(errors='replace')]
         assert not offenders, f'{package} must not depend on the test support: {offenders}'
+
+
+def _python_sources(package: str) -> list[pathlib.Path]:
+    return sorted((SRC / package / package).rglob('*.py'))
+
+
+def test_applications_live_outside_the_library():
+    """mshoot_core holds models, shooting, MPC, emulation and KPIs; the case, the study, its
+    sweeps and Setup 2 are applications in mshoot_studies."""
+    applications = {'case', 'study', 'study_plots', 'study_runs', 'sweeps', 'setup2', 'cli'}
+    core_modules = {p.stem for p in _python_sources('mshoot_core')}
+    assert not core_modules & applications, sorted(core_modules & applications)
+    assert {'case', 'study', 'study_plots', 'sweeps', 'setup2', 'cli'} <= {
+        p.stem for p in _python_sources('mshoot_studies')}
+    for name in ('case', 'study', 'study_plots', 'study_runs'):
+        with pytest.raises(ModuleNotFoundError):
+            importlib.import_module(f'mshoot_core.{name}')
+    assert 'train_setup2' not in (SRC / 'mshoot_core' / 'mshoot_core' / 'models' /
+                                  'sklearn_model.py').read_text()
+
+
+@pytest.mark.parametrize('package', ['mshoot_core', 'mshoot_nodes'])
+def test_library_and_nodes_import_no_application(package):
+    """Nodes and the core library import no command-line module (nothing of mshoot_studies)."""
+    pattern = re.compile(r'^\s*(from|import)\s+mshoot_studies\b', re.MULTILINE)
+    offenders = [str(p) for p in _python_sources(package) if pattern.search(p.read_text())]
+    assert not offenders, offenders
+
+
+def test_applications_never_import_ros():
+    pattern = re.compile(r'import rclpy|_msgs|rosbags|^\s*(from|import) launch', re.MULTILINE)
+    offenders = [str(p) for p in (SRC / 'mshoot_studies').rglob('*')
+                 if p.is_file() and p.suffix in ('.py', '.xml', '.cfg')
+                 and pattern.search(p.read_text(errors='replace'))]
+    assert not offenders, offenders

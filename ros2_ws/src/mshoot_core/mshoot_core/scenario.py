@@ -30,6 +30,11 @@ DEFAULT_DATA = (pathlib.Path(__file__).resolve().parents[4] / '..' / 'shared' / 
                 / 'measurements.csv')
 #: Measured columns the OU44 CSV must hold.
 OU44_COLUMNS = ('datetime', 'T', 'solrad', 'Tout', 'occ', 'dpos')
+#: Published results of the original MShoot reference case (OU44, 72 h from
+#: :data:`OU44_START`, FMU tolerance 1e-11; SPEC section 3) by MPC horizon [h]: energy [kWh],
+#: discomfort summed over hourly samples [K h] and wall time [s].
+PUBLISHED = {2: {'energy_kwh': 40.9, 'discomfort_kh_hourly': 17.9, 'wall_s': 116.0},
+             10: {'energy_kwh': 44.0, 'discomfort_kh_hourly': 13.1, 'wall_s': 3485.0}}
 
 
 def comfort_band(hours_of_day: np.ndarray, occupied: tuple[float, float] = (21.0, 22.0),

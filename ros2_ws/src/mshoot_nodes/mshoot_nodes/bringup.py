@@ -7,7 +7,7 @@ The fast path: the four nodes share one rclpy context and one
 SingleThreadedExecutor; the emulator runs in lockstep, so simulated time goes
 as fast as the MPC solves and the run equals the core-only loop. Writes to
 ``--out``: ``bag/`` (rosbag2, mcap by default), ``kpis.json`` (the keys of
-``python -m mshoot_core.case``), ``steps.csv``, ``trajectories.csv`` and
+``mshoot case``), ``steps.csv``, ``trajectories.csv`` and
 ``plot.png``; prints progress and the KPIs. Parameters come from the YAML
 files in the package's ``config/`` (or ``--params-file``), then the flags.
 """
@@ -22,10 +22,10 @@ import sys
 import time
 from typing import Any, Callable, Sequence
 
-from mshoot_core.case import PUBLISHED
 from mshoot_core.closed_loop import run_closed_loop
 from mshoot_core.controller import Controller
 from mshoot_core.models.r1c1 import KELVIN
+from mshoot_core.scenario import PUBLISHED
 import rclpy
 from rclpy.context import Context
 from rclpy.exceptions import InvalidParameterValueException

@@ -1,4 +1,4 @@
-"""The outputs of a ROS run: per-step records, KPIs, plot, as the core case command writes them.
+"""The outputs of a ROS run: per-step records, KPIs, plot, as the case command writes them.
 
 A ROS run is recorded in two places: the emulator knows what it applied and
 the fine trajectory (:meth:`EmulatorNode.applied_frame`, ``fine_frame``, or
@@ -6,16 +6,16 @@ the fine trajectory (:meth:`EmulatorNode.applied_frame`, ``fine_frame``, or
 setpoints and statuses are on the topics (the node's history, or the bag).
 :func:`steps_frame` joins them by step and :func:`run_outputs` computes
 ``kpis.json`` with :func:`mshoot_core.kpis.closed_loop_kpis` (the keys of the
-core case command) and writes the files with :func:`mshoot_core.case.write_outputs`.
+case command) and writes the files with :func:`mshoot_core.outputs.write_outputs`.
 """
 from __future__ import annotations
 
 import pathlib
 
-from mshoot_core.case import write_outputs
 from mshoot_core.closed_loop import ClosedLoopResult
 from mshoot_core.kpis import closed_loop_kpis
 from mshoot_core.models.r1c1 import KELVIN
+from mshoot_core.outputs import write_outputs
 import numpy as np
 import pandas as pd
 

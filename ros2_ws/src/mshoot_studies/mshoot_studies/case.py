@@ -1,7 +1,7 @@
 """The reference case (OU44 classroom, SPEC section 3) as a command.
 
-    python -m mshoot_core.case ou44 --data PATH --horizon 10 --control fmu \
-        --tolerance 1e-6 --cost quadratic --out out/case
+    mshoot case ou44 --data PATH --horizon 10 --control fmu --tolerance 1e-6 \\
+        --cost quadratic --out out/case
 
 runs the 72 h MPC emulation (hourly control, R1C1 emulator, perfect
 forecasts) and writes ``kpis.json``, ``trajectories.csv``, ``steps.csv`` and
@@ -12,14 +12,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import logging
 import pathlib
 import sys
 import time
 from typing import Sequence
 
-import numpy as np
 import pandas as pd
 
 from mshoot_core.closed_loop import ClosedLoopResult, run_closed_loop
@@ -28,14 +26,12 @@ from mshoot_core.kpis import closed_loop_kpis
 from mshoot_core.models.base import Model
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.mpc import MPC
-from mshoot_core.scenario import DEFAULT_DATA, reference_scenario  # noqa: F401 (API)
+from mshoot_core.outputs import write_outputs
+from mshoot_core.scenario import DEFAULT_DATA, PUBLISHED, reference_scenario
 from mshoot_core.solvers import SOLVERS
 
 logger = logging.getLogger(__name__)
 
-#: Published results of the original (72 h, FMU tolerance 1e-11): SPEC section 3.
-PUBLISHED = {2: {'energy_kwh': 40.9, 'discomfort_kh_hourly': 17.9, 'wall_s': 116.0},
-             10: {'energy_kwh': 44.0, 'discomfort_kh_hourly': 13.1, 'wall_s': 3485.0}}
 #: Data-driven control models (scikit-learn estimators trained as in Setup 2).
 DATA_DRIVEN = ('svr', 'linear', 'ridge', 'knn', 'random_forest', 'mlp')
 CONTROL_MODELS = ('python', 'fmu', 'fmu-cs') + DATA_DRIVEN
@@ -71,7 +67,7 @@ def control_model(kind: str, tolerance: float = 1e-6, data: str | pathlib.Path |
         if data is None:
             raise ValueError(f'--control {kind} needs --data (it trains on the OU44 '
                              'disturbances)')
-        from mshoot_core.models.sklearn_model import train_setup2
+        from mshoot_studies.setup2 import train_setup2
         model, training = train_setup2(data, estimator=kind)
         logger.info('%s trained: validation RMSE %.3f K free run, %.4f K one step', kind,
                     training.rmse_free_run_k, training.rmse_one_step_k)
@@ -107,23 +103,13 @@ def run_case(scenario: pd.DataFrame, control: Model, emulator_model: Model, *,
     return result, kpis
 
 
-def write_outputs(out: pathlib.Path, result: ClosedLoopResult, kpis: dict,
-                  title: str) -> None:
-    """Write kpis.json, trajectories.csv, steps.csv and plot.png to ``out``."""
-    out.mkdir(parents=True, exist_ok=True)
-    (out / 'kpis.json').write_text(json.dumps(kpis, indent=2, sort_keys=True) + '\n')
-    result.fine.to_csv(out / 'trajectories.csv', index_label='time_s')
-    result.steps.to_csv(out / 'steps.csv', index_label='time_s')
-    from mshoot_core.plotting import plot_closed_loop  # matplotlib only where plots are made
-    subtitle = (f"{kpis['energy_kwh']:.1f} kWh, {kpis['discomfort_kh']:.1f} Kh "
-                f"({kpis['discomfort_kh_hourly']:.1f} Kh hourly), wall {kpis['wall_s']:.1f} s")
-    plot_closed_loop(result.fine, result.steps, out / 'plot.png', f'{title}\n{subtitle}')
-
-
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog='python -m mshoot_core.case', description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter)
+def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    """The command line of the case: fills ``parser`` (e.g. the ``case`` verb of ``mshoot``),
+    or a new parser when None."""
+    if parser is None:
+        parser = argparse.ArgumentParser(
+            prog='python -m mshoot_studies.case', description=__doc__,
+            formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('scenario', choices=('ou44', 'synthetic'),
                         help='ou44: the reference case (needs --data); synthetic: built-in')
     parser.add_argument('--data', type=pathlib.Path, default=None,
@@ -148,9 +134,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help='penalty weight of soft bounds on normalised slack (default 1e3)')
     parser.add_argument('--solver', choices=sorted(SOLVERS), default='slsqp')
     parser.add_argument('--mode', choices=('fast', 'naive'), default='fast',
-                        help="fast: structured, batched sensitivities (default); naive: the "
-                             "original MShoot algorithm (dense finite differences, serial "
-                             "simulations, no caching; slow: for side-by-side comparison)")
+                        help='fast: structured, batched sensitivities (default); naive: the '
+                             'original MShoot algorithm (dense finite differences, serial '
+                             'simulations, no caching; slow: for side-by-side comparison)')
     parser.add_argument('--hours', type=int, default=72,
                         help='simulated hours of control (default 72)')
     parser.add_argument('--out', type=pathlib.Path, default=pathlib.Path('out/case'),
@@ -160,7 +146,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    """Parse ``argv`` (default: the process arguments) and run the case; the exit code."""
+    return run(build_parser().parse_args(argv))
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the case as parsed by :func:`build_parser`; 0, or 2 on bad input (logged)."""
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format='%(asctime)s %(levelname)s %(name)s: %(message)s')
     if args.horizon < 1 or args.hours < 1:

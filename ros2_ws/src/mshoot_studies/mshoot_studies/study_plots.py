@@ -14,7 +14,7 @@ from matplotlib.figure import Figure
 import numpy as np
 import pandas as pd
 
-from mshoot_core.study_runs import RunOutcome
+from mshoot_studies.sweeps import RunOutcome
 
 DPI = 110
 MODEL_COLORS = {'python': 'black', 'svr': 'tab:blue', 'linear': 'tab:orange',
@@ -86,7 +86,7 @@ def plot_tolerance(ours: Sequence[Mapping], window: Sequence[Mapping],
         Our runs over the period at ``horizon``.
     window : rows with tolerance, method ('ours' / 'naive'), energy_kwh, steps
         The short-window comparison.
-    gradients : rows of :func:`mshoot_core.study.gradient_accuracy`
+    gradients : rows of :func:`mshoot_studies.study.gradient_accuracy`
     path : path
         PNG to write.
     published_loose : (float, float) or None

@@ -1,6 +1,7 @@
 """The reference study (OU44 classroom, SPEC section 3), every table and figure from scratch.
 
-    python -m mshoot_core.study --data PATH --out DIR [--hours 72] [--jobs 2] [--parts 1 2 3 4 5]
+    mshoot study --data PATH --out DIR [--hours 72] [--jobs 2] [--parts 1 2 3 4 5]
+                 [--timeout SECONDS] [--dask local|SCHEDULER_ADDRESS]
 
 Five parts, each a function that runs (or reuses) its closed-loop emulations,
 writes a figure ``study_<n>_<name>.png`` and a table ``study_<n>_<name>.json`` to
@@ -21,8 +22,9 @@ the output folder and returns a :class:`PartResult`; the command then writes
    soft comfort bounds: the energy-discomfort trade-off.
 
 All runs of all parts are collected first and executed once each by a
-:class:`~mshoot_core.study_runs.StudyRunner` (``--jobs`` worker processes,
-longest first); the parts then read the cached outcomes.
+:class:`~mshoot_studies.sweeps.SweepRunner` (``--jobs`` worker processes, or a
+Dask cluster with ``--dask``; longest first); the parts then read the cached
+outcomes.
 """
 from __future__ import annotations
 
@@ -40,10 +42,11 @@ from typing import Any, Callable, Sequence
 import numpy as np
 import pandas as pd
 
-from mshoot_core.case import DEFAULT_DATA, PUBLISHED, r1c1_fmu_model, reference_scenario
 from mshoot_core.kpis import JOULES_PER_KWH
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
-from mshoot_core.study_runs import RunOutcome, RunSpec, StudyRunner
+from mshoot_core.scenario import DEFAULT_DATA, PUBLISHED, reference_scenario
+from mshoot_studies.case import r1c1_fmu_model
+from mshoot_studies.sweeps import LOG_FORMAT, RunOutcome, RunSpec, SweepRunner
 
 logger = logging.getLogger(__name__)
 
@@ -179,14 +182,14 @@ def verification_specs(hours: int = 72, horizons: Sequence[int] = HORIZONS,
     return [RunSpec('fmu', h, hours, tolerance=tolerance, emulator='fmu-cs') for h in horizons]
 
 
-def solution_verification(runner: StudyRunner, out: pathlib.Path, *, hours: int = 72,
+def solution_verification(runner: SweepRunner, out: pathlib.Path, *, hours: int = 72,
                           horizons: Sequence[int] = HORIZONS,
                           tolerance: float = REFERENCE_TOLERANCE) -> PartResult:
     """Part 1: q and T for each horizon with the comfort band; energy and discomfort per horizon.
 
     Parameters
     ----------
-    runner : StudyRunner
+    runner : SweepRunner
     out : path
         Output folder.
     hours : int
@@ -197,7 +200,7 @@ def solution_verification(runner: StudyRunner, out: pathlib.Path, *, hours: int 
     tolerance : float
         Relative tolerance of the FMU control model.
     """
-    from mshoot_core.study_plots import plot_verification
+    from mshoot_studies.study_plots import plot_verification
     out.mkdir(parents=True, exist_ok=True)
     outcomes = runner.run(verification_specs(hours, horizons, tolerance))
     rows = []
@@ -354,7 +357,7 @@ def naive_verdict(energies_kwh: Sequence[float], threshold: float = 0.02) -> str
             "tolerances: its result depends on the integrator, as the ancestor's did.")
 
 
-def integration_tolerance(runner: StudyRunner, out: pathlib.Path, *, hours: int = 72,
+def integration_tolerance(runner: SweepRunner, out: pathlib.Path, *, hours: int = 72,
                           tolerances: Sequence[float] = TOLERANCES,
                           naive_tolerances: Sequence[float] = NAIVE_TOLERANCES,
                           naive_horizon: int = NAIVE_HORIZON, naive_hours: int = NAIVE_HOURS,
@@ -364,7 +367,7 @@ def integration_tolerance(runner: StudyRunner, out: pathlib.Path, *, hours: int 
 
     Parameters
     ----------
-    runner : StudyRunner
+    runner : SweepRunner
     out : path
         Output folder.
     hours : int
@@ -379,7 +382,7 @@ def integration_tolerance(runner: StudyRunner, out: pathlib.Path, *, hours: int 
     gradient_samples : int
         Operating points of :func:`gradient_accuracy`.
     """
-    from mshoot_core.study_plots import plot_tolerance
+    from mshoot_studies.study_plots import plot_tolerance
     out.mkdir(parents=True, exist_ok=True)
     window = min(naive_hours, hours)
     specs = tolerance_specs(hours, tolerances, naive_tolerances, naive_horizon, naive_hours,
@@ -557,7 +560,7 @@ def wrong_slope_share(q_w: np.ndarray, t_end: np.ndarray, exact_t_end: np.ndarra
     return float(np.mean(np.abs(slope - exact) > threshold * np.abs(exact)))
 
 
-def data_driven(runner: StudyRunner, out: pathlib.Path, *, hours: int = 72,
+def data_driven(runner: SweepRunner, out: pathlib.Path, *, hours: int = 72,
                 models: Sequence[str] = DATA_DRIVEN_MODELS, horizon: int = 10,
                 matrix_hours: int = MATRIX_HOURS,
                 solvers: Sequence[str] = MATRIX_SOLVERS) -> PartResult:
@@ -565,7 +568,7 @@ def data_driven(runner: StudyRunner, out: pathlib.Path, *, hours: int = 72,
 
     Parameters
     ----------
-    runner : StudyRunner
+    runner : SweepRunner
     out : path
         Output folder.
     hours : int
@@ -577,7 +580,7 @@ def data_driven(runner: StudyRunner, out: pathlib.Path, *, hours: int = 72,
     solvers : sequence of str
         Solvers of the matrix.
     """
-    from mshoot_core.study_plots import plot_data_driven
+    from mshoot_studies.study_plots import plot_data_driven
     out.mkdir(parents=True, exist_ok=True)
     specs = data_driven_specs(hours, models, horizon, matrix_hours, solvers)
     outcomes = dict(zip(specs, runner.run(specs)))
@@ -688,14 +691,14 @@ def time_specs(hours: int = 72, horizons: Sequence[int] = HORIZONS,
     return specs
 
 
-def computation_time(runner: StudyRunner, out: pathlib.Path, *, hours: int = 72,
+def computation_time(runner: SweepRunner, out: pathlib.Path, *, hours: int = 72,
                      horizons: Sequence[int] = HORIZONS,
                      tolerance: float = REFERENCE_TOLERANCE) -> PartResult:
     """Part 4: computation time against the horizon for the FMU, Python and SVR control models.
 
     Parameters
     ----------
-    runner : StudyRunner
+    runner : SweepRunner
     out : path
         Output folder.
     hours : int
@@ -705,7 +708,7 @@ def computation_time(runner: StudyRunner, out: pathlib.Path, *, hours: int = 72,
     tolerance : float
         Tolerance of the FMU control model.
     """
-    from mshoot_core.study_plots import plot_time
+    from mshoot_studies.study_plots import plot_time
     out.mkdir(parents=True, exist_ok=True)
     specs = time_specs(hours, horizons, tolerance)
     outcomes = dict(zip(specs, runner.run(specs)))
@@ -738,8 +741,7 @@ def computation_time(runner: StudyRunner, out: pathlib.Path, *, hours: int = 72,
         f'horizon; the FMU runs are those of part 1 (tolerance {tolerance:.0e}, gradients from '
         f'forward sensitivities), the Python model is the exact R1C1 (analytic derivatives), '
         f'SVR is Setup 2 (batched finite differences). '
-        + (f'Runs were executed {runner.jobs} at a time on {os.cpu_count()} cores.'
-           if runner.jobs > 1 else 'Runs were executed one at a time.'),
+        + execution_sentence(runner),
         f'At H = {last["horizon_h"]} h: FMU {last["fmu_wall_s"]:.1f} s, Python '
         f'{last["python_wall_s"]:.1f} s, SVR {last["svr_wall_s"]:.1f} s'
         + (f', against {last["published_wall_s"]:.0f} s for the original with its FMU.'
@@ -771,14 +773,14 @@ def energy_at_equal_discomfort(curve: Sequence[dict], discomfort_kh: float) -> f
     return float(np.interp(discomfort_kh, d, e))
 
 
-def beyond_the_original(runner: StudyRunner, out: pathlib.Path, *, hours: int = 72,
+def beyond_the_original(runner: SweepRunner, out: pathlib.Path, *, hours: int = 72,
                         penalties: Sequence[float] = SOFT_PENALTIES,
                         horizon: int = 10) -> PartResult:
     """Part 5: energy cost against quadratic cost, and the soft-comfort trade-off curve.
 
     Parameters
     ----------
-    runner : StudyRunner
+    runner : SweepRunner
     out : path
         Output folder.
     hours : int
@@ -788,7 +790,7 @@ def beyond_the_original(runner: StudyRunner, out: pathlib.Path, *, hours: int = 
     horizon : int
         MPC horizon [h].
     """
-    from mshoot_core.study_plots import plot_tradeoff
+    from mshoot_studies.study_plots import plot_tradeoff
     out.mkdir(parents=True, exist_ok=True)
     specs = beyond_specs(hours, penalties, horizon)
     outcomes = dict(zip(specs, runner.run(specs)))
@@ -859,17 +861,27 @@ PARTS: dict[int, tuple[Callable[..., PartResult], Callable[..., list[RunSpec]]]]
 }
 
 
+def execution_sentence(runner: SweepRunner) -> str:
+    """How the runs were executed, as a sentence (wall times depend on it)."""
+    if runner.dask is not None:
+        return f'Runs were executed {runner.parallel_runs} at a time on {runner.description}.'
+    if runner.jobs > 1:
+        return f'Runs were executed {runner.jobs} at a time on {os.cpu_count()} cores.'
+    return 'Runs were executed one at a time.'
+
+
 def write_study_markdown(results: Sequence[PartResult], out: pathlib.Path, *, hours: int,
-                         wall_s: float, jobs: int, data: pathlib.Path,
+                         wall_s: float, executed_by: str, data: pathlib.Path,
                          load: tuple[float, ...] = (math.nan,)) -> pathlib.Path:
     """Write ``study.md``: how it was made, then every part's tables, figure and notes.
 
+    ``executed_by`` says where the runs went (:attr:`SweepRunner.description`);
     ``load`` is the system load average before the run (1, 5, 15 min).
     """
     lines = [
         '# The reference study: OU44 classroom, multiple-shooting MPC',
         '',
-        'Generated by `make study` (`python -m mshoot_core.study --data '
+        'Generated by `make study` (`mshoot study --data '
         f'{data.name} --out docs`); do not edit by hand. {hours} h of hourly MPC from '
         f'2018-04-05 00:00 (SPEC section 3): R1C1 zone, comfort band 21-22 °C from 08:00 to '
         '17:00 and 19-24 °C otherwise, heat rate −2000...2000 W, initial temperature 20 °C, '
@@ -877,8 +889,8 @@ def write_study_markdown(results: Sequence[PartResult], out: pathlib.Path, *, ho
         'up to about 10 kW against 2 kW of cooling), so every controller rides through some '
         'discomfort there.',
         '',
-        f'This run: {len(results)} parts, {wall_s / 60.0:.1f} min wall time with {jobs} worker '
-        f'processes on {os.cpu_count()} cores (load average {load[0]:.1f} before, '
+        f'This run: {len(results)} parts, {wall_s / 60.0:.1f} min wall time with '
+        f'{executed_by} on {os.cpu_count()} cores (load average {load[0]:.1f} before, '
         f'{os.getloadavg()[0]:.1f} after: wall and solve times include whatever else ran on '
         f'the machine). Energy = Σ|q|Δt; discomfort = ∫ distance of T '
         'outside the band dt on the 1-minute emulation grid, and its sum over hourly samples '
@@ -899,7 +911,8 @@ def write_study_markdown(results: Sequence[PartResult], out: pathlib.Path, *, ho
 
 
 def run_study(data: str | pathlib.Path, out: str | pathlib.Path, *, hours: int = 72,
-              jobs: int = 2, parts: Sequence[int] = tuple(PARTS)) -> list[PartResult]:
+              jobs: int = 2, parts: Sequence[int] = tuple(PARTS),
+              timeout_s: float | None = None, dask: str | None = None) -> list[PartResult]:
     """Run the requested parts (their runs first, all together) and write ``study.md``.
 
     Parameters
@@ -911,9 +924,14 @@ def run_study(data: str | pathlib.Path, out: str | pathlib.Path, *, hours: int =
     hours : int
         Simulated period [h] (72: the reference; shorter for a quick look).
     jobs : int
-        Worker processes (0: everything in this process).
+        Worker processes (0: everything in this process; with ``dask='local'``
+        the workers of the LocalCluster).
     parts : sequence of int
         Parts to run (1-5).
+    timeout_s : float, optional
+        Wall-clock limit [s] of each run (see :class:`SweepRunner`).
+    dask : str, optional
+        A Dask scheduler's address, or 'local' (see :class:`SweepRunner`).
     """
     unknown = [p for p in parts if p not in PARTS]
     if unknown:
@@ -922,27 +940,32 @@ def run_study(data: str | pathlib.Path, out: str | pathlib.Path, *, hours: int =
     load = os.getloadavg()
     out = pathlib.Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    runner = StudyRunner(data, jobs)
     specs: list[RunSpec] = []
     for p in parts:
         specs += PARTS[p][1](hours=hours)
-    logger.info('study: parts %s, %d h, %d distinct runs', list(parts), hours, len(set(specs)))
-    runner.run(specs)
-    results = []
-    for p in parts:
-        logger.info('part %d: tables and figure', p)
-        results.append(PARTS[p][0](runner, out, hours=hours))
+    with SweepRunner(data, jobs, timeout_s=timeout_s, dask=dask) as runner:
+        logger.info('study: parts %s, %d h, %d distinct runs', list(parts), hours,
+                    len(set(specs)))
+        runner.run(specs)
+        results = []
+        for p in parts:
+            logger.info('part %d: tables and figure', p)
+            results.append(PARTS[p][0](runner, out, hours=hours))
+        executed_by = runner.description
     wall_s = time.perf_counter() - started
-    path = write_study_markdown(results, out, hours=hours, wall_s=wall_s, jobs=jobs,
-                                data=pathlib.Path(data), load=load)
+    path = write_study_markdown(results, out, hours=hours, wall_s=wall_s,
+                                executed_by=executed_by, data=pathlib.Path(data), load=load)
     logger.info('study done in %.1f min (%d runs): %s', wall_s / 60.0, runner.runs_done, path)
     return results
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog='python -m mshoot_core.study', description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter)
+def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    """The command line of the study: fills ``parser`` (e.g. the ``study`` verb of
+    ``mshoot``), or a new parser when None."""
+    if parser is None:
+        parser = argparse.ArgumentParser(
+            prog='python -m mshoot_studies.study', description=__doc__,
+            formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--data', type=pathlib.Path, default=None,
                         help=f'OU44 measurements.csv (default: {DEFAULT_DATA.resolve()})')
     parser.add_argument('--out', type=pathlib.Path, default=pathlib.Path('docs'),
@@ -953,15 +976,27 @@ def build_parser() -> argparse.ArgumentParser:
                         help='worker processes (default min(2, cores); 0: in this process)')
     parser.add_argument('--parts', type=int, nargs='+', default=list(PARTS),
                         help='parts to run (default all: 1 2 3 4 5)')
+    parser.add_argument('--timeout', type=float, default=None, metavar='SECONDS',
+                        help='wall-clock limit of each run: a run over it keeps its finished '
+                             'steps and is recorded as timed out (default: none)')
+    parser.add_argument('--dask', default=None, metavar='local|ADDRESS',
+                        help="run on a Dask cluster: 'local' starts a LocalCluster of --jobs "
+                             'worker processes, or give a scheduler address '
+                             '(tcp://HOST:8786) whose workers have mshoot installed')
     parser.add_argument('-v', '--verbose', action='store_true',
                         help='debug logging, and the solver warnings of every MPC step')
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    """Parse ``argv`` (default: the process arguments) and run the study; the exit code."""
+    return run(build_parser().parse_args(argv))
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the study as parsed by :func:`build_parser`; 0, or 2 on bad input (logged)."""
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
-                        format='%(asctime)s %(levelname)s %(name)s: %(message)s')
+                        format=LOG_FORMAT)
     if not args.verbose:
         # non-convergence is a per-step status recorded in the tables; keep the log readable
         logging.getLogger('mshoot_core.mpc').setLevel(logging.ERROR)
@@ -970,9 +1005,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.hours < 1 or args.jobs < 0:
         logger.error('--hours must be >= 1 and --jobs >= 0')
         return 2
+    if args.timeout is not None and not args.timeout > 0:
+        logger.error('--timeout must be > 0 s, got %s', args.timeout)
+        return 2
     try:
-        run_study(data, args.out, hours=args.hours, jobs=args.jobs, parts=args.parts)
-    except (FileNotFoundError, ValueError) as exc:
+        run_study(data, args.out, hours=args.hours, jobs=args.jobs, parts=args.parts,
+                  timeout_s=args.timeout, dask=args.dask)
+    except (OSError, ValueError) as exc:  # missing data, bad input, an unreachable scheduler
         logger.error('%s', exc)
         return 2
     return 0

@@ -1,0 +1,38 @@
+"""The files of a closed-loop run: KPIs, per-step records, trajectories and a plot.
+
+One writer for every way a run is made (the core loop, the ROS nodes, the
+applications), so their output folders read alike.
+"""
+from __future__ import annotations
+
+import json
+import pathlib
+
+from mshoot_core.closed_loop import ClosedLoopResult
+
+
+def write_outputs(out: pathlib.Path, result: ClosedLoopResult, kpis: dict,
+                  title: str) -> None:
+    """Write ``kpis.json``, ``trajectories.csv``, ``steps.csv`` and ``plot.png`` to ``out``.
+
+    Parameters
+    ----------
+    out : path
+        Output folder (created if missing).
+    result : ClosedLoopResult
+        The run's records: ``steps`` (one row per control step, index time [s])
+        and ``fine`` (the emulated trajectory, index time [s]).
+    kpis : dict
+        :func:`mshoot_core.kpis.closed_loop_kpis` figures (energy [kWh],
+        discomfort [K h], wall time [s], ...) plus anything JSON-ready.
+    title : str
+        First line of the plot's title (the KPIs make the second).
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    (out / 'kpis.json').write_text(json.dumps(kpis, indent=2, sort_keys=True) + '\n')
+    result.fine.to_csv(out / 'trajectories.csv', index_label='time_s')
+    result.steps.to_csv(out / 'steps.csv', index_label='time_s')
+    from mshoot_core.plotting import plot_closed_loop  # matplotlib only where plots are made
+    subtitle = (f"{kpis['energy_kwh']:.1f} kWh, {kpis['discomfort_kh']:.1f} Kh "
+                f"({kpis['discomfort_kh_hourly']:.1f} Kh hourly), wall {kpis['wall_s']:.1f} s")
+    plot_closed_loop(result.fine, result.steps, out / 'plot.png', f'{title}\n{subtitle}')

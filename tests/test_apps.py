@@ -1,0 +1,130 @@
+"""The applications (mshoot_studies): the case command, the ``mshoot`` command, Setup 2."""
+import json
+import os
+import pathlib
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from conftest import ROOT
+from mshoot_core.models.r1c1 import R1C1Model
+from mshoot_core.scenario import PUBLISHED, reference_scenario
+from mshoot_studies import case, cli, study
+from mshoot_studies.setup2 import SETUP2_SPLIT, SETUP2_START, train_setup2
+
+KPI_KEYS = ('energy_kwh', 'heating_kwh', 'cooling_kwh', 'discomfort_kh', 'discomfort_kh_hourly',
+            'steps', 'horizon_h', 'wall_s', 'solve_s_median', 'solver_failures')
+
+
+# -- the case ---------------------------------------------------------------------------------
+@pytest.mark.parametrize('horizon', [2, 10])
+def test_reference_case_against_published(ou44_csv, horizon):
+    """Energy and hourly discomfort may not both be worse than published by more than 3 %."""
+    scenario = reference_scenario('ou44', ou44_csv)
+    result, kpis = case.run_case(scenario, R1C1Model(), R1C1Model(), horizon=horizon, log_every=0)
+    published = PUBLISHED[horizon]
+    worse_energy = kpis['energy_kwh'] > 1.03 * published['energy_kwh']
+    worse_comfort = kpis['discomfort_kh_hourly'] > 1.03 * published['discomfort_kh_hourly']
+    assert not (worse_energy and worse_comfort), kpis
+    assert kpis['solver_failures'] == 0
+    assert result.steps['max_defect'].max() <= 1e-6
+    assert kpis['steps'] == 72
+
+
+def test_case_command_writes_outputs(tmp_path):
+    out = tmp_path / 'case'
+    assert case.main(['synthetic', '--horizon', '3', '--hours', '6', '--out', str(out)]) == 0
+    kpis = json.loads((out / 'kpis.json').read_text())
+    for key in ('energy_kwh', 'heating_kwh', 'cooling_kwh', 'discomfort_kh',
+                'discomfort_kh_hourly', 'steps', 'horizon_h', 'wall_s', 'solve_s_median',
+                'solver_failures'):
+        assert key in kpis
+    assert kpis['steps'] == 6
+    assert (out / 'plot.png').stat().st_size > 10_000
+    traj = pd.read_csv(out / 'trajectories.csv')
+    assert len(traj) == 6 * 60 + 1
+
+
+def test_case_command_reports_bad_data_path(tmp_path, caplog):
+    assert case.main(['ou44', '--data', str(tmp_path / 'nope.csv'), '--out',
+                      str(tmp_path)]) == 2
+    assert 'not found' in caplog.text
+
+
+# -- the mshoot command -----------------------------------------------------------------------
+def _case_kpis(out: pathlib.Path) -> dict:
+    kpis = json.loads((out / 'kpis.json').read_text())
+    return {k: v for k, v in kpis.items() if not (k.endswith('_s') or k.startswith('solve_s'))
+            and k != 'solve_per_control_step'}  # wall and solve times differ run to run
+
+
+def test_mshoot_case_equals_the_case_module(tmp_path):
+    args = ['synthetic', '--horizon', '3', '--hours', '5']
+    assert cli.main(['case', *args, '--out', str(tmp_path / 'verb')]) == 0
+    assert case.main([*args, '--out', str(tmp_path / 'module')]) == 0
+    verb, module = _case_kpis(tmp_path / 'verb'), _case_kpis(tmp_path / 'module')
+    assert verb == module and verb['steps'] == 5 and verb['energy_kwh'] > 0.0
+
+
+def test_mshoot_verbs_use_their_modules_parsers():
+    parser = cli.build_parser()
+    args = parser.parse_args(['study', '--hours', '3', '--dask', 'local', '--timeout', '9'])
+    assert args.run is study.run
+    module_args = study.build_parser().parse_args(['--hours', '3', '--dask', 'local',
+                                                   '--timeout', '9'])
+    assert {k: v for k, v in vars(args).items() if k not in ('verb', 'run')} == vars(module_args)
+    assert parser.parse_args(['case', 'ou44', '--control', 'svr']).run is case.run
+    with pytest.raises(SystemExit) as exc:
+        parser.parse_args([])  # a verb is required
+    assert exc.value.code == 2
+    with pytest.raises(SystemExit) as exc:
+        parser.parse_args(['case', 'ou44', '--control', 'nope'])
+    assert exc.value.code == 2
+
+
+def test_mshoot_command_is_on_the_path_with_help_per_verb():
+    """The console script of the colcon install, as a shell that sourced env.sh finds it."""
+    path = shutil.which('mshoot')
+    assert path is not None, 'mshoot not on PATH: source env.sh'
+    assert pathlib.Path(path).resolve().is_relative_to((ROOT / 'ros2_ws' / 'install').resolve())
+    expected = {(): ['case', 'study'], ('case',): ['--control', '--horizon', 'ou44'],
+                ('study',): ['--jobs', '--dask', '--timeout', '--parts']}
+    for verb, words in expected.items():
+        done = subprocess.run([path, *verb, '--help'], capture_output=True, text=True,
+                              timeout=60)
+        assert done.returncode == 0, done.stderr
+        assert done.stdout.startswith(f'usage: {" ".join(("mshoot",) + verb)} ')
+        for word in words:
+            assert word in done.stdout, (verb, word)
+    bad = subprocess.run([path, 'case', 'ou44', '--hours', '0'], capture_output=True,
+                         text=True, timeout=60)
+    assert bad.returncode == 2
+
+
+def test_python_m_modules_keep_working():
+    for module in ('mshoot_studies', 'mshoot_studies.case', 'mshoot_studies.study'):
+        done = subprocess.run([sys.executable, '-m', module, '--help'], capture_output=True,
+                              text=True, timeout=60, env=dict(os.environ))
+        assert done.returncode == 0, done.stderr
+        assert done.stdout.startswith('usage: ')
+
+
+# -- Setup 2 ----------------------------------------------------------------------------------
+@pytest.mark.parametrize('ventilation', ['measured', 'off'])
+def test_setup2_svr_on_ou44(ou44_csv, ventilation):
+    model, report = train_setup2(ou44_csv, 'svr', seed=0, ventilation=ventilation)
+    assert model.is_fitted and report.estimator == 'svr'
+    split_s = (pd.Timestamp(SETUP2_SPLIT) - pd.Timestamp(SETUP2_START)).total_seconds()
+    assert report.validation.index[0] == split_s
+    assert report.n_validation == len(report.validation) > 90  # 9-13 April, hourly
+    assert report.n_train > 100  # 4 April 08:00 to 9 April, hourly
+    assert report.rmse_free_run_k < 0.5
+    assert report.rmse_one_step_k < 0.05
+    assert report.rmse_one_step_k <= report.rmse_free_run_k
+    table = report.validation
+    np.testing.assert_allclose(table['T_free_run'].iloc[0], table['T_true'].iloc[0])
+    assert 15.0 < table['T_true'].mean() < 35.0  # degC, not K
