@@ -397,7 +397,17 @@ def add_arguments(parser: argparse.ArgumentParser, names: Iterable[str],
             extra['choices'] = f.choices
         help_text = f'{f.description} (default {default!r})'
         parser.add_argument(option, dest=name, type=_parse_bool if kind is bool else kind,
-                            default=default, help=help_text.replace('%', '%%'), **extra)
+                            default=default, help=help_text.replace('%', '%%'),
+                            metavar=None if f.choices else option.lstrip('-').upper(), **extra)
+
+
+def option_wording(problem: str, fields: Iterable[SettingField] = ()) -> str:
+    """A settings problem in command-line words: ``horizon_steps must ...`` becomes
+    ``--horizon must ...`` (the described settings, plus ``fields``)."""
+    for f in (*PARAMETERS, *fields):
+        if problem.startswith(f.name + ' '):
+            return (f.cli or '--' + f.name.replace('_', '-')) + problem[len(f.name):]
+    return problem
 
 
 def _parse_bool(text: str) -> bool:

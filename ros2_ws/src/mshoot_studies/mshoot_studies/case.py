@@ -16,53 +16,44 @@ import logging
 import pathlib
 import sys
 import time
-from typing import Sequence
+from typing import Any, Sequence
 
 import pandas as pd
 
 from mshoot_core.closed_loop import ClosedLoopResult, run_closed_loop
+from mshoot_core.controller import Controller
 from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis
 from mshoot_core.models.base import Model
-from mshoot_core.models.r1c1 import KELVIN, R1C1Model
-from mshoot_core.mpc import MPC
+from mshoot_core.models.r1c1 import KELVIN
+from mshoot_core.models.registry import (BUILTIN, build_model, CONTROL_TOLERANCE,
+                                         EMULATOR_TOLERANCE, MODEL_PARAMETERS, ModelSettings)
 from mshoot_core.outputs import write_outputs
 from mshoot_core.scenario import DEFAULT_DATA, PUBLISHED, reference_scenario
-from mshoot_core.solvers import SOLVERS
+from mshoot_core.settings import (add_arguments, from_arguments, MpcSettings, option_wording,
+                                  SettingsError)
 
 logger = logging.getLogger(__name__)
 
 #: Data-driven control models (scikit-learn estimators trained as in Setup 2).
 DATA_DRIVEN = ('svr', 'linear', 'ridge', 'knn', 'random_forest', 'mlp')
-CONTROL_MODELS = ('python', 'fmu', 'fmu-cs') + DATA_DRIVEN
+CONTROL_MODELS = BUILTIN + DATA_DRIVEN
 
 
-def r1c1_fmu_model(tolerance: float = 1e-6, fmi_type: str = 'ModelExchange') -> Model:
-    """The built-in R1C1 FMU (built with gcc on first use) as a control or emulation model,
-    with the names of :class:`R1C1Model`."""
-    from mshoot_core.models.fmi import r1c1_fmi_model
-    return r1c1_fmi_model(fmi_type=fmi_type, tolerance=tolerance)
-
-
-def control_model(kind: str, tolerance: float = 1e-6, data: str | pathlib.Path | None = None,
-                  report: dict | None = None) -> Model:
+def control_model(kind: str, tolerance: float = CONTROL_TOLERANCE,
+                  data: str | pathlib.Path | None = None, report: dict | None = None) -> Model:
     """Build the control model of the case.
 
     Parameters
     ----------
-    kind : {'python', 'fmu', 'fmu-cs', 'svr', 'linear', 'ridge', 'knn', 'random_forest', 'mlp'}
-        The exact Python R1C1, the R1C1 FMU (Model Exchange at ``tolerance``,
-        or Co-Simulation), or a scikit-learn model trained as in Setup 2 (SVR is
-        Setup 2 itself; needs ``data``).
+    kind : str
+        A model of the registry (:func:`mshoot_core.models.registry.build_model`:
+        'python', 'fmu', 'fmu-cs' or a path to an .fmu), or a scikit-learn
+        model trained as in Setup 2 ('svr' is Setup 2 itself, 'linear', 'ridge',
+        'knn', 'random_forest', 'mlp'; needs ``data``).
     report : dict, optional
         Filled with the training/validation report of data-driven models.
     """
-    if kind == 'python':
-        return R1C1Model()
-    if kind == 'fmu':
-        return r1c1_fmu_model(tolerance, 'ModelExchange')
-    if kind == 'fmu-cs':
-        return r1c1_fmu_model(tolerance, 'CoSimulation')
     if kind in DATA_DRIVEN:
         if data is None:
             raise ValueError(f'--control {kind} needs --data (it trains on the OU44 '
@@ -75,32 +66,72 @@ def control_model(kind: str, tolerance: float = 1e-6, data: str | pathlib.Path |
             report.update({f.name: getattr(training, f.name)
                            for f in dataclasses.fields(training) if f.name != 'validation'})
         return model
-    raise ValueError(f'unknown control model {kind!r}; choose one of {list(CONTROL_MODELS)}')
+    return build_model(kind, tolerance)
 
 
-def run_case(scenario: pd.DataFrame, control: Model, emulator_model: Model, *,
-             horizon: int = 10, cost: str = 'quadratic', solver: str = 'slsqp',
-             comfort: str = 'hard', soft_penalty: float = 1e3, initial_c: float = 20.0,
-             mode: str = 'fast', steps: int | None = None, log_every: int = 12,
-             **loop_options) -> tuple[ClosedLoopResult, dict]:
+def run_case(scenario: pd.DataFrame, control: Model, emulator_model: Model,
+             settings: MpcSettings | None = None, *, horizon: int | None = None,
+             initial_c: float = 20.0, steps: int | None = None, log_every: int = 12,
+             progress: Any = None, budget_s: float | None = None,
+             **options: Any) -> tuple[ClosedLoopResult, dict]:
     """Run the MPC emulation of a scenario and return the records and the KPIs.
 
-    ``mode`` is the MPC's evaluation mode ('fast', or 'naive': the ancestor's
-    algorithm); ``loop_options`` go to :func:`run_closed_loop` (``progress``,
-    ``budget_s``).
+    Parameters
+    ----------
+    scenario : DataFrame
+        Disturbances and comfort band (:mod:`mshoot_core.scenario`).
+    control, emulator_model : Model
+        The control model and the emulated building.
+    settings : MpcSettings, optional
+        The controller's settings (default: the defaults), changed by
+        ``options`` (flat names such as ``cost='energy'``, ``solver='ipopt'``,
+        ``comfort='soft'``, ``mode='naive'``; ``horizon`` is short for
+        ``horizon_steps``).
+    initial_c : float
+        Initial zone temperature [degC].
+    steps, log_every, progress, budget_s :
+        See :func:`mshoot_core.closed_loop.run_closed_loop`.
     """
-    if comfort not in ('hard', 'soft'):
-        raise ValueError(f"comfort must be 'hard' or 'soft', got {comfort!r}")
-    mpc = MPC(control, horizon_steps=horizon, cost=cost, solver=solver, comfort=comfort,
-              soft_penalty=soft_penalty, mode=mode)
+    if horizon is not None:
+        options['horizon_steps'] = horizon
+    settings = (settings or MpcSettings()).replace(options)
+    controller = Controller(control, settings)
     emulator = Emulator(emulator_model, scenario, [initial_c + KELVIN])
-    result = run_closed_loop(mpc, emulator, steps=steps, log_every=log_every, **loop_options)
-    kpis = closed_loop_kpis(result.steps, result.fine, mpc.step_s, result.wall_s)
-    kpis.update(horizon_h=horizon * mpc.step_s / 3600.0, cost=cost, solver=solver,
-                comfort=comfort)
-    if comfort == 'soft':
-        kpis['soft_penalty'] = soft_penalty
+    result = run_closed_loop(controller, emulator, steps=steps, log_every=log_every,
+                             progress=progress, budget_s=budget_s)
+    p, c = settings.problem, settings.comfort
+    kpis = closed_loop_kpis(result.steps, result.fine, p.step_s, result.wall_s)
+    kpis.update(horizon_h=p.horizon_steps * p.step_s / 3600.0, cost=p.cost,
+                solver=settings.solver.solver, comfort=c.comfort,
+                fallbacks=int(result.steps['fallback'].sum()))
+    if c.soft:
+        kpis['soft_penalty'] = c.soft_penalty
     return result, kpis
+
+
+#: Controller settings offered as options of the case command.
+CASE_SETTINGS = ('horizon_steps', 'cost', 'comfort', 'soft_penalty', 'solver', 'mode',
+                 'relaxation', 'solver_max_iter', 'time_budget_s', 'on_failure')
+
+
+def option_problems(args: argparse.Namespace,
+                    scenario_steps: int | None = None) -> tuple[MpcSettings | None, list[str]]:
+    """The controller settings of parsed options, and every problem of the options at once
+    (settings, FMU tolerance, hours, and a horizon longer than the forecasts)."""
+    problems = ModelSettings(fmu_tolerance=args.tolerance).problems()
+    if args.hours < 1:
+        problems.append(f'--hours must be >= 1, got {args.hours}')
+    settings = None
+    try:
+        settings = from_arguments(args, CASE_SETTINGS)
+    except SettingsError as exc:
+        problems += exc.problems
+    horizon = getattr(args, 'horizon_steps', None)
+    if scenario_steps is not None and isinstance(horizon, int) and horizon > scenario_steps:
+        problems.append(f'--horizon {horizon} h reaches past the end of the forecasts: the '
+                        f'scenario covers {scenario_steps} h from the first step (use at most '
+                        f'{scenario_steps}, or more --hours of data)')
+    return settings, [option_wording(p, MODEL_PARAMETERS) for p in problems]
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
@@ -115,28 +146,17 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument('--data', type=pathlib.Path, default=None,
                         help=f'OU44 measurements.csv (default: {DEFAULT_DATA.resolve()} '
                              'if it exists)')
-    parser.add_argument('--horizon', type=int, default=10, help='MPC horizon [h] (default 10)')
     parser.add_argument('--control', choices=CONTROL_MODELS, default='python',
                         help='control model: exact Python R1C1, R1C1 FMU (Model Exchange '
                              'or Co-Simulation), or a scikit-learn model trained on R1C1 '
                              'responses as in Setup 2 (svr is Setup 2; default python)')
-    parser.add_argument('--emulator', choices=('python', 'fmu', 'fmu-cs'), default='python',
-                        help='emulation model (default python: the exact R1C1)')
-    parser.add_argument('--tolerance', type=float, default=1e-6,
-                        help='FMU integrator relative tolerance (default 1e-6)')
-    parser.add_argument('--cost', choices=('quadratic', 'energy'), default='quadratic',
-                        help='quadratic: sum (q/q_nom)^2 (the reference); energy: sum |q| '
-                             '(smoothed; converges far faster with --solver ipopt)')
-    parser.add_argument('--comfort', choices=('hard', 'soft'), default='hard',
-                        help='hard: band as bounds, relaxed where unreachable; soft: slack '
-                             'with quadratic penalty (default hard)')
-    parser.add_argument('--soft-penalty', type=float, default=1e3,
-                        help='penalty weight of soft bounds on normalised slack (default 1e3)')
-    parser.add_argument('--solver', choices=sorted(SOLVERS), default='slsqp')
-    parser.add_argument('--mode', choices=('fast', 'naive'), default='fast',
-                        help='fast: structured, batched sensitivities (default); naive: the '
-                             'original MShoot algorithm (dense finite differences, serial '
-                             'simulations, no caching; slow: for side-by-side comparison)')
+    parser.add_argument('--emulator', choices=BUILTIN, default='python',
+                        help='emulation model (default python: the exact R1C1; FMUs run at '
+                             f'tolerance {EMULATOR_TOLERANCE:g})')
+    parser.add_argument('--tolerance', type=float, default=CONTROL_TOLERANCE,
+                        help='relative tolerance of the control FMU integrator, in [1e-14, '
+                             f'1e-2] (default {CONTROL_TOLERANCE:g})')
+    add_arguments(parser, CASE_SETTINGS)
     parser.add_argument('--hours', type=int, default=72,
                         help='simulated hours of control (default 72)')
     parser.add_argument('--out', type=pathlib.Path, default=pathlib.Path('out/case'),
@@ -154,37 +174,37 @@ def run(args: argparse.Namespace) -> int:
     """Run the case as parsed by :func:`build_parser`; 0, or 2 on bad input (logged)."""
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format='%(asctime)s %(levelname)s %(name)s: %(message)s')
-    if args.horizon < 1 or args.hours < 1:
-        logger.error('--horizon and --hours must be >= 1')
-        return 2
-    if not args.tolerance > 0:
-        logger.error('--tolerance must be > 0, got %s', args.tolerance)
+    settings, problems = option_problems(args)
+    if problems:
+        logger.error('invalid options: %s', '; '.join(problems))
         return 2
     data = args.data
     if data is None and DEFAULT_DATA.is_file():
         data = DEFAULT_DATA.resolve()
     try:
         scenario = reference_scenario(args.scenario, data, args.hours)
+        settings, problems = option_problems(args, len(scenario) - 1)
+        if problems:
+            raise ValueError(f"invalid options: {'; '.join(problems)}")
         started = time.perf_counter()
         report: dict = {}
         control = control_model(args.control, args.tolerance, data, report)
-        emulator = control_model(args.emulator, 1e-10)
+        emulator = build_model(args.emulator, EMULATOR_TOLERANCE)
         setup_s = time.perf_counter() - started
     except (FileNotFoundError, ValueError) as exc:
         logger.error('%s', exc)
         return 2
+    horizon = settings.problem.horizon_steps
     logger.info('running %s: %d h, horizon %d h, control %s, cost %s, comfort %s',
-                args.scenario, args.hours, args.horizon, args.control, args.cost, args.comfort)
-    result, kpis = run_case(scenario, control, emulator, horizon=args.horizon, cost=args.cost,
-                            solver=args.solver, comfort=args.comfort,
-                            soft_penalty=args.soft_penalty, mode=args.mode)
+                args.scenario, args.hours, horizon, args.control, args.cost, args.comfort)
+    result, kpis = run_case(scenario, control, emulator, settings)
     kpis.update(scenario=args.scenario, control=args.control, emulator=args.emulator,
                 tolerance=args.tolerance, mode=args.mode, setup_s=setup_s)
     if report:
         kpis['training'] = report
-    if args.scenario == 'ou44' and args.hours == 72 and args.horizon in PUBLISHED:
-        kpis['published'] = PUBLISHED[args.horizon]
-    write_outputs(args.out, result, kpis, f'{args.scenario}: H = {args.horizon} h, control '
+    if args.scenario == 'ou44' and args.hours == 72 and horizon in PUBLISHED:
+        kpis['published'] = PUBLISHED[horizon]
+    write_outputs(args.out, result, kpis, f'{args.scenario}: H = {horizon} h, control '
                                           f'{args.control}, {args.cost} cost')
     logger.info('energy %.2f kWh (heating %.2f, cooling %.2f), discomfort %.2f Kh (hourly '
                 'samples %.2f Kh), wall %.2f s, median solve %.4f s, %d solver failures',

@@ -44,8 +44,8 @@ import pandas as pd
 
 from mshoot_core.kpis import JOULES_PER_KWH
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
+from mshoot_core.models.registry import build_model
 from mshoot_core.scenario import DEFAULT_DATA, PUBLISHED, reference_scenario
-from mshoot_studies.case import r1c1_fmu_model
 from mshoot_studies.sweeps import LOG_FORMAT, RunOutcome, RunSpec, SweepRunner
 
 logger = logging.getLogger(__name__)
@@ -302,7 +302,7 @@ def gradient_accuracy(data: str | pathlib.Path, tolerances: Sequence[float], sam
     q_nominal = 2000.0
     rows = []
     for tol in tolerances:
-        model = r1c1_fmu_model(tol, 'ModelExchange')
+        model = build_model('fmu', tol)
         sens = model.interval_jacobians(x0, u, 3600.0, [q_col])
         fd = np.empty(samples)
         for b in range(samples):

@@ -40,8 +40,9 @@ import pandas as pd
 from mshoot_core.kpis import closed_loop_kpis
 from mshoot_core.models.base import Model
 from mshoot_core.models.r1c1 import R1C1Model
+from mshoot_core.models.registry import build_model, EMULATOR_TOLERANCE
 from mshoot_core.scenario import reference_scenario
-from mshoot_studies.case import DATA_DRIVEN, r1c1_fmu_model, run_case
+from mshoot_studies.case import DATA_DRIVEN, run_case
 
 logger = logging.getLogger(__name__)
 
@@ -365,11 +366,11 @@ def execute(spec: RunSpec, scenario: pd.DataFrame, control: Model | None = None,
     if spec.control == 'python':
         control = R1C1Model()
     elif spec.control == 'fmu':
-        control = r1c1_fmu_model(spec.tolerance, 'ModelExchange')
+        control = build_model('fmu', spec.tolerance)
     elif control is None:
         raise ValueError(f'{spec.control} runs need their trained control model')
     emulator_model = (R1C1Model() if spec.emulator == 'python'
-                      else r1c1_fmu_model(1e-10, 'CoSimulation'))
+                      else build_model('fmu-cs', EMULATOR_TOLERANCE))
     try:
         result, kpis = run_case(
             scenario, StoppableModel(control, deadline), emulator_model, horizon=spec.horizon,
