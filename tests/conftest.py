@@ -1,11 +1,19 @@
-"""Shared fixtures: paths to the project and to the OU44 reference data."""
+"""Shared fixtures and helpers: paths, the OU44 data, private rclpy contexts, guarded spins.
+
+Wall-clock limits here are deadlock guards (a hung test fails instead of hanging CI), set far
+above what any run needs on a loaded 2-core machine; they never judge speed.
+"""
 import os
 import pathlib
+import time
+from typing import Any, Callable
 
 import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 OU44_CSV = ROOT.parent / 'shared' / 'data' / 'ou44' / 'measurements.csv'
+#: Deadlock guard of a spin [s] (wall time).
+GUARD_S = 90.0
 
 
 @pytest.fixture(scope='session')
@@ -16,3 +24,39 @@ def ou44_csv() -> pathlib.Path:
             pytest.fail(f'OU44 data missing at {OU44_CSV} (required under CI)')
         pytest.skip(f'OU44 data not found at {OU44_CSV}')
     return OU44_CSV
+
+
+def private_context() -> Any:
+    """An initialised rclpy context of this test alone: discovery off (in-process pub/sub
+    still works, other processes on the machine cannot interfere), a domain from the pid."""
+    import rclpy
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'OFF'
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=os.getpid() % 100 + 1)
+    return ctx
+
+
+@pytest.fixture
+def context() -> Any:
+    """A private rclpy context (:func:`private_context`), shut down after the test."""
+    import rclpy
+    ctx = private_context()
+    yield ctx
+    rclpy.try_shutdown(context=ctx)
+
+
+def spin_until(executor: Any, condition: Callable[[], bool], timeout_s: float = GUARD_S,
+               what: str = 'the condition') -> None:
+    """Spin ``executor`` until ``condition()`` holds; fail after ``timeout_s`` of wall time."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            pytest.fail(f'{what} not reached within {timeout_s} s')
+        executor.spin_once(timeout_sec=0.02)
+
+
+def spin_for(executor: Any, wall_s: float) -> None:
+    """Spin ``executor`` for ``wall_s`` of wall time."""
+    end = time.monotonic() + wall_s
+    while time.monotonic() < end:
+        executor.spin_once(timeout_sec=0.02)

@@ -1,7 +1,5 @@
 """Bags: sqlite3 storage, non-contract topics, QoS metadata and the message definitions."""
-import os
 import sqlite3
-import time
 
 from mshoot_msgs.msg import ZoneState
 import pytest
@@ -19,24 +17,9 @@ from mshoot_nodes.conversions import stamp_to_ns, zone_state_msg
 from mshoot_nodes.recorder_node import RecorderNode
 from mshoot_nodes.replayer_node import ReplayerNode
 
+from conftest import spin_until
+
 pytestmark = pytest.mark.ros
-
-
-@pytest.fixture
-def context():
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'OFF'
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=os.getpid() % 100 + 1)
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
-
-
-def spin_until(executor, condition, timeout_s=60.0):
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            pytest.fail(f'condition not reached within {timeout_s} s')
-        executor.spin_once(timeout_sec=0.05)
 
 
 def test_custom_types_come_from_the_installed_msg_files():

@@ -7,7 +7,6 @@ into a ROS run (real nodes in one process, lockstep): the decisions must agree
 step by step.
 """
 import concurrent.futures
-import os
 import threading
 import time
 
@@ -218,14 +217,14 @@ def core_decisions(fault, hours=HOURS, fault_steps=(FAULT_STEP,)):
 
 
 @pytest.mark.parametrize('fault', ['raise', 'nan', 'fail', 'late'])
-def test_core_and_ros_make_the_same_decisions(fault, ros_context):
+def test_core_and_ros_make_the_same_decisions(fault, context):
     from mshoot_testing.harness import ClosedLoop
     steps = core_decisions(fault)
     model, solver = fault_setup(fault)
     params = {'emulator': {'hours': HOURS, 'model': 'python'},
               'forecaster': {'hours': HOURS},
               'mpc': {'model': 'python', **FAULT_MPC}}
-    loop = ClosedLoop(ros_context, params, mpc_model=model)
+    loop = ClosedLoop(context, params, mpc_model=model)
     try:
         loop.mpc.mpc.set_solver(solver)
         loop.run_steps(FAULT_STEP)
@@ -261,13 +260,3 @@ def test_core_run_whose_model_raises_from_hour_20_completes(tmp_path):
     assert read['fallback_reason'].iloc[25].startswith(
         'solve failed: InjectedModelError: injected model error')
     assert (read['q'].iloc[22:] == 0.0).all()  # the safe setpoint
-
-
-@pytest.fixture
-def ros_context():
-    import rclpy
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'OFF'
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=os.getpid() % 100 + 1)
-    yield ctx
-    rclpy.try_shutdown(context=ctx)

@@ -7,7 +7,6 @@ overruns, a model that raises), through the forecaster's ``enabled`` parameter
 Each test runs a short lockstep loop (:class:`mshoot_testing.harness.ClosedLoop`,
 python R1C1 emulator) in a private context, with wall-clock guards.
 """
-import os
 import time
 
 from mshoot_core.closed_loop import run_closed_loop
@@ -33,15 +32,6 @@ from mshoot_testing.harness import ClosedLoop
 pytestmark = pytest.mark.ros
 EPOCH_NS = 1522886400 * NS_PER_S  # the synthetic scenario's start
 STEP_NS = 3600 * NS_PER_S
-
-
-@pytest.fixture
-def context():
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'OFF'
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=os.getpid() % 100 + 1)
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
 
 
 def make_loop(context, hours=6, mpc=None, emulator=None, **kwargs):

@@ -5,7 +5,6 @@ SingleThreadedExecutor, lifecycle transitions through the real ``~/change_state`
 ``~/get_state`` services from a client node; every wait has a generous wall-clock guard
 (a deadlock fails, a slow machine only waits longer).
 """
-import os
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -34,15 +33,6 @@ from mshoot_testing.harness import ClosedLoop, malformed_setpoint
 pytestmark = pytest.mark.ros
 GUARD_S = 30.0
 HOUR_NS = 3600 * 10 ** 9
-
-
-@pytest.fixture
-def context():
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'OFF'
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=os.getpid() % 100 + 1)
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
 
 
 class Rig:

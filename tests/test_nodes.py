@@ -5,7 +5,6 @@ SingleThreadedExecutor, a private rclpy Context) is shared by the tests of this
 module; tests that spin nodes of their own get a Context of their own.
 Every spin loop has a wall-clock guard, so a deadlock fails instead of hanging.
 """
-import os
 import time
 
 from mshoot_core.closed_loop import run_closed_loop
@@ -32,40 +31,19 @@ from mshoot_nodes.mpc_node import MpcNode
 from mshoot_nodes.recorder_node import RecorderNode
 from mshoot_nodes.replayer_node import ReplayerNode
 
+from conftest import private_context, spin_until
+
 pytestmark = pytest.mark.ros
 HOURS = 24
 EPOCH_NS = 1522886400 * NS_PER_S  # 2018-04-05T00:00Z, the synthetic scenario's start
 
-
-def _context():
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'OFF'
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=os.getpid() % 100 + 1)
-    return context
-
-
-@pytest.fixture
-def context():
-    """A private rclpy context, shut down after the test."""
-    ctx = _context()
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
-
-
-def spin_until(executor, condition, timeout_s=90.0):
-    """Spin until ``condition()`` holds; fail after ``timeout_s`` of wall time."""
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            pytest.fail(f'condition not reached within {timeout_s} s')
-        executor.spin_once(timeout_sec=0.05)
 
 
 @pytest.fixture(scope='module')
 def ros_run(tmp_path_factory):
     """A 24 h lockstep run over ROS with a bag, and the core-only loop of the same case."""
     bag = tmp_path_factory.mktemp('ros_run') / 'bag'
-    ctx = _context()
+    ctx = private_context()
     try:
         run = run_in_process(ctx, {
             'emulator': {'hours': HOURS},  # the default emulator: the R1C1 FMU

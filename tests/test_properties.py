@@ -8,7 +8,6 @@ and the emulator nodes get batches of malformed messages (one defect each, from
 malformed messages go in per run: the last test of the module checks the totals.
 """
 import math
-import os
 import time
 
 from hypothesis import given, HealthCheck, settings, strategies as st
@@ -31,6 +30,8 @@ from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_nodes.mpc_node import MpcNode
 from mshoot_testing.harness import (FORECAST_DEFECTS, malformed_forecast, malformed_setpoint,
                                     malformed_zone_state, SETPOINT_DEFECTS, STATE_DEFECTS)
+
+from conftest import private_context
 
 EPOCH_NS = 1522886400 * NS_PER_S
 STEP_NS = 3600 * NS_PER_S
@@ -144,13 +145,6 @@ def test_hold_applies_a_finite_setpoint_it_was_offered_or_the_safe_one(offers, h
 
 
 # -- the nodes ----------------------------------------------------------------------------
-def _context():
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'OFF'
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=os.getpid() % 100 + 1)
-    return context
-
-
 def _finite(*values):
     return all(math.isfinite(float(v)) for v in values)
 
@@ -209,7 +203,7 @@ def _valid_window(rng, rows):
 @pytest.fixture(scope='module')
 def mpc_rig():
     """An MPC node on simulated time and a probe that drives its clock and inputs."""
-    context = _context()
+    context = private_context()
     mpc = MpcNode(context=context, parameter_overrides=[
         Parameter('use_sim_time', value=True), Parameter('model', value='python'),
         Parameter('horizon_steps', value=4), Parameter('reject_log_period_s', value=60.0),
@@ -290,7 +284,7 @@ def test_mpc_rejects_and_counts_every_malformed_input(mpc_rig, states, forecasts
 @pytest.fixture(scope='module')
 def emulator_rig():
     """A lockstep emulator (python R1C1) and a probe that sends it setpoints."""
-    context = _context()
+    context = private_context()
     emulator = EmulatorNode(context=context, parameter_overrides=[
         Parameter('hours', value=2000), Parameter('model', value='python'),
         Parameter('ready_endpoints', value=['']), Parameter('reject_log_period_s', value=60.0),

@@ -1,4 +1,5 @@
 """The workspace: messages round-trip, packages are indexed, layers stay apart."""
+import ast
 import importlib
 import pathlib
 import re
@@ -86,13 +87,51 @@ def test_executables_installed_for_ros2_run(exe):
     assert path.stat().st_mode & 0o111
 
 
+#: Top-level modules mshoot_core may never import: ROS client libraries, interfaces, bags,
+#: launch, and the packages above it.
+FORBIDDEN_IN_CORE = re.compile(r'^(rclpy|rcl\w*|rosbags|rosbag2\w*|rosidl\w*|ament\w*|launch\w*|'
+                               r'\w+_msgs|\w+_srvs|mshoot_nodes|mshoot_studies|mshoot_testing)$')
+
+
+def imported_modules(source: str) -> list[tuple[int, str]]:
+    """Every module a Python source imports, in every form: ``import a.b``, ``from a import
+    b``, and ``importlib.import_module('a')`` / ``__import__('a')`` with a literal name."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, alias.name) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            found.append((node.lineno, node.module))
+        elif isinstance(node, ast.Call) and node.args and isinstance(node.args[0], ast.Constant) \
+                and isinstance(node.args[0].value, str):
+            func = node.func
+            name = func.attr if isinstance(func, ast.Attribute) else getattr(func, 'id', '')
+            if name in ('import_module', '__import__'):
+                found.append((node.lineno, node.args[0].value))
+    return found
+
+
+def test_import_guard_sees_every_form():
+    source = ('import rclpy.node\nfrom std_msgs.msg import String\nimport numpy as np\n'
+              'def f():\n    from rosbags.rosbag2 import Reader\n'
+              'importlib.import_module("launch")\n__import__("mshoot_nodes.bringup")\n'
+              'from . import sibling\n')
+    modules = [name for _, name in imported_modules(source)]
+    assert modules == ['rclpy.node', 'std_msgs.msg', 'numpy', 'rosbags.rosbag2', 'launch',
+                       'mshoot_nodes.bringup']
+    assert [m for m in modules if FORBIDDEN_IN_CORE.match(m.split('.')[0])] == [
+        'rclpy.node', 'std_msgs.msg', 'rosbags.rosbag2', 'launch', 'mshoot_nodes.bringup']
+
+
 def test_core_never_imports_ros():
-    pattern = re.compile(r'import rclpy|_msgs')
-    core = ROOT / 'ros2_ws' / 'src' / 'mshoot_core'
-    offenders = [str(p) for p in core.rglob('*') if p.is_file() and p.suffix in ('.py', '.xml',
-                                                                                 '.cfg')
-                 and pattern.search(p.read_text(errors='replace'))]
-    assert not offenders, f'mshoot_core must not depend on ROS: {offenders}'
+    core = SRC / 'mshoot_core'
+    offenders = [f'{p.relative_to(core)}:{line} {name}' for p in sorted(core.rglob('*.py'))
+                 for line, name in imported_modules(p.read_text())
+                 if FORBIDDEN_IN_CORE.match(name.split('.')[0])]
+    assert not offenders, f'mshoot_core must not depend on ROS or the packages above it: ' \
+                          f'{offenders}'
+    depends = re.findall(r'<(?:\w+_)?depend>([^<]+)<', (core / 'package.xml').read_text())
+    assert not [d for d in depends if FORBIDDEN_IN_CORE.match(d)], depends
 
 
 def test_test_doubles_live_outside_the_production_packages():
