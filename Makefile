@@ -4,7 +4,7 @@ ROOT := $(abspath $(dir $(lastword $(MAKEFILE_LIST))))
 RUN := source $(ROOT)/env.sh &&
 PYTEST_ARGS ?=
 
-.PHONY: setup test test-all bench bench-setup versus clean help
+.PHONY: setup test bench bench-setup versus clean help
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:.*## /\t/'
@@ -12,11 +12,8 @@ help:  ## list the targets
 setup:  ## create .venv, install pinned wheels, build the FMUs and the ROS 2 workspace (idempotent)
 	@bash $(ROOT)/tools/setup.sh
 
-test: setup  ## run the whole default test suite (slow tests excluded)
+test: setup  ## run every test (about 3 min on 2 cores)
 	@$(RUN) cd $(ROOT) && python -m pytest $(PYTEST_ARGS)
-
-test-all: setup  ## run every test, slow ones included
-	@$(RUN) cd $(ROOT) && python -m pytest -m '' $(PYTEST_ARGS)
 
 bench-setup: setup  ## install the benchmark-only packages (bench/requirements.txt: CasADi) into .venv
 	@VIRTUAL_ENV=$(ROOT)/.venv $(ROOT)/.venv/bin/uv pip install -q --compile-bytecode -r $(ROOT)/bench/requirements.txt

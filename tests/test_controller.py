@@ -109,7 +109,7 @@ def test_stale_state_falls_back_on_the_last_good_plan():
 @pytest.mark.parametrize('solver', ['slsqp', 'ipopt'])
 def test_time_budget_stops_the_solver_itself(solver):
     scenario = synthetic_scenario(hours=12)
-    model = SlowModel(delay_s=0.05)
+    model = SlowModel(delay_s=0.02)
     settings = MpcSettings.from_flat(horizon_steps=10, solver=solver)
     free = Controller(model, settings)
     offer(free, scenario, 8, state_c=17.0)
