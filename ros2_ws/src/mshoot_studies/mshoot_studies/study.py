@@ -1001,6 +1001,7 @@ def run(args: argparse.Namespace) -> int:
         # non-convergence is a per-step status recorded in the tables; keep the log readable
         logging.getLogger('mshoot_core.mpc').setLevel(logging.ERROR)
         logging.getLogger('mshoot_core.shooting').setLevel(logging.ERROR)
+        logging.getLogger('distributed').setLevel(logging.WARNING)  # --dask: cluster chatter
     data = args.data if args.data is not None else DEFAULT_DATA.resolve()
     if args.hours < 1 or args.jobs < 0:
         logger.error('--hours must be >= 1 and --jobs >= 0')
