@@ -238,3 +238,16 @@ def test_invalid_parameters_are_rejected_with_a_reason(context, tmp_path):
     assert mpc.set_parameters([Parameter('comfort', value='soft')])[0].successful
     assert mpc.mpc.problem.soft_bounds
     mpc.destroy_node()
+
+
+def test_mpc_yaml_documents_every_parameter_with_valid_values():
+    """config/mpc.yaml names every parameter of the node (the settings table included), and
+    its values make valid settings."""
+    import yaml
+    from mshoot_nodes.config import config_dir
+    from mshoot_nodes.mpc_node import DEFAULTS, PARAMS, settings_from
+    values = yaml.safe_load((config_dir() / 'mpc.yaml').read_text())['mpc']['ros__parameters']
+    declared = {spec.name for spec in PARAMS} | {'use_sim_time', 'autostart'}
+    assert set(values) == declared, (set(values) ^ declared)
+    settings = settings_from({**DEFAULTS, **values})
+    assert settings.problem.horizon_steps == values['horizon_steps']
