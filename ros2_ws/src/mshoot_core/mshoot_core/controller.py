@@ -292,20 +292,27 @@ class Controller:
                                     expected_step_s=self.settings.problem.step_s)
                      or self._forecast_gate.check(stamp_ns, now_ns))
         if rejection is None:
-            n = len(next(iter(series.values())))
-            frame = pd.DataFrame({name: np.asarray(values, dtype=float).reshape(-1)
-                                  for name, values in series.items()})
-            bad = [c for c in frame.columns if not np.all(np.isfinite(frame[c]))]
-            if bad or len(frame) != n:
-                rejection = Rejection('non_finite', f'forecast series {bad} hold non-finite '
-                                      'values')
+            names = list(series)
+            n = len(series[names[0]])
+            try:
+                values = np.column_stack([np.asarray(series[name], dtype=float).reshape(n)
+                                          for name in names])
+            except ValueError:
+                rejection = Rejection('length', f'forecast series differ in length from the '
+                                      f'{n} samples of {names[0]!r}')
+            else:
+                bad = [names[j] for j in np.flatnonzero(~np.isfinite(values).all(axis=0))]
+                if bad:
+                    rejection = Rejection('non_finite', f'forecast series {bad} hold '
+                                          'non-finite values')
         if rejection:
             return self.reject('forecast', rejection)
-        for name, value in self.assumed_inputs.items():
-            if name not in frame.columns:
-                frame[name] = float(value)
-        frame.index = pd.Index(stamp_ns / NS_PER_S + np.arange(n) * float(step_s),
-                               name='time_s')
+        extra = [name for name in self.assumed_inputs if name not in series]
+        if extra:
+            values = np.column_stack([values] + [np.full(n, float(self.assumed_inputs[name]))
+                                                 for name in extra])
+        frame = pd.DataFrame(values, columns=names + extra, index=pd.Index(
+            stamp_ns / NS_PER_S + np.arange(n) * float(step_s), name='time_s'))
         self._forecast_gate.accept(stamp_ns, now_ns)
         self._forecasts[int(stamp_ns)] = frame
         _trim(self._forecasts)
@@ -413,7 +420,8 @@ class Controller:
         if len(frame) < offset + horizon + 1:
             logger.debug('forecast covers %d of the %d samples needed: the last one is '
                          'repeated', len(frame) - offset, horizon + 1)
-        window = forecast_window(frame, int(min(offset, len(frame) - 1)), horizon)
+        window = (frame if offset == 0 and len(frame) == horizon + 1 else
+                  forecast_window(frame, int(min(offset, len(frame) - 1)), horizon))
         self._last_step_ns = step
         self._dispatch(step, state, window, steady_ns)
         self._collect(outcomes, time.monotonic_ns())
