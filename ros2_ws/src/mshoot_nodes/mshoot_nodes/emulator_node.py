@@ -62,6 +62,7 @@ from typing import Any
 
 from mshoot_core.emulation import Emulator, StepRecord
 from mshoot_core.models.r1c1 import KELVIN
+from mshoot_core.models.registry import EMULATOR_TOLERANCE
 from mshoot_core.safety import (check_setpoint, check_stamp_fields, Rejection, SetpointHold,
                                 StampGate)
 from mshoot_msgs.msg import Disturbances, Setpoint, ZoneState
@@ -92,7 +93,7 @@ PARAMS = (
     ParamSpec('model', 'fmu', "emulation model: 'fmu' (the built-in R1C1 FMU, Model Exchange), "
               "'fmu-cs' (Co-Simulation), 'python' (exact R1C1) or a path to an .fmu with the "
               "R1C1 zone's variables", read_only=True),
-    ParamSpec('fmu_tolerance', 1e-10, 'relative tolerance of the FMU integrator [-]',
+    ParamSpec('fmu_tolerance', EMULATOR_TOLERANCE, 'relative tolerance of the FMU integrator [-]',
               low=1e-14, high=1e-2, read_only=True),
     ParamSpec('initial_temperature_c', 20.0, 'zone temperature at the first step [degC]',
               low=-50.0, high=80.0, read_only=True),
