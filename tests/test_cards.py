@@ -5,10 +5,12 @@ fmu_build): an R1C1 zone with names of its own (state ``cair.T``, no ``dpos``), 
 with a second control in kW behind an overwrite switch, and the two-state R2C2 (states in
 degC). References: the built-in R1C1 FMU and the Python R1C1 run through today's names.
 """
+import dataclasses
 import json
 import pathlib
 import shutil
 import subprocess
+import zipfile
 
 import numpy as np
 import pandas as pd
@@ -246,10 +248,35 @@ def test_two_control_card_solves_an_mpc_step(zone2_card):
     assert x_end[0, 0] < x_end[1, 0] - 1.0
 
 
+def test_two_control_card_runs_the_case(zone2_card, tmp_path, caplog):
+    """The case takes the controls from the cards: the MPC plans q and qc within their common
+    range (logged when the ranges differ), the emulator clips to its card's limits."""
+    narrow = with_changes(ZONE2_CARD)
+    narrow['controls']['qc']['max'] = 1500
+    control = write_card(zone2_card.path.parent, 'narrow.yaml', narrow)
+    out = tmp_path / 'case'
+    assert case.main(['synthetic', '--hours', '6', '--horizon', '3', '--control', str(control),
+                      '--emulator', str(zone2_card.path), '--out', str(out)]) == 0
+    assert 'the MPC plans every control within their intersection [0, 1500]' in caplog.text
+    steps = pd.read_csv(out / 'steps.csv')
+    assert {'q', 'qc'} <= set(steps.columns) and len(steps) == 6
+    assert steps['q'].between(0.0, 1500.0 + 1e-6).all()
+    assert steps['qc'].between(0.0, 1500.0 + 1e-6).all()
+    kpis = json.loads((out / 'kpis.json').read_text())
+    assert kpis['energy_kwh'] == pytest.approx(steps['q'].abs().sum() / 1000.0)
+
+
+def test_fixed_inputs_of_fmimodel_are_free_inputs(zone2_fmu):
+    with pytest.raises(ValueError, match=r"invalid fixed_inputs \['q'\]; expected inputs not "
+                                         r"mapped as model inputs"):
+        FmiModel(zone2_fmu, inputs=['q'], states={'T': 'cair.T'}, outputs=['T'],
+                 fixed_inputs={'q': 1.0})
+
+
 @pytest.mark.parametrize('fmi_type', ['ModelExchange', 'CoSimulation'])
 def test_unit_conversion_at_the_boundary(zone2_card, zone2_fmu, fmi_type):
     """qc [W] reaches the FMU as Pcool [kW]; parameters reach it too; derivatives scale."""
-    card = cards.ModelCard(**{**zone2_card.__dict__, 'interface': fmi_type})
+    card = dataclasses.replace(zone2_card, interface=fmi_type)
     model = cards.build_model(card, 'control', tolerance=1e-10)
     raw = FmiModel(zone2_fmu, inputs=['q', 'Pcool', 'solrad', 'Tout', 'occ'],
                    states={'T': 'cair.T'}, outputs=['T', 'Qr'], parameters={'tmass': 5.0},
@@ -386,6 +413,14 @@ def test_card_problems_without_a_model(tmp_path):
         load_card(missing)
     with pytest.raises(CardError, match='file not found'):
         load_card(tmp_path / 'nothing.yaml')
+    (tmp_path / 'junk.fmu').write_text('not a zip')
+    with pytest.raises(CardError, match='fmu: cannot read the model description of .*junk'):
+        load_card(write_card(tmp_path, 'junk.yaml', with_changes(ZONE_CARD, fmu='junk.fmu')))
+    with zipfile.ZipFile(tmp_path / 'fmi3.fmu', 'w') as archive:
+        archive.writestr('modelDescription.xml', FMI3_DESCRIPTION)
+    with pytest.raises(CardError, match=r'fmu: fmi3.fmu is an FMI 3.0 FMU: FMI 3.0 FMUs are not '
+                                        r'supported yet \(FMI 2.0 only\)'):
+        load_card(write_card(tmp_path, 'fmi3.yaml', with_changes(ZONE_CARD, fmu='fmi3.fmu')))
     twice = tmp_path / 'twice.yaml'
     twice.write_text('fmu: a.fmu\nfmu: b.fmu\n')
     with pytest.raises(CardError, match="key 'fmu' is given twice"):
@@ -393,6 +428,18 @@ def test_card_problems_without_a_model(tmp_path):
     (tmp_path / 'list.yaml').write_text('- 1\n')
     with pytest.raises(CardError, match='card: expected object'):
         load_card(tmp_path / 'list.yaml')
+
+
+FMI3_DESCRIPTION = """<?xml version="1.0" encoding="UTF-8"?>
+<fmiModelDescription fmiVersion="3.0" modelName="Zone3"
+  instantiationToken="{8c4e810f-3df3-4a00-8276-176fa3c9f000}">
+  <ModelExchange modelIdentifier="Zone3"/>
+  <ModelVariables>
+    <Float64 name="time" valueReference="0" causality="independent" variability="continuous"/>
+  </ModelVariables>
+  <ModelStructure/>
+</fmiModelDescription>
+"""
 
 
 def test_python_r1c1_card_keeps_its_names_and_units(tmp_path):
@@ -434,7 +481,7 @@ def test_time_origin(zone_cards):
     card = load_card(zone_cards[0])
     assert card.time_origin == 'scenario'
     assert cards.time_origin_seconds(card, '2018-04-05T00:00:00') == 0.0
-    dated = cards.ModelCard(**{**card.__dict__, 'time_origin': '2018-01-01T00:00:00'})
+    dated = dataclasses.replace(card, time_origin='2018-01-01T00:00:00')
     assert cards.time_origin_seconds(dated, '2018-01-02T06:00:00') == -30 * HOUR
     with pytest.raises(ValueError, match='time zone'):
         cards.time_origin_seconds(dated, '2018-01-02T06:00:00+01:00')
@@ -453,6 +500,18 @@ def test_schema_and_builtin_cards_ship_with_the_package():
     assert "'cards/*.yaml'" in setup_py and "'schema/*.json'" in setup_py
     assert sorted(p.name for p in cards.CARDS_DIR.glob('*.yaml')) == [
         'r1c1.yaml', 'r1c1_fmu.yaml', 'r1c1_fmu_cs.yaml']
+
+
+def test_readme_cards_follow_the_schema():
+    """The worked cards of the README's "Bring your own building" section stay valid cards."""
+    readme = (pathlib.Path(__file__).resolve().parents[1] / 'README.md').read_text()
+    section = readme.split('## Bring your own building', 1)[1].split('\n## ', 1)[0]
+    blocks = [b.split('```', 1)[0] for b in section.split('```yaml\n')[1:]]
+    assert len(blocks) == 2
+    for block in blocks:
+        document = yaml.safe_load(block)
+        assert cards.schema_problems(document) == [], block
+        assert {'fmu', 'fmi_type', 'controls', 'states', 'outputs'} <= set(document)
 
 
 # -- mshoot card ------------------------------------------------------------------------------

@@ -227,7 +227,8 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                              f'{EMULATOR_TOLERANCE:g} unless the card sets one)')
     parser.add_argument('--tolerance', type=float, default=CONTROL_TOLERANCE,
                         help='relative tolerance of the control FMU integrator, in [1e-14, '
-                             f'1e-2] (default {CONTROL_TOLERANCE:g})')
+                             f'1e-2] (default {CONTROL_TOLERANCE:g}; a card\'s own tolerance '
+                             'wins)')
     add_arguments(parser, CASE_SETTINGS)
     parser.add_argument('--hours', type=int, default=72,
                         help='simulated hours of control (default 72)')

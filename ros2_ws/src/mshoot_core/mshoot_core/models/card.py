@@ -53,8 +53,10 @@ import pathlib
 from typing import Any, Mapping, Sequence
 
 import fmpy
+import jsonschema
 import numpy as np
 import pandas as pd
+import yaml
 
 from mshoot_core.models.base import IntervalJacobians, Model
 from mshoot_core.models.fmi import FmiModel
@@ -418,8 +420,6 @@ def _listing(variables: Sequence[ModelVariable], wanted: str = '') -> str:
 
 # -- loading ----------------------------------------------------------------------------------
 def _yaml_loader() -> type:
-    import yaml
-
     class Loader(yaml.SafeLoader):
         """SafeLoader that refuses a key given twice in one mapping."""
 
@@ -438,7 +438,6 @@ def _yaml_loader() -> type:
 
 
 def _read_yaml(path: pathlib.Path) -> Any:
-    import yaml
     try:
         text = path.read_text(encoding='utf-8')
     except FileNotFoundError:
@@ -462,7 +461,6 @@ def _where(path: Sequence[Any]) -> str:
 
 def schema_problems(document: Any) -> list[str]:
     """Every way ``document`` (a parsed card) breaks the JSON Schema, one sentence each."""
-    import jsonschema
     spec = schema()
     validator = jsonschema.Draft202012Validator(spec)
     problems = []
