@@ -7,6 +7,11 @@ runs the 72 h MPC emulation (hourly control, R1C1 emulator, perfect
 forecasts) and writes ``kpis.json``, ``trajectories.csv``, ``steps.csv`` and
 ``plot.png`` to the output folder. ``synthetic`` instead of ``ou44`` runs the
 built-in scenario, which needs no data file.
+
+``--control`` and ``--emulator`` also take a model card (``CARD.yaml``, see
+``mshoot card check``): any FMU with its names mapped. The MPC then optimises
+the card's controls (bounded by their min/max) and the emulated building gets
+its start state and actuator limits from the emulator's card.
 """
 from __future__ import annotations
 
@@ -18,16 +23,19 @@ import sys
 import time
 from typing import Any, Sequence
 
+import numpy as np
 import pandas as pd
 
 from mshoot_core.closed_loop import ClosedLoopResult, run_closed_loop
 from mshoot_core.controller import Controller
 from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis
+from mshoot_core.models import card as cards
 from mshoot_core.models.base import Model
 from mshoot_core.models.r1c1 import KELVIN
-from mshoot_core.models.registry import (BUILTIN, build_model, CONTROL_TOLERANCE,
-                                         EMULATOR_TOLERANCE, MODEL_PARAMETERS, ModelSettings)
+from mshoot_core.models.registry import (BUILTIN, build_model, check_model, CONTROL_TOLERANCE,
+                                         EMULATOR_TOLERANCE, is_card_path, MODEL_PARAMETERS,
+                                         model_names, ModelSettings)
 from mshoot_core.outputs import write_outputs
 from mshoot_core.scenario import DEFAULT_DATA, PUBLISHED, reference_scenario
 from mshoot_core.settings import (add_arguments, from_arguments, MpcSettings, option_wording,
@@ -38,22 +46,29 @@ logger = logging.getLogger(__name__)
 #: Data-driven control models (scikit-learn estimators trained as in Setup 2).
 DATA_DRIVEN = ('svr', 'linear', 'ridge', 'knn', 'random_forest', 'mlp')
 CONTROL_MODELS = BUILTIN + DATA_DRIVEN
+#: Initial zone temperature of the case [degC].
+INITIAL_C = 20.0
 
 
 def control_model(kind: str, tolerance: float = CONTROL_TOLERANCE,
-                  data: str | pathlib.Path | None = None, report: dict | None = None) -> Model:
+                  data: str | pathlib.Path | None = None, report: dict | None = None,
+                  scenario_start: str | None = None) -> Model:
     """Build the control model of the case.
 
     Parameters
     ----------
     kind : str
         A model of the registry (:func:`mshoot_core.models.registry.build_model`:
-        'python', 'fmu', 'fmu-cs' or a path to an .fmu), or a scikit-learn
-        model trained as in Setup 2 ('svr' is Setup 2 itself, 'linear', 'ridge',
-        'knn', 'random_forest', 'mlp'; needs ``data``).
+        'python', 'fmu', 'fmu-cs', a path to an .fmu or a model card), or a
+        scikit-learn model trained as in Setup 2 ('svr' is Setup 2 itself,
+        'linear', 'ridge', 'knn', 'random_forest', 'mlp'; needs ``data``).
     report : dict, optional
         Filled with the training/validation report of data-driven models.
+    scenario_start : str, optional
+        The scenario's first row (ISO 8601), for a card's ``time_origin``.
     """
+    if is_card_path(kind):
+        return card_model(kind, 'control', tolerance, scenario_start)
     if kind in DATA_DRIVEN:
         if data is None:
             raise ValueError(f'--control {kind} needs --data (it trains on the OU44 '
@@ -69,10 +84,45 @@ def control_model(kind: str, tolerance: float = CONTROL_TOLERANCE,
     return build_model(kind, tolerance)
 
 
+def card_model(path: str | pathlib.Path, role: str, tolerance: float,
+               scenario_start: str | None = None) -> Model:
+    """The model of a card for ``role`` ('control' or 'emulator'), its FMU time origin
+    taken from the scenario's start (:func:`mshoot_core.models.card.time_origin_seconds`).
+
+    Raises
+    ------
+    ValueError
+        A :class:`~mshoot_core.models.card.CardError` with every problem of the card.
+    """
+    card = cards.load_card(path)
+    return cards.build_model(card, role, cards.time_origin_seconds(card, scenario_start),
+                             tolerance=tolerance)
+
+
+def emulator_model(kind: str, scenario_start: str | None = None) -> Model:
+    """The emulated building of the case: a registry model or a card, at
+    :data:`~mshoot_core.models.registry.EMULATOR_TOLERANCE` (unless the card sets one)."""
+    if is_card_path(kind):
+        return card_model(kind, 'emulator', EMULATOR_TOLERANCE, scenario_start)
+    return build_model(kind, EMULATOR_TOLERANCE, role='emulator')
+
+
+def model_choice(value: str) -> str:
+    """argparse type of ``--control``/``--emulator``: a known name or a path to a card (.yaml)
+    or an .fmu file (checked with the other options, every problem at once)."""
+    if value in (*CONTROL_MODELS, *model_names()) or value.endswith('.fmu') \
+            or is_card_path(value):
+        return value
+    raise argparse.ArgumentTypeError(f'expected one of {list(CONTROL_MODELS)}, a model card '
+                                     f'(.yaml) or an .fmu file, got {value!r}')
+
+
 def run_case(scenario: pd.DataFrame, control: Model, emulator_model: Model,
              settings: MpcSettings | None = None, *, horizon: int | None = None,
-             initial_c: float = 20.0, steps: int | None = None, log_every: int = 12,
+             initial_c: float = INITIAL_C, steps: int | None = None, log_every: int = 12,
              progress: Any = None, budget_s: float | None = None,
+             x0: Sequence[float] | None = None,
+             actuator_bounds: Sequence[tuple[float, float]] | None = None,
              **options: Any) -> tuple[ClosedLoopResult, dict]:
     """Run the MPC emulation of a scenario and return the records and the KPIs.
 
@@ -91,16 +141,30 @@ def run_case(scenario: pd.DataFrame, control: Model, emulator_model: Model,
         Initial zone temperature [degC].
     steps, log_every, progress, budget_s :
         See :func:`mshoot_core.closed_loop.run_closed_loop`.
+    x0 : sequence of float, optional
+        Start state of the emulated building (default: ``T`` at ``initial_c``).
+    actuator_bounds : sequence of (float, float), optional
+        The emulated building's limits of every control (default: the MPC's bounds).
+
+    The controls are ``settings.problem.control_names``; the energy KPIs count the
+    control ``q`` (or the first control when there is no ``q``).
     """
     if horizon is not None:
         options['horizon_steps'] = horizon
     settings = (settings or MpcSettings()).replace(options)
+    p = settings.problem
     controller = Controller(control, settings)
-    emulator = Emulator(emulator_model, scenario, [initial_c + KELVIN])
+    emulator = Emulator(emulator_model, scenario,
+                        [initial_c + KELVIN] if x0 is None else list(x0),
+                        control_names=p.control_names,
+                        control_bounds=p.control_bounds if actuator_bounds is None
+                        else actuator_bounds)
     result = run_closed_loop(controller, emulator, steps=steps, log_every=log_every,
                              progress=progress, budget_s=budget_s)
-    p, c = settings.problem, settings.comfort
-    kpis = closed_loop_kpis(result.steps, result.fine, p.step_s, result.wall_s)
+    c = settings.comfort
+    energy_control = 'q' if 'q' in p.control_names else p.control_names[0]
+    kpis = closed_loop_kpis(result.steps, result.fine, p.step_s, result.wall_s,
+                            control=energy_control)
     kpis.update(horizon_h=p.horizon_steps * p.step_s / 3600.0, cost=p.cost,
                 solver=settings.solver.solver, comfort=c.comfort,
                 fallbacks=int(result.steps['fallback'].sum()))
@@ -119,6 +183,12 @@ def option_problems(args: argparse.Namespace,
     """The controller settings of parsed options, and every problem of the options at once
     (settings, FMU tolerance, hours, and a horizon longer than the forecasts)."""
     problems = ModelSettings(fmu_tolerance=args.tolerance).problems()
+    for option, name in (('--control', args.control), ('--emulator', args.emulator)):
+        if name in DATA_DRIVEN and option == '--control':
+            continue
+        problem = check_model(name)
+        if problem:
+            problems.append(f'{option}: {problem}')
     if args.hours < 1:
         problems.append(f'--hours must be >= 1, got {args.hours}')
     settings = None
@@ -146,16 +216,19 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument('--data', type=pathlib.Path, default=None,
                         help=f'OU44 measurements.csv (default: {DEFAULT_DATA.resolve()} '
                              'if it exists)')
-    parser.add_argument('--control', choices=CONTROL_MODELS, default='python',
-                        help='control model: exact Python R1C1, R1C1 FMU (Model Exchange '
-                             'or Co-Simulation), or a scikit-learn model trained on R1C1 '
-                             'responses as in Setup 2 (svr is Setup 2; default python)')
-    parser.add_argument('--emulator', choices=BUILTIN, default='python',
-                        help='emulation model (default python: the exact R1C1; FMUs run at '
-                             f'tolerance {EMULATOR_TOLERANCE:g})')
+    parser.add_argument('--control', type=model_choice, default='python', metavar='MODEL',
+                        help=f'control model, one of {{{",".join(CONTROL_MODELS)}}}: exact '
+                             'Python R1C1, R1C1 FMU (Model Exchange or Co-Simulation), or a '
+                             'scikit-learn model trained on R1C1 responses as in Setup 2 (svr '
+                             'is Setup 2); or a model card CARD.yaml (default python)')
+    parser.add_argument('--emulator', type=model_choice, default='python', metavar='MODEL',
+                        help=f'emulation model, one of {{{",".join(BUILTIN)}}} or a model card '
+                             'CARD.yaml (default python: the exact R1C1; FMUs run at tolerance '
+                             f'{EMULATOR_TOLERANCE:g} unless the card sets one)')
     parser.add_argument('--tolerance', type=float, default=CONTROL_TOLERANCE,
                         help='relative tolerance of the control FMU integrator, in [1e-14, '
-                             f'1e-2] (default {CONTROL_TOLERANCE:g})')
+                             f'1e-2] (default {CONTROL_TOLERANCE:g}; a card\'s own tolerance '
+                             'wins)')
     add_arguments(parser, CASE_SETTINGS)
     parser.add_argument('--hours', type=int, default=72,
                         help='simulated hours of control (default 72)')
@@ -188,8 +261,13 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"invalid options: {'; '.join(problems)}")
         started = time.perf_counter()
         report: dict = {}
-        control = control_model(args.control, args.tolerance, data, report)
-        emulator = build_model(args.emulator, EMULATOR_TOLERANCE)
+        start = scenario.attrs.get('start')
+        control = control_model(args.control, args.tolerance, data, report, start)
+        emulator = emulator_model(args.emulator, start)
+        settings, x0, actuators, problems = card_setup(args, settings, control, emulator,
+                                                       scenario)
+        if problems:
+            raise ValueError(f"invalid options: {'; '.join(problems)}")
         setup_s = time.perf_counter() - started
     except (FileNotFoundError, ValueError) as exc:
         logger.error('%s', exc)
@@ -197,7 +275,8 @@ def run(args: argparse.Namespace) -> int:
     horizon = settings.problem.horizon_steps
     logger.info('running %s: %d h, horizon %d h, control %s, cost %s, comfort %s',
                 args.scenario, args.hours, horizon, args.control, args.cost, args.comfort)
-    result, kpis = run_case(scenario, control, emulator, settings)
+    result, kpis = run_case(scenario, control, emulator, settings, x0=x0,
+                            actuator_bounds=actuators)
     kpis.update(scenario=args.scenario, control=args.control, emulator=args.emulator,
                 tolerance=args.tolerance, mode=args.mode, setup_s=setup_s)
     if report:
@@ -213,6 +292,75 @@ def run(args: argparse.Namespace) -> int:
                 kpis['solve_s_median'], kpis['solver_failures'])
     logger.info('wrote %s', args.out / 'kpis.json')
     return 0
+
+
+def card_setup(args: argparse.Namespace, settings: MpcSettings, control: Model,
+               emulator: Model, scenario: pd.DataFrame
+               ) -> tuple[MpcSettings, np.ndarray | None, list | None, list[str]]:
+    """What the cards of ``--control``/``--emulator`` change in the case, and every problem
+    of the pair with the scenario.
+
+    The control card gives the MPC's controls (``control_names``) and, where it
+    bounds them, the heat-rate range (one range for every control: where the
+    controls' ranges differ the MPC plans within their intersection, logged); the
+    emulator card gives the start state (``T`` from the initial temperature, other
+    states from the card) and the actuator limits.
+
+    Returns
+    -------
+    settings, x0 (None: the default), actuator bounds (None: the MPC's), problems
+    """
+    problems: list[str] = []
+    control_card = cards.load_card(args.control) if is_card_path(args.control) else None
+    emulator_card = cards.load_card(args.emulator) if is_card_path(args.emulator) else None
+    names = control_card.control_names if control_card else settings.problem.control_names
+    changes: dict[str, Any] = {'control_names': names}
+    if control_card:
+        lows = [v.min for v in control_card.controls.values() if v.min is not None]
+        highs = [v.max for v in control_card.controls.values() if v.max is not None]
+        if lows:
+            changes['heat_rate_min_w'] = float(max(lows))
+        if highs:
+            changes['heat_rate_max_w'] = float(min(highs))
+        if len(set(lows)) > 1 or len(set(highs)) > 1:
+            logger.warning('%s: the controls have different ranges; the MPC plans every '
+                           'control within their intersection [%g, %g]', args.control,
+                           changes.get('heat_rate_min_w', -np.inf),
+                           changes.get('heat_rate_max_w', np.inf))
+    try:
+        settings = settings.replace(changes)
+    except ValueError as exc:
+        problems.append(f'--control {args.control}: {exc}')
+    missing = [c for c in names if c not in emulator.input_names]
+    if missing:
+        problems.append(f'--emulator {args.emulator} has no inputs {missing} for the controls of '
+                        f'--control {args.control}')
+    for option, model, label in (('--control', control, args.control),
+                                 ('--emulator', emulator, args.emulator)):
+        lacking = [n for n in model.input_names if n not in names and n not in scenario.columns]
+        if lacking:
+            problems.append(f'{option} {label}: inputs {lacking} are neither controls nor '
+                            f'series of the scenario {[*scenario.columns]}')
+    if tuple(control.state_names) != tuple(emulator.state_names):
+        problems.append(f'the control model has the states {list(control.state_names)}, the '
+                        f'emulator {list(emulator.state_names)}: the MPC starts each step from '
+                        'the emulated states, so they must be the same')
+    if 'T' not in control.state_names:
+        problems.append(f'--control {args.control}: no state T (the zone temperature [K] the '
+                        'comfort band bounds)')
+    if 'T' not in emulator.output_names:
+        problems.append(f'--emulator {args.emulator}: no output T (the zone temperature '
+                        '[degC] of the comfort KPIs)')
+    x0 = actuators = None
+    if emulator_card is not None:
+        try:
+            x0 = emulator_card.initial_state(INITIAL_C + KELVIN)
+        except ValueError as exc:
+            problems.append(str(exc))
+        default = (settings.problem.heat_rate_min_w, settings.problem.heat_rate_max_w)
+        bounds = dict(zip(emulator_card.control_names, emulator_card.control_bounds(default)))
+        actuators = [bounds.get(c, default) for c in names]
+    return settings, x0, actuators, problems
 
 
 if __name__ == '__main__':

@@ -1,6 +1,8 @@
 """The ``mshoot`` command: one entry point, one verb per application.
 
     mshoot case ou44 --data PATH --horizon 10 --control fmu --out out/case
+    mshoot case synthetic --control zone.yaml --emulator zone_cs.yaml --out out/zone
+    mshoot card check zone.yaml
     mshoot study --data PATH --out docs --jobs 2
     mshoot VERB --help
 
@@ -15,7 +17,7 @@ import sys
 from types import ModuleType
 from typing import Sequence
 
-from mshoot_studies import case, study
+from mshoot_studies import card, case, study
 
 #: Verbs of ``mshoot``: name -> (module with build_parser(parser) and run(args), summary).
 VERBS: dict[str, tuple[ModuleType, str]] = {
@@ -23,6 +25,8 @@ VERBS: dict[str, tuple[ModuleType, str]] = {
                    'scenario): KPIs, trajectories, plot'),
     'study': (study, 'the reference study: every table and figure, runs on local worker '
                      'processes or a Dask cluster'),
+    'card': (card, 'model cards: check a card against its model and print what it maps, list '
+                   "an FMU's variables"),
 }
 
 

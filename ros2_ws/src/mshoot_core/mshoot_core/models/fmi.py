@@ -144,6 +144,11 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
     parameters : mapping str -> value, optional
         Values set after every reset, before initialisation (parameters and
         other variables with a settable start value).
+    fixed_inputs : mapping str -> value, optional
+        FMU inputs that are not model inputs, held at a constant value: set
+        with the parameters after every reset, before initialisation, and never
+        changed (e.g. the ``*_activate`` switch of an overwrite pair, held at
+        1 so the FMU uses the overwritten signal).
     tolerance : float
         Relative tolerance of the Model Exchange integrator (CVode); passed to
         ``fmi2SetupExperiment`` for Co-Simulation FMUs too.
@@ -179,7 +184,8 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
     def __init__(self, fmu_path: str | pathlib.Path, inputs: VariableNames,
                  states: VariableNames, outputs: VariableNames,
                  parameters: Mapping[str, Any] | None = None, tolerance: float = 1e-8,
-                 fmi_type: str | None = None, instance_name: str = 'mshoot') -> None:
+                 fmi_type: str | None = None, instance_name: str = 'mshoot',
+                 fixed_inputs: Mapping[str, Any] | None = None) -> None:
         self._fmu: FMU2Model | FMU2Slave | None = None
         self._unzip_dir: pathlib.Path | None = None
         self._owns_unzip_dir = False
@@ -204,7 +210,8 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
                 self._unzip_dir = pathlib.Path(fmpy.extract(str(path)))
                 self._owns_unzip_dir = True
             self.model_description = fmpy.read_model_description(str(self._unzip_dir))
-            self._configure(inputs, states, outputs, dict(parameters or {}), fmi_type)
+            self._configure(inputs, states, outputs, dict(parameters or {}), fmi_type,
+                            dict(fixed_inputs or {}))
             self._instantiate(instance_name)
         except BaseException:
             self.close()
@@ -212,7 +219,8 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
 
     # -- configuration ------------------------------------------------------------------
     def _configure(self, inputs: VariableNames, states: VariableNames, outputs: VariableNames,
-                   parameters: dict[str, Any], fmi_type: str | None) -> None:
+                   parameters: dict[str, Any], fmi_type: str | None,
+                   fixed_inputs: dict[str, Any] | None = None) -> None:
         md = self.model_description
         if md.fmiVersion != '2.0':
             raise ValueError(f'{self.fmu_path.name}: expected an FMI 2.0 FMU, '
@@ -259,7 +267,7 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
         self._state_positions = [self._continuous_states.index(v) for v in self._state_vars] \
             if self.is_model_exchange else []
         self._x_full = np.zeros(self._n_continuous)
-        self._set_parameters_plan(parameters)
+        self._set_parameters_plan(parameters, fixed_inputs or {})
 
     def _resolve(self, kind: str, spec: VariableNames,
                  choices: Sequence[str]) -> tuple[tuple[str, ...], list[Any]]:
@@ -274,8 +282,10 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
                              f'got {list(fmu_names)}')
         return model_names, [self._variables[name] for name in fmu_names]
 
-    def _set_parameters_plan(self, parameters: dict[str, Any]) -> None:
-        """Validate ``parameters`` and group them by FMI type for one set call each."""
+    def _set_parameters_plan(self, parameters: dict[str, Any],
+                             fixed_inputs: dict[str, Any]) -> None:
+        """Validate ``parameters`` and ``fixed_inputs``; group them by FMI type for one set
+        call each (both are set after every reset, before initialisation)."""
         settable = [v.name for v in self.model_description.modelVariables
                     if v.causality != 'input' and v.variability != 'constant'
                     and (v.causality == 'parameter' or v.initial in ('exact', 'approx'))]
@@ -283,8 +293,15 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
         if unknown:
             raise ValueError(f'{self.fmu_path.name}: invalid parameters {unknown}; expected '
                              f'names from {_listed(settable)}, got {list(parameters)}')
+        mapped = {v.name for v in self._input_vars}
+        free_inputs = [v.name for v in self.model_description.modelVariables
+                       if v.causality == 'input' and v.name not in mapped]
+        unknown = [name for name in fixed_inputs if name not in free_inputs]
+        if unknown:
+            raise ValueError(f'{self.fmu_path.name}: invalid fixed_inputs {unknown}; expected '
+                             f'inputs not mapped as model inputs, from {_listed(free_inputs)}')
         groups: dict[str, tuple[list[int], list[Any]]] = {}
-        for name, value in parameters.items():
+        for name, value in {**parameters, **fixed_inputs}.items():
             var = self._variables[name]
             kind = {'Enumeration': 'Integer'}.get(var.type, var.type)
             if kind == 'Real':
@@ -304,6 +321,7 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
             refs.append(var.valueReference)
             values.append(value)
         self.parameters = dict(parameters)
+        self.fixed_inputs = dict(fixed_inputs)
         self._parameter_groups = groups
 
     def _instantiate(self, instance_name: str) -> None:
@@ -504,7 +522,7 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
         for k in range(1, t.size):
             rows += [(t[k], *u[k - 1]), (t[k], *u[k])]
         table = np.array(rows, dtype=[('time', float)] + [(n, float) for n in names])
-        start = dict(self.parameters)
+        start = {**self.parameters, **self.fixed_inputs}
         start.update({self._state_vars[i].name: float(x0_arr[i])
                       for i in self._start_state_index})
         outputs = [v.name for v in self._state_vars] + [v.name for v in self._output_vars]

@@ -9,6 +9,10 @@ models here, by name:
 - a path ending in ``.fmu``: an FMU with the R1C1 zone's variables (inputs
   solrad, Tout, occ, dpos, q; state heatCapacitor.T [K]; outputs T [degC], Qr
   [J]), run as Model Exchange;
+- a path ending in ``.yaml`` or ``.yml``: a model card
+  (:mod:`mshoot_core.models.card`): any FMU with its names mapped, or a
+  built-in model; the card's tolerance, if it sets one, wins over the
+  ``tolerance`` given here;
 - names that applications add with :func:`register` (e.g. the data-driven
   models of Setup 2, trained on data the application holds).
 
@@ -51,46 +55,66 @@ def register(name: str, factory: Callable[[float], Model], description: str) -> 
     description : str
         One line for help texts.
     """
-    if name in BUILTIN or name.endswith('.fmu') or not name:
+    if name in BUILTIN or name.endswith('.fmu') or is_card_path(name) or not name:
         raise ValueError(f'cannot register a model named {name!r}')
     _REGISTERED[name] = (factory, description)
 
 
 def model_names() -> tuple[str, ...]:
-    """Every model name understood (besides a path to an .fmu file)."""
+    """Every model name understood (besides a path to an .fmu file or a model card)."""
     return BUILTIN + tuple(sorted(_REGISTERED))
 
 
+def is_card_path(name: str) -> bool:
+    """Whether ``name`` is a path to a model card (ends in .yaml or .yml)."""
+    return str(name).lower().endswith(('.yaml', '.yml'))
+
+
 def check_model(name: str) -> str | None:
-    """Why ``name`` does not name a model, or None."""
+    """Why ``name`` does not name a model, or None (a model card is loaded and checked
+    against its model: every problem of the card in one line)."""
     if name in BUILTIN or name in _REGISTERED:
         return None
     if name.endswith('.fmu'):
         return None if pathlib.Path(name).is_file() else f'FMU file {name!r} not found'
-    return (f'model must be one of {list(model_names())} or a path to an .fmu file, '
-            f'got {name!r}')
+    if is_card_path(name):
+        from mshoot_core.models.card import CardError, load_card
+        try:
+            load_card(name)
+        except CardError as exc:
+            return str(exc)
+        return None
+    return (f'model must be one of {list(model_names())}, a path to an .fmu file or a model '
+            f'card (.yaml), got {name!r}')
 
 
-def build_model(name: str, tolerance: float = CONTROL_TOLERANCE) -> Model:
+def build_model(name: str, tolerance: float = CONTROL_TOLERANCE,
+                role: str = 'control') -> Model:
     """The model named ``name`` (see the module docstring).
 
     Parameters
     ----------
     name : str
-        A name of :func:`model_names` or a path to an .fmu file.
+        A name of :func:`model_names`, a path to an .fmu file or to a model card.
     tolerance : float
-        Relative tolerance of an FMU integrator [-].
+        Relative tolerance of an FMU integrator [-] (a card's own tolerance wins).
+    role : {'control', 'emulator'}
+        What a model card's model is built for (its FMU instance's name).
 
     Raises
     ------
     ValueError
-        Unknown name, missing FMU file, or FMU support missing.
+        Unknown name, missing FMU file, FMU support missing, or an invalid
+        model card (:class:`~mshoot_core.models.card.CardError`, every problem).
     """
+    if not 0 < tolerance < 1:
+        raise ValueError(f'tolerance must be in (0, 1), got {tolerance}')
+    if is_card_path(name):
+        from mshoot_core.models import card
+        return card.build_model(card.load_card(name), role, tolerance=tolerance)
     problem = check_model(name)
     if problem:
         raise ValueError(problem)
-    if not 0 < tolerance < 1:
-        raise ValueError(f'tolerance must be in (0, 1), got {tolerance}')
     if name == 'python':
         from mshoot_core.models.r1c1 import R1C1Model
         return R1C1Model()
@@ -110,8 +134,9 @@ class ModelSettings(SettingsGroup):
     """Which model, and how it is integrated."""
 
     model: str = setting('python', "zone model: 'python' (exact R1C1), 'fmu' (the R1C1 FMU, "
-                         "Model Exchange), 'fmu-cs' (Co-Simulation) or a path to an .fmu with "
-                         'the R1C1 zone interface', apply='fixed')
+                         "Model Exchange), 'fmu-cs' (Co-Simulation), a path to an .fmu with "
+                         'the R1C1 zone interface, or a path to a model card (.yaml)',
+                         apply='fixed')
     fmu_tolerance: float = setting(CONTROL_TOLERANCE, 'relative tolerance of the FMU '
                                    'integrator [-]', low=1e-14, high=1e-2, apply='fixed',
                                    cli='--tolerance')

@@ -1,0 +1,1029 @@
+"""Model cards: a zone model described once (YAML) for every application.
+
+A card names the model (an FMU, or a built-in model) and maps its variables
+onto the *canonical* names the applications speak: the MPC's controls, the
+disturbances filled from the scenario or forecast series of the same name,
+the states the MPC shoots over, and the measured outputs::
+
+    fmu: zone.fmu              # relative to the card (or `builtin: r1c1` / `r1c1-fmu`)
+    fmi_type: auto             # auto | model-exchange | co-simulation
+    tolerance: 1.0e-6          # optional: default that of the role
+    time_origin: scenario      # wall-clock time of FMU t = 0: `scenario` or ISO 8601
+    parameters: {shgc: 4.6}    # set before every initialisation
+    controls:
+      q: {variable: q, unit: W, min: -2000, max: 2000}
+    disturbances:
+      Tout: {variable: Tout, unit: degC}
+      solrad: {variable: solrad, unit: W/m2}
+      occ: {variable: occ}
+    states:
+      T: {variable: cair.T, unit: K}
+    outputs:
+      T: {variable: T, unit: degC}
+
+:func:`load_card` checks the YAML against the JSON Schema shipped with the
+package (:data:`SCHEMA_PATH`), then against the model itself (variable names
+by causality, units, parameters, the FMI type), and reports every problem at
+once in one :class:`CardError` naming the card, with the model's valid names
+(causality and unit) for every bad name. :func:`build_model` makes the
+:class:`~mshoot_core.models.base.Model` the applications use:
+an :class:`~mshoot_core.models.fmi.FmiModel` with the name mapping, the
+parameters, the overwrite switches held at 1 and, where a unit differs from
+the canonical one, the conversion at its boundary
+(:class:`CardFmiModel`); or the exact Python R1C1.
+
+Canonical units (what the applications see): states in SI (temperatures in
+K, power W, energy J); inputs and outputs in the scenario's conventions
+(temperatures degC, power W, energy J, solar irradiance W/m2, ``dpos`` in %,
+``occ`` in persons). Known units: :data:`UNITS`; a unit outside the table is
+taken as it is (no conversion), unless the canonical name needs a quantity
+(``T``, ``Tout``, ``q``, ... in :data:`NAME_QUANTITY`). Built-in cards:
+:data:`CARDS_DIR` (:func:`builtin_card`).
+"""
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import difflib
+import inspect
+import json
+import logging
+import math
+import pathlib
+from typing import Any, Mapping, Sequence
+
+import fmpy
+import jsonschema
+import numpy as np
+import pandas as pd
+import yaml
+
+from mshoot_core.models.base import IntervalJacobians, Model
+from mshoot_core.models.fmi import FmiModel
+from mshoot_core.models.registry import (CONTROL_TOLERANCE, EMULATOR_TOLERANCE,
+                                         is_card_path)
+
+__all__ = ['builtin_card', 'build_model', 'CardError', 'CardFmiModel', 'CardVariable',
+           'CARDS_DIR', 'conversion', 'describe', 'fmu_variables', 'is_card_path', 'load_card',
+           'ModelCard', 'ModelVariable', 'SCHEMA_PATH', 'schema', 'schema_problems',
+           'time_origin_seconds', 'UNITS']
+
+logger = logging.getLogger(__name__)
+
+#: The JSON Schema of a card, shipped with the package.
+SCHEMA_PATH = pathlib.Path(__file__).resolve().parents[1] / 'schema' / 'model_card.schema.json'
+#: The built-in cards: ``r1c1.yaml`` (Python), ``r1c1_fmu.yaml`` (built-in FMU, Model
+#: Exchange), ``r1c1_fmu_cs.yaml`` (Co-Simulation).
+CARDS_DIR = pathlib.Path(__file__).resolve().parents[1] / 'cards'
+#: The built-in model sources of ``builtin:``.
+BUILTIN_SOURCES = ('r1c1', 'r1c1-fmu')
+#: Card ``fmi_type`` -> FMI interface name (``auto`` resolves to one of them).
+FMI_TYPES = {'model-exchange': 'ModelExchange', 'co-simulation': 'CoSimulation'}
+#: Roles a card's model is built for.
+ROLES = ('control', 'emulator')
+#: The variable sections of a card, in order.
+SECTIONS = ('controls', 'disturbances', 'states', 'outputs')
+#: Longest list of valid names quoted in one problem.
+MAX_LISTED = 40
+
+
+@dataclasses.dataclass(frozen=True)
+class Unit:
+    """A unit as an affine map to its SI base: ``si = scale * value + offset``."""
+
+    quantity: str
+    scale: float
+    offset: float = 0.0
+
+
+#: The known unit spellings ('' and '1': dimensionless).
+UNITS: dict[str, Unit] = {
+    'K': Unit('temperature', 1.0), 'degC': Unit('temperature', 1.0, 273.15),
+    'W': Unit('power', 1.0), 'kW': Unit('power', 1e3),
+    'J': Unit('energy', 1.0), 'Wh': Unit('energy', 3600.0), 'kWh': Unit('energy', 3.6e6),
+    'W/m2': Unit('irradiance', 1.0),
+    '%': Unit('ratio', 0.01), '1': Unit('ratio', 1.0), '': Unit('ratio', 1.0),
+}
+#: Canonical unit of each quantity for inputs and outputs (the scenario's conventions)...
+IO_UNITS = {'temperature': 'degC', 'power': 'W', 'energy': 'J', 'irradiance': 'W/m2'}
+#: ... and for states (SI).
+STATE_UNITS = {'temperature': 'K', 'power': 'W', 'energy': 'J', 'irradiance': 'W/m2'}
+#: Canonical names with a fixed quantity (the scenario's series and the R1C1's variables).
+NAME_QUANTITY = {'T': 'temperature', 'Tout': 'temperature', 'solrad': 'irradiance',
+                 'q': 'power', 'Qr': 'energy', 'occ': 'ratio', 'dpos': 'ratio'}
+#: Canonical names of dimensionless series with a fixed unit.
+NAME_UNIT = {'occ': '1', 'dpos': '%'}
+
+
+class CardError(ValueError):
+    """An invalid model card: ``problems`` holds every problem, ``path`` the card.
+
+    The message is one line: the card's path and the problems joined by '; '.
+    """
+
+    def __init__(self, path: str | pathlib.Path, problems: Sequence[str]) -> None:
+        self.path = pathlib.Path(path)
+        self.problems = list(problems)
+        super().__init__(f'model card {self.path}: ' + '; '.join(self.problems))
+
+
+@dataclasses.dataclass(frozen=True)
+class CardVariable:
+    """One mapped variable of a card.
+
+    Attributes
+    ----------
+    variable : str
+        Name of the model variable (the FMU's; default the canonical name).
+    unit : str
+        Unit of the model variable: the card's, else the FMU's declared unit.
+    min, max : float or None
+        Actuator limits of a control, in the canonical unit.
+    activate : str or None
+        FMU input held at 1 whenever this control is applied (overwrite pairs).
+    start : float or None
+        Initial value of a state in the canonical unit, where an application
+        needs one (default: the FMU's start value).
+    canonical_unit : str
+        Unit the applications see (set by :func:`load_card`).
+    causality : str
+        Causality of the model variable (``input``, ``output``, ``local``,
+        ``state``, ...; set by :func:`load_card`).
+    model_start : float or None
+        The model's own start value of the variable, in the canonical unit.
+    """
+
+    variable: str
+    unit: str = ''
+    min: float | None = None
+    max: float | None = None
+    activate: str | None = None
+    start: float | None = None
+    canonical_unit: str = ''
+    causality: str = ''
+    model_start: float | None = None
+
+    def conversion(self) -> tuple[float, float]:
+        """``(scale, offset)`` with model value = scale * canonical value + offset."""
+        return conversion(self.canonical_unit, self.unit)
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelCard:
+    """A validated model card (see the module docstring; made by :func:`load_card`).
+
+    Attributes
+    ----------
+    path : pathlib.Path
+        The card file.
+    fmu : pathlib.Path or None
+        The FMU (absolute; for ``builtin: r1c1-fmu`` the built-in FMU).
+    builtin : str or None
+        One of :data:`BUILTIN_SOURCES`, or None for a card naming an FMU.
+    fmi_type : str
+        As written: 'auto', 'model-exchange' or 'co-simulation'.
+    interface : str or None
+        The FMI interface used ('ModelExchange' or 'CoSimulation'; None for
+        the Python R1C1).
+    tolerance : float or None
+        Relative integrator tolerance, or None for the role's default.
+    time_origin : str
+        'scenario' or an ISO 8601 date-time.
+    parameters : dict
+        Variable name -> value, set before every initialisation.
+    controls, disturbances, states, outputs : dict of str -> CardVariable
+        Canonical name -> mapped variable, in the card's order.
+    description : str
+        Free text.
+    """
+
+    path: pathlib.Path
+    fmu: pathlib.Path | None
+    builtin: str | None
+    fmi_type: str
+    interface: str | None
+    tolerance: float | None
+    time_origin: str
+    parameters: dict[str, Any]
+    controls: dict[str, CardVariable]
+    disturbances: dict[str, CardVariable]
+    states: dict[str, CardVariable]
+    outputs: dict[str, CardVariable]
+    description: str = ''
+
+    @property
+    def source(self) -> str:
+        """'fmu' (an FMU file named by the card) or 'builtin'."""
+        return 'builtin' if self.builtin is not None else 'fmu'
+
+    @property
+    def control_names(self) -> tuple[str, ...]:
+        return tuple(self.controls)
+
+    @property
+    def disturbance_names(self) -> tuple[str, ...]:
+        return tuple(self.disturbances)
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        """Controls, then disturbances (the input order of the card's FMU models)."""
+        return tuple(self.controls) + tuple(self.disturbances)
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        return tuple(self.states)
+
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        return tuple(self.outputs)
+
+    def control_bounds(self, default: tuple[float, float]) -> tuple[tuple[float, float], ...]:
+        """(min, max) of every control [canonical unit], ``default`` where the card has none."""
+        return tuple((default[0] if v.min is None else v.min,
+                      default[1] if v.max is None else v.max) for v in self.controls.values())
+
+    def initial_state(self, zone_temperature_k: float) -> np.ndarray:
+        """A start state [canonical units]: ``T`` from ``zone_temperature_k`` [K], the
+        other states from the card's ``start``, else the model's start value.
+
+        Raises
+        ------
+        ValueError
+            If a state other than T has neither.
+        """
+        values, missing = [], []
+        for name, v in self.states.items():
+            if name == 'T':
+                values.append(float(zone_temperature_k))
+            elif v.start is not None:
+                values.append(v.start)
+            elif v.model_start is not None:
+                values.append(v.model_start)
+            else:
+                values.append(math.nan)
+                missing.append(name)
+        if missing:
+            raise ValueError(f'model card {self.path}: states {missing} need a start value '
+                             f'(key start) to begin a run')
+        return np.array(values)
+
+
+# -- units ------------------------------------------------------------------------------------
+def _same_unit(a: str, b: str) -> bool:
+    return a == b or {a, b} <= {'', '1'}
+
+
+def conversion(canonical_unit: str, model_unit: str) -> tuple[float, float]:
+    """``(scale, offset)`` with model value = scale * canonical value + offset.
+
+    Raises
+    ------
+    ValueError
+        If the units are not of one quantity of :data:`UNITS` (and not equal).
+    """
+    if _same_unit(canonical_unit, model_unit):
+        return 1.0, 0.0
+    a, b = UNITS.get(canonical_unit), UNITS.get(model_unit)
+    if a is None or b is None or a.quantity != b.quantity:
+        raise ValueError(f'unit {model_unit!r} does not convert to {canonical_unit!r}')
+    return a.scale / b.scale, (a.offset - b.offset) / b.scale
+
+
+def canonical_unit(section: str, name: str, unit: str) -> tuple[str, str | None]:
+    """The canonical unit of ``name`` in ``section`` whose model unit is ``unit``, and the
+    problem when it cannot convert (None if it can)."""
+    known = UNITS.get(unit)
+    need = NAME_QUANTITY.get(name)
+    if need is not None and (known is None or known.quantity != need):
+        want = (NAME_UNIT.get(name) or (STATE_UNITS if section == 'states'
+                                        else IO_UNITS)[need])
+        return want, (f'{section}.{name}: unit {unit!r} does not convert to the canonical '
+                      f'{want!r} of {name!r} (known units: {_known_units()})')
+    if known is None:
+        return unit, None  # a quantity mshoot does not know: passed through as it is
+    if name in NAME_UNIT:
+        return NAME_UNIT[name], None
+    if known.quantity == 'ratio':
+        return unit, None
+    return (STATE_UNITS if section == 'states' else IO_UNITS)[known.quantity], None
+
+
+def _known_units() -> str:
+    return ', '.join(repr(u) for u in UNITS)
+
+
+# -- the model's variables --------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class ModelVariable:
+    """What a card may map to: one variable of the model, as the card check lists it."""
+
+    name: str
+    causality: str
+    type: str = 'Real'
+    unit: str = ''
+    start: float | None = None
+    variability: str = ''
+    initial: str = ''
+
+    def label(self) -> str:
+        """``name (causality, unit)``."""
+        return f"{self.name} ({self.causality}{', ' + self.unit if self.unit else ''})"
+
+
+@dataclasses.dataclass
+class _Catalogue:
+    """The variables of a model by what a card can map them to."""
+
+    label: str
+    inputs: list[ModelVariable]
+    states: list[ModelVariable]
+    outputs: list[ModelVariable]
+    switches: list[ModelVariable]  # inputs of any type (activate targets)
+    parameters: list[ModelVariable]
+    state_kind: str
+    python: bool = False
+
+
+def _float(value: Any) -> float | None:
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        return None
+    return out if math.isfinite(out) else None
+
+
+def fmu_variables(md: Any) -> list[ModelVariable]:
+    """Every scalar variable of an fmpy model description, as :class:`ModelVariable`."""
+    out = []
+    continuous = {d.variable.derivative.name for d in getattr(md, 'derivatives', [])
+                  if d.variable.derivative is not None}
+    for v in md.modelVariables:
+        unit = v.unit or (v.declaredType.unit if v.declaredType is not None else None) or ''
+        causality = v.causality or 'local'
+        out.append(ModelVariable(v.name, causality, v.type, unit, _float(v.start),
+                                 v.variability or '', v.initial or ''))
+        if v.name in continuous:
+            out[-1] = dataclasses.replace(out[-1], causality=f'{causality}, state')
+    return out
+
+
+def _fmu_catalogue(label: str, md: Any, interface: str) -> _Catalogue:
+    variables = fmu_variables(md)
+    by_name = {v.name: v for v in variables}
+    real = [v for v in variables if v.type == 'Real']
+    inputs = [v for v in real if v.causality == 'input']
+    if interface == 'ModelExchange':
+        states = [by_name[d.variable.derivative.name] for d in md.derivatives
+                  if d.variable.derivative is not None]
+        state_kind = 'continuous states'
+    else:
+        states = [v for v in real if v.causality.split(',')[0] not in
+                  ('parameter', 'input', 'calculatedParameter')
+                  and v.initial in ('exact', 'approx')]
+        state_kind = 'Real variables with a settable start value'
+    outputs = [v for v in real if v.causality.split(',')[0] not in
+               ('parameter', 'calculatedParameter', 'input')]
+    switches = [v for v in variables if v.causality == 'input']
+    parameters = [v for v in variables if v.causality != 'input'
+                  and v.variability != 'constant'
+                  and (v.causality == 'parameter' or v.initial in ('exact', 'approx'))]
+    return _Catalogue(label, inputs, states, outputs, switches, parameters, state_kind)
+
+
+def _python_catalogue() -> _Catalogue:
+    from mshoot_core.models.r1c1 import R1C1Parameters
+    inputs = [ModelVariable('solrad', 'input', unit='W/m2'),
+              ModelVariable('Tout', 'input', unit='degC'),
+              ModelVariable('occ', 'input', unit='1'), ModelVariable('dpos', 'input', unit='%'),
+              ModelVariable('q', 'input', unit='W')]
+    parameters = [ModelVariable(f.name, 'parameter', start=f.default)
+                  for f in dataclasses.fields(R1C1Parameters)]
+    return _Catalogue('the Python R1C1', inputs, [ModelVariable('T', 'state', unit='K')],
+                      [ModelVariable('T', 'output', unit='degC'),
+                       ModelVariable('Qr', 'output', unit='J')], [], parameters,
+                      'states of the Python R1C1', python=True)
+
+
+def _listing(variables: Sequence[ModelVariable], wanted: str = '') -> str:
+    """The valid names with causality and unit (close matches of ``wanted`` first)."""
+    names = [v.name for v in variables]
+    if not names:
+        return 'none'
+    close = difflib.get_close_matches(wanted, names, n=3, cutoff=0.5) if wanted else []
+    ordered = close + [n for n in names if n not in close]
+    by_name = {v.name: v for v in variables}
+    shown = ', '.join(by_name[n].label() for n in ordered[:MAX_LISTED])
+    more = len(ordered) - MAX_LISTED
+    return shown + (f' (and {more} more: mshoot card variables FMU lists them all)'
+                    if more > 0 else '')
+
+
+# -- loading ----------------------------------------------------------------------------------
+def _yaml_loader() -> type:
+    class Loader(yaml.SafeLoader):
+        """SafeLoader that refuses a key given twice in one mapping."""
+
+    def construct_mapping(loader: Any, node: Any, deep: bool = False) -> dict:
+        seen: set = set()
+        for key_node, _ in node.value:
+            key = loader.construct_object(key_node, deep=deep)
+            if key in seen:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f'key {key!r} is given twice', key_node.start_mark)
+            seen.add(key)
+        return yaml.SafeLoader.construct_mapping(loader, node, deep)
+
+    Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, construct_mapping)
+    return Loader
+
+
+def _read_yaml(path: pathlib.Path) -> Any:
+    try:
+        text = path.read_text(encoding='utf-8')
+    except FileNotFoundError:
+        raise CardError(path, ['file not found']) from None
+    except OSError as exc:
+        raise CardError(path, [f'cannot read the file: {exc}']) from None
+    try:
+        return yaml.load(text, Loader=_yaml_loader())  # noqa: S506 - a SafeLoader subclass
+    except yaml.YAMLError as exc:
+        raise CardError(path, [' '.join(f'not valid YAML: {exc}'.split())]) from None
+
+
+def schema() -> dict:
+    """The JSON Schema of a card (:data:`SCHEMA_PATH`)."""
+    return json.loads(SCHEMA_PATH.read_text(encoding='utf-8'))
+
+
+def _where(path: Sequence[Any]) -> str:
+    return '.'.join(str(p) for p in path) if path else 'card'
+
+
+def schema_problems(document: Any) -> list[str]:
+    """Every way ``document`` (a parsed card) breaks the JSON Schema, one sentence each."""
+    spec = schema()
+    validator = jsonschema.Draft202012Validator(spec)
+    problems = []
+    for error in sorted(validator.iter_errors(document), key=lambda e: list(map(str, e.path))):
+        where = _where(list(error.path))
+        kind = error.validator
+        if kind == 'oneOf' and not error.path:
+            both = isinstance(document, dict) and 'fmu' in document and 'builtin' in document
+            problems.append(f"give {'only ' if both else ''}one of 'fmu' (path of an FMU, "
+                            f"relative to the card) or 'builtin' (one of "
+                            f"{list(BUILTIN_SOURCES)})" + (', not both' if both else ''))
+        elif kind == 'additionalProperties':
+            allowed = sorted(error.schema.get('properties', {}))
+            extra = sorted(set(error.instance) - set(allowed))
+            problems.append(f'{where}: unknown key{"s" if len(extra) > 1 else ""} '
+                            f'{", ".join(map(repr, extra))}; allowed: {", ".join(allowed)}')
+        elif kind == 'required':
+            missing = error.message.split("'")[1] if "'" in error.message else error.message
+            problems.append(f'{where}: missing required key {missing!r}' if error.path
+                            else f'missing required key {missing!r}')
+        elif kind == 'pattern' and error.schema is spec['$defs']['name']:
+            problems.append(f'{where}: name {error.instance!r} must be an identifier (letters, '
+                            'digits and _, not starting with a digit)')
+        elif kind == 'type':
+            expected = error.validator_value
+            expected = ' or '.join(expected) if isinstance(expected, list) else expected
+            problems.append(f'{where}: expected {expected}, got {error.instance!r}')
+        elif kind == 'enum':
+            problems.append(f'{where} must be one of {error.validator_value}, got '
+                            f'{error.instance!r}')
+        elif kind == 'minProperties':
+            problems.append(f'{where}: needs at least one entry')
+        else:
+            problems.append(f'{where}: {error.message}')
+    return problems
+
+
+#: The keys of a variable entry, by section (as in the schema).
+ENTRY_KEYS = {'controls': ('variable', 'unit', 'min', 'max', 'activate'),
+              'disturbances': ('variable', 'unit'), 'states': ('variable', 'unit', 'start'),
+              'outputs': ('variable', 'unit')}
+
+
+def _variable_section(document: dict, section: str,
+                      schema_problems: Sequence[str]) -> dict[str, dict]:
+    """The entries of a section to check against the model, without the keys the schema
+    refused (unknown keys, wrong types: reported already)."""
+    raw = document.get(section)
+    if not isinstance(raw, dict):
+        return {}
+    out = {}
+    for name, spec in raw.items():
+        if not isinstance(spec, dict):
+            continue
+        out[name] = {key: value for key, value in spec.items() if key in ENTRY_KEYS[section]
+                     and not any(p.startswith(f'{section}.{name}.{key}:')
+                                 for p in schema_problems)}
+    return out
+
+
+def load_card(path: str | pathlib.Path) -> ModelCard:
+    """Read and validate a model card (YAML), against the schema and against its model.
+
+    Parameters
+    ----------
+    path : path
+        The card file.
+
+    Returns
+    -------
+    ModelCard
+
+    Raises
+    ------
+    CardError
+        With every problem at once: schema violations (unknown or missing keys,
+        wrong types), a missing or unreadable FMU, an FMI type the FMU lacks,
+        variable names the model does not have in that role (each with the
+        model's valid names, causality and unit), units that do not convert,
+        bad parameters, a bad time origin.
+    """
+    path = pathlib.Path(path).expanduser()
+    document = _read_yaml(path)
+    if document is None:
+        raise CardError(path, ['the file is empty'])
+    if isinstance(document, dict) and isinstance(document.get('time_origin'),
+                                                 (datetime.date, datetime.datetime)):
+        # YAML reads an unquoted date-time as one
+        document['time_origin'] = document['time_origin'].isoformat()
+    problems = schema_problems(document)
+    if not isinstance(document, dict):
+        raise CardError(path, problems or ['a card must be a mapping of keys'])
+    sections = {section: _variable_section(document, section, problems)
+                for section in SECTIONS}
+    time_origin = document.get('time_origin', 'scenario')
+    if isinstance(time_origin, str):
+        problem = _time_origin_problem(time_origin)
+        if problem:
+            problems.append(problem)
+    fmi_type = document.get('fmi_type', 'auto')
+    tolerance = document.get('tolerance')
+    parameters = document.get('parameters') or {}
+    if not isinstance(parameters, dict):
+        parameters = {}
+    catalogue, fmu, interface = _catalogue(path, document, fmi_type, problems)
+    variables = {}
+    if catalogue is not None:
+        variables = _check_variables(catalogue, sections, problems)
+        problems += _parameter_problems(catalogue, parameters)
+    if problems:
+        raise CardError(path, problems)
+    return ModelCard(
+        path=path, fmu=fmu, builtin=document.get('builtin'), fmi_type=fmi_type,
+        interface=interface, tolerance=None if tolerance is None else float(tolerance),
+        time_origin=time_origin, parameters=dict(parameters),
+        description=document.get('description', ''), **variables)
+
+
+def _time_origin_problem(value: str) -> str | None:
+    if value == 'scenario':
+        return None
+    try:
+        datetime.datetime.fromisoformat(value)
+    except ValueError:
+        return (f"time_origin must be 'scenario' or an ISO 8601 date-time (e.g. "
+                f"'2018-04-05T00:00:00'), got {value!r}")
+    return None
+
+
+def _catalogue(path: pathlib.Path, document: dict, fmi_type: Any,
+               problems: list[str]) -> tuple[_Catalogue | None, pathlib.Path | None,
+                                             str | None]:
+    """The model's variables, its FMU (absolute) and the FMI interface used."""
+    builtin, fmu_name = document.get('builtin'), document.get('fmu')
+    if (builtin is None) == (fmu_name is None) or fmi_type not in ('auto', *FMI_TYPES):
+        return None, None, None
+    if builtin == 'r1c1':
+        if fmu_name is None and 'fmi_type' in document and fmi_type != 'auto':
+            problems.append('fmi_type: the Python R1C1 (builtin: r1c1) is not an FMU; leave '
+                            'fmi_type out')
+        return _python_catalogue(), None, None
+    if builtin == 'r1c1-fmu':
+        from mshoot_core.fmu_cache import find_fmu
+        try:
+            fmu = find_fmu('r1c1')
+        except FileNotFoundError as exc:
+            problems.append(f'builtin: {exc}')
+            return None, None, None
+    elif isinstance(fmu_name, str):
+        fmu = (path.parent / pathlib.Path(fmu_name).expanduser()).resolve()
+        if not fmu.exists():
+            problems.append(f'fmu: file not found: {fmu} (the path is relative to the card\'s '
+                            f'folder {path.parent.resolve()})')
+            return None, None, None
+    else:
+        return None, None, None
+    try:
+        md = fmpy.read_model_description(str(fmu), validate=False)
+    except Exception as exc:  # noqa: BLE001 - any unreadable FMU is a problem of the card
+        problems.append(f'fmu: cannot read the model description of {fmu}: '
+                        f'{" ".join(str(exc).split())}')
+        return None, None, None
+    if md.fmiVersion != '2.0':
+        problems.append(f'fmu: {fmu.name} is an FMI {md.fmiVersion} FMU: FMI {md.fmiVersion} '
+                        'FMUs are not supported yet (FMI 2.0 only)')
+        return None, None, None
+    available = [name for name, kind in (('ModelExchange', md.modelExchange),
+                                         ('CoSimulation', md.coSimulation)) if kind]
+    if fmi_type == 'auto':
+        interface = 'ModelExchange' if 'ModelExchange' in available else available[0]
+    else:
+        interface = FMI_TYPES[fmi_type]
+        if interface not in available:
+            problems.append(f'fmi_type: {fmu.name} offers {available} only, got {fmi_type!r}')
+            return None, fmu, None
+    label = f"{fmu.name} ({'Model Exchange' if interface == 'ModelExchange' else 'Co-Simulation'})"
+    return _fmu_catalogue(label, md, interface), fmu, interface
+
+
+def _check_variables(catalogue: _Catalogue, sections: dict[str, dict[str, dict]],
+                     problems: list[str]) -> dict[str, dict[str, CardVariable]]:
+    """The card's variables resolved against the model; problems appended."""
+    kinds = {'controls': (catalogue.inputs, 'a Real input'),
+             'disturbances': (catalogue.inputs, 'a Real input'),
+             'states': (catalogue.states, f'one of the {catalogue.state_kind}'),
+             'outputs': (catalogue.outputs, 'a Real variable (not a parameter or input)')}
+    out: dict[str, dict[str, CardVariable]] = {}
+    both = sorted(set(sections['controls']) & set(sections['disturbances']))
+    if both:
+        problems.append(f'{both} are both controls and disturbances')
+    for section in SECTIONS:
+        choices, what = kinds[section]
+        by_name = {v.name: v for v in choices}
+        resolved: dict[str, CardVariable] = {}
+        for name, spec in sections[section].items():
+            where = f'{section}.{name}'
+            variable = spec.get('variable', name)
+            found = by_name.get(variable)
+            mine: list[str] = []
+            if found is None:
+                mine.append(f'{where}: {variable!r} is not {what} of {catalogue.label}; '
+                            f'valid: {_listing(choices, variable)}')
+            elif catalogue.python and variable != name:
+                mine.append(f'{where}: the Python R1C1 keeps its own names: use {variable!r} as '
+                            'the canonical name too')
+            unit = spec.get('unit')
+            if found is not None and unit is None:
+                unit = found.unit
+            elif found is not None and found.unit and not _same_unit(unit, found.unit) and (
+                    catalogue.python or found.unit in UNITS):
+                mine.append(f'{where}: unit {unit!r} differs from the unit {found.unit!r} '
+                            f'{catalogue.label} declares for {variable!r}')
+            canonical, problem = canonical_unit(section, name, unit or '')
+            if problem and not mine:  # a unit the model contradicts is one problem
+                mine.append(problem)
+            elif problem:
+                pass
+            elif catalogue.python and not _same_unit(canonical, unit or ''):
+                mine.append(f'{where}: the Python R1C1 has no unit conversion')
+            low, high = spec.get('min'), spec.get('max')
+            if low is not None and high is not None and not low <= high:
+                mine.append(f'{where}: min {low} must be <= max {high}')
+            problems += mine
+            if mine or found is None:
+                continue
+            scale, offset = conversion(canonical, unit)
+            model_start = (None if found.start is None else (found.start - offset) / scale)
+            resolved[name] = CardVariable(
+                variable=variable, unit=unit, min=low, max=high,
+                activate=spec.get('activate'), start=spec.get('start'),
+                canonical_unit=canonical, causality=found.causality, model_start=model_start)
+        out[section] = resolved
+    _check_unique(out, problems)
+    _check_switches(catalogue, sections, problems)
+    if catalogue.python:
+        mapped = {spec.get('variable', name) for s in ('controls', 'disturbances')
+                  for name, spec in sections[s].items()}
+        missing = [v.name for v in catalogue.inputs if v.name not in mapped]
+        if missing:
+            problems.append(f'the Python R1C1 needs every input mapped: missing {missing} (as '
+                            'controls or disturbances)')
+    return out
+
+
+def _check_unique(out: dict[str, dict[str, CardVariable]], problems: list[str]) -> None:
+    inputs = [(f'{s}.{n}', v.variable) for s in ('controls', 'disturbances')
+              for n, v in out[s].items()]
+    for section, entries in (('inputs', inputs),
+                             *((s, [(f'{s}.{n}', v.variable) for n, v in out[s].items()])
+                               for s in ('states', 'outputs'))):
+        seen: dict[str, str] = {}
+        for where, variable in entries:
+            if variable in seen:
+                problems.append(f'{where}: {variable!r} is already mapped by {seen[variable]}')
+            else:
+                seen[variable] = where
+
+
+def _check_switches(catalogue: _Catalogue, sections: dict[str, dict[str, dict]],
+                    problems: list[str]) -> None:
+    mapped = {spec.get('variable', name) for s in ('controls', 'disturbances')
+              for name, spec in sections[s].items()}
+    switches = {s.name for s in catalogue.switches}
+    seen: dict[str, str] = {}
+    for name, spec in sections['controls'].items():
+        switch = spec.get('activate')
+        if switch is None:
+            continue
+        where = f'controls.{name}.activate'
+        if catalogue.python:
+            problems.append(f'{where}: the Python R1C1 has no overwrite switches')
+        elif switch not in switches:
+            problems.append(f'{where}: {switch!r} is not an input of {catalogue.label}; '
+                            f'valid: {_listing(catalogue.switches, switch)}')
+        elif switch in mapped:
+            problems.append(f'{where}: {switch!r} is mapped as a control or disturbance')
+        elif switch in seen:
+            problems.append(f'{where}: {switch!r} already activates {seen[switch]}')
+        else:
+            seen[switch] = name
+
+
+def _parameter_problems(catalogue: _Catalogue, parameters: Mapping[str, Any]) -> list[str]:
+    by_name = {v.name: v for v in catalogue.parameters}
+    problems = []
+    for name, value in parameters.items():
+        var = by_name.get(name)
+        if var is None:
+            problems.append(f'parameters.{name}: not a settable parameter of {catalogue.label};'
+                            f' valid: {_listing(catalogue.parameters, name)}')
+            continue
+        kind = {'Enumeration': 'Integer'}.get(var.type, var.type)
+        number = isinstance(value, (int, float)) and not isinstance(value, bool)
+        ok = {'Real': number and math.isfinite(float(value)) if number else False,
+              'Integer': isinstance(value, int) and not isinstance(value, bool),
+              'Boolean': isinstance(value, bool), 'String': isinstance(value, str)}.get(kind)
+        if not ok:
+            problems.append(f'parameters.{name}: expected a {kind} value for {var.label()}, '
+                            f'got {value!r}')
+    return problems
+
+
+# -- building the model -----------------------------------------------------------------------
+def builtin_card(name: str) -> pathlib.Path:
+    """Path of a built-in card: 'r1c1', 'r1c1_fmu' or 'r1c1_fmu_cs'.
+
+    Raises
+    ------
+    ValueError
+        For another name.
+    """
+    path = CARDS_DIR / f'{name}.yaml'
+    if not path.is_file():
+        names = sorted(p.stem for p in CARDS_DIR.glob('*.yaml'))
+        raise ValueError(f'no built-in card {name!r}; built-in cards: {names}')
+    return path
+
+
+def time_origin_seconds(card: ModelCard, scenario_start: str | datetime.datetime | None) -> float:
+    """Seconds from the scenario's first row to FMU time 0 (the model's ``time_origin_s``).
+
+    FMU time = scenario time [s] - this value: 0 for ``time_origin: scenario``.
+
+    Parameters
+    ----------
+    scenario_start : str or datetime or None
+        The scenario's first row (``scenario.attrs['start']``, ISO 8601).
+
+    Raises
+    ------
+    ValueError
+        If the card gives a date-time and the scenario's start is unknown, or
+        one is time-zone aware and the other not.
+    """
+    if card.time_origin == 'scenario':
+        return 0.0
+    if scenario_start is None:
+        raise ValueError(f'model card {card.path}: time_origin {card.time_origin} needs the '
+                         "scenario's start date-time")
+    origin = datetime.datetime.fromisoformat(card.time_origin)
+    start = (scenario_start if isinstance(scenario_start, datetime.datetime)
+             else datetime.datetime.fromisoformat(str(scenario_start)))
+    if (origin.tzinfo is None) != (start.tzinfo is None):
+        raise ValueError(f'model card {card.path}: time_origin {card.time_origin} and the '
+                         f'scenario start {start.isoformat()} must both have a time zone or '
+                         'neither')
+    return (origin - start).total_seconds()
+
+
+def role_tolerance(role: str) -> float:
+    """The default integrator tolerance of a role (see :mod:`mshoot_core.models.registry`)."""
+    if role not in ROLES:
+        raise ValueError(f'role must be one of {list(ROLES)}, got {role!r}')
+    return CONTROL_TOLERANCE if role == 'control' else EMULATOR_TOLERANCE
+
+
+def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
+                time_origin_s: float = 0.0, tolerance: float | None = None) -> Model:
+    """The model a card describes, speaking its canonical names and units.
+
+    Parameters
+    ----------
+    card : ModelCard or path
+        A card (paths are loaded with :func:`load_card`).
+    role : {'control', 'emulator'}
+        What the model is for: sets the default tolerance (control
+        :data:`~mshoot_core.models.registry.CONTROL_TOLERANCE`, emulator
+        :data:`~mshoot_core.models.registry.EMULATOR_TOLERANCE`) and the FMU
+        instance's name.
+    time_origin_s : float
+        Caller time [s] of FMU time 0 (see :func:`time_origin_seconds`).
+    tolerance : float, optional
+        Tolerance when the card sets none (default: that of the role).
+
+    Returns
+    -------
+    Model
+        An :class:`~mshoot_core.models.fmi.FmiModel` (a :class:`CardFmiModel`
+        where a unit converts) with inputs ``controls + disturbances``, or the
+        Python :class:`~mshoot_core.models.r1c1.R1C1Model`.
+
+    Raises
+    ------
+    CardError
+        For a card path that does not load.
+    ValueError
+        For a bad role or tolerance, or a time origin this FmiModel cannot use.
+    """
+    if not isinstance(card, ModelCard):
+        card = load_card(card)
+    default = role_tolerance(role)
+    tol = card.tolerance if card.tolerance is not None else (
+        default if tolerance is None else tolerance)
+    if isinstance(tol, bool) or not 0.0 < float(tol) < 1.0:
+        raise ValueError(f'tolerance must be in (0, 1), got {tol!r}')
+    if card.builtin == 'r1c1':
+        from mshoot_core.models.r1c1 import R1C1Model, R1C1Parameters
+        return R1C1Model(R1C1Parameters(**card.parameters))
+    options: dict[str, Any] = {}
+    if 'time_origin_s' in inspect.signature(FmiModel).parameters:
+        options['time_origin_s'] = float(time_origin_s)
+    elif time_origin_s:
+        raise ValueError(f'model card {card.path}: time_origin {card.time_origin} needs '
+                         'absolute FMU time, which this FmiModel does not support yet')
+    conversions = _Conversions.of(card)
+    cls, extra = (FmiModel, {}) if conversions.identity else (CardFmiModel,
+                                                              {'conversions': conversions})
+    fixed = {v.activate: 1 for v in card.controls.values() if v.activate is not None}
+    model = cls(card.fmu,
+                inputs={n: v.variable for s in ('controls', 'disturbances')
+                        for n, v in getattr(card, s).items()},
+                states={n: v.variable for n, v in card.states.items()},
+                outputs={n: v.variable for n, v in card.outputs.items()},
+                parameters=card.parameters, tolerance=float(tol), fmi_type=card.interface,
+                instance_name=f'mshoot-{role}', fixed_inputs=fixed, **extra, **options)
+    logger.debug('built %r from %s for the %s', model, card.path, role)
+    return model
+
+
+# -- unit conversion at the boundary ----------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class _Conversions:
+    """Affine maps canonical -> model units: model = scale * canonical + offset."""
+
+    u_scale: np.ndarray
+    u_offset: np.ndarray
+    x_scale: np.ndarray
+    x_offset: np.ndarray
+    y_scale: np.ndarray
+    y_offset: np.ndarray
+
+    @classmethod
+    def of(cls, card: ModelCard) -> _Conversions:
+        def pairs(variables: Sequence[CardVariable]) -> tuple[np.ndarray, np.ndarray]:
+            values = np.array([v.conversion() for v in variables], dtype=float).reshape(-1, 2)
+            return values[:, 0].copy(), values[:, 1].copy()
+
+        inputs = [*card.controls.values(), *card.disturbances.values()]
+        return cls(*pairs(inputs), *pairs(list(card.states.values())),
+                   *pairs(list(card.outputs.values())))
+
+    @property
+    def identity(self) -> bool:
+        return all(np.all(s == 1.0) and np.all(o == 0.0) for s, o in (
+            (self.u_scale, self.u_offset), (self.x_scale, self.x_offset),
+            (self.y_scale, self.y_offset)))
+
+
+class CardFmiModel(FmiModel):
+    """An :class:`~mshoot_core.models.fmi.FmiModel` whose units differ from the canonical
+    ones: values are converted at the boundary of every public method (inputs and states
+    in, states and outputs out, derivatives scaled), so the applications see canonical
+    units while the FMU sees its own.
+
+    Parameters
+    ----------
+    conversions : _Conversions
+        The affine maps (from :func:`build_model`).
+    *args, **kwargs
+        Those of :class:`~mshoot_core.models.fmi.FmiModel`.
+    """
+
+    def __init__(self, *args: Any, conversions: _Conversions, **kwargs: Any) -> None:
+        self.conversions = conversions
+        super().__init__(*args, **kwargs)
+
+    # canonical -> model
+    def _u_in(self, u: np.ndarray) -> np.ndarray:
+        c = self.conversions
+        return np.asarray(u, dtype=float) * c.u_scale + c.u_offset
+
+    def _x_in(self, x: np.ndarray) -> np.ndarray:
+        c = self.conversions
+        return np.asarray(x, dtype=float) * c.x_scale + c.x_offset
+
+    # model -> canonical
+    def _x_out(self, x: np.ndarray) -> np.ndarray:
+        c = self.conversions
+        return (np.asarray(x, dtype=float) - c.x_offset) / c.x_scale
+
+    def _y_out(self, y: np.ndarray) -> np.ndarray:
+        c = self.conversions
+        return (np.asarray(y, dtype=float) - c.y_offset) / c.y_scale
+
+    def _frames_in(self, udf: pd.DataFrame,
+                   x0: Sequence[float]) -> tuple[pd.DataFrame, np.ndarray]:
+        _, u, x0_arr = self.check_inputs(udf, x0)
+        converted = pd.DataFrame(self._u_in(u), index=udf.index, columns=list(self.input_names))
+        return converted, self._x_in(x0_arr)
+
+    def _frames_out(self, ydf: pd.DataFrame, xdf: pd.DataFrame,
+                    x0: Sequence[float]) -> tuple[pd.DataFrame, pd.DataFrame]:
+        ydf = pd.DataFrame(self._y_out(ydf.to_numpy()), index=ydf.index, columns=ydf.columns)
+        xdf = pd.DataFrame(self._x_out(xdf.to_numpy()), index=xdf.index, columns=xdf.columns)
+        xdf.iloc[0] = np.asarray(x0, dtype=float).reshape(-1)
+        return ydf, xdf
+
+    def simulate(self, udf: pd.DataFrame,
+                 x0: Sequence[float]) -> tuple[pd.DataFrame, pd.DataFrame]:
+        """:meth:`FmiModel.simulate` in canonical units."""
+        converted, x0_model = self._frames_in(udf, x0)
+        ydf, xdf = super().simulate(converted, x0_model)
+        return self._frames_out(ydf, xdf, x0)
+
+    def simulate_fresh(self, udf: pd.DataFrame,
+                       x0: Sequence[float]) -> tuple[pd.DataFrame, pd.DataFrame]:
+        """:meth:`FmiModel.simulate_fresh` in canonical units."""
+        converted, x0_model = self._frames_in(udf, x0)
+        ydf, xdf = super().simulate_fresh(converted, x0_model)
+        return self._frames_out(ydf, xdf, x0)
+
+    def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
+                           *args: Any, **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`FmiModel.simulate_intervals` in canonical units."""
+        x_start, u = Model._check_batch(self, x_start, u)
+        x_end, y_end = super().simulate_intervals(self._x_in(x_start), self._u_in(u), dt_s,
+                                                  *args, **kwargs)
+        return self._x_out(x_end), self._y_out(y_end)
+
+    def interval_jacobians(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
+                           wrt_inputs: Sequence[int], *args: Any,
+                           **kwargs: Any) -> IntervalJacobians | None:
+        """:meth:`FmiModel.interval_jacobians` in canonical units (derivatives scaled)."""
+        x_start, u = Model._check_batch(self, x_start, u)
+        jac = super().interval_jacobians(self._x_in(x_start), self._u_in(u), dt_s, wrt_inputs,
+                                         *args, **kwargs)
+        if jac is None:
+            return None
+        c = self.conversions
+        su = c.u_scale[[int(j) for j in wrt_inputs]]
+        sx_row, sy_row = (1.0 / c.x_scale)[None, :, None], (1.0 / c.y_scale)[None, :, None]
+        return IntervalJacobians(
+            self._x_out(jac.x_end), self._y_out(jac.y_end),
+            jac.dx_dx0 * sx_row * c.x_scale[None, None, :], jac.dx_du * sx_row * su[None, None],
+            jac.dy_dx0 * sy_row * c.x_scale[None, None, :], jac.dy_du * sy_row * su[None, None])
+
+
+# -- what a card maps (the card check) --------------------------------------------------------
+def describe(card: ModelCard) -> list[dict[str, str]]:
+    """One row per mapped variable: section, canonical name, model variable, causality,
+    model unit, canonical unit and the conversion (``model = a * canonical + b``)."""
+    rows = []
+    for section in SECTIONS:
+        for name, v in getattr(card, section).items():
+            scale, offset = v.conversion()
+            if scale == 1.0 and offset == 0.0:
+                how = '-'
+            else:
+                how = f'{v.unit or "1"} = {scale:g} * {v.canonical_unit or "1"}' + (
+                    f' {"+" if offset >= 0 else "-"} {abs(offset):g}' if offset else '')
+            extra = []
+            if v.min is not None or v.max is not None:
+                extra.append(f'[{_bound(v.min, "-inf")}, {_bound(v.max, "inf")}]')
+            if v.activate:
+                extra.append(f'{v.activate} := 1')
+            if v.start is not None:
+                extra.append(f'start {v.start:g}')
+            rows.append({'section': section[:-1] if section != 'disturbances' else 'disturbance',
+                         'name': name, 'variable': v.variable, 'causality': v.causality,
+                         'unit': v.unit or '1', 'canonical': v.canonical_unit or '1',
+                         'conversion': how, 'notes': '; '.join(extra)})
+    return rows
+
+
+def _bound(value: float | None, default: str) -> str:
+    return default if value is None else f'{value:g}'

@@ -1,0 +1,124 @@
+"""Model cards from the command line: check a card against its model, list an FMU's variables.
+
+    mshoot card check CARD.yaml      # validate; print what the card maps (exit 2: every problem)
+    mshoot card variables MODEL.fmu  # every variable of an FMU: causality, type, unit, start
+
+A card (YAML, see :mod:`mshoot_core.models.card`) describes a zone model once
+for the case command (``mshoot case ... --control CARD.yaml --emulator
+CARD.yaml``), the Python API and the ROS nodes. The built-in cards are in
+``mshoot_core/cards/``.
+"""
+from __future__ import annotations
+
+import argparse
+import pathlib
+import sys
+from typing import Sequence, TextIO
+
+from mshoot_core.models import card as cards
+from mshoot_core.models.registry import CONTROL_TOLERANCE, EMULATOR_TOLERANCE
+
+#: Columns of the mapping table of ``card check``.
+COLUMNS = (('section', 'section'), ('name', 'name'), ('variable', 'model variable'),
+           ('causality', 'causality'), ('unit', 'unit'), ('canonical', 'canonical'),
+           ('conversion', 'conversion'), ('notes', 'notes'))
+
+
+def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    """The command line of the card tools: fills ``parser`` (the ``card`` verb of ``mshoot``),
+    or a new parser when None."""
+    if parser is None:
+        parser = argparse.ArgumentParser(prog='python -m mshoot_studies.card',
+                                         description=__doc__,
+                                         formatter_class=argparse.RawDescriptionHelpFormatter)
+    actions = parser.add_subparsers(title='actions', dest='action', metavar='ACTION',
+                                    required=True)
+    check = actions.add_parser('check', help='validate a model card against its model and '
+                                             'print what it maps (exit 2 with every problem)')
+    check.add_argument('card', type=pathlib.Path, help='the model card (.yaml)')
+    listing = actions.add_parser('variables', help="list an FMU's variables (name, causality, "
+                                                   'type, unit, start), to write a card')
+    listing.add_argument('fmu', type=pathlib.Path, help='the FMU (.fmu file or folder)')
+    listing.add_argument('--causality', default=None,
+                         help='only variables of this causality (input, output, parameter, '
+                              'local, ...)')
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Parse ``argv`` (default: the process arguments) and run; the exit code."""
+    return run(build_parser().parse_args(argv))
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the action parsed by :func:`build_parser`: 0, or 2 on a bad card or FMU."""
+    if args.action == 'variables':
+        return list_variables(args.fmu, args.causality, sys.stdout, sys.stderr)
+    return check(args.card, sys.stdout, sys.stderr)
+
+
+def check(path: pathlib.Path, out: TextIO, err: TextIO) -> int:
+    """Validate the card at ``path``; print its mapping to ``out`` (0) or every problem to
+    ``err`` (2)."""
+    try:
+        card = cards.load_card(path)
+    except cards.CardError as exc:
+        count = len(exc.problems)
+        err.write(f'model card {exc.path}: {count} problem{"s" if count != 1 else ""}\n')
+        err.write(''.join(f'  - {problem}\n' for problem in exc.problems))
+        return 2
+    out.write(f'model card {card.path}: OK\n')
+    if card.description:
+        out.write(f'  {card.description}\n')
+    if card.builtin == 'r1c1':
+        out.write('model: the Python R1C1 (exact per-interval solution)\n')
+    else:
+        what = f'builtin {card.builtin}: ' if card.builtin else ''
+        out.write(f'model: {what}{card.fmu} as {card.interface} (fmi_type {card.fmi_type})\n')
+        tolerance = (f'{card.tolerance:g}' if card.tolerance is not None else
+                     f'that of the role (control {CONTROL_TOLERANCE:g}, emulator '
+                     f'{EMULATOR_TOLERANCE:g})')
+        out.write(f'tolerance: {tolerance}; time origin: {card.time_origin}\n')
+    if card.parameters:
+        out.write('parameters: ' + ', '.join(f'{k} = {v!r}' for k, v in card.parameters.items())
+                  + '\n')
+    rows = cards.describe(card)
+    widths = {key: max(len(title), *(len(r[key]) for r in rows)) for key, title in COLUMNS}
+    line = '  '.join(title.ljust(widths[key]) for key, title in COLUMNS)
+    out.write(line.rstrip() + '\n')
+    for row in rows:
+        out.write('  '.join(row[key].ljust(widths[key]) for key, _ in COLUMNS).rstrip() + '\n')
+    out.write(f'model inputs: {list(card.input_names)} (controls {list(card.control_names)}); '
+              f'states: {list(card.state_names)}; outputs: {list(card.output_names)}\n')
+    return 0
+
+
+def list_variables(path: pathlib.Path, causality: str | None, out: TextIO,
+                   err: TextIO) -> int:
+    """Print every variable of the FMU at ``path`` (0), or why it cannot be read (2)."""
+    import fmpy
+    if not path.exists():
+        err.write(f'FMU not found: {path}\n')
+        return 2
+    try:
+        md = fmpy.read_model_description(str(path), validate=False)
+    except Exception as exc:  # noqa: BLE001 - any unreadable FMU: one line, exit 2
+        err.write(f'cannot read the model description of {path}: {" ".join(str(exc).split())}\n')
+        return 2
+    interfaces = [name for name, kind in (('Model Exchange', md.modelExchange),
+                                          ('Co-Simulation', md.coSimulation)) if kind]
+    out.write(f'{path}: FMI {md.fmiVersion}, {md.modelName}, {" and ".join(interfaces)}\n')
+    rows = [v for v in cards.fmu_variables(md)
+            if causality is None or v.causality.split(',')[0] == causality]
+    header = ('name', 'causality', 'variability', 'type', 'unit', 'start')
+    table = [(v.name, v.causality, v.variability, v.type, v.unit,
+              '' if v.start is None else f'{v.start:g}') for v in rows]
+    widths = [max(len(h), *(len(r[i]) for r in table)) if table else len(h)
+              for i, h in enumerate(header)]
+    for row in (header, *table):
+        out.write('  '.join(c.ljust(w) for c, w in zip(row, widths)).rstrip() + '\n')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,62 @@
+"""Test FMUs of the model-card tests, built from ``tests/fmus/`` with gcc (not by the runtime).
+
+- ``zone``: an R1C1 zone with names of its own (state ``cair.T``, inputs ``solrad, Tout, occ,
+  q``, no ``dpos``; outputs ``T, Qr``), Model Exchange and Co-Simulation;
+- ``zone2``: the same zone with a second control, a cooler ``Pcool`` in kW behind the overwrite
+  switch ``Pcool_activate`` (Boolean).
+
+Each FMU is built once per source hash into ``$MSHOOT_FMU_DIR/tests`` (the FMU cache's base),
+so test sessions share the build.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import pathlib
+import subprocess
+import uuid
+import zipfile
+
+from mshoot_core.fmu_build import CFLAGS, find_compiler
+from mshoot_core.fmu_cache import cache_dir, FMI2_HEADERS, platform, SOURCE_DIR
+
+FMU_SOURCES = pathlib.Path(__file__).resolve().parent / 'fmus'
+#: name -> (model identifier, C file, modelDescription template, compiler defines)
+TEST_FMUS = {
+    'zone': ('Zone', 'zone.c', 'zone.xml', ()),
+    'zone2': ('Zone2', 'zone.c', 'zone2.xml', ('-DTWO_CONTROLS',)),
+}
+
+
+def build_test_fmu(name: str) -> pathlib.Path:
+    """The test FMU ``name`` (a key of :data:`TEST_FMUS`), built if not built yet."""
+    identifier, c_file, template, defines = TEST_FMUS[name]
+    sources = [FMU_SOURCES / c_file, FMU_SOURCES / template,
+               *(SOURCE_DIR / h for h in FMI2_HEADERS)]
+    digest = hashlib.sha256()
+    for path in sources:
+        digest.update(path.read_bytes())
+    digest.update(' '.join((*CFLAGS, *defines)).encode())
+    key = digest.hexdigest()[:16]
+    target = cache_dir() / 'tests' / key / f'{identifier}.fmu'
+    if target.is_file():
+        return target
+    target.parent.mkdir(parents=True, exist_ok=True)
+    guid = '{' + str(uuid.uuid5(uuid.NAMESPACE_URL, f'mshoot-test-fmu:{name}:{key}')) + '}'
+    platform_dir, suffix = platform()
+    library = target.parent / f'.{identifier}.{os.getpid()}{suffix}'
+    command = [find_compiler(), *CFLAGS, *defines, f'-DMODEL_GUID="{guid}"', '-I',
+               str(SOURCE_DIR), '-o', str(library), str(FMU_SOURCES / c_file), '-lm']
+    result = subprocess.run(command, capture_output=True, text=True, check=False)
+    if result.returncode != 0:
+        raise RuntimeError(f'compiling the {name} test FMU failed:\n{result.stderr}')
+    description = (FMU_SOURCES / template).read_text(encoding='utf-8')
+    description = description.replace('@GUID@', guid)
+    description = description.replace('@DATETIME@', '2026-01-01T00:00:00Z')
+    staged = target.parent / f'.{target.name}.{os.getpid()}.tmp'
+    with zipfile.ZipFile(staged, 'w', compression=zipfile.ZIP_DEFLATED) as archive:
+        archive.writestr('modelDescription.xml', description)
+        archive.write(library, f'binaries/{platform_dir}/{identifier}{suffix}')
+    library.unlink()
+    os.replace(staged, target)
+    return target
