@@ -279,8 +279,8 @@ class Soak:
             non_finite += not all(math.isfinite(v) for v in values)
             first_status.setdefault(stamp_to_ns(msg.header.stamp), msg)
         for msg in setpoints:
-            values = (msg.heat_rate_w, msg.temperature_setpoint_c, *msg.plan_heat_rate_w,
-                      *msg.plan_temperature_c)
+            values = (*msg.control_values, *msg.temperature_setpoints_c, *msg.plan_controls,
+                      *msg.plan_temperatures_c)
             non_finite += not all(math.isfinite(v) for v in values)
         sources = collections.Counter(s.source for s in first_status.values())
         solve_s = np.array([s.solve_time_s for s in first_status.values()

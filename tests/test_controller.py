@@ -240,7 +240,7 @@ def test_core_and_ros_make_the_same_decisions(fault, ros_context):
         loop.close()
     assert [s.source for s in statuses] == steps['source'].tolist()
     assert [s.fallback_reason for s in statuses] == steps['fallback_code'].tolist()
-    np.testing.assert_allclose([s.heat_rate_w for s in setpoints], steps['q'], rtol=0,
+    np.testing.assert_allclose([s.control_values[0] for s in setpoints], steps['q'], rtol=0,
                                atol=1e-9)
     expected = {'raise': 'solve_failed', 'nan': 'not_converged', 'fail': 'not_converged',
                 'late': 'budget'}[fault]
