@@ -255,6 +255,35 @@ def unflatten(field: str, names: Sequence[str], values: Sequence[float], samples
     return {name: x[i].copy() for i, name in enumerate(names)}, None
 
 
+def named_series(series_names: Sequence[str], series_values: Sequence[float],
+                 comfort_min_c: Sequence[float], comfort_max_c: Sequence[float],
+                 price_per_kwh: Sequence[float] = (),
+                 limits: Limits = LIMITS) -> tuple[dict[str, np.ndarray], Rejection | None]:
+    """The series of a forecast by name from its message form: disturbance series flattened
+    name-major with n = ``len(comfort_min_c)`` samples each, the comfort band and the price
+    (none when empty); what :func:`check_forecast` then validates.
+
+    Returns
+    -------
+    (series, rejection)
+        ``rejection`` when the names repeat, clash with the comfort band or the price, or
+        the flattened values do not hold n samples per name (then ``series`` is empty).
+    """
+    series, rejection = unflatten('forecast series_names', series_names, series_values,
+                                  len(comfort_min_c), limits)
+    if rejection:
+        return {}, rejection
+    clash = [name for name in (*COMFORT_SERIES, PRICE_SERIES) if name in series]
+    if clash:
+        return {}, Rejection('names', f'forecast series_names {clash} clash with the '
+                             'dedicated comfort and price fields')
+    series['comfort_min'] = np.asarray(comfort_min_c, dtype=float)
+    series['comfort_max'] = np.asarray(comfort_max_c, dtype=float)
+    if len(price_per_kwh):
+        series[PRICE_SERIES] = np.asarray(price_per_kwh, dtype=float)
+    return series, None
+
+
 def check_zone_state(state_names: Sequence[str], state_values: Sequence[float],
                      output_names: Sequence[str] = (), output_values: Sequence[float] = (),
                      control_names: Sequence[str] = (), control_values: Sequence[float] = (),

@@ -18,7 +18,7 @@ from __future__ import annotations
 from typing import Iterable, Mapping, Sequence, TYPE_CHECKING
 
 from builtin_interfaces.msg import Time
-from mshoot_core.safety import COMFORT_SERIES, PRICE_SERIES, Rejection, unflatten
+from mshoot_core.safety import named_series, PRICE_SERIES, Rejection
 from mshoot_msgs.msg import Disturbances, Forecast, MpcStatus, Setpoint, ZoneState
 import numpy as np
 import pandas as pd
@@ -179,30 +179,18 @@ def forecast_length(msg: Forecast) -> int:
 
 def forecast_series(msg: Forecast) -> tuple[dict[str, np.ndarray], Rejection | None]:
     """The series of a forecast by name: its disturbances, ``comfort_min``,
-    ``comfort_max`` and ``price`` (when given), unchecked but for the flattening
-    (:func:`mshoot_core.safety.unflatten`); what
+    ``comfort_max`` and ``price`` (when given), checked for their names and lengths only
+    (:func:`mshoot_core.safety.named_series`); what
     :func:`mshoot_core.safety.check_forecast` validates.
 
     Returns
     -------
     (series, rejection)
-        ``rejection`` when the names repeat or the flattened values do not
+        ``rejection`` when the names repeat or clash, or the flattened values do not
         hold one series of n samples per name (then ``series`` is empty).
     """
-    n = forecast_length(msg)
-    series, rejection = unflatten('forecast series_names', list(msg.series_names),
-                                  msg.series_values, n)
-    if rejection:
-        return {}, rejection
-    clash = [name for name in (*COMFORT_SERIES, PRICE_SERIES) if name in series]
-    if clash:
-        return {}, Rejection('names', f'forecast series_names {clash} clash with the '
-                             'dedicated comfort and price fields')
-    series['comfort_min'] = np.asarray(msg.comfort_min_c, dtype=float)
-    series['comfort_max'] = np.asarray(msg.comfort_max_c, dtype=float)
-    if len(msg.price_per_kwh):
-        series[PRICE_SERIES] = np.asarray(msg.price_per_kwh, dtype=float)
-    return series, None
+    return named_series(list(msg.series_names), msg.series_values, msg.comfort_min_c,
+                        msg.comfort_max_c, msg.price_per_kwh)
 
 
 def forecast_to_frame(msg: Forecast, assumed: Mapping[str, float] | None = None) -> pd.DataFrame:
