@@ -142,12 +142,15 @@ def test_bad_configuration_exits_non_zero_with_the_reason(tmp_path, r2c2_fmu):
 
 
 def test_bringups_exit_2_with_one_line_on_a_bad_configuration(tmp_path):
-    """A bad FMU, a missing one, models that do not fit together, a bad scenario: the
-    bring-ups say why in one line and exit 2 (no traceback), as the node executables do."""
+    """A bad FMU, a missing one, models that do not fit together, a bad parameter file, a bad
+    scenario: the bring-ups say why in one line and exit 2 (no traceback), as the node
+    executables do."""
     bad_fmu = tmp_path / 'zone.fmu'
     bad_fmu.write_text('not a zip archive')
     bad_csv = tmp_path / 'bad.csv'
     bad_csv.write_text('datetime,T,solrad\n2018-04-05 00:00,20,0\n')
+    bad_yaml = tmp_path / 'bad.yaml'
+    bad_yaml.write_text('mpc: [unclosed\n')
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='OFF')
     bringup = executable('bringup', 'bringup')
     common = ['--hours', '2', '--no-bag', '--out', str(tmp_path / 'out')]
@@ -161,6 +164,10 @@ def test_bringups_exit_2_with_one_line_on_a_bad_configuration(tmp_path):
                      "the MPC's model 'r1c1x2' (states ['T_0', 'T_1'], controls ['q_0', "
                      "'q_1']) does not match the emulator's 'python' (states ['T'], controls "
                      "['q'])"),
+        'params_file': (bringup + common + ['--params-file', str(tmp_path / 'none.yaml')],
+                        f"parameter file(s) ['{tmp_path / 'none.yaml'}'] not found"),
+        'bad_yaml': (bringup + common + ['--params-file', str(bad_yaml)],
+                     "Couldn't parse params file"),
         'processes': (executable('bringup_processes', 'processes')
                       + ['--scenario', str(bad_csv), '--hours', '2', '--out',
                          str(tmp_path / 'processes')],

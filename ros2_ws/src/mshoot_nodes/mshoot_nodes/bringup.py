@@ -251,8 +251,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = args.discovery
     logging.basicConfig(level=logging.WARNING, format='%(levelname)s %(name)s: %(message)s')
     params_files = args.params_file or default_params_files(args.scenario)
+    missing = [str(path) for path in params_files if not pathlib.Path(path).is_file()]
+    if missing:
+        print(f'[demo] error: parameter file(s) {missing} not found', file=sys.stderr)
+        return EXIT_CONFIG
     context = Context()
-    rclpy.init(args=ros_args(params_files), context=context)
+    try:
+        rclpy.init(args=ros_args(params_files), context=context)
+    except Exception as exc:  # noqa: BLE001 - e.g. a YAML file rcl cannot parse
+        print(f'[demo] error: {startup_reason(exc)}', file=sys.stderr)
+        return EXIT_CONFIG
     if not args.verbose:
         for name in NODE_NAMES:
             rclpy.logging.set_logger_level(name, LoggingSeverity.WARN)
@@ -279,14 +287,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             run = run_in_process(context, node_params_from_args(args), record=not args.no_bag,
                                  timeout_s=args.timeout, progress=progress,
                                  stop=lambda: signals.requested)
-    except StartupError as exc:
+    except StartupError as exc:  # the configuration: nothing ran
         print(f'[demo] error: {exc}', file=sys.stderr)
         rclpy.try_shutdown(context=context)
         return EXIT_CONFIG
     except (InvalidParameterValueException, ValueError, FileNotFoundError) as exc:
-        print(f'[demo] error: {startup_reason(exc)}', file=sys.stderr)
+        print(f'[demo] error: the run failed: {startup_reason(exc)}', file=sys.stderr)
         rclpy.try_shutdown(context=context)
-        return EXIT_CONFIG
+        return 1
     except (TimeoutError, KeyboardInterrupt, InterruptedError) as exc:
         why = f'{signals.received}: ' if signals.received else ''
         print(f'[demo] stopped: {why}{exc or "interrupted"}', file=sys.stderr)
