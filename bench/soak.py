@@ -189,7 +189,7 @@ class Soak:
         want_emulator = emulator.rejections.total()
         now = mpc.get_clock().now().nanoseconds
         floor = (now // STEP_NS) * STEP_NS
-        latest = mpc._state_gate.latest_ns or floor  # noqa: SLF001 - the soak knows the node
+        latest = mpc.controller._state_gate.latest_ns or floor  # noqa: SLF001 - the soak knows it
         for _ in range(int(rng.integers(1, 6))):
             defect = str(rng.choice(STATE_DEFECTS))
             self.chaos_state.publish(malformed_zone_state(defect, now, latest, STEP_NS, rng))
@@ -202,7 +202,7 @@ class Soak:
         self.published.watch(self.chaos)
         self.loop.spin_until(lambda: forecasts.get_subscription_count() >= 2, 5.0,
                              'the chaos forecast publisher to match')
-        latest_forecast = mpc._forecast_gate.latest_ns or floor  # noqa: SLF001
+        latest_forecast = mpc.controller._forecast_gate.latest_ns or floor  # noqa: SLF001
         for _ in range(int(rng.integers(1, 4))):
             defect = str(rng.choice(FORECAST_DEFECTS))
             forecasts.publish(malformed_forecast(defect, now, latest_forecast, STEP_NS, rng))
@@ -279,8 +279,8 @@ class Soak:
             non_finite += not all(math.isfinite(v) for v in values)
             first_status.setdefault(stamp_to_ns(msg.header.stamp), msg)
         for msg in setpoints:
-            values = (msg.heat_rate_w, msg.temperature_setpoint_c, *msg.plan_heat_rate_w,
-                      *msg.plan_temperature_c)
+            values = (*msg.control_values, *msg.temperature_setpoints_c, *msg.plan_controls,
+                      *msg.plan_temperatures_c)
             non_finite += not all(math.isfinite(v) for v in values)
         sources = collections.Counter(s.source for s in first_status.values())
         solve_s = np.array([s.solve_time_s for s in first_status.values()

@@ -28,9 +28,15 @@ def test_custom_types_come_from_the_installed_msg_files():
         assert f'mshoot_msgs/msg/{name}' in store.types
     # rosbags serialises like rclpy: the definitions match the generated classes.
     from rclpy.serialization import serialize_message
-    msg = zone_state_msg(7 * 10 ** 9, 294.0, 12.5, 'zone_a')
+    msg = zone_state_msg(7 * 10 ** 9, {'T_0': 294.0, 'T_1': 295.5}, {'Tc_0': 20.85},
+                         {'q_0': 12.5, 'q_1': -3.0}, 'zone_a')
     decoded = store.deserialize_cdr(serialize_message(msg), 'mshoot_msgs/msg/ZoneState')
-    assert decoded.temperature_c == msg.temperature_c and decoded.header.frame_id == 'zone_a'
+    assert decoded.header.frame_id == 'zone_a'
+    assert list(decoded.state_names) == ['T_0', 'T_1']
+    assert decoded.state_values.tolist() == [294.0, 295.5]
+    assert list(decoded.control_names) == ['q_0', 'q_1']
+    assert decoded.control_values.tolist() == [12.5, -3.0]
+    assert list(decoded.output_names) == ['Tc_0'] and decoded.output_values.tolist() == [20.85]
 
 
 def test_qos_round_trip_through_the_metadata_form():
@@ -60,7 +66,8 @@ def test_sqlite3_bag_of_a_short_run(context, tmp_path):
     with sqlite3.connect(db) as con:
         definitions = dict(con.execute('SELECT topic_type, encoded_message_definition '
                                        'FROM message_definitions'))
-    assert 'float64 temperature_c' in definitions['mshoot_msgs/msg/ZoneState']
+    assert 'string[] state_names' in definitions['mshoot_msgs/msg/ZoneState']
+    assert 'float64[] plan_controls' in definitions['mshoot_msgs/msg/Setpoint']
     states = read_messages(bag, contract.ZONE_STATE)
     assert [stamp_to_ns(s.header.stamp) for s in states][:5] == sorted(
         {stamp_to_ns(s.header.stamp) for s in states})
@@ -82,7 +89,7 @@ def test_recorder_discovers_other_topics_and_replayer_filters(context, tmp_path)
     spin_until(executor, lambda: talker.count_subscribers('/chatter') > 0)
     for k in range(3):
         chatter.publish(String(data=f'hello {k}'))
-        state.publish(zone_state_msg(k * 10 ** 9 + 1, 293.15 + k, 0.0))
+        state.publish(zone_state_msg(k * 10 ** 9 + 1, {'T': 293.15 + k}))
     spin_until(executor, lambda: recorder.counts['/chatter'] == 3
                and recorder.counts[contract.ZONE_STATE] == 3)
     recorder.destroy_node()

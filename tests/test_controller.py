@@ -11,9 +11,10 @@ import threading
 import time
 
 from mshoot_core.closed_loop import forecast_window, run_closed_loop
-from mshoot_core.controller import Controller
+from mshoot_core.controller import Controller, controller_for
 from mshoot_core.emulation import Emulator
 from mshoot_testing.faults import FaultyModel, FaultySolver
+from mshoot_core.models.multizone import MultiZoneModel
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import reference_scenario, synthetic_scenario
@@ -85,6 +86,52 @@ def test_bad_inputs_are_rejected_counted_and_never_solved():
     [outcome] = controller.poll(STEP_NS + 1)
     assert outcome.decision.source == 'optimum' and outcome.result.success
     assert controller.offer_state(0, [293.15], STEP_NS + 2).kind == 'backwards'
+
+
+def test_named_inputs_are_checked_against_the_model():
+    """Two zones: states by name in any order; unknown, missing or repeated names, a series
+    the model does not know, a bad price: rejected with kind 'names' (or the value's)."""
+    scenario = synthetic_scenario(hours=6)
+    controller = controller_for(MultiZoneModel(2), MpcSettings.from_flat(horizon_steps=3),
+                                assumed_inputs={'dpos': 0.0})
+    assert controller.interface.control_names == ('q_0', 'q_1')
+    assert controller.mpc.state_bounds == {'T_0': ('comfort_min', 'comfort_max', KELVIN),
+                                           'T_1': ('comfort_min', 'comfort_max', KELVIN)}
+    assert controller.forecast_required == ('solrad', 'Tout', 'occ', 'comfort_min',
+                                            'comfort_max')
+    offer_state = controller.offer_named_state
+    rejected = [
+        offer_state(0, ['T_0'], [293.0], 0),  # missing T_1
+        offer_state(0, ['T_0', 'T_1', 'T_2'], [293.0, 294.0, 295.0], 0),
+        offer_state(0, ['T_0', 'T_0'], [293.0, 293.0], 0),
+        offer_state(0, ['T_0', 'T_1'], [293.0], 0),
+        offer_state(0, ['T_0', 'T_1'], [293.0, 294.0], 0, control_names=['q'],
+                    control_values=[10.0]),
+        offer_state(0, ['T_0', 'T_1'], [293.0, 394.0], 0),
+        offer_state(0, ['T_0', 'T_1'], [293.0, 294.0], 0, output_names=['Tc_0'],
+                    output_values=[np.nan]),
+    ]
+    assert [r.kind for r in rejected] == ['names', 'names', 'names', 'length', 'names',
+                                          'out_of_range', 'non_finite']
+    assert "state lacks ['T_1']" in rejected[0].reason
+    assert "control has unknown ['q']" in rejected[4].reason
+    # Any order: put in the model's order.
+    assert offer_state(0, ['T_1', 'T_0'], [294.0, 293.0], 0, control_names=['q_1'],
+                       control_values=[5.0]) is None
+    np.testing.assert_array_equal(controller._state_for(0), [293.0, 294.0])  # noqa: SLF001
+    window = forecast_window(scenario, 0, 3)
+    series = {c: window[c].to_numpy() for c in ('Tout', 'solrad', 'occ', 'comfort_min',
+                                                'comfort_max')}
+    assert controller.offer_forecast(0, 3600.0, dict(series, Tsky=series['Tout']),
+                                     0).kind == 'names'
+    missing = {k: v for k, v in series.items() if k != 'occ'}
+    assert controller.offer_forecast(0, 3600.0, missing, 0).kind == 'length'
+    assert controller.offer_forecast(0, 3600.0, dict(series, price=np.full(4, 1e6)),
+                                     0).kind == 'out_of_range'
+    assert controller.offer_forecast(0, 3600.0, dict(series, price=np.full(4, 0.3)), 0) is None
+    [outcome] = controller.poll(0)
+    assert outcome.decision.source == 'optimum'
+    assert outcome.decision.controls.shape == (2,)
 
 
 def test_stale_state_falls_back_on_the_last_good_plan():
@@ -239,7 +286,7 @@ def test_core_and_ros_make_the_same_decisions(fault, context):
         loop.close()
     assert [s.source for s in statuses] == steps['source'].tolist()
     assert [s.fallback_reason for s in statuses] == steps['fallback_code'].tolist()
-    np.testing.assert_allclose([s.heat_rate_w for s in setpoints], steps['q'], rtol=0,
+    np.testing.assert_allclose([s.control_values[0] for s in setpoints], steps['q'], rtol=0,
                                atol=1e-9)
     expected = {'raise': 'solve_failed', 'nan': 'not_converged', 'fail': 'not_converged',
                 'late': 'budget'}[fault]

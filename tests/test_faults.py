@@ -24,7 +24,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
 from mshoot_nodes import contract
-from mshoot_nodes.conversions import fallback_setpoint_msg, NS_PER_S, stamp_to_ns
+from mshoot_nodes.conversions import NS_PER_S, setpoint_msg, setpoint_plan, stamp_to_ns
 from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_testing.faults import FaultyModel, FaultySolver
 from mshoot_testing.harness import ClosedLoop
@@ -52,14 +52,15 @@ def step_stamps(loop):
 def assert_one_sane_setpoint_per_step(loop, hours):
     assert step_stamps(loop) == [EPOCH_NS + k * STEP_NS for k in range(hours)]
     for setpoint, status in loop.mpc_history():
-        values = [setpoint.heat_rate_w, setpoint.temperature_setpoint_c, status.objective,
-                  status.max_defect, status.solve_time_s, *setpoint.plan_heat_rate_w,
-                  *setpoint.plan_temperature_c]
+        values = [*setpoint.control_values, *setpoint.temperature_setpoints_c, status.objective,
+                  status.max_defect, status.solve_time_s, *setpoint.plan_controls,
+                  *setpoint.plan_temperatures_c]
         assert np.all(np.isfinite(values))
-        assert -2000.0 <= setpoint.heat_rate_w <= 2000.0
+        assert list(setpoint.control_names) == ['q']
+        assert -2000.0 <= setpoint.control_values[0] <= 2000.0
         assert status.fallback == (status.source != 'optimum')
     applied = loop.emulator.applied_frame()['q'].to_numpy()
-    np.testing.assert_array_equal(applied, [s.heat_rate_w for s, _ in loop.mpc_history()])
+    np.testing.assert_array_equal(applied, [s.control_values[0] for s, _ in loop.mpc_history()])
 
 
 def test_failing_solver_falls_back_on_the_last_good_plan(context):
@@ -83,9 +84,9 @@ def test_failing_solver_falls_back_on_the_last_good_plan(context):
             assert f'interval {k - 1} of the plan' in status.message
             assert status.consecutive_fallbacks == k - 1
             # The previous good plan (step 1), interval k - 1.
-            assert history[k][0].heat_rate_w == pytest.approx(
-                history[1][0].plan_heat_rate_w[k - 1], abs=1e-9)
-            assert history[k][0].plan_heat_rate_w == history[1][0].plan_heat_rate_w[k - 1:]
+            plan = setpoint_plan(history[1][0])[0]['q']
+            assert history[k][0].control_values[0] == pytest.approx(plan[k - 1], abs=1e-9)
+            assert setpoint_plan(history[k][0])[0]['q'].tolist() == plan[k - 1:].tolist()
         assert solver.faults.injected['fail'] >= 2
         assert_one_sane_setpoint_per_step(loop, 6)
     finally:
@@ -126,8 +127,9 @@ def test_model_error_falls_back_on_the_plan_then_on_the_safe_setpoint(context):
             assert 'InjectedModelError' in status.message
             assert status.objective == -1.0 and status.max_defect == -1.0
         for setpoint, status in history[3:5]:
-            assert setpoint.heat_rate_w == 500.0 and setpoint.temperature_setpoint_c == 21.5
-            assert list(setpoint.plan_heat_rate_w) == []
+            assert list(setpoint.control_values) == [500.0]
+            assert list(setpoint.temperature_setpoints_c) == [21.5]
+            assert list(setpoint.plan_controls) == []
             assert 'the safe setpoint [500.0]' in status.message
         assert [s.consecutive_fallbacks for _, s in history] == [0, 1, 2, 3, 4, 0, 0]
         assert_one_sane_setpoint_per_step(loop, 7)
@@ -260,7 +262,7 @@ def test_lockstep_timeout_holds_the_last_setpoint_then_the_safe_default(context)
         'safe_heat_rate_w': -100.0, 'heartbeat_period_s': 0.05})
     try:
         loop.run_steps(2)
-        last = loop.stop_mpc().history[-1][0].heat_rate_w
+        last = loop.stop_mpc().history[-1][0].control_values[0]
         loop.run_to_end(10.0)
         assert not loop.emulator.failed
         assert loop.emulator.applied_sources == ['setpoint', 'setpoint', 'held', 'safe', 'safe']
@@ -286,7 +288,7 @@ def test_free_running_emulator_holds_then_applies_the_safe_default(context):
         while not emulator.started:
             assert time.monotonic() < deadline
             executor.spin_once(timeout_sec=0.01)
-        publisher.publish(fallback_setpoint_msg(EPOCH_NS, 1234.0, 21.0, 3600.0))
+        publisher.publish(setpoint_msg(EPOCH_NS, 3600.0, {'q': 1234.0}, {'T': 21.0}))
         while not emulator.done:
             assert time.monotonic() < deadline + 5.0
             executor.spin_once(timeout_sec=0.01)

@@ -139,3 +139,47 @@ def test_bad_configuration_exits_non_zero_with_the_reason(tmp_path, r2c2_fmu):
         assert procs[name].returncode == 2, f'{name}: {output}'
         assert 'cannot start: ' in output and expected in output, f'{name}: {output}'
         assert 'Traceback' not in output, f'{name}: {output}'
+
+
+def test_bringups_exit_2_with_one_line_on_a_bad_configuration(tmp_path):
+    """A bad FMU, a missing one, models that do not fit together, a bad parameter file, a bad
+    scenario: the bring-ups say why in one line and exit 2 (no traceback), as the node
+    executables do."""
+    bad_fmu = tmp_path / 'zone.fmu'
+    bad_fmu.write_text('not a zip archive')
+    bad_csv = tmp_path / 'bad.csv'
+    bad_csv.write_text('datetime,T,solrad\n2018-04-05 00:00,20,0\n')
+    bad_yaml = tmp_path / 'bad.yaml'
+    bad_yaml.write_text('mpc: [unclosed\n')
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='OFF')
+    bringup = executable('bringup', 'bringup')
+    common = ['--hours', '2', '--no-bag', '--out', str(tmp_path / 'out')]
+    cases = {  # command, what the error line must say
+        'bad_fmu': (bringup + common + ['--emulator-model', str(bad_fmu)],
+                    'emulator: cannot start: BadZipFile: File is not a zip file'),
+        'missing_fmu': (bringup + common + ['--control-model', str(tmp_path / 'none.fmu')],
+                        f"mpc: cannot start: FMU file '{tmp_path / 'none.fmu'}' not found"),
+        'mismatch': (bringup + common + ['--control-model', 'r1c1x2', '--emulator-model',
+                                         'python'],
+                     "the MPC's model 'r1c1x2' (states ['T_0', 'T_1'], controls ['q_0', "
+                     "'q_1']) does not match the emulator's 'python' (states ['T'], controls "
+                     "['q'])"),
+        'params_file': (bringup + common + ['--params-file', str(tmp_path / 'none.yaml')],
+                        f"parameter file(s) ['{tmp_path / 'none.yaml'}'] not found"),
+        'bad_yaml': (bringup + common + ['--params-file', str(bad_yaml)],
+                     "Couldn't parse params file"),
+        'processes': (executable('bringup_processes', 'processes')
+                      + ['--scenario', str(bad_csv), '--hours', '2', '--out',
+                         str(tmp_path / 'processes')],
+                      "cannot start: " + str(bad_csv) + ": missing columns ['Tout', 'occ', "
+                      "'dpos']"),
+    }
+    procs = {name: subprocess.Popen(command, env=env, stdout=subprocess.PIPE,
+                                    stderr=subprocess.PIPE, text=True)
+             for name, (command, _) in cases.items()}
+    for name, (_, expected) in cases.items():
+        output, errors = procs[name].communicate(timeout=120)
+        assert procs[name].returncode == 2, f'{name}: {output}{errors}'
+        lines = [line for line in errors.splitlines() if 'error: ' in line]
+        assert len(lines) == 1 and expected in lines[0], f'{name}: {output}{errors}'
+        assert 'Traceback' not in output + errors, f'{name}: {output}{errors}'

@@ -74,7 +74,8 @@ def recordings(tmp_path_factory):
             assert time.monotonic() < deadline, 'the recorders did not subscribe within 30 s'
             executor.spin_once(timeout_sec=0.05)
         for k, stamp in enumerate(_stamps(MESSAGES)):
-            publisher.publish(zone_state_msg(stamp, 290.0 + k * 0.1, float(k), 'zone'))
+            publisher.publish(zone_state_msg(stamp, {'T': 290.0 + k * 0.1}, {},
+                                             {'q': float(k)}, 'zone'))
         assert publisher.wait_for_all_acked(Duration(seconds=10)), 'not acknowledged'
         # Everything is received (acknowledged) by every recorder: now end them.
         for name in ('crash_mcap', 'crash_sqlite3'):  # after their flush: all on disk
@@ -144,7 +145,7 @@ def test_bag_cut_in_a_chunk_is_read_up_to_its_last_complete_chunk(tmp_path):
     sizes = []
     for batch in (stamps[:10], stamps[10:20], stamps[20:]):
         for stamp in batch:
-            writer.write(connection, stamp, serialize_message(zone_state_msg(stamp, 293.0, 0.0)))
+            writer.write(connection, stamp, serialize_message(zone_state_msg(stamp, {'T': 293.0})))
         bags.flush_writer(writer)
         sizes.append((bag / 'bag.mcap').stat().st_size)
     data = (bag / 'bag.mcap').read_bytes()

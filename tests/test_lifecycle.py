@@ -20,7 +20,7 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 from mshoot_nodes import contract
-from mshoot_nodes.conversions import fallback_setpoint_msg, ns_to_stamp, stamp_to_ns
+from mshoot_nodes.conversions import ns_to_stamp, setpoint_msg, stamp_to_ns
 from mshoot_nodes.diagnostics import (DiagnosticsPublisher, format_value, Level, Report,
                                       status_values)
 from mshoot_nodes.emulator_node import EmulatorNode
@@ -105,8 +105,8 @@ def test_emulator_lifecycle_through_its_services(context):
 
     def answer_last_state():
         """Send the setpoint of the newest state (as the MPC would)."""
-        setpoints.publish(fallback_setpoint_msg(stamp_to_ns(states[-1].header.stamp), 100.0,
-                                                21.0, 3600.0))
+        setpoints.publish(setpoint_msg(stamp_to_ns(states[-1].header.stamp), 3600.0,
+                                       {'q': 100.0}, {'T': 21.0}))
 
     def run_until_steps(steps):
         def advanced():
@@ -472,7 +472,7 @@ def test_mpc_deactivate_hands_the_building_back_with_one_safe_setpoint(context):
         setpoint, status = mpc.history[-1]
         assert status.source == 'safe' and status.fallback
         assert status.fallback_reason == 'deactivated' and 'deactivated' in status.message
-        assert setpoint.heat_rate_w == 300.0 and list(setpoint.plan_heat_rate_w) == []
+        assert list(setpoint.control_values) == [300.0] and list(setpoint.plan_controls) == []
         health = mpc.diagnostics.publish().status[0]
         assert status_values(health)['lifecycle_state'] == 'inactive'
         loop.spin_for(0.5)  # inactive: the emulator's heartbeats get no answer

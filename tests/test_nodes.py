@@ -8,8 +8,10 @@ Every spin loop has a wall-clock guard, so a deadlock fails instead of hanging.
 import time
 
 from mshoot_core.closed_loop import run_closed_loop
+from mshoot_core.controller import controller_for
 from mshoot_core.emulation import Emulator
 from mshoot_core.models.fmi import r1c1_fmi_model
+from mshoot_core.models.multizone import MultiZoneModel
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import synthetic_scenario
@@ -24,7 +26,7 @@ from rclpy.parameter import Parameter
 from mshoot_nodes import contract
 from mshoot_nodes.bags import read_bag, read_messages
 from mshoot_nodes.bringup import run_in_process
-from mshoot_nodes.conversions import NS_PER_S, stamp_to_ns
+from mshoot_nodes.conversions import NS_PER_S, setpoint_plan, stamp_to_ns
 from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_nodes.forecaster_node import ForecasterNode
 from mshoot_nodes.mpc_node import MpcNode
@@ -79,9 +81,10 @@ def test_a_setpoint_for_every_step(ros_run):
     statuses = [status for _, status in run.mpc.history]
     assert all(s.success and not s.fallback for s in statuses)
     first = run.mpc.history[0][0]
-    assert len(first.plan_heat_rate_w) == len(first.plan_temperature_c) == 10
-    assert first.heat_rate_w == pytest.approx(core.steps['q'].iloc[0], abs=1e-6)
-    assert first.temperature_setpoint_c == pytest.approx(
+    assert list(first.control_names) == ['q'] and list(first.temperature_names) == ['T']
+    assert len(first.plan_controls) == len(first.plan_temperatures_c) == 10
+    assert first.control_values[0] == pytest.approx(core.steps['q'].iloc[0], abs=1e-6)
+    assert first.temperature_setpoints_c[0] == pytest.approx(
         core.steps['T_predicted'].iloc[0] - KELVIN, abs=1e-9)
     assert run.forecaster.published == HOURS
 
@@ -109,8 +112,17 @@ def test_bag_has_every_topic_and_count(ros_run):
         assert contents.counts[topic] >= expected, topic
         assert unique[topic] >= expected, topic
     setpoints = read_messages(bag, contract.SETPOINT)
-    assert [s.heat_rate_w for s in setpoints][:HOURS] == \
-        [s.heat_rate_w for s, _ in run.mpc.history]
+    assert [list(s.control_values) for s in setpoints][:HOURS] == \
+        [list(s.control_values) for s, _ in run.mpc.history]
+    # The states carry the model's states, outputs and the controls applied (by name).
+    last = states[-1]
+    assert list(last.state_names) == ['T'] and list(last.output_names) == ['T', 'Qr']
+    assert last.state_values[0] == pytest.approx(run.emulator.emulator.x[0], abs=0)
+    assert list(last.control_names) == ['q']
+    assert last.control_values[0] == run.emulator.records[-1].controls[0]
+    assert list(states[0].control_names) == []  # nothing applied before the first step
+    disturbances = read_messages(bag, contract.ZONE_DISTURBANCES)
+    assert list(disturbances[0].names) == ['solrad', 'Tout', 'occ', 'dpos']
 
 
 def test_replayed_bag_drives_a_fresh_mpc_to_the_recorded_setpoints(ros_run, context):
@@ -137,10 +149,10 @@ def test_replayed_bag_drives_a_fresh_mpc_to_the_recorded_setpoints(ros_run, cont
     replayed = [s for s, _ in fresh.history]
     assert [stamp_to_ns(s.header.stamp) for s in replayed] == \
         [stamp_to_ns(s.header.stamp) for s in recorded]
-    np.testing.assert_allclose([s.heat_rate_w for s in replayed],
-                               [s.heat_rate_w for s in recorded], rtol=0, atol=1e-9)
-    np.testing.assert_allclose([s.plan_temperature_c for s in replayed],
-                               [s.plan_temperature_c for s in recorded], rtol=0, atol=1e-9)
+    np.testing.assert_allclose([s.control_values for s in replayed],
+                               [s.control_values for s in recorded], rtol=0, atol=1e-9)
+    np.testing.assert_allclose([s.plan_temperatures_c for s in replayed],
+                               [s.plan_temperatures_c for s in recorded], rtol=0, atol=1e-9)
     executor.shutdown()
     for node in (replayer, fresh):
         node.destroy_node()
@@ -192,9 +204,89 @@ def test_free_running_emulator_completes(context):
     }, record=False, timeout_s=30.0)
     assert len(run.emulator.records) == 3
     # Each step applies the newest setpoint (0 W before the first one): never anything else.
-    published = {setpoint.heat_rate_w for setpoint, _ in run.mpc.history}
+    published = {setpoint.control_values[0] for setpoint, _ in run.mpc.history}
     assert published
     assert set(run.emulator.applied_frame()['q']) <= published | {0.0}
+
+
+ZONES_HOURS = 12
+
+
+@pytest.fixture(scope='module')
+def two_zone_run(tmp_path_factory):
+    """A lockstep run over ROS of two R1C1 zones (controls q_0, q_1: registry name 'r1c1x2')
+    with a price forecast, and the core-only loop of the same case."""
+    bag = tmp_path_factory.mktemp('two_zones') / 'bag'
+    ctx = _context()
+    try:
+        run = run_in_process(ctx, {
+            'emulator': {'hours': ZONES_HOURS, 'model': 'r1c1x2'},
+            'forecaster': {'hours': ZONES_HOURS, 'use_sim_time': True, 'send_price': True,
+                           'price_per_kwh': [0.2] * 8 + [0.4] * 12 + [0.2] * 4},
+            'mpc': {'model': 'r1c1x2', 'use_sim_time': True},
+            'recorder': {'bag_path': str(bag)},
+        }, timeout_s=60.0)
+    finally:
+        rclpy.try_shutdown(context=ctx)
+    model = MultiZoneModel(2, seed=0)
+    controller = controller_for(model)
+    emulator = Emulator(MultiZoneModel(2, seed=0), synthetic_scenario(hours=ZONES_HOURS + 1),
+                        [20.0 + KELVIN] * 2, control_names=('q_0', 'q_1'),
+                        control_bounds=((-2000.0, 2000.0),) * 2)
+    core = run_closed_loop(controller, emulator, steps=ZONES_HOURS, log_every=0)
+    return run, core, bag
+
+
+def test_two_zones_over_ros_equal_the_core_loop(two_zone_run):
+    run, core, _ = two_zone_run
+    applied = run.emulator.applied_frame()
+    assert len(applied) == ZONES_HOURS
+    assert list(core.steps.columns[:2]) == ['q_0', 'q_1']
+    for state in ('T_0', 'T_1'):
+        assert np.max(np.abs(applied[f'{state}_end'].to_numpy()
+                             - core.steps[f'{state}_end'].to_numpy())) < 1e-9
+    for control in ('q_0', 'q_1'):
+        assert np.max(np.abs(applied[control].to_numpy() - core.steps[control].to_numpy())) \
+            < 1e-6
+    # The zones differ (their own sizes, sun and occupancy): two controls, not one copied.
+    assert np.max(np.abs(applied['q_0'].to_numpy() - applied['q_1'].to_numpy())) > 1.0
+    fine = run.emulator.fine_frame()
+    for output in ('y_Tc_0', 'y_Tc_1'):
+        assert np.max(np.abs(fine[output].to_numpy() - core.fine[output].to_numpy())) < 1e-9
+
+
+def test_two_zone_setpoints_name_every_control_and_zone(two_zone_run):
+    run, core, bag = two_zone_run
+    history = list(run.mpc.history)
+    assert [stamp_to_ns(s.header.stamp) for s, _ in history] == \
+        [EPOCH_NS + k * 3600 * NS_PER_S for k in range(ZONES_HOURS)]
+    assert all(status.success and not status.fallback for _, status in history)
+    for k, (setpoint, _) in enumerate(history):
+        assert list(setpoint.control_names) == ['q_0', 'q_1']
+        assert list(setpoint.temperature_names) == ['T_0', 'T_1']
+        np.testing.assert_allclose(setpoint.control_values,
+                                   core.steps[['q_0', 'q_1']].iloc[k], rtol=0, atol=1e-6)
+        np.testing.assert_allclose(
+            setpoint.temperature_setpoints_c,
+            core.steps[['T_0_predicted', 'T_1_predicted']].iloc[k] - KELVIN, rtol=0, atol=1e-9)
+        controls, temperatures = setpoint_plan(setpoint)
+        np.testing.assert_allclose(controls['q_1'], core.plans[k]['q_1'], rtol=0, atol=1e-6)
+        np.testing.assert_allclose(temperatures['T_1'], core.plans[k]['T_1_end'] - KELVIN,
+                                   rtol=0, atol=1e-9)
+    # The forecasts carried the price (by hour of the day) and the MPC took them all.
+    forecasts = read_messages(bag, contract.FORECAST)
+    assert len(forecasts) == ZONES_HOURS
+    assert list(forecasts[0].price_per_kwh) == [0.2] * 8 + [0.4] * 3
+    assert list(forecasts[8].price_per_kwh) == [0.4] * 11
+    assert run.mpc.rejections.total() == 0
+    assert {(s.rejected_states, s.rejected_forecasts) for _, s in history} == {(0, 0)}
+    # The states: both zones by name, their outputs and the controls applied.
+    state = read_messages(bag, contract.ZONE_STATE)[-1]
+    assert list(state.state_names) == ['T_0', 'T_1']
+    np.testing.assert_allclose(state.state_values, core.steps[['T_0_end', 'T_1_end']].iloc[-1],
+                               rtol=0, atol=1e-9)
+    assert list(state.output_names) == ['Tc_0', 'Tc_1']
+    assert list(state.control_names) == ['q_0', 'q_1']
 
 
 def test_invalid_parameters_are_rejected_with_a_reason(context, tmp_path):
@@ -238,6 +330,12 @@ def test_invalid_parameters_are_rejected_with_a_reason(context, tmp_path):
     assert mpc.set_parameters([Parameter('comfort', value='soft')])[0].successful
     assert mpc.mpc.problem.soft_bounds
     mpc.destroy_node()
+    # A model of several controls keeps them through run-time changes.
+    zones = MpcNode(context=context, parameter_overrides=[Parameter('model', value='r1c1x2')])
+    assert zones.set_parameters([Parameter('horizon_steps', value=4)])[0].successful
+    assert zones.mpc.horizon_steps == 4
+    assert zones.controller.settings.problem.control_names == ('q_0', 'q_1')
+    zones.destroy_node()
 
 
 def test_mpc_yaml_documents_every_parameter_with_valid_values():

@@ -1,8 +1,12 @@
 """mshoot_nodes without spinning: message conversions, scenarios and parameter helpers."""
 from mshoot_core.closed_loop import forecast_window
+from mshoot_core.controller import controller_for
+from mshoot_core.models.multizone import MultiZoneModel
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
-from mshoot_core.mpc import MPC
+from mshoot_core.models.registry import control_interface
+from mshoot_core.safety import check_setpoint, Decision, reorder
 from mshoot_core.scenario import reference_scenario, synthetic_scenario
+from mshoot_core.settings import MpcSettings
 import numpy as np
 import pandas as pd
 import pytest
@@ -24,9 +28,25 @@ def test_stamps_are_exact_integer_nanoseconds():
 
 def test_zone_state_round_trip():
     for temperature_k in np.linspace(250.0, 320.0, 71):
-        msg = cv.zone_state_msg(0, temperature_k, 10.0, 'zone_a')
+        msg = cv.zone_state_msg(0, {'T': temperature_k}, {'T': temperature_k - KELVIN},
+                                {'q': 10.0}, 'zone_a')
         assert msg.header.frame_id == 'zone_a'
-        assert abs(cv.zone_state_to_x(msg)[0] - temperature_k) < 1e-12
+        assert cv.zone_state_states(msg) == {'T': temperature_k}
+        assert cv.named(msg.control_names, msg.control_values) == {'q': 10.0}
+    two = cv.zone_state_msg(0, {'T_1': 294.0, 'T_0': 293.0})
+    assert list(two.state_names) == ['T_1', 'T_0'] and list(two.output_names) == []
+    # In the model's order, whatever the message's order.
+    np.testing.assert_array_equal(reorder(two.state_names, two.state_values, ('T_0', 'T_1')),
+                                  [293.0, 294.0])
+
+
+def test_named_series_flatten_name_major():
+    names, values = cv.flatten({'a': [1.0, 2.0, 3.0], 'b': [4.0, 5.0, 6.0]})
+    assert names == ['a', 'b'] and values == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]
+    back = cv.unflatten_series(names, values)
+    assert list(back) == ['a', 'b'] and back['b'].tolist() == [4.0, 5.0, 6.0]
+    with pytest.raises(ValueError, match='do not split'):
+        cv.unflatten_series(names, values[:-1])
 
 
 def test_forecast_round_trip_keeps_the_window():
@@ -34,35 +54,82 @@ def test_forecast_round_trip_keeps_the_window():
     window = forecast_window(scenario, 5, 10)
     msg = cv.forecast_msg(7 * cv.NS_PER_S, 3600.0, window)
     assert cv.forecast_length(msg) == 11
-    frame = cv.forecast_to_frame(msg, dpos=0.0)
-    assert list(frame.columns) == ['solrad', 'Tout', 'occ', 'dpos', 'comfort_min',
-                                   'comfort_max']
+    assert list(msg.series_names) == ['Tout', 'solrad', 'occ'] and len(msg.price_per_kwh) == 0
+    frame = cv.forecast_to_frame(msg, assumed={'dpos': 0.0})
+    assert list(frame.columns) == ['Tout', 'solrad', 'occ', 'comfort_min', 'comfort_max',
+                                   'dpos']
     np.testing.assert_array_equal(frame.to_numpy(), window[frame.columns].to_numpy())
     np.testing.assert_array_equal(frame.index.to_numpy(), 7.0 + 3600.0 * np.arange(11))
-    msg.occupancy = msg.occupancy[:-1]
-    with pytest.raises(ValueError, match='differ in length'):
-        cv.forecast_length(msg)
+    # Any named series, and a price.
+    window = window.assign(dpos=np.linspace(0.0, 50.0, 11), price=np.linspace(0.1, 0.3, 11))
+    msg = cv.forecast_msg(7 * cv.NS_PER_S, 3600.0, window, ('solrad', 'dpos'))
+    series, rejection = cv.forecast_series(msg)
+    assert rejection is None
+    assert list(series) == ['solrad', 'dpos', 'comfort_min', 'comfort_max', 'price']
+    for name in series:
+        np.testing.assert_array_equal(series[name], window[name].to_numpy())
+    msg.series_values = msg.series_values[:-1]
+    series, rejection = cv.forecast_series(msg)
+    assert series == {} and rejection.kind == 'length'
+    with pytest.raises(ValueError, match='2 series of 11 samples need 22 values, got 21'):
+        cv.forecast_to_frame(msg)
+
+
+def _decision(controls, states, plan_controls, plan_states, source='optimum'):
+    return Decision(0.0, np.asarray(controls, float), None if states is None
+                    else np.asarray(states, float), np.asarray(plan_controls, float),
+                    np.asarray(plan_states, float), source, source != 'optimum')
+
+
+def test_setpoint_of_a_decision_names_every_control_and_zone():
+    model = MultiZoneModel(2)
+    interface = control_interface(model)
+    assert interface.control_names == ('q_0', 'q_1')
+    assert interface.temperature_names == ('T_0', 'T_1')
+    plan_u = np.array([[100.0, -50.0], [110.0, -40.0], [120.0, -30.0]])
+    plan_x = np.array([[294.0, 295.0], [294.5, 295.5], [295.0, 296.0]])
+    setpoint = cv.decision_setpoint_msg(5, _decision(plan_u[0], plan_x[0], plan_u, plan_x),
+                                        3600.0, interface, 21.0, 'house')
+    assert setpoint.header.frame_id == 'house' and setpoint.step_s == 3600.0
+    assert cv.setpoint_controls(setpoint) == {'q_0': 100.0, 'q_1': -50.0}
+    assert list(setpoint.temperature_names) == ['T_0', 'T_1']
+    np.testing.assert_allclose(setpoint.temperature_setpoints_c, plan_x[0] - KELVIN)
+    # name-major: q_0 over the plan, then q_1
+    assert list(setpoint.plan_controls) == [100.0, 110.0, 120.0, -50.0, -40.0, -30.0]
+    controls, temperatures = cv.setpoint_plan(setpoint)
+    np.testing.assert_array_equal(controls['q_1'], plan_u[:, 1])
+    np.testing.assert_allclose(temperatures['T_1'], plan_x[:, 1] - KELVIN)
+    assert check_setpoint(setpoint.step_s, setpoint.control_names, setpoint.control_values,
+                          setpoint.temperature_names, setpoint.temperature_setpoints_c,
+                          setpoint.plan_controls, setpoint.plan_temperatures_c,
+                          expected_controls=('q_1', 'q_0')) is None
+    safe = cv.decision_setpoint_msg(5, _decision([7.0, 8.0], None, np.empty((0, 2)),
+                                                 np.empty((0, 2)), 'safe'),
+                                    3600.0, interface, 21.5)
+    assert list(safe.temperature_setpoints_c) == [21.5, 21.5]
+    assert list(safe.plan_controls) == [] == list(safe.plan_temperatures_c)
 
 
 def test_setpoint_and_status_from_an_mpc_result():
     scenario = synthetic_scenario(hours=20)
-    mpc = MPC(R1C1Model(), horizon_steps=6)
-    result = mpc.solve([293.15], 0.0, forecast_window(scenario, 0, 6))
-    setpoint = cv.setpoint_msg(5, result, 3600.0)
-    assert setpoint.heat_rate_w == result.controls[0, 0]
-    assert setpoint.temperature_setpoint_c == result.states[1, 0] - KELVIN
-    assert len(setpoint.plan_heat_rate_w) == len(setpoint.plan_temperature_c) == 6
-    np.testing.assert_array_equal(cv.setpoint_to_controls(setpoint), result.controls[0])
+    controller = controller_for(R1C1Model(), MpcSettings.from_flat(horizon_steps=6))
+    result = controller.mpc.solve([293.15], 0.0, forecast_window(scenario, 0, 6))
+    decision = controller.supervisor.review(0.0, result)
+    setpoint = cv.decision_setpoint_msg(5, decision, 3600.0, controller.interface, 21.0)
+    assert cv.setpoint_controls(setpoint) == {'q': result.controls[0, 0]}
+    assert list(setpoint.temperature_setpoints_c) == [result.states[1, 0] - KELVIN]
+    assert len(setpoint.plan_controls) == len(setpoint.plan_temperatures_c) == 6
     status = cv.status_msg(5, result)
     assert status.success == bool(result.success) and status.iterations == result.nit
     failed = cv.status_msg(5, None, fallback=True, message='time budget exceeded')
     assert failed.fallback and not failed.success and np.isnan(failed.objective)
 
-    again = cv.fallback_setpoint_msg(5, 0.0, 20.0, 3600.0)
+    again = cv.setpoint_msg(5, 3600.0, {'q': 0.0}, {'T': 20.0})
     records = cv.mpc_records_frame([setpoint, again], [status, failed], epoch_ns=5)
     assert len(records) == 1  # the first of each stamp: what a lockstep emulator applied
     assert records.index[0] == 0.0
-    assert records['q_setpoint'].iloc[0] == setpoint.heat_rate_w
+    assert records['q_setpoint'].iloc[0] == result.controls[0, 0]
+    assert records['T_predicted_c'].iloc[0] == setpoint.temperature_setpoints_c[0]
     assert bool(records['success'].iloc[0]) == bool(result.success)
 
 
@@ -81,6 +148,7 @@ def test_simulated_time_starts_at_the_scenario_date():
     assert sources.start_ns(scenario, '2018-04-05T01:00:00+01:00') == 1522886400 * cv.NS_PER_S
     assert sources.check_start_time('yesterday-ish') is not None
     assert sources.check_model('python') is None
+    assert sources.check_model('r1c1x2') is None
     assert 'not found' in sources.check_model('/nowhere/x.fmu')
     assert 'must be one of' in sources.check_model('matlab')
     assert 'must be one of' in sources.check_scenario('winter', '')

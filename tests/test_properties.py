@@ -12,8 +12,9 @@ import time
 
 from hypothesis import given, HealthCheck, settings, strategies as st
 from hypothesis.extra import numpy as hnp
-from mshoot_core.safety import (check_forecast, check_setpoint, FORECAST_SERIES, Limits,
-                                SetpointHold, SetpointSupervisor, SOURCES, StampGate)
+from mshoot_core.safety import (check_forecast, check_names, check_setpoint, check_zone_state,
+                                FORECAST_SERIES, Limits, SetpointHold, SetpointSupervisor,
+                                SOURCES, StampGate)
 from mshoot_msgs.msg import Disturbances, Forecast, MpcStatus, Setpoint, ZoneState
 import numpy as np
 import pandas as pd
@@ -24,7 +25,7 @@ from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 
 from mshoot_nodes import contract
-from mshoot_nodes.conversions import (clock_msg, fallback_setpoint_msg, forecast_msg, NS_PER_S,
+from mshoot_nodes.conversions import (clock_msg, forecast_msg, NS_PER_S, setpoint_msg,
                                       zone_state_msg)
 from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_nodes.mpc_node import MpcNode
@@ -76,34 +77,77 @@ def test_supervisor_always_returns_a_finite_setpoint_within_bounds(
             assert decision.controls[0] == 123.0
 
 
+#: Names a message may carry: the model's, unknown ones, and bad ones.
+NAMES = st.sampled_from(['Tout', 'solrad', 'occ', 'dpos', 'price', 'comfort_min', 'comfort_max',
+                         'Tsky', '', 'q_0', 'q_1', 'q', 'T_0', 'T_1'])
+KNOWN = ('dpos', 'price')
+
+
 @CORE_SETTINGS
 @given(step_s=floats, lengths=st.lists(st.integers(0, 4), min_size=5, max_size=5),
-       data=st.data())
-def test_check_forecast_accepts_only_sane_forecasts(step_s, lengths, data):
+       extra=st.dictionaries(NAMES, st.integers(0, 4), max_size=3), data=st.data())
+def test_check_forecast_accepts_only_sane_forecasts(step_s, lengths, extra, data):
     series = {name: data.draw(st.lists(floats, min_size=k, max_size=k))
-              for name, k in zip(FORECAST_SERIES, lengths)}
-    rejection = check_forecast(step_s, series, expected_step_s=3600.0)
+              for name, k in [*zip(FORECAST_SERIES, lengths), *extra.items()]}
+    rejection = check_forecast(step_s, series, expected_step_s=3600.0, known=KNOWN)
     if rejection is None:
         limits = Limits()
-        assert step_s == pytest.approx(3600.0) and len(set(lengths)) == 1 and lengths[0] >= 1
-        for name, (low, high) in limits.forecast_ranges.items():
-            assert all(math.isfinite(x) and low <= x <= high for x in series[name])
+        lengths = {len(values) for values in series.values()}
+        assert step_s == pytest.approx(3600.0) and len(lengths) == 1 and min(lengths) >= 1
+        assert set(series) <= {*FORECAST_SERIES, *KNOWN}
+        for name, values in series.items():
+            low, high = limits.forecast_ranges[name]
+            assert all(math.isfinite(x) and low <= x <= high for x in values)
         assert all(a <= b for a, b in zip(series['comfort_min'], series['comfort_max']))
     else:
         assert rejection.reason and rejection.kind in ('non_finite', 'out_of_range', 'length',
-                                                       'band', 'step')
+                                                       'band', 'step', 'names')
 
 
 @CORE_SETTINGS
-@given(values=st.tuples(floats, floats, floats), plan_q=st.lists(floats, max_size=4),
-       plan_t=st.lists(floats, max_size=4))
-def test_check_setpoint_accepts_only_finite_plausible_setpoints(values, plan_q, plan_t):
-    heat_rate, temperature, step_s = values
-    if check_setpoint(heat_rate, temperature, step_s, plan_q, plan_t,
-                      expected_step_s=3600.0) is None:
-        assert all(math.isfinite(x) for x in (heat_rate, temperature, *plan_q, *plan_t))
-        assert len(plan_q) == len(plan_t) and step_s == pytest.approx(3600.0)
-        assert abs(heat_rate) <= 1e7 and -50.0 <= temperature <= 80.0
+@given(step_s=floats, controls=st.lists(st.tuples(NAMES, floats), max_size=3),
+       zones=st.lists(st.tuples(NAMES, floats), max_size=3),
+       plan_q=st.lists(floats, max_size=7), plan_t=st.lists(floats, max_size=7),
+       expected=st.booleans())
+def test_check_setpoint_accepts_only_finite_plausible_setpoints(step_s, controls, zones, plan_q,
+                                                                plan_t, expected):
+    names = [n for n, _ in controls]
+    zone_names = [n for n, _ in zones]
+    if check_setpoint(step_s, names, [v for _, v in controls], zone_names,
+                      [v for _, v in zones], plan_q, plan_t, expected_step_s=3600.0,
+                      expected_controls=('q_0', 'q_1') if expected else None) is None:
+        values = [v for _, v in controls + zones]
+        assert all(math.isfinite(x) for x in (*values, *plan_q, *plan_t))
+        assert names and all(names) and len(set(names)) == len(names)
+        assert all(zone_names) and len(set(zone_names)) == len(zone_names)
+        assert not expected or sorted(names) == ['q_0', 'q_1']
+        m = len(plan_q) // len(names)
+        assert len(plan_q) == m * len(names) and len(plan_t) == m * len(zones)
+        assert step_s == pytest.approx(3600.0)
+        assert all(abs(v) <= 1e7 for _, v in controls) and all(-50.0 <= v <= 80.0
+                                                               for _, v in zones)
+
+
+@CORE_SETTINGS
+@given(states=st.lists(st.tuples(NAMES, floats), max_size=3),
+       applied=st.lists(st.tuples(NAMES, floats), max_size=3),
+       outputs=st.lists(floats, max_size=2), extra_value=st.booleans())
+def test_check_zone_state_takes_only_the_models_states_by_name(states, applied, outputs,
+                                                               extra_value):
+    names = [n for n, _ in states]
+    values = [v for _, v in states] + ([1.0] if extra_value else [])
+    rejection = check_zone_state(names, values, [f'y{k}' for k in range(len(outputs))],
+                                 outputs, [n for n, _ in applied], [v for _, v in applied],
+                                 expected_states=('T_1', 'T_0'), allowed_controls=('q_0', 'q_1'))
+    if rejection is None:
+        assert sorted(names) == ['T_0', 'T_1'] and len(values) == 2
+        assert all(math.isfinite(v) for v in (*values, *outputs))
+        assert {n for n, _ in applied} <= {'q_0', 'q_1'} and len(applied) == len(
+            {n for n, _ in applied})
+        assert all(abs(v) <= 1e7 for _, v in applied)
+    else:
+        assert rejection.kind in ('names', 'length', 'non_finite', 'out_of_range')
+    assert check_names('x', ['a', 'b'], expected=['b', 'a']) is None
 
 
 @CORE_SETTINGS
@@ -176,15 +220,16 @@ class Probe:
     def check_published_finite(self):
         for msg in self.received:
             if isinstance(msg, Setpoint):
-                assert _finite(msg.heat_rate_w, msg.temperature_setpoint_c, msg.step_s,
-                               *msg.plan_heat_rate_w, *msg.plan_temperature_c)
+                assert _finite(*msg.control_values, *msg.temperature_setpoints_c, msg.step_s,
+                               *msg.plan_controls, *msg.plan_temperatures_c)
+                assert len(msg.control_names) == len(msg.control_values) >= 1
             elif isinstance(msg, MpcStatus):
                 assert _finite(msg.solve_time_s, msg.objective, msg.max_defect)
             elif isinstance(msg, ZoneState):
-                assert _finite(msg.temperature_c, msg.heat_rate_w)
+                assert _finite(*msg.state_values, *msg.output_values, *msg.control_values)
+                assert len(msg.state_names) == len(msg.state_values) >= 1
             elif isinstance(msg, Disturbances):
-                assert _finite(msg.outdoor_temperature_c, msg.solar_radiation_w_m2,
-                               msg.occupancy)
+                assert _finite(*msg.values) and len(msg.names) == len(msg.values) >= 1
         self.received.clear()
 
     def close(self):
@@ -238,7 +283,8 @@ def _advance_mpc_clock(rig, now):
 
 def _send_valid_mpc_inputs(rig, rng):
     now = rig['now']
-    rig['state'].publish(zone_state_msg(now, KELVIN + rng.uniform(15, 26), rng.uniform(-2e3, 2e3)))
+    rig['state'].publish(zone_state_msg(now, {'T': KELVIN + rng.uniform(15, 26)}, {},
+                                        {'q': rng.uniform(-2e3, 2e3)}))
     rig['forecast'].publish(forecast_msg(now, 3600.0, _valid_window(rng, 5)))
     rig['latest'] = now
 
@@ -262,7 +308,7 @@ def test_mpc_rejects_and_counts_every_malformed_input(mpc_rig, states, forecasts
     now, latest = rig['now'], rig['latest']
     for defect in states:
         if defect is None:  # a valid repeat of the current state: accepted
-            rig['state'].publish(zone_state_msg(now, KELVIN + rng.uniform(15, 26), 0.0))
+            rig['state'].publish(zone_state_msg(now, {'T': KELVIN + rng.uniform(15, 26)}))
         else:
             rig['state'].publish(malformed_zone_state(defect, now, latest, STEP_NS, rng))
     for defect in forecasts:
@@ -298,7 +344,7 @@ def emulator_rig():
                                                    contract.DATA_QOS)}
     probe.spin_until(lambda: emulator.started and emulator.count_subscribers(
         contract.ZONE_STATE) > 0 and probe.node.count_subscribers(contract.SETPOINT) > 0)
-    rig['setpoint'].publish(fallback_setpoint_msg(emulator.stamp_ns, 0.0, 20.0, 3600.0))
+    rig['setpoint'].publish(setpoint_msg(emulator.stamp_ns, 3600.0, {'q': 0.0}, {'T': 20.0}))
     probe.spin_until(lambda: len(emulator.records) == 1, what='the first step')
     yield rig
     probe.close()
@@ -319,8 +365,8 @@ def test_emulator_rejects_and_counts_every_malformed_setpoint(emulator_rig, defe
     for defect in defects:
         rig['setpoint'].publish(malformed_setpoint(defect, now, now - STEP_NS, STEP_NS, rng))
     if valid:  # last: processed after the malformed ones (one topic, in order)
-        rig['setpoint'].publish(fallback_setpoint_msg(now, heat_rate, 21.0, 3600.0,
-                                                      [heat_rate], [21.0]))
+        rig['setpoint'].publish(setpoint_msg(now, 3600.0, {'q': heat_rate}, {'T': 21.0},
+                                             {'q': [heat_rate]}, {'T': [21.0]}))
     probe.spin_until(lambda: emulator.rejections.total() >= expected
                      and len(emulator.records) == steps + valid, what='the batch')
     probe.settle()

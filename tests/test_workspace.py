@@ -31,6 +31,8 @@ def _filled(msg_type):
             setattr(m, name, float(rng.normal()))
         elif kind == 'sequence<double>':
             setattr(m, name, rng.normal(size=5).tolist())
+        elif kind == 'sequence<string>':
+            setattr(m, name, [f'{name}_{k} ✓' for k in range(3)])
         elif kind == 'boolean':
             setattr(m, name, True)
         elif kind == 'int32':
@@ -57,12 +59,13 @@ def test_message_round_trip(name):
 def test_contract_field_names():
     """The field names are a contract with tools outside the project."""
     expected = {
-        'ZoneState': {'header', 'temperature_c', 'heat_rate_w'},
-        'Disturbances': {'header', 'outdoor_temperature_c', 'solar_radiation_w_m2', 'occupancy'},
-        'Forecast': {'header', 'step_s', 'outdoor_temperature_c', 'solar_radiation_w_m2',
-                     'occupancy', 'comfort_min_c', 'comfort_max_c'},
-        'Setpoint': {'header', 'heat_rate_w', 'temperature_setpoint_c', 'step_s',
-                     'plan_heat_rate_w', 'plan_temperature_c'},
+        'ZoneState': {'header', 'state_names', 'state_values', 'output_names', 'output_values',
+                      'control_names', 'control_values'},
+        'Disturbances': {'header', 'names', 'values'},
+        'Forecast': {'header', 'step_s', 'series_names', 'series_values', 'comfort_min_c',
+                     'comfort_max_c', 'price_per_kwh'},
+        'Setpoint': {'header', 'step_s', 'control_names', 'control_values', 'temperature_names',
+                     'temperature_setpoints_c', 'plan_controls', 'plan_temperatures_c'},
         'MpcStatus': {'header', 'success', 'fallback', 'message', 'iterations',
                       'solve_time_s', 'objective', 'max_defect'},
     }

@@ -79,10 +79,12 @@ def step_row(outcome: StepOutcome, record: StepRecord, state_names: tuple[str, .
 
 def offer_scenario_inputs(controller: Controller, emulator: Emulator, now_ns: int) -> None:
     """Give the controller the emulated state and a perfect forecast (the scenario's next
-    N+1 rows) stamped at the emulator's time, as the emulator and forecaster nodes do."""
+    N+1 rows: the series the controller knows) stamped at the emulator's time, as the
+    emulator and forecaster nodes do."""
     window = forecast_window(emulator.scenario, emulator.index, controller.mpc.horizon_steps)
+    known = controller.forecast_known
     values = window.to_numpy(dtype=float)
-    series = {name: values[:, j] for j, name in enumerate(window.columns)}
+    series = {name: values[:, j] for j, name in enumerate(window.columns) if name in known}
     for stream, rejection in (
             ('state', controller.offer_state(now_ns, emulator.x, now_ns)),
             ('forecast', controller.offer_forecast(now_ns, emulator.step_s, series, now_ns))):

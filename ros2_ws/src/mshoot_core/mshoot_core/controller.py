@@ -10,7 +10,8 @@ the same decisions through the same code:
 - :meth:`Controller.offer_state` and :meth:`Controller.offer_forecast` take a
   measured state or a forecast with its stamp; a rejected one gets a
   :class:`~mshoot_core.safety.Rejection` (counted) and never reaches the
-  optimiser;
+  optimiser; :meth:`Controller.offer_named_state` takes the state as named
+  values (the form of a ``ZoneState`` message);
 - :meth:`Controller.poll` is called whenever something may have changed (a new
   input, a timer, a finished solve) with the controller's clock ``now_ns``
   (simulated or real time) and a steady wall clock ``steady_ns``; it returns
@@ -45,9 +46,11 @@ import numpy as np
 import pandas as pd
 
 from mshoot_core.models.base import Model
+from mshoot_core.models.registry import control_interface, ControlInterface
 from mshoot_core.mpc import MPC, MpcResult
-from mshoot_core.safety import (check_forecast, check_series, Decision, InputWait, LIMITS,
-                                NS_PER_S, Rejection, RejectionCounter, SetpointSupervisor,
+from mshoot_core.safety import (check_forecast, check_series, check_zone_state, COMFORT_SERIES,
+                                Decision, InputWait, LIMITS, NS_PER_S, PRICE_SERIES,
+                                Rejection, RejectionCounter, reorder, SetpointSupervisor,
                                 StampGate)
 from mshoot_core.scenario import forecast_window
 from mshoot_core.settings import BY_NAME, MpcSettings
@@ -175,6 +178,13 @@ class Controller:
     def model(self) -> Model:
         return self.mpc.model
 
+    @property
+    def interface(self) -> ControlInterface:
+        """The controls (the settings' ``control_names``) and the zone temperatures (the
+        MPC's comfort-bounded states) this controller works with."""
+        return ControlInterface(tuple(self.settings.problem.control_names),
+                                tuple(self.model.state_names), dict(self.mpc.state_bounds))
+
     def state_range(self) -> tuple[np.ndarray, np.ndarray]:
         """Plausible (lower, upper) values of the states: zone temperatures (the states
         bounded by a comfort band) within :data:`~mshoot_core.safety.LIMITS`, others
@@ -271,17 +281,52 @@ class Controller:
         _trim(self._states)
         return None
 
+    def offer_named_state(self, stamp_ns: int, state_names: Sequence[str],
+                          state_values: Sequence[float], now_ns: int, *,
+                          output_names: Sequence[str] = (), output_values: Sequence[float] = (),
+                          control_names: Sequence[str] = (),
+                          control_values: Sequence[float] = ()) -> Rejection | None:
+        """A measured state as named values (any order; states in SI units, e.g. [K]), with
+        the measured outputs and the controls applied over the last step.
+
+        The names are checked (:func:`~mshoot_core.safety.check_zone_state`: exactly the
+        model's states; applied controls among the controller's), then the state goes to
+        :meth:`offer_state` in the model's order.
+        """
+        rejection = check_zone_state(state_names, state_values, output_names, output_values,
+                                     control_names, control_values,
+                                     expected_states=self.model.state_names,
+                                     allowed_controls=self.settings.problem.control_names)
+        if rejection:
+            return self.reject('state', rejection)
+        return self.offer_state(stamp_ns, reorder(state_names, state_values,
+                                                  self.model.state_names), now_ns)
+
     def is_repeat_of_decided_step(self, stamp_ns: int) -> bool:
         """True when a state stamped ``stamp_ns`` was already taken and its step decided:
         a heartbeat of the same state (the decision may have been lost: send it again)."""
         return (int(stamp_ns) in self._states and self._last_step_ns == int(stamp_ns)
                 and self._inflight is None)
 
+    @property
+    def forecast_required(self) -> tuple[str, ...]:
+        """Series a forecast must carry: the model's disturbances (but those assumed, see
+        ``assumed_inputs``) and the comfort band."""
+        return tuple(c for c in self.mpc.forecast_columns if c not in self.assumed_inputs)
+
+    @property
+    def forecast_known(self) -> tuple[str, ...]:
+        """Every series name a forecast may carry: the required ones, the assumed inputs,
+        the comfort band and the energy price (``price`` [currency/kWh])."""
+        names = [*self.forecast_required, *self.assumed_inputs, *COMFORT_SERIES, PRICE_SERIES]
+        return tuple(dict.fromkeys(names))
+
     def offer_forecast(self, stamp_ns: int, step_s: float,
                        series: Mapping[str, Sequence[float]], now_ns: int) -> Rejection | None:
-        """A forecast: samples every ``step_s`` [s] from ``stamp_ns`` on, by column
-        (Tout [degC], solrad [W/m2], occ, comfort_min, comfort_max [degC], and any
-        other model input).
+        """A forecast: samples every ``step_s`` [s] from ``stamp_ns`` on, by name: the
+        model's disturbances (e.g. Tout [degC], solrad [W/m2], occ), comfort_min,
+        comfort_max [degC] and optionally price [currency/kWh]
+        (:attr:`forecast_required`, :attr:`forecast_known`).
 
         Returns
         -------
@@ -289,7 +334,8 @@ class Controller:
             Why it was refused, or None when it was taken.
         """
         rejection = (check_forecast(step_s, series,
-                                    expected_step_s=self.settings.problem.step_s)
+                                    expected_step_s=self.settings.problem.step_s,
+                                    required=self.forecast_required, known=self.forecast_known)
                      or self._forecast_gate.check(stamp_ns, now_ns))
         if rejection is None:
             names = list(series)
@@ -525,6 +571,25 @@ class Controller:
         if self._inflight is not None:
             concurrent.futures.wait([self._inflight.future])
             self._inflight = None
+
+
+def controller_for(model: Model, settings: MpcSettings | None = None,
+                   **kwargs: Any) -> Controller:
+    """A controller of ``model`` with its controls and zone temperatures
+    (:func:`~mshoot_core.models.registry.control_interface`): the settings'
+    ``control_names`` and the MPC's comfort-bounded states follow the model.
+
+    Parameters
+    ----------
+    model : Model
+    settings : MpcSettings, optional
+        Every other setting (default: the defaults).
+    **kwargs
+        Passed to :class:`Controller` (executor, assumed_inputs, ...).
+    """
+    interface = control_interface(model)
+    settings = (settings or MpcSettings()).replace(control_names=interface.control_names)
+    return Controller(model, settings, state_bounds=interface.state_bounds, **kwargs)
 
 
 def _ns(seconds: float) -> int:

@@ -1,6 +1,8 @@
 """Key performance indicators of a closed-loop run: energy, discomfort, computation time."""
 from __future__ import annotations
 
+from typing import Sequence
+
 import numpy as np
 import pandas as pd
 
@@ -66,8 +68,8 @@ def discomfort_kh(fine: pd.DataFrame, temperature_column: str = 'y_T',
 
 
 def closed_loop_kpis(steps: pd.DataFrame, fine: pd.DataFrame, step_s: float,
-                     wall_s: float, control: str = 'q',
-                     temperature_column: str = 'y_T') -> dict[str, float]:
+                     wall_s: float, control: str | Sequence[str] = 'q',
+                     temperature_column: str | Sequence[str] = 'y_T') -> dict[str, float]:
     """All KPIs of a closed-loop run (the keys of ``kpis.json``).
 
     Parameters
@@ -80,9 +82,23 @@ def closed_loop_kpis(steps: pd.DataFrame, fine: pd.DataFrame, step_s: float,
         Control step [s].
     wall_s : float
         Wall time of the whole run [s].
+    control : str or sequence of str
+        Column(s) of the applied heat rates [W]; with several (one per zone)
+        the energies are summed.
+    temperature_column : str or sequence of str
+        Column(s) of the zone temperatures [degC] in ``fine``; with several the
+        discomfort of every zone is summed.
     """
-    kpis = energy_kwh(steps[control].to_numpy(), step_s)
-    kpis.update(discomfort_kh(fine, temperature_column, step_s))
+    controls = [control] if isinstance(control, str) else list(control)
+    columns = ([temperature_column] if isinstance(temperature_column, str)
+               else list(temperature_column))
+    kpis: dict = {}
+    for name in controls:
+        for key, value in energy_kwh(steps[name].to_numpy(), step_s).items():
+            kpis[key] = kpis.get(key, 0.0) + value
+    for column in columns:
+        for key, value in discomfort_kh(fine, column, step_s).items():
+            kpis[key] = kpis.get(key, 0.0) + value
     solve = steps['solve_time_s'].to_numpy(dtype=float)
     kpis.update(steps=int(len(steps)), wall_s=float(wall_s),
                 solve_s_total=float(solve.sum()), solve_s_median=float(np.median(solve)),

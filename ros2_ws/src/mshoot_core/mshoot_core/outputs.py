@@ -12,7 +12,7 @@ from mshoot_core.closed_loop import ClosedLoopResult
 
 
 def write_outputs(out: pathlib.Path, result: ClosedLoopResult, kpis: dict,
-                  title: str) -> None:
+                  title: str, *, control: str = 'q', temperature_column: str = 'y_T') -> None:
     """Write ``kpis.json``, ``trajectories.csv``, ``steps.csv`` and ``plot.png`` to ``out``.
 
     Parameters
@@ -27,6 +27,9 @@ def write_outputs(out: pathlib.Path, result: ClosedLoopResult, kpis: dict,
         discomfort [K h], wall time [s], ...) plus anything JSON-ready.
     title : str
         First line of the plot's title (the KPIs make the second).
+    control, temperature_column : str
+        The heat rate column of ``steps`` [W] and the zone temperature column of
+        ``fine`` [degC] plotted (a multi-zone run: those of its first zone).
     """
     out.mkdir(parents=True, exist_ok=True)
     (out / 'kpis.json').write_text(json.dumps(kpis, indent=2, sort_keys=True) + '\n')
@@ -35,4 +38,5 @@ def write_outputs(out: pathlib.Path, result: ClosedLoopResult, kpis: dict,
     from mshoot_core.plotting import plot_closed_loop  # matplotlib only where plots are made
     subtitle = (f"{kpis['energy_kwh']:.1f} kWh, {kpis['discomfort_kh']:.1f} Kh "
                 f"({kpis['discomfort_kh_hourly']:.1f} Kh hourly), wall {kpis['wall_s']:.1f} s")
-    plot_closed_loop(result.fine, result.steps, out / 'plot.png', f'{title}\n{subtitle}')
+    plot_closed_loop(result.fine, result.steps, out / 'plot.png', f'{title}\n{subtitle}',
+                     temperature_column=temperature_column, control=control)

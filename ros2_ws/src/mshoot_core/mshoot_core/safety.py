@@ -9,7 +9,9 @@ messages to the plain values used here and act on the verdicts.
   malformed or untimely input gets a :class:`Rejection` (a kind from
   :data:`REJECTION_KINDS` and one clear sentence) and is counted by a
   :class:`RejectionCounter`; nothing rejected reaches the optimiser or the
-  building.
+  building. Inputs are named vectors (names and values, or named series
+  flattened name-major, :func:`unflatten`): the names must be distinct and,
+  where the receiver knows its model, known to it (:func:`check_names`).
 - The MPC fallback chain (:class:`SetpointSupervisor`): a fresh optimum when
   the solve succeeded and its plan is sane; else the next interval of the last
   good plan while it is at most ``max_plan_age_steps`` old; else the configured
@@ -37,14 +39,19 @@ logger = logging.getLogger(__name__)
 NS_PER_S = 1_000_000_000
 #: Why an input was rejected.
 REJECTION_KINDS = ('non_finite', 'out_of_range', 'length', 'band', 'step', 'stamp', 'future',
-                   'stale', 'backwards')
+                   'stale', 'backwards', 'names')
 #: Why a setpoint is a fallback (codes of :attr:`Decision.code`).
 FALLBACK_CODES = ('solve_failed', 'budget', 'not_converged', 'invalid_plan', 'inputs_missing',
                   'deactivated')
 #: Where a published setpoint comes from.
 SOURCES = ('optimum', 'plan', 'safe')
-#: Forecast series, in the column names of :mod:`mshoot_core.scenario`.
+#: Forecast series, in the column names of :mod:`mshoot_core.scenario` (those a forecast of
+#: the R1C1 zone needs).
 FORECAST_SERIES = ('Tout', 'solrad', 'occ', 'comfort_min', 'comfort_max')
+#: The comfort band series of a forecast [degC].
+COMFORT_SERIES = ('comfort_min', 'comfort_max')
+#: Name of the energy price series of a forecast [currency/kWh].
+PRICE_SERIES = 'price'
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,11 +86,20 @@ class Limits:
         Occupants [persons].
     comfort_c : (float, float)
         Comfort band bounds [degC].
+    damper_percent : (float, float)
+        Ventilation damper position ``dpos`` [%].
+    price_per_kwh : (float, float)
+        Energy price [currency/kWh] (negative prices happen).
     heat_rate_abs_w : float
         Largest plausible |heat rate| [W] (beyond the actuator limits a
         setpoint is clipped; beyond this it is rejected).
     max_samples : int
         Longest forecast or plan accepted [-].
+    max_names : int
+        Most names in a named vector (states, outputs, controls, series) [-].
+
+    Series of other names (a model's own disturbances) are only required to be
+    finite.
     """
 
     zone_temperature_c: tuple[float, float] = (-50.0, 80.0)
@@ -91,15 +107,19 @@ class Limits:
     solar_radiation_w_m2: tuple[float, float] = (0.0, 2000.0)
     occupancy: tuple[float, float] = (0.0, 10_000.0)
     comfort_c: tuple[float, float] = (-50.0, 80.0)
+    damper_percent: tuple[float, float] = (0.0, 100.0)
+    price_per_kwh: tuple[float, float] = (-1e4, 1e4)
     heat_rate_abs_w: float = 1e7
     max_samples: int = 10_000
+    max_names: int = 1000
 
     @property
     def forecast_ranges(self) -> dict[str, tuple[float, float]]:
-        """Range of every forecast series (column name -> (low, high))."""
+        """Range of every known forecast or disturbance series (name -> (low, high))."""
         return {'Tout': self.outdoor_temperature_c, 'solrad': self.solar_radiation_w_m2,
-                'occ': self.occupancy, 'comfort_min': self.comfort_c,
-                'comfort_max': self.comfort_c}
+                'occ': self.occupancy, 'dpos': self.damper_percent,
+                'comfort_min': self.comfort_c, 'comfort_max': self.comfort_c,
+                PRICE_SERIES: self.price_per_kwh}
 
 
 #: The default limits.
@@ -145,40 +165,190 @@ def check_stamp_fields(sec: int, nanosec: int) -> Rejection | None:
     return None
 
 
-def check_zone_state(temperature_c: float, heat_rate_w: float,
+def check_names(field: str, names: Sequence[str], *, expected: Sequence[str] | None = None,
+                allowed: Sequence[str] | None = None,
+                limits: Limits = LIMITS) -> Rejection | None:
+    """The names of a named vector: distinct non-empty strings, and either exactly
+    ``expected`` (in any order) or a subset of ``allowed``.
+
+    Parameters
+    ----------
+    field : str
+        What the names name (for the message), e.g. 'state_names'.
+    names : sequence of str
+    expected : sequence of str, optional
+        The names that must all be there, and no others.
+    allowed : sequence of str, optional
+        The names that may be there.
+    """
+    names = list(names)
+    if len(names) > limits.max_names:
+        return Rejection('length', f'{field} has {len(names)} names, at most '
+                         f'{limits.max_names} expected')
+    if not all(isinstance(n, str) and n for n in names):
+        return Rejection('names', f'{field} must be non-empty names, got {names}')
+    duplicates = sorted({n for n in names if names.count(n) > 1})
+    if duplicates:
+        return Rejection('names', f'{field} repeats {duplicates}')
+    if expected is not None:
+        missing = [n for n in expected if n not in names]
+        unknown = [n for n in names if n not in expected]
+        if missing or unknown:
+            what = '; '.join(part for part in (
+                f'lacks {missing}' if missing else '', f'has unknown {unknown}' if unknown
+                else '') if part)
+            return Rejection('names', f'{field} {what}: expected {list(expected)}')
+    if allowed is not None:
+        unknown = [n for n in names if n not in allowed]
+        if unknown:
+            return Rejection('names', f'{field} has unknown {unknown}: known are '
+                             f'{list(allowed)}')
+    return None
+
+
+def check_named(field: str, names: Sequence[str], values: Sequence[float],
+                low: float = -math.inf, high: float = math.inf, *,
+                expected: Sequence[str] | None = None, allowed: Sequence[str] | None = None,
+                ranges: Mapping[str, tuple[float, float]] | None = None,
+                limits: Limits = LIMITS) -> Rejection | None:
+    """A named vector: one value per name (:func:`check_names`), each finite within
+    [low, high] (or its own range in ``ranges``)."""
+    if len(values) != len(names):
+        return Rejection('length', f'{field}: {len(names)} names but {len(values)} values')
+    rejection = check_names(field, names, expected=expected, allowed=allowed, limits=limits)
+    if rejection:
+        return rejection
+    for name, value in zip(names, values):
+        lo, hi = (ranges or {}).get(name, (low, high))
+        rejection = check_value(f'{field} {name}', value, lo, hi)
+        if rejection:
+            return rejection
+    return None
+
+
+def reorder(names: Sequence[str], values: Sequence[float], order: Sequence[str]) -> np.ndarray:
+    """The values of a checked named vector in the order ``order`` (every name of ``order``
+    must be in ``names``)."""
+    index = {name: k for k, name in enumerate(names)}
+    x = np.asarray(values, dtype=float).reshape(-1)
+    return np.array([x[index[name]] for name in order], dtype=float)
+
+
+def unflatten(field: str, names: Sequence[str], values: Sequence[float], samples: int,
+              limits: Limits = LIMITS) -> tuple[dict[str, np.ndarray], Rejection | None]:
+    """Named series flattened name-major (series i, sample k at ``values[i * samples + k]``)
+    as a dict, or the rejection (names not distinct, a length that does not match).
+
+    Returns
+    -------
+    (series, rejection)
+        ``series`` is empty when ``rejection`` is not None.
+    """
+    rejection = check_names(field, names, limits=limits)
+    if rejection:
+        return {}, rejection
+    if len(values) != len(names) * samples:
+        return {}, Rejection('length', f'{field}: {len(names)} series of {samples} samples need '
+                             f'{len(names) * samples} values, got {len(values)}')
+    x = np.asarray(values, dtype=float).reshape(len(names), samples) if names else np.empty(
+        (0, samples))
+    return {name: x[i].copy() for i, name in enumerate(names)}, None
+
+
+def named_series(series_names: Sequence[str], series_values: Sequence[float],
+                 comfort_min_c: Sequence[float], comfort_max_c: Sequence[float],
+                 price_per_kwh: Sequence[float] = (),
+                 limits: Limits = LIMITS) -> tuple[dict[str, np.ndarray], Rejection | None]:
+    """The series of a forecast by name from its message form: disturbance series flattened
+    name-major with n = ``len(comfort_min_c)`` samples each, the comfort band and the price
+    (none when empty); what :func:`check_forecast` then validates.
+
+    Returns
+    -------
+    (series, rejection)
+        ``rejection`` when the names repeat, clash with the comfort band or the price, or
+        the flattened values do not hold n samples per name (then ``series`` is empty).
+    """
+    series, rejection = unflatten('forecast series_names', series_names, series_values,
+                                  len(comfort_min_c), limits)
+    if rejection:
+        return {}, rejection
+    clash = [name for name in (*COMFORT_SERIES, PRICE_SERIES) if name in series]
+    if clash:
+        return {}, Rejection('names', f'forecast series_names {clash} clash with the '
+                             'dedicated comfort and price fields')
+    series['comfort_min'] = np.asarray(comfort_min_c, dtype=float)
+    series['comfort_max'] = np.asarray(comfort_max_c, dtype=float)
+    if len(price_per_kwh):
+        series[PRICE_SERIES] = np.asarray(price_per_kwh, dtype=float)
+    return series, None
+
+
+def check_zone_state(state_names: Sequence[str], state_values: Sequence[float],
+                     output_names: Sequence[str] = (), output_values: Sequence[float] = (),
+                     control_names: Sequence[str] = (), control_values: Sequence[float] = (),
+                     *, expected_states: Sequence[str] | None = None,
+                     allowed_controls: Sequence[str] | None = None,
                      limits: Limits = LIMITS) -> Rejection | None:
-    """A measured zone state: temperature [degC] and the heat rate applied [W]."""
-    return (check_value('temperature_c', temperature_c, *limits.zone_temperature_c)
-            or check_value('heat_rate_w', heat_rate_w, -limits.heat_rate_abs_w,
-                           limits.heat_rate_abs_w))
+    """A measured state of a building's zones: named states, outputs and applied controls.
+
+    Parameters
+    ----------
+    state_names, state_values : sequences
+        The model's states by name, in SI units (temperatures [K]); finite
+        (their plausible ranges are the controller's, see
+        :meth:`mshoot_core.controller.Controller.offer_state`).
+    output_names, output_values : sequences
+        Measured outputs by name (the model's units); finite.
+    control_names, control_values : sequences
+        The controls applied over the last step by name (heat rates [W]);
+        finite, within ``limits.heat_rate_abs_w``; empty before the first step.
+    expected_states : sequence of str, optional
+        The receiver's model states: exactly these names (any order).
+    allowed_controls : sequence of str, optional
+        The receiver's controls: the applied ones must be among them.
+    """
+    return (check_named('state', state_names, state_values, expected=expected_states,
+                        limits=limits)
+            or check_named('output', output_names, output_values, limits=limits)
+            or check_named('control', control_names, control_values,
+                           -limits.heat_rate_abs_w, limits.heat_rate_abs_w,
+                           allowed=allowed_controls, limits=limits))
 
 
-def check_disturbances(outdoor_temperature_c: float, solar_radiation_w_m2: float,
-                       occupancy: float, limits: Limits = LIMITS) -> Rejection | None:
-    """Measured disturbances: outdoor temperature [degC], solar radiation [W/m2], occupants."""
-    return (check_value('outdoor_temperature_c', outdoor_temperature_c,
-                        *limits.outdoor_temperature_c)
-            or check_value('solar_radiation_w_m2', solar_radiation_w_m2,
-                           *limits.solar_radiation_w_m2)
-            or check_value('occupancy', occupancy, *limits.occupancy))
+def check_disturbances(names: Sequence[str], values: Sequence[float],
+                       limits: Limits = LIMITS) -> Rejection | None:
+    """Measured disturbances by name (Tout [degC], solrad [W/m2], occ [persons], dpos [%]
+    within their plausible ranges; other names finite)."""
+    return check_named('disturbance', names, values, ranges=limits.forecast_ranges,
+                       limits=limits)
 
 
 def check_forecast(step_s: float, series: Mapping[str, Sequence[float]],
-                   expected_step_s: float | None = None,
-                   limits: Limits = LIMITS) -> Rejection | None:
-    """A forecast of the disturbances and the comfort band.
+                   expected_step_s: float | None = None, limits: Limits = LIMITS, *,
+                   required: Sequence[str] = FORECAST_SERIES,
+                   known: Sequence[str] | None = None) -> Rejection | None:
+    """A forecast of the disturbances, the comfort band and the energy price.
 
     Parameters
     ----------
     step_s : float
         Sample spacing [s].
     series : mapping
-        Column name (:data:`FORECAST_SERIES`: Tout [degC], solrad [W/m2], occ
-        [persons], comfort_min, comfort_max [degC]) -> samples.
+        Name -> samples: the disturbances (Tout [degC], solrad [W/m2], occ
+        [persons], dpos [%] or any other model input), ``comfort_min``,
+        ``comfort_max`` [degC] and, optionally, ``price`` [currency/kWh]. All of
+        one length, finite, the known ones within :attr:`Limits.forecast_ranges`.
     expected_step_s : float, optional
         The control step the forecast must be sampled at [s].
     limits : Limits
         Plausible ranges.
+    required : sequence of str
+        Series that must be there (default :data:`FORECAST_SERIES`; a
+        controller asks for its model's disturbances and the comfort band).
+    known : sequence of str, optional
+        Every series name the receiver understands (besides ``required``);
+        another name is rejected (kind 'names'). None: any name.
     """
     rejection = check_value('step_s', step_s, 1e-9, math.inf)
     if rejection:
@@ -187,60 +357,93 @@ def check_forecast(step_s: float, series: Mapping[str, Sequence[float]],
     if expected_step_s is not None and abs(float(step_s) - expected_step_s) > 1e-6:
         return Rejection('step', f'step_s = {float(step_s):g} s differs from the control step '
                          f'{expected_step_s:g} s')
-    missing = [name for name in FORECAST_SERIES if name not in series]
+    missing = [name for name in required if name not in series]
     if missing:
         return Rejection('length', f'forecast lacks the series {missing}')
-    lengths = {name: len(series[name]) for name in FORECAST_SERIES}
+    rejection = check_names('forecast series', list(series), allowed=None if known is None
+                            else [*required, *known], limits=limits)
+    if rejection:
+        return rejection
+    lengths = {name: len(values) for name, values in series.items()}
     if len(set(lengths.values())) != 1:
         return Rejection('length', f'forecast arrays differ in length: {lengths}')
     n = next(iter(lengths.values()))
     if not 1 <= n <= limits.max_samples:
         return Rejection('length', f'forecast has {n} samples, expected 1 to '
                          f'{limits.max_samples}')
-    for name, (low, high) in limits.forecast_ranges.items():
-        rejection = check_series(name, series[name], low, high)
+    ranges = limits.forecast_ranges
+    for name, values in series.items():
+        rejection = check_series(name, values, *ranges.get(name, (-math.inf, math.inf)))
         if rejection:
             return rejection
-    low = np.asarray(series['comfort_min'], dtype=float)
-    high = np.asarray(series['comfort_max'], dtype=float)
-    bad = np.flatnonzero(low > high)
-    if bad.size:
-        k = bad[0]
-        return Rejection('band', f'comfort band inverted at sample {k}: comfort_min '
-                         f'{low[k]:g} > comfort_max {high[k]:g} degC ({bad.size} samples)')
+    if all(name in series for name in COMFORT_SERIES):
+        low = np.asarray(series['comfort_min'], dtype=float)
+        high = np.asarray(series['comfort_max'], dtype=float)
+        bad = np.flatnonzero(low > high)
+        if bad.size:
+            k = bad[0]
+            return Rejection('band', f'comfort band inverted at sample {k}: comfort_min '
+                             f'{low[k]:g} > comfort_max {high[k]:g} degC ({bad.size} samples)')
     return None
 
 
-def check_setpoint(heat_rate_w: float, temperature_c: float, step_s: float,
-                   plan_heat_rate_w: Sequence[float] = (),
-                   plan_temperature_c: Sequence[float] = (),
+def check_setpoint(step_s: float, control_names: Sequence[str],
+                   control_values: Sequence[float], temperature_names: Sequence[str] = (),
+                   temperatures_c: Sequence[float] = (), plan_controls: Sequence[float] = (),
+                   plan_temperatures_c: Sequence[float] = (), *,
                    expected_step_s: float | None = None,
+                   expected_controls: Sequence[str] | None = None,
                    limits: Limits = LIMITS) -> Rejection | None:
-    """A supervisory setpoint: heat rate [W], predicted temperature [degC], its plan.
+    """A supervisory setpoint: named controls, zone temperature setpoints, the plan.
 
-    Heat rates within ``limits.heat_rate_abs_w`` but beyond the actuator limits
-    are not rejected here: the building clips them (with a warning).
+    Parameters
+    ----------
+    step_s : float
+        Control step [s].
+    control_names, control_values : sequences
+        Every control by name (heat rates [W]): at least one; finite within
+        ``limits.heat_rate_abs_w`` (beyond the actuator limits but within this
+        they are not rejected here: the building clips them, with a warning).
+    temperature_names, temperatures_c : sequences
+        Temperature setpoints of the zones' local loops by name [degC].
+    plan_controls, plan_temperatures_c : sequences
+        The plan over m intervals, flattened name-major (control i over
+        interval k at ``plan_controls[i * m + k]``; the same for the
+        temperatures): ``m * len(control_names)`` and
+        ``m * len(temperature_names)`` values.
+    expected_step_s : float, optional
+        The receiver's control step [s].
+    expected_controls : sequence of str, optional
+        The receiver's controls: exactly these names (any order).
     """
-    rejection = (check_value('heat_rate_w', heat_rate_w, -limits.heat_rate_abs_w,
-                             limits.heat_rate_abs_w)
-                 or check_value('temperature_setpoint_c', temperature_c,
-                                *limits.zone_temperature_c)
-                 or check_value('step_s', step_s, 1e-9, math.inf))
+    rejection = check_value('step_s', step_s, 1e-9, math.inf)
     if rejection:
         return rejection
     if expected_step_s is not None and abs(float(step_s) - expected_step_s) > 1e-6:
         return Rejection('step', f'step_s = {float(step_s):g} s differs from the control step '
                          f'{expected_step_s:g} s')
-    if len(plan_heat_rate_w) != len(plan_temperature_c):
-        return Rejection('length', f'plan arrays differ in length: plan_heat_rate_w '
-                         f'{len(plan_heat_rate_w)}, plan_temperature_c '
-                         f'{len(plan_temperature_c)}')
-    if len(plan_heat_rate_w) > limits.max_samples:
-        return Rejection('length', f'plan has {len(plan_heat_rate_w)} intervals, at most '
+    if not len(control_names):
+        return Rejection('names', 'the setpoint names no control')
+    rejection = (check_named('control', control_names, control_values,
+                             -limits.heat_rate_abs_w, limits.heat_rate_abs_w,
+                             expected=expected_controls, limits=limits)
+                 or check_named('temperature setpoint', temperature_names, temperatures_c,
+                                *limits.zone_temperature_c, limits=limits))
+    if rejection:
+        return rejection
+    nc, nz = len(control_names), len(temperature_names)
+    m, rest = divmod(len(plan_controls), nc)
+    if rest or len(plan_temperatures_c) != m * nz:
+        return Rejection('length', f'plan arrays do not match {nc} controls and {nz} '
+                         f'temperatures over the same intervals: plan_controls '
+                         f'{len(plan_controls)}, plan_temperatures_c '
+                         f'{len(plan_temperatures_c)} values')
+    if m > limits.max_samples:
+        return Rejection('length', f'plan has {m} intervals, at most '
                          f'{limits.max_samples} expected')
-    return (check_series('plan_heat_rate_w', plan_heat_rate_w, -limits.heat_rate_abs_w,
+    return (check_series('plan_controls', plan_controls, -limits.heat_rate_abs_w,
                          limits.heat_rate_abs_w)
-            or check_series('plan_temperature_c', plan_temperature_c,
+            or check_series('plan_temperatures_c', plan_temperatures_c,
                             *limits.zone_temperature_c))
 
 

@@ -23,8 +23,7 @@ import time
 from typing import Any, Callable, Sequence
 
 from mshoot_core.closed_loop import run_closed_loop
-from mshoot_core.controller import Controller
-from mshoot_core.models.r1c1 import KELVIN
+from mshoot_core.controller import controller_for
 from mshoot_core.scenario import PUBLISHED
 import rclpy
 from rclpy.context import Context
@@ -45,6 +44,7 @@ from mshoot_nodes.recorder_node import RecorderNode
 from mshoot_nodes.results import kpi_summary, run_outputs
 from mshoot_nodes.signals import StopSignals
 from mshoot_nodes.sources import build_model
+from mshoot_nodes.startup import EXIT_CONFIG, startup_reason, StartupError
 
 NODE_NAMES = ('emulator', 'forecaster', 'mpc', 'recorder')
 
@@ -96,6 +96,12 @@ def run_in_process(context: Context, node_params: dict[str, dict[str, Any]], *,
 
     The nodes are destroyed before returning (the recorder's bag is closed);
     their records stay readable.
+
+    Raises
+    ------
+    StartupError
+        A node could not be built from its parameters (a bad value, model file
+        or scenario): one line naming the node and the reason.
     """
     nodes: list[Any] = []
     node_params = {name: dict(values) for name, values in node_params.items()}
@@ -103,7 +109,11 @@ def run_in_process(context: Context, node_params: dict[str, dict[str, Any]], *,
         'ready_endpoints', run_requirements('mshoot' if record else 'none'))
 
     def make(cls: type, name: str) -> Any:
-        node = cls(context=context, parameter_overrides=overrides(node_params.get(name, {})))
+        try:
+            node = cls(context=context,
+                       parameter_overrides=overrides(node_params.get(name, {})))
+        except Exception as exc:  # noqa: BLE001 - whatever fails at start-up: one clear line
+            raise StartupError(f'{name}: cannot start: {startup_reason(exc)}') from exc
         nodes.append(node)  # destroyed below even if a later node fails to start
         executor.add_node(node)
         return node
@@ -114,6 +124,9 @@ def run_in_process(context: Context, node_params: dict[str, dict[str, Any]], *,
         forecaster = make(ForecasterNode, 'forecaster')
         mpc = make(MpcNode, 'mpc')
         emulator = make(EmulatorNode, 'emulator')
+        problem = mismatch(emulator, mpc)
+        if problem:
+            raise StartupError(problem)
         started = time.perf_counter()
         steps_seen = 0
         while not emulator.done:
@@ -146,6 +159,21 @@ def run_in_process(context: Context, node_params: dict[str, dict[str, Any]], *,
     return RosRun(emulator, forecaster, mpc, recorder, wall_s)
 
 
+def mismatch(emulator: EmulatorNode, mpc: MpcNode) -> str | None:
+    """Why the MPC's model cannot control the emulated building (other states or controls:
+    every state and setpoint would be rejected), or None (also before a configure)."""
+    if emulator.emulator is None or mpc.controller is None:
+        return None
+    building = (tuple(emulator.emulator.model.state_names), emulator.emulator.control_names)
+    interface = mpc.controller.interface
+    control = (interface.state_names, interface.control_names)
+    if sorted(building[0]) == sorted(control[0]) and sorted(building[1]) == sorted(control[1]):
+        return None
+    return (f"the MPC's model {mpc.params['model']!r} (states {list(control[0])}, controls "
+            f"{list(control[1])}) does not match the emulator's {emulator.params['model']!r} "
+            f'(states {list(building[0])}, controls {list(building[1])})')
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='bringup', description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -155,9 +183,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--hours', type=int, default=None, help='control steps (default 72)')
     parser.add_argument('--horizon', type=int, default=None, help='MPC horizon [steps]')
     parser.add_argument('--emulator-model', default=None,
-                        help='emulation model: python, fmu, fmu-cs or an .fmu path')
+                        help='emulation model: python, fmu, fmu-cs, r1c1x2 (two zones) or an '
+                             '.fmu path')
     parser.add_argument('--control-model', default=None,
-                        help='MPC model: python, fmu, fmu-cs or an .fmu path')
+                        help='MPC model: python, fmu, fmu-cs, r1c1x2 (two zones) or an .fmu '
+                             'path')
     parser.add_argument('--cost', choices=('quadratic', 'energy'), default=None)
     parser.add_argument('--comfort', choices=('hard', 'soft'), default=None)
     parser.add_argument('--solver', default=None, help='slsqp, trust-constr or ipopt')
@@ -200,18 +230,20 @@ def node_params_from_args(args: argparse.Namespace) -> dict[str, dict[str, Any]]
 
 
 def core_only(emulator: EmulatorNode, mpc: MpcNode) -> tuple[float, float]:
-    """Run the core-only loop with the same parameters: (its wall time [s], max |dT| [K]).
+    """Run the core-only loop with the same parameters: (its wall time [s], max |dx| over
+    every state [K]).
 
     The models are built afresh, the scenario is the emulator node's own.
     """
     core_emulator = build_emulator(emulator.params)
-    controller = Controller(build_model(mpc.params['model'], mpc.params['fmu_tolerance']),
-                            settings_from(mpc.params))
+    controller = controller_for(build_model(mpc.params['model'], mpc.params['fmu_tolerance']),
+                                settings_from(mpc.params))
     result = run_closed_loop(controller, core_emulator, steps=len(emulator.records),
                              log_every=0)
-    ros_t = emulator.applied_frame()['T_end'].to_numpy()
-    core_t = result.steps['T_end'].to_numpy()
-    return result.wall_s, float(abs(ros_t - core_t).max())
+    columns = [f'{name}_end' for name in core_emulator.model.state_names]
+    ros_x = emulator.applied_frame()[columns].to_numpy()
+    core_x = result.steps[columns].to_numpy()
+    return result.wall_s, float(abs(ros_x - core_x).max())
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -219,8 +251,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = args.discovery
     logging.basicConfig(level=logging.WARNING, format='%(levelname)s %(name)s: %(message)s')
     params_files = args.params_file or default_params_files(args.scenario)
+    missing = [str(path) for path in params_files if not pathlib.Path(path).is_file()]
+    if missing:
+        print(f'[demo] error: parameter file(s) {missing} not found', file=sys.stderr)
+        return EXIT_CONFIG
     context = Context()
-    rclpy.init(args=ros_args(params_files), context=context)
+    try:
+        rclpy.init(args=ros_args(params_files), context=context)
+    except Exception as exc:  # noqa: BLE001 - e.g. a YAML file rcl cannot parse
+        print(f'[demo] error: {startup_reason(exc)}', file=sys.stderr)
+        return EXIT_CONFIG
     if not args.verbose:
         for name in NODE_NAMES:
             rclpy.logging.set_logger_level(name, LoggingSeverity.WARN)
@@ -232,19 +272,29 @@ def main(argv: Sequence[str] | None = None) -> int:
         total = done + emulator.emulator.steps_left
         if args.progress_every and (done % args.progress_every == 0 or done == total):
             record = emulator.records[-1]
+            temperatures = ', '.join(
+                f'{name} = {value:6.2f} degC' for name, value in zip(
+                    emulator.interface.temperature_names,
+                    emulator.interface.temperatures_c(record.x_end)))
+            controls = ', '.join(f'{name} = {value:+8.1f} W' for name, value in zip(
+                emulator.emulator.control_names, record.controls))
             print(f'[demo] step {done:3d}/{total} (t = {record.t_start_s / 3600 + 1:5.1f} h): '
-                  f'T = {record.x_end[0] - KELVIN:6.2f} degC, q = {record.controls[0]:+8.1f} W, '
-                  f'wall {time.perf_counter() - started:6.2f} s', flush=True)
+                  f'{temperatures}, {controls}, wall {time.perf_counter() - started:6.2f} s',
+                  flush=True)
 
     try:
         with StopSignals() as signals:  # SIGINT/SIGTERM: stop cleanly, the bag is closed
             run = run_in_process(context, node_params_from_args(args), record=not args.no_bag,
                                  timeout_s=args.timeout, progress=progress,
                                  stop=lambda: signals.requested)
-    except (InvalidParameterValueException, ValueError, FileNotFoundError) as exc:
+    except StartupError as exc:  # the configuration: nothing ran
         print(f'[demo] error: {exc}', file=sys.stderr)
         rclpy.try_shutdown(context=context)
-        return 2
+        return EXIT_CONFIG
+    except (InvalidParameterValueException, ValueError, FileNotFoundError) as exc:
+        print(f'[demo] error: the run failed: {startup_reason(exc)}', file=sys.stderr)
+        rclpy.try_shutdown(context=context)
+        return 1
     except (TimeoutError, KeyboardInterrupt, InterruptedError) as exc:
         why = f'{signals.received}: ' if signals.received else ''
         print(f'[demo] stopped: {why}{exc or "interrupted"}', file=sys.stderr)
@@ -277,11 +327,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     title = (f"{p_emu['scenario']} over ROS 2: H = {p_mpc['horizon_steps']} steps, control "
              f"{p_mpc['model']}, emulator {p_emu['model']}, {p_mpc['cost']} cost")
     kpis = run_outputs(args.out, emulator.applied_frame(), emulator.fine_frame(), records,
-                       p_emu['step_s'], run.wall_s, title, **extra)
+                       p_emu['step_s'], run.wall_s, title,
+                       controls=emulator.emulator.control_names,
+                       zones=emulator.zone_temperature_columns(), **extra)
     print(f'[demo] {kpi_summary(kpis)}')
     if args.compare_core:
         print(f"[demo] core-only loop: {kpis['core_wall_s']:.2f} s wall; ROS overhead "
-              f"{kpis['ros_overhead_s']:+.2f} s; max |T_ros - T_core| = "
+              f"{kpis['ros_overhead_s']:+.2f} s; max |x_ros - x_core| = "
               f"{kpis['max_abs_diff_vs_core_k']:.2e} K")
     print(f'[demo] wrote {args.out}/: kpis.json, steps.csv, trajectories.csv, plot.png'
           + (', bag/' if run.recorder is not None else ''))

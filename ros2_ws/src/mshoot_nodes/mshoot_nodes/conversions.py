@@ -4,29 +4,35 @@ The nodes stay thin by converting at their edges only: everything inside is
 :mod:`mshoot_core` data (states in K as arrays, forecasts and scenarios as
 DataFrames with the columns of :mod:`mshoot_core.scenario`).
 
+Messages carry named vectors: ``*_names`` with ``*_values`` one to one, and named
+series flattened name-major (series i, sample k at ``values[i * n + k]``,
+:func:`flatten`); the names are the model's canonical names (states ``T``,
+controls ``q``, disturbances ``Tout``, ...). Checks of what arrives are in
+:mod:`mshoot_core.safety`.
+
 Times: ROS stamps are handled as integer nanoseconds (exact comparisons of
 step stamps); scenario times are float seconds since the scenario start.
 """
 from __future__ import annotations
 
-from typing import Iterable, Sequence, TYPE_CHECKING
+from typing import Iterable, Mapping, Sequence, TYPE_CHECKING
 
 from builtin_interfaces.msg import Time
-from mshoot_core.models.r1c1 import KELVIN
+from mshoot_core.safety import named_series, PRICE_SERIES, Rejection
 from mshoot_msgs.msg import Disturbances, Forecast, MpcStatus, Setpoint, ZoneState
 import numpy as np
 import pandas as pd
 from rosgraph_msgs.msg import Clock
 
 if TYPE_CHECKING:  # the emulator process need not import scipy (through mshoot_core.mpc)
+    from mshoot_core.models.registry import ControlInterface
     from mshoot_core.mpc import MpcResult
     from mshoot_core.safety import Decision
 
 NS_PER_S = 1_000_000_000
-#: Forecast columns in the message, as scenario columns.
-FORECAST_FIELDS = {'Tout': 'outdoor_temperature_c', 'solrad': 'solar_radiation_w_m2',
-                   'occ': 'occupancy', 'comfort_min': 'comfort_min_c',
-                   'comfort_max': 'comfort_max_c'}
+#: Disturbance series a forecast carries by default (those of the R1C1 zone but the
+#: ventilation, which the MPC assumes).
+FORECAST_DISTURBANCES = ('Tout', 'solrad', 'occ')
 
 
 # -- time ---------------------------------------------------------------------------------
@@ -56,56 +62,87 @@ def floor_to_step(ns: int, step_ns: int) -> int:
     return (int(ns) // int(step_ns)) * int(step_ns)
 
 
+# -- named vectors ------------------------------------------------------------------------
+def named(names: Sequence[str], values: Sequence[float]) -> dict[str, float]:
+    """A named vector of a message (``*_names``, ``*_values``) as a dict."""
+    return {str(name): float(value) for name, value in zip(names, values)}
+
+
+def flatten(series: Mapping[str, Sequence[float]]) -> tuple[list[str], list[float]]:
+    """Named series of one length as (names, values flattened name-major)."""
+    names = [str(name) for name in series]
+    values = [float(v) for name in names for v in np.asarray(series[name], dtype=float)]
+    return names, values
+
+
+def unflatten_series(names: Sequence[str], values: Sequence[float]) -> dict[str, np.ndarray]:
+    """Named series flattened name-major back to a dict (ValueError on a length that does
+    not split evenly)."""
+    if not names:
+        if len(values):
+            raise ValueError(f'{len(values)} values for no names')
+        return {}
+    n, rest = divmod(len(values), len(names))
+    if rest:
+        raise ValueError(f'{len(values)} values do not split into {len(names)} series')
+    x = np.asarray(values, dtype=float).reshape(len(names), n)
+    return {str(name): x[i].copy() for i, name in enumerate(names)}
+
+
 # -- zone state ---------------------------------------------------------------------------
-def zone_state_msg(stamp_ns: int, temperature_k: float, heat_rate_w: float,
-                   zone: str = '') -> ZoneState:
-    """The zone state at ``stamp_ns``: temperature from the model state [K] to [degC].
+def zone_state_msg(stamp_ns: int, states: Mapping[str, float],
+                   outputs: Mapping[str, float] | None = None,
+                   controls: Mapping[str, float] | None = None, zone: str = '') -> ZoneState:
+    """The state of a building's zones at ``stamp_ns`` as named vectors.
 
     Parameters
     ----------
     stamp_ns : int
         Time of the measurement [ns].
-    temperature_k : float
-        Zone temperature [K] (the R1C1 state).
-    heat_rate_w : float
-        Heat rate applied over the last step [W].
+    states : mapping
+        The model's states by name, SI units (temperatures [K]).
+    outputs : mapping, optional
+        Measured outputs by name (the model's units; temperatures [degC]).
+    controls : mapping, optional
+        Controls applied over the last step by name (heat rates [W]).
     zone : str
-        Zone name (``header.frame_id``).
+        Building or zone name (``header.frame_id``).
     """
     msg = ZoneState()
     msg.header.stamp = ns_to_stamp(stamp_ns)
     msg.header.frame_id = zone
-    msg.temperature_c = float(temperature_k) - KELVIN
-    msg.heat_rate_w = float(heat_rate_w)
+    for field, values in (('state', states), ('output', outputs or {}),
+                          ('control', controls or {})):
+        setattr(msg, f'{field}_names', [str(name) for name in values])
+        setattr(msg, f'{field}_values', [float(v) for v in values.values()])
     return msg
 
 
-def zone_state_to_x(msg: ZoneState) -> np.ndarray:
-    """The model state of a zone state message: ``[T]`` [K], shape (1,)."""
-    return np.array([msg.temperature_c + KELVIN])
+def zone_state_states(msg: ZoneState) -> dict[str, float]:
+    """The states of a zone state message by name (SI units)."""
+    return named(msg.state_names, msg.state_values)
 
 
 # -- disturbances -------------------------------------------------------------------------
-def disturbances_msg(stamp_ns: int, row: pd.Series, zone: str = '') -> Disturbances:
-    """Measured disturbances of a scenario row (columns Tout, solrad, occ)."""
+def disturbances_msg(stamp_ns: int, values: Mapping[str, float],
+                     zone: str = '') -> Disturbances:
+    """Measured disturbances by name (scenario units: Tout [degC], solrad [W/m2], ...)."""
     msg = Disturbances()
     msg.header.stamp = ns_to_stamp(stamp_ns)
     msg.header.frame_id = zone
-    msg.outdoor_temperature_c = float(row['Tout'])
-    msg.solar_radiation_w_m2 = float(row['solrad'])
-    msg.occupancy = float(row['occ'])
+    msg.names = [str(name) for name in values]
+    msg.values = [float(v) for v in values.values()]
     return msg
 
 
 def disturbances_to_series(msg: Disturbances) -> pd.Series:
-    """A Disturbances message as a Series with the scenario columns Tout, solrad, occ."""
-    return pd.Series({'Tout': msg.outdoor_temperature_c, 'solrad': msg.solar_radiation_w_m2,
-                      'occ': msg.occupancy})
+    """A Disturbances message as a Series indexed by the disturbance names."""
+    return pd.Series(named(msg.names, msg.values), dtype=float)
 
 
 # -- forecast -----------------------------------------------------------------------------
 def forecast_msg(stamp_ns: int, step_s: float, window: pd.DataFrame,
-                 zone: str = '') -> Forecast:
+                 series: Sequence[str] = FORECAST_DISTURBANCES, zone: str = '') -> Forecast:
     """A forecast message from a window of scenario rows.
 
     Parameters
@@ -114,95 +151,133 @@ def forecast_msg(stamp_ns: int, step_s: float, window: pd.DataFrame,
         Start time of the first sample [ns].
     step_s : float
         Sample spacing [s].
-    window : DataFrame, shape (n, >= 5)
-        Rows of the columns Tout, solrad, occ, comfort_min, comfort_max (e.g.
+    window : DataFrame, shape (n, ...)
+        Rows with the columns ``series``, ``comfort_min``, ``comfort_max`` [degC]
+        and optionally ``price`` [currency/kWh] (e.g.
         :func:`mshoot_core.closed_loop.forecast_window`: N+1 rows).
+    series : sequence of str
+        The disturbance columns to send (default: Tout, solrad, occ).
+    zone : str
+        ``header.frame_id``.
     """
     msg = Forecast()
     msg.header.stamp = ns_to_stamp(stamp_ns)
     msg.header.frame_id = zone
     msg.step_s = float(step_s)
-    for column, field in FORECAST_FIELDS.items():
-        setattr(msg, field, window[column].to_numpy(dtype=float).tolist())
+    msg.series_names, msg.series_values = flatten({name: window[name] for name in series})
+    msg.comfort_min_c = window['comfort_min'].to_numpy(dtype=float).tolist()
+    msg.comfort_max_c = window['comfort_max'].to_numpy(dtype=float).tolist()
+    if PRICE_SERIES in window.columns:
+        msg.price_per_kwh = window[PRICE_SERIES].to_numpy(dtype=float).tolist()
     return msg
 
 
 def forecast_length(msg: Forecast) -> int:
-    """Number of samples of a forecast; ValueError if its arrays differ in length."""
-    lengths = {field: len(getattr(msg, field)) for field in FORECAST_FIELDS.values()}
-    if len(set(lengths.values())) != 1:
-        raise ValueError(f'forecast arrays differ in length: {lengths}')
-    return next(iter(lengths.values()))
+    """Number of samples of a forecast (that of its comfort band)."""
+    return len(msg.comfort_min_c)
 
 
-def forecast_series(msg: Forecast) -> dict[str, Sequence[float]]:
-    """The arrays of a forecast by scenario column (Tout, solrad, occ, comfort_min,
-    comfort_max), unchecked: what :func:`mshoot_core.safety.check_forecast` validates."""
-    return {column: getattr(msg, field) for column, field in FORECAST_FIELDS.items()}
+def forecast_series(msg: Forecast) -> tuple[dict[str, np.ndarray], Rejection | None]:
+    """The series of a forecast by name: its disturbances, ``comfort_min``,
+    ``comfort_max`` and ``price`` (when given), checked for their names and lengths only
+    (:func:`mshoot_core.safety.named_series`); what
+    :func:`mshoot_core.safety.check_forecast` validates.
+
+    Returns
+    -------
+    (series, rejection)
+        ``rejection`` when the names repeat or clash, or the flattened values do not
+        hold one series of n samples per name (then ``series`` is empty).
+    """
+    return named_series(list(msg.series_names), msg.series_values, msg.comfort_min_c,
+                        msg.comfort_max_c, msg.price_per_kwh)
 
 
-def forecast_to_frame(msg: Forecast, dpos: float = 0.0) -> pd.DataFrame:
-    """A forecast message as a DataFrame with the scenario columns.
+def forecast_to_frame(msg: Forecast, assumed: Mapping[str, float] | None = None) -> pd.DataFrame:
+    """A forecast message as a DataFrame of its series (ValueError if malformed).
 
     Parameters
     ----------
     msg : Forecast
-        The forecast (all arrays of one length n).
-    dpos : float
-        Ventilation damper position [%] assumed over the horizon (the message
-        carries no ventilation forecast; 0: ventilation off).
+    assumed : mapping, optional
+        Series the message does not carry, held constant (e.g. ``{'dpos': 0.0}``).
 
     Returns
     -------
-    DataFrame, shape (n, 6)
-        Columns solrad, Tout, occ, dpos, comfort_min, comfort_max; index the
-        sample start times [s] (ROS time).
+    DataFrame, shape (n, ...)
+        One column per series (disturbances, comfort_min, comfort_max, price
+        when given, then the assumed ones); index the sample start times [s]
+        (ROS time).
     """
+    series, rejection = forecast_series(msg)
+    if rejection:
+        raise ValueError(rejection.reason)
     n = forecast_length(msg)
+    lengths = {name: len(values) for name, values in series.items()}
+    if len(set(lengths.values())) > 1:
+        raise ValueError(f'forecast arrays differ in length: {lengths}')
     t0 = stamp_to_ns(msg.header.stamp) / NS_PER_S
-    frame = pd.DataFrame({column: np.asarray(getattr(msg, field), dtype=float)
-                          for column, field in FORECAST_FIELDS.items()},
-                         index=pd.Index(t0 + np.arange(n) * msg.step_s, name='time_s'))
-    frame['dpos'] = float(dpos)
-    return frame[['solrad', 'Tout', 'occ', 'dpos', 'comfort_min', 'comfort_max']]
+    frame = pd.DataFrame(series, index=pd.Index(t0 + np.arange(n) * msg.step_s,
+                                                name='time_s'))
+    for name, value in (assumed or {}).items():
+        if name not in frame.columns:
+            frame[name] = float(value)
+    return frame
 
 
 # -- setpoint and status ------------------------------------------------------------------
-def setpoint_msg(stamp_ns: int, result: MpcResult, step_s: float, zone: str = '') -> Setpoint:
-    """The setpoint of a solved MPC step: first control, its predicted end temperature and
-    the plan (first control ``q``, first state ``T`` in K)."""
+def setpoint_msg(stamp_ns: int, step_s: float, controls: Mapping[str, float],
+                 temperatures_c: Mapping[str, float] | None = None,
+                 plan_controls: Mapping[str, Sequence[float]] | None = None,
+                 plan_temperatures_c: Mapping[str, Sequence[float]] | None = None,
+                 zone: str = '') -> Setpoint:
+    """A setpoint: named controls, zone temperature setpoints and the plan behind them.
+
+    Parameters
+    ----------
+    stamp_ns : int
+        Start of the step [ns].
+    step_s : float
+        Control step [s].
+    controls : mapping
+        Every control by name (heat rates [W]).
+    temperatures_c : mapping, optional
+        Temperature setpoint of every zone by name [degC].
+    plan_controls, plan_temperatures_c : mapping, optional
+        The plan: per control (per zone temperature) its values over the
+        intervals, all of one length; the keys in the order of ``controls``
+        (``temperatures_c``). None: no plan.
+    zone : str
+        ``header.frame_id``.
+    """
     msg = Setpoint()
     msg.header.stamp = ns_to_stamp(stamp_ns)
     msg.header.frame_id = zone
-    controls = np.asarray(result.controls, dtype=float)[:, 0]
-    temperatures_c = np.asarray(result.states, dtype=float)[1:, 0] - KELVIN
-    msg.heat_rate_w = float(controls[0])
-    msg.temperature_setpoint_c = float(temperatures_c[0])
     msg.step_s = float(step_s)
-    msg.plan_heat_rate_w = controls.tolist()
-    msg.plan_temperature_c = temperatures_c.tolist()
+    msg.control_names = [str(name) for name in controls]
+    msg.control_values = [float(v) for v in controls.values()]
+    temperatures_c = temperatures_c or {}
+    msg.temperature_names = [str(name) for name in temperatures_c]
+    msg.temperature_setpoints_c = [float(v) for v in temperatures_c.values()]
+    msg.plan_controls = flatten(plan_controls)[1] if plan_controls else []
+    msg.plan_temperatures_c = flatten(plan_temperatures_c)[1] if plan_temperatures_c else []
     return msg
 
 
-def fallback_setpoint_msg(stamp_ns: int, heat_rate_w: float, temperature_c: float,
-                          step_s: float, plan_heat_rate_w: Sequence[float] = (),
-                          plan_temperature_c: Sequence[float] = (),
-                          zone: str = '') -> Setpoint:
-    """A setpoint that is not a fresh optimum (e.g. the previous plan's next interval)."""
-    msg = Setpoint()
-    msg.header.stamp = ns_to_stamp(stamp_ns)
-    msg.header.frame_id = zone
-    msg.heat_rate_w = float(heat_rate_w)
-    msg.temperature_setpoint_c = float(temperature_c)
-    msg.step_s = float(step_s)
-    msg.plan_heat_rate_w = [float(v) for v in plan_heat_rate_w]
-    msg.plan_temperature_c = [float(v) for v in plan_temperature_c]
-    return msg
+def setpoint_controls(msg: Setpoint) -> dict[str, float]:
+    """The controls of a setpoint by name."""
+    return named(msg.control_names, msg.control_values)
 
 
-def setpoint_to_controls(msg: Setpoint) -> np.ndarray:
-    """The controls of a setpoint: ``[q]`` [W], shape (1,)."""
-    return np.array([msg.heat_rate_w])
+def setpoint_plan(msg: Setpoint) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """The plan of a (checked) setpoint: (controls by name, predicted zone temperatures
+    [degC] by name), each over the plan's intervals."""
+    m = len(msg.plan_controls) // max(len(msg.control_names), 1)
+    controls = np.asarray(msg.plan_controls, dtype=float).reshape(len(msg.control_names), m)
+    temperatures = np.asarray(msg.plan_temperatures_c, dtype=float).reshape(
+        len(msg.temperature_names), m)
+    return ({n: controls[i] for i, n in enumerate(msg.control_names)},
+            {n: temperatures[i] for i, n in enumerate(msg.temperature_names)})
 
 
 def status_msg(stamp_ns: int, result: MpcResult | None, *, fallback: bool = False,
@@ -228,28 +303,45 @@ def status_msg(stamp_ns: int, result: MpcResult | None, *, fallback: bool = Fals
 
 
 def decision_setpoint_msg(stamp_ns: int, decision: Decision, step_s: float,
-                          safe_temperature_c: float, zone: str = '') -> Setpoint:
-    """The setpoint of a supervisor decision (first control ``q``, first state ``T`` [K]).
+                          interface: ControlInterface, safe_temperature_c: float,
+                          zone: str = '') -> Setpoint:
+    """The setpoint of a supervisor decision: every control, the predicted temperature of
+    every zone and the plan.
 
     Parameters
     ----------
     stamp_ns : int
         Start of the step [ns].
     decision : Decision
-        From :class:`mshoot_core.safety.SetpointSupervisor`.
+        From :class:`mshoot_core.safety.SetpointSupervisor` (controls in the order of
+        ``interface.control_names``, states in the model's order).
     step_s : float
         Control step [s].
+    interface : ControlInterface
+        The controller's controls and zone temperatures
+        (:attr:`mshoot_core.controller.Controller.interface`).
     safe_temperature_c : float
-        Temperature setpoint sent with a safe setpoint (which predicts nothing) [degC].
+        Temperature setpoint of every zone sent with a safe setpoint (which
+        predicts nothing) [degC].
     zone : str
         ``header.frame_id``.
     """
-    temperature_c = (float(decision.predicted_state[0]) - KELVIN
-                     if decision.predicted_state is not None else float(safe_temperature_c))
-    return fallback_setpoint_msg(stamp_ns, float(decision.controls[0]), temperature_c, step_s,
-                                 np.asarray(decision.plan_controls, dtype=float)[:, 0],
-                                 np.asarray(decision.plan_states, dtype=float)[:, 0] - KELVIN
-                                 if len(decision.plan_states) else (), zone)
+    names, zones = interface.control_names, interface.temperature_names
+    controls = np.asarray(decision.controls, dtype=float).reshape(-1)
+    if decision.predicted_state is not None:
+        temperatures = interface.temperatures_c(decision.predicted_state)
+    else:
+        temperatures = np.full(len(zones), float(safe_temperature_c))
+    plan_u = np.asarray(decision.plan_controls, dtype=float).reshape(-1, len(names))
+    plan_x = np.asarray(decision.plan_states, dtype=float)
+    plan_t = (interface.temperatures_c(plan_x) if plan_x.size
+              else np.empty((0, len(zones))))
+    m = plan_u.shape[0]
+    return setpoint_msg(
+        stamp_ns, step_s, dict(zip(names, controls)), dict(zip(zones, temperatures)),
+        {n: plan_u[:, i] for i, n in enumerate(names)} if m else None,
+        {n: plan_t[:, j] for j, n in enumerate(zones)} if m and plan_t.shape[0] == m
+        else None, zone)
 
 
 def decision_status_msg(stamp_ns: int, decision: Decision, result: MpcResult | None, *,
@@ -293,15 +385,21 @@ def mpc_records_frame(setpoints: Iterable[Setpoint], statuses: Iterable[MpcStatu
     -------
     DataFrame
         Index ``time_s`` (stamp minus ``epoch_ns`` [s]); columns
-        ``q_setpoint`` [W], ``T_predicted_c`` [degC], ``success``, ``fallback``,
-        ``iterations``, ``solve_time_s``, ``objective``, ``max_defect``,
-        ``message``, ``source``, ``fallback_reason``.
+        ``<control>_setpoint`` for every control (``q_setpoint`` [W]),
+        ``<zone>_predicted_c`` for every zone temperature (``T_predicted_c``
+        [degC]), ``success``, ``fallback``, ``iterations``, ``solve_time_s``,
+        ``objective``, ``max_defect``, ``message``, ``source``,
+        ``fallback_reason``.
     """
     rows: dict[int, dict] = {}
     for msg in setpoints:
-        stamp = stamp_to_ns(msg.header.stamp)
-        rows.setdefault(stamp, {}).setdefault('q_setpoint', msg.heat_rate_w)
-        rows[stamp].setdefault('T_predicted_c', msg.temperature_setpoint_c)
+        row = rows.setdefault(stamp_to_ns(msg.header.stamp), {})
+        if 'setpoint' not in row:
+            row['setpoint'] = True
+            row.update({f'{name}_setpoint': value
+                        for name, value in setpoint_controls(msg).items()})
+            row.update({f'{name}_predicted_c': value for name, value in
+                        named(msg.temperature_names, msg.temperature_setpoints_c).items()})
     for msg in statuses:
         row = rows.setdefault(stamp_to_ns(msg.header.stamp), {})
         if 'success' not in row:
@@ -311,6 +409,7 @@ def mpc_records_frame(setpoints: Iterable[Setpoint], statuses: Iterable[MpcStatu
                        message=msg.message, source=msg.source,
                        fallback_reason=msg.fallback_reason)
     frame = pd.DataFrame.from_dict(rows, orient='index').sort_index()
+    frame = frame.drop(columns=['setpoint'], errors='ignore')
     frame.index = pd.Index((frame.index.to_numpy(dtype=np.int64) - int(epoch_ns)) / NS_PER_S,
                            name='time_s')
     return frame

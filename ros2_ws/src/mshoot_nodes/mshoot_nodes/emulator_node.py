@@ -1,8 +1,14 @@
 """The emulator node: the building, simulated by :class:`mshoot_core.emulation.Emulator`.
 
-Publishes ``/clock`` (it drives simulated time), ``/zone/state`` and
-``/zone/disturbances`` at every control step and applies the setpoints from
-``/mpc/setpoint``, clipped to the actuator limits with a warning.
+Publishes ``/clock`` (it drives simulated time), ``/zone/state`` (the model's
+states, its outputs after the last step and the controls applied, as named
+vectors) and ``/zone/disturbances`` (the model's disturbance inputs of the
+step, by name) at every control step and applies the setpoints from
+``/mpc/setpoint`` (every control of the model, by name), clipped to the
+actuator limits with a warning. Any model of the registry runs, with one or
+several controls and zones (e.g. ``model:=r1c1x2``: two zones, controls
+``q_0``, ``q_1``); every control has the actuator limits ``heat_rate_min_w``,
+``heat_rate_max_w``.
 
 Modes (parameter ``mode``):
 
@@ -17,15 +23,16 @@ Modes (parameter ``mode``):
 
 Safety (the rules are in :mod:`mshoot_core.safety`):
 
-- every setpoint is validated (finite, plausible, the control step,
-  consistent plan arrays, stamped neither for a future step nor going
-  backwards, nor, in lockstep, for a step already done); a rejected one is
+- every setpoint is validated (exactly the model's controls by name, finite,
+  plausible, the control step, consistent plan arrays, stamped neither for a
+  future step nor going backwards, nor, in lockstep, for a step already done;
+  :func:`mshoot_core.safety.check_setpoint`); a rejected one is
   counted (``rejections``, ``run.json``) and logged one line each,
   rate-limited, and never reaches the building;
 - when a step has no setpoint (free mode, or lockstep after
   ``lockstep_timeout_s`` of wall time with ``on_lockstep_timeout`` 'hold'),
   the last setpoint is held for ``hold_s`` of simulated time, then the safe
-  default ``safe_heat_rate_w`` is applied
+  default ``safe_heat_rate_w`` is applied to every control
   (:class:`~mshoot_core.safety.SetpointHold`); with 'stop' (default) the run
   ends with a clear error instead of waiting forever (exit code 1);
 - a model that raises or returns non-finite states ends the run with an
@@ -62,9 +69,10 @@ from typing import Any
 
 from mshoot_core.emulation import Emulator, StepRecord
 from mshoot_core.models.r1c1 import KELVIN
-from mshoot_core.models.registry import EMULATOR_TOLERANCE
-from mshoot_core.safety import (check_setpoint, check_stamp_fields, Rejection, SetpointHold,
-                                StampGate)
+from mshoot_core.models.registry import (control_interface, ControlInterface,
+                                         EMULATOR_TOLERANCE)
+from mshoot_core.safety import (check_setpoint, check_stamp_fields, Rejection, reorder,
+                                SetpointHold, StampGate)
 from mshoot_msgs.msg import Disturbances, Setpoint, ZoneState
 import numpy as np
 import pandas as pd
@@ -72,7 +80,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 
 from mshoot_nodes import contract, sources
 from mshoot_nodes.conversions import (clock_msg, disturbances_msg, NS_PER_S, seconds_to_ns,
-                                      setpoint_to_controls, stamp_to_ns, zone_state_msg)
+                                      stamp_to_ns, zone_state_msg)
 from mshoot_nodes.diagnostics import DiagnosticsPublisher, Level, Report
 from mshoot_nodes.lifecycle import ManagedNode
 from mshoot_nodes.params import declare, ordered, ParamSpec, values
@@ -91,22 +99,24 @@ PARAMS = (
     ParamSpec('start_time', '', 'ROS time of the first scenario row, ISO date-time read as UTC '
               "('' = the scenario's own start date)", read_only=True),
     ParamSpec('model', 'fmu', "emulation model: 'fmu' (the built-in R1C1 FMU, Model Exchange), "
-              "'fmu-cs' (Co-Simulation), 'python' (exact R1C1) or a path to an .fmu with the "
-              "R1C1 zone's variables", read_only=True),
+              "'fmu-cs' (Co-Simulation), 'python' (exact R1C1), 'r1c1x2' (two R1C1 zones, "
+              "controls q_0, q_1), a path to an .fmu with the R1C1 zone's variables, or a path "
+              'to a model card (.yaml)', read_only=True),
     ParamSpec('fmu_tolerance', EMULATOR_TOLERANCE, 'relative tolerance of the FMU integrator [-]',
               low=1e-14, high=1e-2, read_only=True),
-    ParamSpec('initial_temperature_c', 20.0, 'zone temperature at the first step [degC]',
-              low=-50.0, high=80.0, read_only=True),
+    ParamSpec('initial_temperature_c', 20.0, 'zone temperature at the first step: every '
+              'state of the model starts at it (in K) [degC]', low=-50.0, high=80.0,
+              read_only=True),
     ParamSpec('start_step', 0, 'scenario step to start at (a restart mid-run, with '
               'initial_temperature_c the state then) [-]', low=0, high=1_000_000,
               read_only=True),
     ParamSpec('step_s', 3600.0, 'control step [s]', low=1.0, high=86400.0, read_only=True),
     ParamSpec('fine_step_s', 60.0, 'grid of the recorded fine trajectory [s]', low=1.0,
               high=86400.0, read_only=True),
-    ParamSpec('heat_rate_min_w', -2000.0, 'actuator limit: largest cooling power, negative '
-              '[W]', low=-1e7, high=1e7, read_only=True),
-    ParamSpec('heat_rate_max_w', 2000.0, 'actuator limit: largest heating power [W]',
-              low=-1e7, high=1e7, read_only=True),
+    ParamSpec('heat_rate_min_w', -2000.0, 'actuator limit of every control: largest cooling '
+              'power, negative [W]', low=-1e7, high=1e7, read_only=True),
+    ParamSpec('heat_rate_max_w', 2000.0, 'actuator limit of every control: largest heating '
+              'power [W]', low=-1e7, high=1e7, read_only=True),
     ParamSpec('mode', 'lockstep', 'lockstep: wait for the setpoint of every step (exact, '
               'as fast as the MPC); free: run at speedup times the wall clock',
               choices=('lockstep', 'free'), read_only=True),
@@ -125,8 +135,8 @@ PARAMS = (
     ParamSpec('hold_s', 3600.0, 'a step without its setpoint applies the last one while it is '
               'at most this old (simulated time), else the safe default [s]', low=0.0,
               high=1e7),
-    ParamSpec('safe_heat_rate_w', 0.0, 'safe default heat rate when no setpoint can be held '
-              '[W]', low=-1e7, high=1e7),
+    ParamSpec('safe_heat_rate_w', 0.0, 'safe default heat rate of every control when no '
+              'setpoint can be held [W]', low=-1e7, high=1e7),
     ParamSpec('reject_log_period_s', 5.0, 'at most one log line per kind of rejected '
               'setpoint in this wall time [s]', low=0.0, high=3600.0, read_only=True),
     ParamSpec('ready_endpoints', [f'{contract.ZONE_STATE} subscribers>=1',
@@ -175,13 +185,16 @@ def _check_sources(v: dict[str, Any]) -> str | None:
 
 
 def build_emulator(p: dict[str, Any]) -> Emulator:
-    """The core emulator configured by the node's parameter values ``p``."""
+    """The core emulator configured by the node's parameter values ``p``: the model's
+    controls (:func:`~mshoot_core.models.registry.control_interface`) within the actuator
+    limits, every state starting at ``initial_temperature_c`` (in K)."""
     scenario = sources.load_scenario(p['scenario'], p['data'], p['hours'])
     model = sources.build_model(p['model'], p['fmu_tolerance'])
-    return Emulator(model, scenario, [p['initial_temperature_c'] + KELVIN], control_names=('q',),
-                    control_bounds=((p['heat_rate_min_w'], p['heat_rate_max_w']),),
-                    step_s=p['step_s'], fine_step_s=p['fine_step_s'],
-                    start_index=p.get('start_step', 0))
+    controls = control_interface(model).control_names
+    return Emulator(model, scenario, [p['initial_temperature_c'] + KELVIN] * len(
+        model.state_names), control_names=controls,
+        control_bounds=((p['heat_rate_min_w'], p['heat_rate_max_w']),) * len(controls),
+        step_s=p['step_s'], fine_step_s=p['fine_step_s'], start_index=p.get('start_step', 0))
 
 
 class EmulatorNode(ManagedNode):
@@ -225,6 +238,7 @@ class EmulatorNode(ManagedNode):
         self.add_post_set_parameters_callback(self._on_parameters_set)
         p = self.params
         self.emulator: Emulator | None = None
+        self.interface: ControlInterface | None = None
         self.epoch_ns = 0
         self.step_ns = seconds_to_ns(p['step_s'])
         self._speedup = float(p['speedup'])
@@ -248,10 +262,9 @@ class EmulatorNode(ManagedNode):
         self.lockstep_waits = 0
         self.lockstep_timeouts = 0
         self._reported_rejections = 0
-        self._hold = SetpointHold((p['safe_heat_rate_w'],), p['hold_s'])
+        self._hold = SetpointHold(self._safe_controls(), p['hold_s'])
         self._setpoint_gate = StampGate(self.step_ns, max_age_ns=(
             0 if p['mode'] == 'lockstep' else seconds_to_ns(p['hold_s'])))
-        self._last_heat_rate_w = 0.0
         self._sim_ns = self.stamp_ns if self.emulator is not None else 0
         self._last_publish_ns = 0
         self._step_started_ns = 0
@@ -264,6 +277,7 @@ class EmulatorNode(ManagedNode):
         """Load the scenario and the model (the FMU), create the publishers."""
         p = self.params
         self.emulator = build_emulator(p)
+        self.interface = control_interface(self.emulator.model)
         self.epoch_ns = sources.start_ns(self.emulator.scenario, p['start_time'])
         self._reset_run()
         self._clock_pub = self.create_lifecycle_publisher(ClockMsg, contract.CLOCK,
@@ -275,8 +289,9 @@ class EmulatorNode(ManagedNode):
         self.get_logger().info(
             f"{p['scenario']} scenario, {p['hours']} steps of {p['step_s']:.0f} s from "
             f"{pd.Timestamp(self.epoch_ns, tz='UTC').isoformat()}, model {p['model']}, "
-            f"{p['mode']} mode; T0 = {p['initial_temperature_c']:.2f} degC, actuator "
-            f"[{p['heat_rate_min_w']:.0f}, {p['heat_rate_max_w']:.0f}] W")
+            f"{p['mode']} mode; T0 = {p['initial_temperature_c']:.2f} degC, controls "
+            f"{list(self.emulator.control_names)} within [{p['heat_rate_min_w']:.0f}, "
+            f"{p['heat_rate_max_w']:.0f}] W")
 
     def activate(self) -> None:
         """Take setpoints; open the start gate, or resume a paused run."""
@@ -372,6 +387,11 @@ class EmulatorNode(ManagedNode):
     def _steady_ns(self) -> int:
         return self._steady.now().nanoseconds
 
+    def _safe_controls(self) -> tuple[float, ...]:
+        """The safe default of every control of the model (one before the first configure)."""
+        count = len(self.emulator.control_names) if self.emulator is not None else 1
+        return (float(self.params['safe_heat_rate_w']),) * count
+
     # -- parameters -----------------------------------------------------------------------
     def _on_parameters_set(self, params: list) -> None:
         self.params = values(self, PARAMS)
@@ -381,7 +401,7 @@ class EmulatorNode(ManagedNode):
                 self.get_logger().info(f'speed-up set to {self._speedup:g}')
             elif param.name in ('hold_s', 'safe_heat_rate_w'):
                 self._hold.hold_s = float(self.params['hold_s'])
-                self._hold.safe_controls = np.array([self.params['safe_heat_rate_w']])
+                self._hold.safe_controls = np.array(self._safe_controls())
                 if self.params['mode'] != 'lockstep':
                     self._setpoint_gate.max_age_ns = seconds_to_ns(self.params['hold_s'])
 
@@ -414,12 +434,22 @@ class EmulatorNode(ManagedNode):
         """Publish clock, disturbances and state of the current step."""
         stamp = self.stamp_ns
         zone = self.params['zone']
+        emulator = self.emulator
         self._clock_pub.publish(clock_msg(stamp))
         self._sim_ns = stamp
-        self._disturbance_pub.publish(disturbances_msg(stamp, self.emulator.disturbances(),
-                                                       zone))
-        self._state_pub.publish(zone_state_msg(stamp, self.emulator.x[0], self._last_heat_rate_w,
-                                               zone))
+        row = emulator.scenario.iloc[emulator.index]
+        self._disturbance_pub.publish(disturbances_msg(stamp, {
+            name: float(row[name]) for name in emulator.model.input_names
+            if name not in emulator.control_names}, zone))
+        last = self.records[-1] if self.records else None
+        outputs = ({} if last is None else
+                   {name: float(last.fine[f'y_{name}'].iloc[-1])
+                    for name in emulator.model.output_names})
+        controls = ({} if last is None else
+                    dict(zip(emulator.control_names, map(float, last.controls))))
+        self._state_pub.publish(zone_state_msg(
+            stamp, dict(zip(emulator.model.state_names, map(float, emulator.x))), outputs,
+            controls, zone))
         self._last_publish_ns = self._steady_ns()
 
     def _heartbeat(self) -> None:
@@ -469,10 +499,13 @@ class EmulatorNode(ManagedNode):
         stamp = stamp_to_ns(msg.header.stamp)
         lockstep = self.params['mode'] == 'lockstep'
         now = self.stamp_ns if lockstep else max(self._sim_ns, self.stamp_ns)
+        controls = self.emulator.control_names
         rejection = (check_stamp_fields(msg.header.stamp.sec, msg.header.stamp.nanosec)
-                     or check_setpoint(msg.heat_rate_w, msg.temperature_setpoint_c, msg.step_s,
-                                       msg.plan_heat_rate_w, msg.plan_temperature_c,
-                                       expected_step_s=self.params['step_s'])
+                     or check_setpoint(msg.step_s, msg.control_names, msg.control_values,
+                                       msg.temperature_names, msg.temperature_setpoints_c,
+                                       msg.plan_controls, msg.plan_temperatures_c,
+                                       expected_step_s=self.params['step_s'],
+                                       expected_controls=controls)
                      or self._setpoint_gate.check(stamp, now))
         if rejection:
             self._reject(stamp, rejection)
@@ -486,10 +519,10 @@ class EmulatorNode(ManagedNode):
                                           f'the current step {self.stamp_ns / NS_PER_S:.3f} s'))
             return
         self._setpoint_gate.accept(stamp, now)
-        controls = setpoint_to_controls(msg)
-        self._hold.offer(self._scenario_s(stamp), controls)
+        applied = reorder(msg.control_names, msg.control_values, controls)
+        self._hold.offer(self._scenario_s(stamp), applied)
         if lockstep:
-            self._advance(controls, 'setpoint')
+            self._advance(applied, 'setpoint')
 
     def _reject(self, stamp_ns: int, rejection: Rejection) -> None:
         self.rejections.reject('setpoint', self.resolve_topic_name(contract.SETPOINT), stamp_ns,
@@ -513,11 +546,12 @@ class EmulatorNode(ManagedNode):
         """Apply ``controls`` over the current step, publish the next one."""
         bounds = self.emulator.control_bounds
         clipped = np.clip(controls, bounds[:, 0], bounds[:, 1])
-        if np.any(clipped != controls):
+        names = self.emulator.control_names
+        for k in np.flatnonzero(clipped != controls):
             self.get_logger().warning(
-                f'setpoint {controls[0]:.1f} W at {self.stamp_ns / NS_PER_S:.0f} s is outside '
-                f'the actuator limits [{bounds[0, 0]:.0f}, {bounds[0, 1]:.0f}] W: applying '
-                f'{clipped[0]:.1f} W')
+                f'setpoint {names[k]} = {controls[k]:.1f} W at {self.stamp_ns / NS_PER_S:.0f} s '
+                f'is outside the actuator limits [{bounds[k, 0]:.0f}, {bounds[k, 1]:.0f}] W: '
+                f'applying {clipped[k]:.1f} W')
         try:
             record = self.emulator.advance(clipped)
         except Exception as exc:  # noqa: BLE001 - the building model failed: stop, clearly
@@ -534,10 +568,11 @@ class EmulatorNode(ManagedNode):
         if self.params['records_kept'] and len(self.records) > self.params['records_kept']:
             del self.records[:-self.params['records_kept']]
         self.applied_sources.append(source)
-        self._last_heat_rate_w = float(record.controls[0])
         self.get_logger().debug(
-            f'step {self.steps_done}: q = {record.controls[0]:.1f} W, T '
-            f'{record.x_start[0] - KELVIN:.3f} -> {record.x_end[0] - KELVIN:.3f} degC')
+            f'step {self.steps_done}: '
+            + ', '.join(f'{n} = {v:.1f}' for n, v in zip(names, record.controls))
+            + f', states {np.round(record.x_start, 3).tolist()} -> '
+            f'{np.round(record.x_end, 3).tolist()}')
         self._publish_step()
         if self.emulator.steps_left == 0:
             self._finish()
@@ -554,7 +589,8 @@ class EmulatorNode(ManagedNode):
                        if self._run_started_ns else 0.0)
         if self._run_timer is not None:
             self._run_timer.cancel()
-        temps = [r.x_end[0] - KELVIN for r in self.records] or [float('nan')]
+        temps = [t for r in self.records for t in self.interface.temperatures_c(r.x_end)]
+        temps = temps or [float('nan')]
         applied = dict(collections.Counter(self.applied_sources))
         rejected = self.rejections.total()
         self.get_logger().info(
@@ -576,8 +612,9 @@ class EmulatorNode(ManagedNode):
     def applied_frame(self) -> pd.DataFrame:
         """One row per step: ROS stamp [ns], applied controls [W], start and end states.
 
-        Index ``time_s`` (scenario time [s]); columns ``stamp_ns``, ``q``,
-        ``<state>_start``, ``<state>_end``.
+        Index ``time_s`` (scenario time [s]); columns ``stamp_ns``, every
+        control (``q``, or ``q_0``, ``q_1``, ...), ``<state>_start``,
+        ``<state>_end``.
         """
         rows = []
         if not self.records:
@@ -593,6 +630,14 @@ class EmulatorNode(ManagedNode):
             rows.append(row)
         return pd.DataFrame(rows).set_index('time_s')
 
+    def zone_temperature_columns(self) -> dict[str, str]:
+        """Zone temperature state -> the column of the fine trajectory that holds it in degC:
+        the model's output of the same name (``y_T`` for the R1C1 zone), else the state
+        (``x_T_0``, in K: see :func:`mshoot_nodes.results.zone_temperatures_c`)."""
+        outputs = self.emulator.model.output_names
+        return {name: f'y_{name}' if name in outputs else f'x_{name}'
+                for name in self.interface.temperature_names}
+
     def write_outputs(self, out: pathlib.Path) -> None:
         """Write trajectories.csv, applied.csv and run.json to ``out``."""
         out.mkdir(parents=True, exist_ok=True)
@@ -602,6 +647,8 @@ class EmulatorNode(ManagedNode):
         run = {key: self.params[key] for key in keys}
         run.update(epoch_ns=self.epoch_ns, steps=self.steps_done, wall_s=self.wall_s,
                    start_step=self.params['start_step'], failed=self.failed,
+                   controls=list(self.emulator.control_names),
+                   zone_temperatures=self.zone_temperature_columns(),
                    applied_sources=dict(collections.Counter(self.applied_sources)),
                    rejected_setpoints=self.rejections.counter.by_kind())
         (out / 'run.json').write_text(json.dumps(run, indent=2) + '\n')

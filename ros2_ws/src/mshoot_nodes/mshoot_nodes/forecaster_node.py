@@ -1,12 +1,16 @@
-"""The forecaster node: disturbance and comfort-band forecasts over the MPC horizon.
+"""The forecaster node: disturbance, comfort-band and price forecasts over the MPC horizon.
 
 On every control step of simulated time (a sim-time timer) it publishes on
 ``/forecast`` (latched: reliable, transient local, depth 1) the scenario rows
 of the step and the ``horizon_steps`` that follow, from
 :func:`mshoot_core.closed_loop.forecast_window`, so a ROS run and the core-only
-loop see the same forecasts. By default the forecasts are perfect; the
-``random_walk`` error model adds seeded errors that grow with the lead time
-(the current step stays exact: it is measured).
+loop see the same forecasts: the scenario columns named by ``series`` (by
+default Tout, solrad, occ: what the control model needs besides the
+ventilation it assumes) as named series, the comfort band and, with
+``send_price``, an energy price series (``price_per_kwh``: flat or by hour of
+the day). By default the forecasts are perfect; the ``random_walk`` error
+model adds seeded errors to Tout and solrad that grow with the lead time (the
+current step stays exact: it is measured).
 
 Health on ``/diagnostics`` (``mshoot/forecaster``): forecasts published, the
 last forecast's step, whether forecasts are paused (WARN).
@@ -16,13 +20,15 @@ from __future__ import annotations
 from typing import Any
 
 from mshoot_core.closed_loop import forecast_window
+from mshoot_core.safety import COMFORT_SERIES, PRICE_SERIES
 from mshoot_msgs.msg import Forecast
 import numpy as np
 import pandas as pd
 from rclpy.node import Node
 
 from mshoot_nodes import contract, sources
-from mshoot_nodes.conversions import (floor_to_step, forecast_msg, NS_PER_S, seconds_to_ns)
+from mshoot_nodes.conversions import (floor_to_step, FORECAST_DISTURBANCES, forecast_msg,
+                                      NS_PER_S, seconds_to_ns)
 from mshoot_nodes.diagnostics import DiagnosticsPublisher, Level, Report
 from mshoot_nodes.params import declare, ParamSpec, values
 from mshoot_nodes.startup import run_node
@@ -48,6 +54,12 @@ PARAMS = (
               'step of lead time, standard deviation [W/m2]', low=0.0, high=2000.0),
     ParamSpec('error_seed', 0, 'seed of the forecast errors (with the step index) [-]',
               low=0, high=2 ** 31 - 1),
+    ParamSpec('series', list(FORECAST_DISTURBANCES), 'scenario columns sent as named '
+              "disturbance series (the control model's disturbances; those it assumes may be "
+              'left out)', read_only=True),
+    ParamSpec('send_price', False, 'also send an energy price series (price_per_kwh)'),
+    ParamSpec('price_per_kwh', [0.3], 'energy price [currency/kWh]: one value (flat) or 24 '
+              '(by hour of the day, scenario time)'),
     ParamSpec('enabled', True, 'publish forecasts (false: pause them, e.g. to exercise the '
               "MPC's fallback when the forecast stops)"),
     ParamSpec('zone', 'zone', 'zone name (header.frame_id)', read_only=True),
@@ -59,6 +71,18 @@ def _check_sources(v: dict[str, Any]) -> str | None:
         return reason
     if 'start_time' in v and (reason := sources.check_start_time(v['start_time'])):
         return reason
+    if 'series' in v:
+        names = list(v['series'])
+        if not all(isinstance(n, str) and n for n in names) or len(set(names)) != len(names):
+            return f'series must be distinct scenario column names, got {names}'
+        clash = [n for n in names if n in (*COMFORT_SERIES, PRICE_SERIES)]
+        if clash:
+            return f'series must not name {clash}: the comfort band and the price are sent anyway'
+    if 'price_per_kwh' in v:
+        prices = list(v['price_per_kwh'])
+        if len(prices) not in (1, 24) or not all(np.isfinite(prices)):
+            return (f'price_per_kwh must be 1 or 24 finite prices [currency/kWh], got '
+                    f'{prices}')
     return None
 
 
@@ -99,6 +123,10 @@ class ForecasterNode(Node):
         self.add_post_set_parameters_callback(self._on_parameters_set)
         p = self.params
         self.scenario = sources.load_scenario(p['scenario'], p['data'], p['hours'])
+        missing = [c for c in p['series'] if c not in self.scenario.columns]
+        if missing:
+            raise ValueError(f'series {missing} are not columns of the {p["scenario"]} '
+                             f'scenario {list(self.scenario.columns)}')
         self.epoch_ns = sources.start_ns(self.scenario, p['start_time'])
         self.step_ns = seconds_to_ns(p['step_s'])
         self.last_index: int | None = None
@@ -109,8 +137,9 @@ class ForecasterNode(Node):
         self.diagnostics = DiagnosticsPublisher(self, self.health, hardware_id=p['zone'])
         self.get_logger().info(
             f"{p['scenario']} scenario from {pd.Timestamp(self.epoch_ns, tz='UTC').isoformat()}: "
-            f"{p['horizon_steps'] + 1}-sample forecasts every {p['step_s']:.0f} s, "
-            f"errors: {p['error_model']}")
+            f"{p['horizon_steps'] + 1}-sample forecasts of {p['series']} every "
+            f"{p['step_s']:.0f} s, errors: {p['error_model']}"
+            + (f", price {p['price_per_kwh']} per kWh" if p['send_price'] else ''))
 
     def _on_parameters_set(self, params: list) -> None:
         self.params = values(self, PARAMS)
@@ -163,6 +192,17 @@ class ForecasterNode(Node):
         return Report(Level.OK, f'{self.published} forecasts, the last for step {last}',
                       values_)
 
+    def prices(self, times_s: np.ndarray) -> np.ndarray:
+        """The energy price [currency/kWh] at scenario times [s] (``price_per_kwh``: flat, or
+        by hour of the day from the scenario's start time)."""
+        prices = np.asarray(self.params['price_per_kwh'], dtype=float)
+        if prices.size == 1:
+            return np.full(len(times_s), prices[0])
+        start = pd.Timestamp(self.scenario.attrs.get('start') or sources.DEFAULT_START)
+        seconds = start.hour * 3600 + start.minute * 60 + start.second
+        hours = ((seconds + np.asarray(times_s, dtype=float)) // 3600).astype(int) % 24
+        return prices[hours]
+
     def publish_forecast(self, index: int) -> Forecast:
         """Publish the forecast starting at scenario row ``index``."""
         p = self.params
@@ -173,8 +213,11 @@ class ForecasterNode(Node):
             window = window.copy()
             window['Tout'] = window['Tout'].to_numpy() + tout_err
             window['solrad'] = np.clip(window['solrad'].to_numpy() + solrad_err, 0.0, None)
+        if p['send_price']:
+            window = window.copy()
+            window[PRICE_SERIES] = self.prices(window.index.to_numpy(dtype=float))
         stamp = self.epoch_ns + index * self.step_ns
-        msg = forecast_msg(stamp, p['step_s'], window, p['zone'])
+        msg = forecast_msg(stamp, p['step_s'], window, p['series'], p['zone'])
         self._publisher.publish(msg)
         self.last_index = index
         self.published += 1

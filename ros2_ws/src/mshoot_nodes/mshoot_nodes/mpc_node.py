@@ -1,10 +1,14 @@
 """The MPC node: every control step, publish the setpoint the core controller decides.
 
-Inputs: ``/zone/state`` (the measured zone, a building's or the emulator's)
-and ``/forecast`` (disturbances and comfort band over the horizon). Outputs:
-``/mpc/setpoint`` (the first planned heat rate, the predicted zone
-temperature usable as the HVAC's own setpoint, and the whole plan) and
-``/mpc/status``, both stamped with the step they are for.
+Inputs: ``/zone/state`` (the measured zones, a building's or the emulator's:
+the model's states by name) and ``/forecast`` (the model's disturbances by
+name, the comfort band and the energy price over the horizon). Outputs:
+``/mpc/setpoint`` (every control of the model by name, the predicted
+temperature of every zone usable as the setpoint of the building's own loop,
+and the whole plan) and ``/mpc/status``, both stamped with the step they are
+for. Any model of the registry runs, with one or several controls and zones
+(:func:`mshoot_core.controller.controller_for`: e.g. ``model:=r1c1x2``, two
+zones with controls ``q_0``, ``q_1``).
 
 Every decision is made by :class:`mshoot_core.controller.Controller`, the one
 the offline loop uses: which inputs are valid and fresh enough, when a step is
@@ -32,18 +36,17 @@ import collections
 import concurrent.futures
 from typing import Any
 
-from mshoot_core.controller import Controller, StepOutcome
+from mshoot_core.controller import Controller, controller_for, StepOutcome
 from mshoot_core.models.base import Model
-from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.models.registry import MODEL_PARAMETERS, ModelSettings
 from mshoot_core.mpc import MpcResult
-from mshoot_core.safety import check_setpoint, check_stamp_fields, check_zone_state, Rejection
+from mshoot_core.safety import check_setpoint, check_stamp_fields, Rejection
 from mshoot_core.settings import MpcSettings, PARAMETERS, SettingsError
 from mshoot_msgs.msg import Forecast, MpcStatus, Setpoint, ZoneState
 
 from mshoot_nodes import contract
 from mshoot_nodes.conversions import (decision_setpoint_msg, decision_status_msg,
-                                      forecast_series, NS_PER_S, stamp_to_ns, zone_state_to_x)
+                                      forecast_series, NS_PER_S, stamp_to_ns)
 from mshoot_nodes.diagnostics import DiagnosticsPublisher, Level, Report
 from mshoot_nodes.lifecycle import ManagedNode
 from mshoot_nodes.params import declare, ParamSpec, values
@@ -141,10 +144,10 @@ class MpcNode(ManagedNode):
                       else ModelSettings(p['model'], p['fmu_tolerance']).build())
         self._pool = (concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix='mpc_solve')
                       if p['async_solve'] else None)
-        self.controller = Controller(self.model, settings_from(p), executor=self._pool,
-                                     assumed_inputs={'dpos': p['ventilation_dpos']},
-                                     on_solve_done=self._done_gc.trigger,
-                                     history_length=p['history_length'])
+        self.controller = controller_for(self.model, settings_from(p), executor=self._pool,
+                                         assumed_inputs={'dpos': p['ventilation_dpos']},
+                                         on_solve_done=self._done_gc.trigger,
+                                         history_length=p['history_length'])
         self.rejections = RejectionLog(self, p['reject_log_period_s'],
                                        self.controller.rejections)
         self._setpoint_pub = self.create_lifecycle_publisher(Setpoint, contract.SETPOINT,
@@ -154,8 +157,11 @@ class MpcNode(ManagedNode):
         self.get_logger().info(
             f"model {p['model'] if self._given_model is None else type(self.model).__name__}, "
             f"horizon {p['horizon_steps']} x {p['step_s']:.0f} s, cost {p['cost']}, comfort "
-            f"{p['comfort']}, solver {p['solver']}, heat rate [{p['heat_rate_min_w']:.0f}, "
-            f"{p['heat_rate_max_w']:.0f}] W, time budget {p['time_budget_s'] or 'none'}, "
+            f"{p['comfort']}, solver {p['solver']}, controls "
+            f"{list(self.controller.interface.control_names)} within "
+            f"[{p['heat_rate_min_w']:.0f}, {p['heat_rate_max_w']:.0f}] W, zone temperatures "
+            f"{list(self.controller.interface.temperature_names)}, time budget "
+            f"{p['time_budget_s'] or 'none'}, "
             f"safe setpoint {p['safe_heat_rate_w']:.0f} W / {p['safe_temperature_c']:.1f} degC")
 
     def activate(self) -> None:
@@ -237,7 +243,8 @@ class MpcNode(ManagedNode):
         if self.controller is None:  # applied on configure
             return
         self.controller.assumed_inputs['dpos'] = float(self.params['ventilation_dpos'])
-        what = self.controller.update(settings_from(self.params))
+        what = self.controller.update(settings_from(self.params).replace(
+            control_names=self.controller.interface.control_names))
         if what not in ('unchanged', 'updated'):
             self.get_logger().info(f'controller {what} (rebuilt: warm start reset; supervisor:'
                                    ' last good plan forgotten)')
@@ -248,11 +255,13 @@ class MpcNode(ManagedNode):
 
     def _on_state(self, msg: ZoneState) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
-        problem = (check_stamp_fields(msg.header.stamp.sec, msg.header.stamp.nanosec)
-                   or check_zone_state(msg.temperature_c, msg.heat_rate_w))
+        problem = check_stamp_fields(msg.header.stamp.sec, msg.header.stamp.nanosec)
         repeat = problem is None and self.controller.is_repeat_of_decided_step(stamp)
         if self._rejected('state', contract.ZONE_STATE, stamp, problem, lambda: (
-                self.controller.offer_state(stamp, zone_state_to_x(msg), self._now_ns()))):
+                self.controller.offer_named_state(
+                    stamp, msg.state_names, msg.state_values, self._now_ns(),
+                    output_names=msg.output_names, output_values=msg.output_values,
+                    control_names=msg.control_names, control_values=msg.control_values))):
             return
         last = self._last_setpoint
         if repeat and last is not None and stamp_to_ns(last.header.stamp) == stamp:
@@ -263,10 +272,10 @@ class MpcNode(ManagedNode):
 
     def _on_forecast(self, msg: Forecast) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
-        problem = check_stamp_fields(msg.header.stamp.sec, msg.header.stamp.nanosec)
+        series, problem = forecast_series(msg)
+        problem = check_stamp_fields(msg.header.stamp.sec, msg.header.stamp.nanosec) or problem
         if self._rejected('forecast', contract.FORECAST, stamp, problem, lambda: (
-                self.controller.offer_forecast(stamp, msg.step_s, forecast_series(msg),
-                                               self._now_ns()))):
+                self.controller.offer_forecast(stamp, msg.step_s, series, self._now_ns()))):
             return
         self.try_solve()
 
@@ -294,19 +303,22 @@ class MpcNode(ManagedNode):
     def _publish(self, outcome: StepOutcome) -> None:
         """Publish the setpoint and status of a step (a last finiteness check included)."""
         p = self.params
+        interface = self.controller.interface
         step_ns, decision, result = outcome.step_ns, outcome.decision, outcome.result
-        setpoint = decision_setpoint_msg(step_ns, decision, p['step_s'], p['safe_temperature_c'],
-                                         p['zone'])
-        problem = check_setpoint(setpoint.heat_rate_w, setpoint.temperature_setpoint_c,
-                                 setpoint.step_s, setpoint.plan_heat_rate_w,
-                                 setpoint.plan_temperature_c)
+        setpoint = decision_setpoint_msg(step_ns, decision, p['step_s'], interface,
+                                         p['safe_temperature_c'], p['zone'])
+        problem = check_setpoint(setpoint.step_s, setpoint.control_names,
+                                 setpoint.control_values, setpoint.temperature_names,
+                                 setpoint.temperature_setpoints_c, setpoint.plan_controls,
+                                 setpoint.plan_temperatures_c,
+                                 expected_controls=interface.control_names)
         if problem:  # cannot happen unless the supervisor has a bug: never publish it
             self.get_logger().error(f'setpoint for {step_ns / NS_PER_S:.0f} s failed its final '
                                     f'check ({problem.reason}): publishing the safe setpoint')
             decision = self.controller.supervisor.safe(
                 step_ns / NS_PER_S, 'invalid_plan', f'{problem.reason}; fallback: the safe '
                 'setpoint')
-            setpoint = decision_setpoint_msg(step_ns, decision, p['step_s'],
+            setpoint = decision_setpoint_msg(step_ns, decision, p['step_s'], interface,
                                              p['safe_temperature_c'], p['zone'])
         status = decision_status_msg(
             step_ns, decision, result, solve_time_s=outcome.solve_time_s,
@@ -318,11 +330,17 @@ class MpcNode(ManagedNode):
         self._last_setpoint = setpoint
         self.history.append((setpoint, status))
         step_s = step_ns / NS_PER_S
+        controls = ', '.join(f'{name} = {value:.1f}' for name, value in
+                             zip(setpoint.control_names, setpoint.control_values))
         if not decision.fallback and result is not None:
             x0 = outcome.x0
-            start = '' if x0 is None else f'{x0[0] - KELVIN:.2f} -> '
-            line = (f'step {step_s:.0f} s: q = {setpoint.heat_rate_w:.1f} W, T {start}'
-                    f'{setpoint.temperature_setpoint_c:.2f} degC, '
+            starts = (interface.temperatures_c(x0) if x0 is not None
+                      else [None] * len(setpoint.temperature_names))
+            zones = ', '.join(
+                f'{name} {"" if start is None else f"{start:.2f} -> "}{end:.2f} degC'
+                for name, start, end in zip(setpoint.temperature_names, starts,
+                                            setpoint.temperature_setpoints_c))
+            line = (f'step {step_s:.0f} s: {controls} W, {zones}, '
                     f"{'ok' if result.success else 'NOT CONVERGED'} in {result.nit} it, "
                     f'{result.solve_time_s:.3f} s')
             # One call site per severity (rclpy keeps a severity per call site).
@@ -331,8 +349,8 @@ class MpcNode(ManagedNode):
             else:
                 self.get_logger().warning(line)
         else:
-            self.get_logger().warning(f'step {step_s:.0f} s: fallback {setpoint.heat_rate_w:.1f} '
-                                      f'W ({decision.source}): {decision.reason}')
+            self.get_logger().warning(f'step {step_s:.0f} s: fallback {controls} W '
+                                      f'({decision.source}): {decision.reason}')
 
 
 def main(args: list[str] | None = None) -> None:

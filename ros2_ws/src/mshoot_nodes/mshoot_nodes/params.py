@@ -19,6 +19,15 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 
+class ParameterRejected(InvalidParameterValueException):
+    """Start-up values rejected by a node's checks; ``reason`` says why (in one sentence,
+    without rclpy's list of every value given)."""
+
+    def __init__(self, names: str, given: Any, reason: str) -> None:
+        super().__init__(names, given, reason)
+        self.reason = reason
+
+
 @dataclasses.dataclass(frozen=True)
 class ParamSpec:
     """One declared parameter.
@@ -96,8 +105,9 @@ def declare(node: Node, specs: Sequence[ParamSpec], checks: Iterable[Check] = ()
 
     Raises
     ------
-    rclpy.exceptions.InvalidParameterValueException
-        If an override (``-p``, YAML) is rejected; the message holds the reason.
+    ParameterRejected
+        (an rclpy ``InvalidParameterValueException``) If an override (``-p``,
+        YAML) is rejected; its ``reason`` says why.
     ValueError
         If an override names a parameter the node does not have (a typo in a
         YAML file would otherwise be ignored silently); the message lists the
@@ -136,9 +146,8 @@ def declare(node: Node, specs: Sequence[ParamSpec], checks: Iterable[Check] = ()
         if startup:  # every start-up value at once: the reason names the real conflict
             result = on_set([Parameter(name, value=value) for name, value in startup.items()])
             if not result.successful:
-                raise InvalidParameterValueException(
-                    ', '.join(sorted(startup)), [startup[n] for n in sorted(startup)],
-                    result.reason)
+                raise ParameterRejected(', '.join(sorted(startup)),
+                                        [startup[n] for n in sorted(startup)], result.reason)
         for spec in specs:
             node.declare_parameter(spec.name, spec.default, spec.descriptor())
         unknown = sorted(name for name in getattr(node, '_parameter_overrides', {})

@@ -15,6 +15,9 @@ bag), the same readiness check as the other bring-ups
 exits; the others then get SIGINT (the recorder closes its bag). The outputs are
 rebuilt from the emulator's files and the bag: ``kpis.json``, ``steps.csv``,
 ``trajectories.csv``, ``plot.png``, ``bag/``, ``emulator/``, ``logs/``.
+
+A node that cannot start (its configuration: exit code 2) ends the run at once
+with its one-line reason and exit code 2; a run that fails later exits with 1.
 """
 from __future__ import annotations
 
@@ -33,6 +36,7 @@ from ament_index_python.packages import get_package_prefix, PackageNotFoundError
 
 from mshoot_nodes.config import default_params_files
 from mshoot_nodes.readiness import run_requirements
+from mshoot_nodes.startup import EXIT_CONFIG
 
 #: Executable and module of every process, in start order (the emulator last).
 PROCESSES = (('recorder', 'recorder_node'), ('forecaster', 'forecaster_node'),
@@ -90,6 +94,20 @@ def last_error(log: pathlib.Path) -> str:
     return errors[-1] if errors else ''
 
 
+def wait_for_emulator(procs: dict[str, subprocess.Popen],
+                      timeout_s: float) -> tuple[str, int] | None:
+    """Wait until the emulator exits, or another node exits at start-up with a configuration
+    error; (name, exit code) of the process that ended, None after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        for name, proc in procs.items():
+            code = proc.poll()
+            if code is not None and (name == 'emulator' or code == EXIT_CONFIG):
+                return name, code
+        time.sleep(0.1)
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     out = args.out.resolve()
@@ -126,15 +144,19 @@ def main(argv: Sequence[str] | None = None) -> int:
             procs[name] = subprocess.Popen(command, env=env, stdout=log,
                                            stderr=subprocess.STDOUT)
             print(f'[processes] started {name} (pid {procs[name].pid})', flush=True)
-        try:
-            code = procs['emulator'].wait(timeout=args.timeout)
-        except subprocess.TimeoutExpired:
+        ended = wait_for_emulator(procs, args.timeout)
+        if ended is None:
             print(f'[processes] error: no result within {args.timeout:.0f} s; see {logs}',
                   file=sys.stderr)
             return 1
+        name, code = ended
         if code != 0:
-            why = last_error(logs / 'emulator.log')
-            print(f'[processes] error: the emulator exited with {code}; see {logs}'
+            why = last_error(logs / f'{name}.log')
+            if code == EXIT_CONFIG:
+                print(f'[processes] error: {name}: cannot start: '
+                      f"{why.split('cannot start: ', 1)[-1] or f'see {logs}'}", file=sys.stderr)
+                return EXIT_CONFIG
+            print(f'[processes] error: the {name} exited with {code}; see {logs}'
                   + (f'\n  {why}' if why else ''), file=sys.stderr)
             return 1
     except KeyboardInterrupt:
@@ -161,6 +183,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                 read_messages(bag, contract.STATUS), run['epoch_ns'])
     kpis = run_outputs(out, applied, fine, records, run['step_s'], run['wall_s'],
                        f'{args.scenario} over ROS 2 (separate processes)',
+                       controls=run.get('controls', ['q']), zones=run.get('zone_temperatures'),
                        scenario=args.scenario, emulator=run['model'],
                        transport='ros2 processes', total_wall_s=total_s, bag=str(bag))
     print(f'[processes] {kpi_summary(kpis)}')

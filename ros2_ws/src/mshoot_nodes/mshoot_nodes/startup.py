@@ -24,6 +24,24 @@ EXIT_CONFIG = 2
 _CLEAR = (InvalidParameterValueException, ValueError, FileNotFoundError)
 
 
+class StartupError(Exception):
+    """A node could not be built from its configuration (bad parameters, model, scenario):
+    the message is one line naming the node and the reason; bring-ups exit with
+    :data:`EXIT_CONFIG`."""
+
+
+def startup_reason(exc: BaseException) -> str:
+    """One line on why a node could not start: the message of a clear configuration error
+    as it is, else the exception's type and message (never a traceback); the lines of a
+    message of several lines are joined with '; '."""
+    text = str(exc) if isinstance(exc, _CLEAR) else f'{type(exc).__name__}: {exc}'
+    if getattr(exc, 'reason', None):  # params.ParameterRejected: not every value given
+        text = str(exc.reason)
+    elif isinstance(exc, InvalidParameterValueException) and 'Reason: ' in text:
+        text = text.split('Reason: ', 1)[1]
+    return '; '.join(line.strip() for line in text.splitlines() if line.strip())
+
+
 def construct(factory: Callable[[], NodeT], name: str) -> NodeT | None:
     """Build a node; on a configuration error log it (fatal) and return None.
 
@@ -39,8 +57,7 @@ def construct(factory: Callable[[], NodeT], name: str) -> NodeT | None:
     except KeyboardInterrupt:
         raise
     except Exception as exc:  # noqa: BLE001 - any start-up failure ends the process clearly
-        text = str(exc) if isinstance(exc, _CLEAR) else f'{type(exc).__name__}: {exc}'
-        rclpy.logging.get_logger(name).fatal(f'cannot start: {text}')
+        rclpy.logging.get_logger(name).fatal(f'cannot start: {startup_reason(exc)}')
         return None
 
 

@@ -15,7 +15,7 @@ moves on by a step before it takes them).
 from __future__ import annotations
 
 import time
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 from mshoot_core.models.base import Model
 from mshoot_core.models.r1c1 import KELVIN
@@ -26,8 +26,8 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from mshoot_nodes.conversions import (fallback_setpoint_msg, forecast_msg, NS_PER_S,
-                                      ns_to_stamp, zone_state_msg)
+from mshoot_nodes.conversions import (forecast_msg, NS_PER_S, ns_to_stamp, setpoint_msg,
+                                      zone_state_msg)
 from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_nodes.forecaster_node import ForecasterNode
 from mshoot_nodes.mpc_node import MpcNode
@@ -38,11 +38,14 @@ from mshoot_nodes.recorder_node import RecorderNode
 MALFORMED = 'malformed'
 #: Defects of the malformed messages, per input stream.
 STATE_DEFECTS = ('nan_temperature', 'inf_heat_rate', 'hot', 'cold', 'bad_nanosec', 'future',
-                 'backwards')
+                 'backwards', 'unknown_state', 'missing_state', 'duplicate_state',
+                 'values_length', 'nan_output', 'unknown_control')
 FORECAST_DEFECTS = ('nan', 'inf', 'lengths', 'empty', 'inverted_band', 'negative_sun',
-                    'step', 'future', 'backwards')
+                    'step', 'future', 'backwards', 'unknown_series', 'missing_series',
+                    'duplicate_series', 'flat_length', 'nan_price', 'price_length')
 SETPOINT_DEFECTS = ('nan_heat_rate', 'inf_temperature', 'absurd_heat_rate', 'step', 'plan_lengths',
-                    'nan_plan', 'future', 'backwards', 'bad_nanosec')
+                    'nan_plan', 'future', 'backwards', 'bad_nanosec', 'unknown_control',
+                    'missing_control', 'duplicate_control', 'no_control', 'values_length')
 
 
 def _overrides(values: dict[str, Any]) -> list[Parameter]:
@@ -51,40 +54,63 @@ def _overrides(values: dict[str, Any]) -> list[Parameter]:
 
 # -- malformed messages -------------------------------------------------------------------
 def malformed_zone_state(defect: str, now_ns: int, latest_ns: int, step_ns: int,
-                         rng: np.random.Generator) -> ZoneState:
+                         rng: np.random.Generator, states: Sequence[str] = ('T',),
+                         controls: Sequence[str] = ('q',)) -> ZoneState:
     """A zone state the MPC must reject for ``defect`` (:data:`STATE_DEFECTS`).
 
     ``now_ns`` is the receiver's clock, ``latest_ns`` the newest state it
-    accepted (> 0), ``step_ns`` the control step.
+    accepted (> 0), ``step_ns`` the control step; ``states`` and ``controls``
+    the receiver model's names (every state a zone temperature [K]).
     """
     stamp = now_ns
-    temperature_k, heat_rate = KELVIN + float(rng.uniform(15.0, 25.0)), 0.0
+    names = list(states)
+    values = (KELVIN + rng.uniform(15.0, 25.0, len(names))).tolist()
+    outputs = {'T': values[0] - KELVIN}
+    applied = {name: float(rng.uniform(-2000.0, 2000.0)) for name in controls}
+    k = int(rng.integers(0, len(names)))
     if defect == 'nan_temperature':
-        temperature_k = float('nan')
+        values[k] = float('nan')
     elif defect == 'inf_heat_rate':
-        heat_rate = float(rng.choice([np.inf, -np.inf]))
+        applied[str(rng.choice(list(controls)))] = float(rng.choice([np.inf, -np.inf]))
     elif defect == 'hot':
-        temperature_k = KELVIN + float(rng.uniform(81.0, 1e6))
+        values[k] = KELVIN + float(rng.uniform(81.0, 1e6))
     elif defect == 'cold':
-        temperature_k = KELVIN - float(rng.uniform(51.0, 273.0))
+        values[k] = KELVIN - float(rng.uniform(51.0, 273.0))
     elif defect == 'future':
         stamp = now_ns + int(rng.integers(3, 100)) * step_ns
     elif defect == 'backwards':
         stamp = latest_ns - int(rng.integers(1, 5)) * step_ns - int(rng.integers(0, step_ns))
-    msg = zone_state_msg(max(stamp, 0), temperature_k, heat_rate, MALFORMED)
-    if defect == 'bad_nanosec':
+    elif defect == 'unknown_state':
+        names[k] = names[k] + '_unknown'
+    elif defect == 'missing_state':
+        del names[k], values[k]
+    elif defect == 'duplicate_state':
+        names.append(names[k])
+        values.append(values[k])
+    elif defect == 'nan_output':
+        outputs['T'] = float(rng.choice([np.nan, np.inf]))
+    elif defect == 'unknown_control':
+        applied['not_a_control'] = 0.0
+    msg = zone_state_msg(max(stamp, 0), {}, outputs, applied, MALFORMED)
+    msg.state_names, msg.state_values = names, values
+    if defect == 'values_length':
+        msg.state_values = values + [KELVIN + 20.0]
+    elif defect == 'bad_nanosec':
         msg.header.stamp.nanosec = int(rng.integers(NS_PER_S, 2 ** 32))
     return msg
 
 
 def malformed_forecast(defect: str, now_ns: int, latest_ns: int, step_ns: int,
                        rng: np.random.Generator, samples: int = 11) -> Forecast:
-    """A forecast the MPC must reject for ``defect`` (:data:`FORECAST_DEFECTS`)."""
+    """A forecast the MPC must reject for ``defect`` (:data:`FORECAST_DEFECTS`) (the MPC's
+    model needs Tout, solrad and occ, and may assume dpos)."""
     import pandas as pd
     n = max(int(samples), 1)
     window = pd.DataFrame({'Tout': rng.uniform(-5, 15, n), 'solrad': rng.uniform(0, 500, n),
                            'occ': rng.integers(0, 30, n).astype(float),
-                           'comfort_min': np.full(n, 21.0), 'comfort_max': np.full(n, 22.0)})
+                           'comfort_min': np.full(n, 21.0), 'comfort_max': np.full(n, 22.0),
+                           'price': rng.uniform(0.1, 0.5, n)})
+    series = ['Tout', 'solrad', 'occ']
     stamp, step_s = now_ns, step_ns / NS_PER_S
     k = int(rng.integers(0, n))
     if defect == 'nan':
@@ -101,47 +127,80 @@ def malformed_forecast(defect: str, now_ns: int, latest_ns: int, step_ns: int,
         stamp = now_ns + int(rng.integers(3, 100)) * step_ns
     elif defect == 'backwards':
         stamp = latest_ns - int(rng.integers(1, 5)) * step_ns
-    msg = forecast_msg(max(stamp, 0), 1.0, window, MALFORMED)
+    elif defect == 'unknown_series':
+        window['Tsky'] = rng.uniform(-20, 0, n)
+        series.append('Tsky')
+    elif defect == 'missing_series':
+        series.remove(str(rng.choice(series)))
+    elif defect == 'nan_price':
+        window.loc[k, 'price'] = float(rng.choice([np.nan, np.inf, 1e9]))
+    msg = forecast_msg(max(stamp, 0), 1.0, window, series, MALFORMED)
     msg.step_s = step_s
     if defect == 'lengths':
-        msg.occupancy = list(msg.occupancy)[:-1] if n > 1 else []
+        msg.comfort_max_c = list(msg.comfort_max_c)[:-1] if n > 1 else []
     elif defect == 'empty':
-        for field in ('outdoor_temperature_c', 'solar_radiation_w_m2', 'occupancy',
-                      'comfort_min_c', 'comfort_max_c'):
-            setattr(msg, field, [])
+        msg.series_values, msg.comfort_min_c, msg.comfort_max_c, msg.price_per_kwh = \
+            [], [], [], []
+    elif defect == 'duplicate_series':
+        msg.series_names = list(msg.series_names[:-1]) + [msg.series_names[0]]
+    elif defect == 'flat_length':
+        msg.series_values = list(msg.series_values)[:-int(rng.integers(1, n + 1))]
+    elif defect == 'price_length':
+        msg.price_per_kwh = list(msg.price_per_kwh) + [0.3]
     return msg
 
 
 def malformed_setpoint(defect: str, now_ns: int, latest_ns: int, step_ns: int,
-                       rng: np.random.Generator) -> Setpoint:
+                       rng: np.random.Generator, controls: Sequence[str] = ('q',),
+                       temperatures: Sequence[str] = ('T',)) -> Setpoint:
     """A setpoint the emulator must reject for ``defect`` (:data:`SETPOINT_DEFECTS`).
 
     ``now_ns`` is the emulator's current step, ``latest_ns`` the newest
-    setpoint it accepted (or the step before ``now_ns``).
+    setpoint it accepted (or the step before ``now_ns``); ``controls`` and
+    ``temperatures`` the emulator model's names.
     """
     stamp, step_s = now_ns, step_ns / NS_PER_S
-    heat_rate, temperature = float(rng.uniform(-2000, 2000)), float(rng.uniform(18, 24))
-    plan_q = rng.uniform(-2000, 2000, 5).tolist()
-    plan_t = rng.uniform(18, 24, 5).tolist()
+    names = list(controls)
+    values = rng.uniform(-2000, 2000, len(names)).tolist()
+    zones = {name: float(rng.uniform(18, 24)) for name in temperatures}
+    plan_q = {name: rng.uniform(-2000, 2000, 5).tolist() for name in names}
+    plan_t = {name: rng.uniform(18, 24, 5).tolist() for name in temperatures}
+    k = int(rng.integers(0, len(names)))
     if defect == 'nan_heat_rate':
-        heat_rate = float('nan')
+        values[k] = float('nan')
     elif defect == 'inf_temperature':
-        temperature = float('inf')
+        zones[str(rng.choice(list(temperatures)))] = float('inf')
     elif defect == 'absurd_heat_rate':
-        heat_rate = float(rng.choice([-1.0, 1.0])) * float(rng.uniform(1.01e7, 1e12))
+        values[k] = float(rng.choice([-1.0, 1.0])) * float(rng.uniform(1.01e7, 1e12))
     elif defect == 'step':
         step_s = float(rng.choice([0.0, step_s * 2, np.inf]))
     elif defect == 'plan_lengths':
-        plan_t = plan_t[:-1]
+        first = next(iter(plan_t))
+        plan_t[first] = plan_t[first][:-1]
     elif defect == 'nan_plan':
-        plan_q[int(rng.integers(0, 5))] = float('nan')
+        plan_q[names[k]][int(rng.integers(0, 5))] = float('nan')
     elif defect == 'future':
         stamp = now_ns + int(rng.integers(3, 100)) * step_ns
     elif defect == 'backwards':
         stamp = latest_ns - int(rng.integers(1, 5)) * step_ns
-    msg = fallback_setpoint_msg(max(stamp, 0), heat_rate, temperature, step_s, plan_q, plan_t,
-                                MALFORMED)
-    if defect == 'bad_nanosec':
+    elif defect == 'unknown_control':
+        plan_q[names[k] + '_unknown'] = plan_q.pop(names[k])
+        names[k] = names[k] + '_unknown'
+    elif defect == 'missing_control':
+        plan_q.pop(names[k])
+        del names[k], values[k]
+    msg = setpoint_msg(max(stamp, 0), step_s, dict(zip(names, values)), zones, plan_q or None,
+                       plan_t, MALFORMED)
+    if defect == 'missing_control' and not names:  # a single control: none left
+        msg.plan_controls = []
+    if defect == 'duplicate_control':
+        msg.control_names = list(msg.control_names) + [names[k]]
+        msg.control_values = list(msg.control_values) + [values[k]]
+    elif defect == 'no_control':
+        msg.control_names, msg.control_values, msg.plan_controls = [], [], []
+    elif defect == 'values_length':
+        msg.control_values = list(msg.control_values) + [0.0]
+    elif defect == 'bad_nanosec':
         msg.header.stamp = ns_to_stamp(stamp)
         msg.header.stamp.nanosec = int(rng.integers(NS_PER_S, 2 ** 32))
     return msg

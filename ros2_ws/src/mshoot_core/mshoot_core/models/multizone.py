@@ -33,6 +33,9 @@ class MultiZoneModel(Model):
 
     Inputs ``solrad``, ``Tout``, ``occ``, ``dpos`` (shared) and ``q_0`` ...
     ``q_{Z-1}`` [W]; states ``T_0`` ... [K]; outputs ``Tc_0`` ... [degC].
+    The controls (:attr:`control_names`) are the heat rates ``q_i``; every state
+    is a zone temperature bounded by the comfort band (:attr:`comfort_states`;
+    see :func:`mshoot_core.models.registry.control_interface`).
     """
 
     def __init__(self, n_zones: int, seed: int = 0,
@@ -51,6 +54,8 @@ class MultiZoneModel(Model):
             f'q_{i}' for i in range(self.n_zones))
         self.state_names = tuple(f'T_{i}' for i in range(self.n_zones))
         self.output_names = tuple(f'Tc_{i}' for i in range(self.n_zones))
+        self.control_names = tuple(f'q_{i}' for i in range(self.n_zones))
+        self.comfort_states = self.state_names
 
     def _zone_inputs(self, u: np.ndarray) -> np.ndarray:
         """Inputs of every zone, shape (B, Z, 5), from the model inputs (B, 4 + Z)."""
@@ -131,10 +136,10 @@ def multizone_mpc_options(model: MultiZoneModel, solver: str = 'ipopt') -> dict:
     predictor-corrector (the problem is a convex QP: the zones are affine in
     state and heat rate, the cost is quadratic).
     """
-    options = {'control_names': tuple(f'q_{i}' for i in range(model.n_zones)),
+    options = {'control_names': model.control_names,
                'heat_rate_min_w': -2000.0, 'heat_rate_max_w': 2000.0,
                'state_bounds': {name: ('comfort_min', 'comfort_max', KELVIN)
-                                for name in model.state_names},
+                                for name in model.comfort_states},
                'solver': solver}
     if solver == 'ipopt':
         options.update(relaxation='exact-penalty',

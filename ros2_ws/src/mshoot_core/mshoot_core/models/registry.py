@@ -13,12 +13,22 @@ models here, by name:
   (:mod:`mshoot_core.models.card`): any FMU with its names mapped, or a
   built-in model; the card's tolerance, if it sets one, wins over the
   ``tolerance`` given here;
+- ``'r1c1x2'``: two independent R1C1 zones
+  (:class:`~mshoot_core.models.multizone.MultiZoneModel`, seed 0): controls
+  ``q_0``, ``q_1`` [W], states ``T_0``, ``T_1`` [K] (the multi-zone case over ROS);
 - names that applications add with :func:`register` (e.g. the data-driven
   models of Setup 2, trained on data the application holds).
 
 Defaults: :data:`CONTROL_TOLERANCE` for control models (the MPC's
 sensitivities are accurate well above the integrator noise there) and
 :data:`EMULATOR_TOLERANCE` for emulated buildings.
+
+How a model is controlled (:func:`control_interface`): its controls (the MPC's
+decision variables, the setpoint's named values) and its zone temperatures
+(the states bounded by the comfort band, the temperature setpoints of the
+building's local loops). A model declares them with the attributes
+``control_names`` and ``comfort_states``; without them the R1C1 convention
+applies (control ``q``, zone temperature ``T`` [K]).
 """
 from __future__ import annotations
 
@@ -26,6 +36,8 @@ import dataclasses
 import logging
 import pathlib
 from typing import Callable
+
+import numpy as np
 
 from mshoot_core.models.base import Model
 from mshoot_core.settings import SettingsGroup, fields_of, setting, SettingField
@@ -36,8 +48,12 @@ logger = logging.getLogger(__name__)
 CONTROL_TOLERANCE = 1e-6
 #: Relative tolerance of an FMU integrator for an emulated building [-].
 EMULATOR_TOLERANCE = 1e-10
-#: The built-in models.
+#: The built-in single-zone models.
 BUILTIN = ('python', 'fmu', 'fmu-cs')
+#: The built-in multi-zone models: name -> number of independent R1C1 zones.
+MULTIZONE = {'r1c1x2': 2}
+#: Offset of a zone temperature state [K] over the comfort band [degC].
+KELVIN = 273.15
 
 #: Factories added by applications: name -> (factory(tolerance) -> Model, description).
 _REGISTERED: dict[str, tuple[Callable[[float], Model], str]] = {}
@@ -55,14 +71,15 @@ def register(name: str, factory: Callable[[float], Model], description: str) -> 
     description : str
         One line for help texts.
     """
-    if name in BUILTIN or name.endswith('.fmu') or is_card_path(name) or not name:
+    if (name in BUILTIN or name in MULTIZONE or name.endswith('.fmu') or is_card_path(name)
+            or not name):
         raise ValueError(f'cannot register a model named {name!r}')
     _REGISTERED[name] = (factory, description)
 
 
 def model_names() -> tuple[str, ...]:
     """Every model name understood (besides a path to an .fmu file or a model card)."""
-    return BUILTIN + tuple(sorted(_REGISTERED))
+    return BUILTIN + tuple(MULTIZONE) + tuple(sorted(_REGISTERED))
 
 
 def is_card_path(name: str) -> bool:
@@ -73,7 +90,7 @@ def is_card_path(name: str) -> bool:
 def check_model(name: str) -> str | None:
     """Why ``name`` does not name a model, or None (a model card is loaded and checked
     against its model: every problem of the card in one line)."""
-    if name in BUILTIN or name in _REGISTERED:
+    if name in BUILTIN or name in MULTIZONE or name in _REGISTERED:
         return None
     if name.endswith('.fmu'):
         return None if pathlib.Path(name).is_file() else f'FMU file {name!r} not found'
@@ -118,6 +135,9 @@ def build_model(name: str, tolerance: float = CONTROL_TOLERANCE,
     if name == 'python':
         from mshoot_core.models.r1c1 import R1C1Model
         return R1C1Model()
+    if name in MULTIZONE:
+        from mshoot_core.models.multizone import MultiZoneModel
+        return MultiZoneModel(MULTIZONE[name], seed=0)
     if name in _REGISTERED:
         return _REGISTERED[name][0](tolerance)
     try:
@@ -130,13 +150,81 @@ def build_model(name: str, tolerance: float = CONTROL_TOLERANCE,
 
 
 @dataclasses.dataclass(frozen=True)
+class ControlInterface:
+    """How a model is controlled: what the MPC optimises and the comfort band bounds.
+
+    Attributes
+    ----------
+    control_names : tuple of str
+        The model inputs the controller sets (its decision variables, the named
+        controls of a setpoint), in the model's input order.
+    state_names : tuple of str
+        The model's states (their order in state vectors).
+    state_bounds : dict
+        ``{state: ('comfort_min', 'comfort_max', offset)}`` for every zone
+        temperature state (in the model's state order): bounded by the comfort
+        band [degC] plus ``offset`` (273.15 for states in K); the form of
+        :class:`mshoot_core.mpc.MPC`'s ``state_bounds``.
+    """
+
+    control_names: tuple[str, ...]
+    state_names: tuple[str, ...]
+    state_bounds: dict[str, tuple[str, str, float]]
+
+    @property
+    def temperature_names(self) -> tuple[str, ...]:
+        """The zone temperature states (those bounded by the comfort band)."""
+        return tuple(self.state_bounds)
+
+    def temperatures_c(self, x: np.ndarray) -> np.ndarray:
+        """Zone temperatures [degC] of states ``x`` (..., nx), shape (..., nz) in the order
+        of :attr:`temperature_names`."""
+        x = np.asarray(x, dtype=float)
+        columns = [self.state_names.index(s) for s in self.state_bounds]
+        offsets = np.array([spec[2] for spec in self.state_bounds.values()])
+        return x[..., columns] - offsets
+
+
+def control_interface(model: Model) -> ControlInterface:
+    """The controls and zone temperatures of ``model`` (see the module docstring).
+
+    Raises
+    ------
+    ValueError
+        If the declared names are not inputs / states of the model, or a model
+        declares no controls and has no input ``q``.
+    """
+    inputs, states = tuple(model.input_names), tuple(model.state_names)
+    controls = getattr(model, 'control_names', None)
+    if controls is None:
+        if 'q' not in inputs:
+            raise ValueError(f'{type(model).__name__} declares no control_names and has no '
+                             f"input 'q' (inputs {list(inputs)})")
+        controls = ('q',)
+    controls = tuple(controls)
+    unknown = [c for c in controls if c not in inputs]
+    if not controls or unknown or len(set(controls)) != len(controls):
+        raise ValueError(f'control_names must be distinct inputs of the model {list(inputs)}, '
+                         f'got {list(controls)}')
+    comfort = getattr(model, 'comfort_states', None)
+    if comfort is None:
+        comfort = ('T',) if 'T' in states else ()
+    unknown = [s for s in comfort if s not in states]
+    if unknown:
+        raise ValueError(f'comfort_states {unknown} are not states of the model {list(states)}')
+    return ControlInterface(tuple(c for c in inputs if c in controls), states,
+                            {s: ('comfort_min', 'comfort_max', KELVIN) for s in states
+                             if s in comfort})
+
+
+@dataclasses.dataclass(frozen=True)
 class ModelSettings(SettingsGroup):
     """Which model, and how it is integrated."""
 
     model: str = setting('python', "zone model: 'python' (exact R1C1), 'fmu' (the R1C1 FMU, "
-                         "Model Exchange), 'fmu-cs' (Co-Simulation), a path to an .fmu with "
-                         'the R1C1 zone interface, or a path to a model card (.yaml)',
-                         apply='fixed')
+                         "Model Exchange), 'fmu-cs' (Co-Simulation), 'r1c1x2' (two R1C1 "
+                         "zones, controls q_0, q_1), a path to an .fmu with the R1C1 zone "
+                         'interface, or a path to a model card (.yaml)', apply='fixed')
     fmu_tolerance: float = setting(CONTROL_TOLERANCE, 'relative tolerance of the FMU '
                                    'integrator [-]', low=1e-14, high=1e-2, apply='fixed',
                                    cli='--tolerance')
