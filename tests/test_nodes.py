@@ -217,7 +217,7 @@ def two_zone_run(tmp_path_factory):
     """A lockstep run over ROS of two R1C1 zones (controls q_0, q_1: registry name 'r1c1x2')
     with a price forecast, and the core-only loop of the same case."""
     bag = tmp_path_factory.mktemp('two_zones') / 'bag'
-    ctx = _context()
+    ctx = private_context()
     try:
         run = run_in_process(ctx, {
             'emulator': {'hours': ZONES_HOURS, 'model': 'r1c1x2'},

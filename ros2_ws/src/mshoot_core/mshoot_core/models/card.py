@@ -876,6 +876,10 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
                 outputs={n: v.variable for n, v in card.outputs.items()},
                 parameters=card.parameters, tolerance=float(tol), fmi_type=card.interface,
                 instance_name=f'mshoot-{role}', fixed_inputs=fixed, **extra, **options)
+    # What controllers and nodes read (registry.control_interface): the card's controls, and
+    # its zone air temperatures (T, T_<zone>) as the states the comfort band bounds.
+    model.control_names = tuple(card.control_names)
+    model.comfort_states = tuple(n for n in card.state_names if n == 'T' or n.startswith('T_'))
     logger.debug('built %r from %s for the %s', model, card.path, role)
     return model
 
