@@ -173,3 +173,30 @@ def test_emulator_without_peers_stops_naming_the_missing_endpoints(graph, tmp_pa
     assert f'{prefix}/setpoint: 0 of 1 publishers' in text
     run = json.loads((tmp_path / 'run.json').read_text())
     assert run['steps'] == 0 and 'not ready' in run['failed']
+
+
+def _run_processes(out: pathlib.Path, *options: str) -> dict:
+    command = executable('bringup_processes', 'processes')
+    done = subprocess.run(command + ['--hours', '12', '--out', str(out), '--timeout', '120',
+                                     *options], capture_output=True, text=True, timeout=180)
+    logs = '\n'.join(f'--- {p.name}\n{p.read_text()[-2000:]}'
+                     for p in sorted((out / 'logs').glob('*.log')))
+    assert done.returncode == 0, f'{done.stdout}\n{done.stderr}\n{logs}'
+    return json.loads((out / 'kpis.json').read_text())
+
+
+@pytest.mark.ros
+def test_fmu_with_other_names_runs_over_dds_from_its_card_alone(tmp_path):
+    """An R1C1 FMU written with names of its own (state cair.T, no dpos), described by a card,
+    as the MPC's control model and as the emulated building, each its own process over DDS:
+    the KPIs of the built-in FMU."""
+    from card_fmus import build_test_fmu
+    from test_cards import write_card, ZONE_CARD
+    card = write_card(tmp_path / 'card', 'zone.yaml', ZONE_CARD, build_test_fmu('zone'))
+    builtin = _run_processes(tmp_path / 'builtin', '--control-model', 'fmu',
+                             '--emulator-model', 'fmu')
+    carded = _run_processes(tmp_path / 'card_run', '--control-model', str(card),
+                            '--emulator-model', str(card))
+    assert carded['steps'] == builtin['steps'] == 12 and carded['fallbacks'] == 0
+    for key in ('energy_kwh', 'discomfort_kh', 'discomfort_kh_hourly'):
+        assert carded[key] == pytest.approx(builtin[key], rel=1e-6, abs=1e-9), key

@@ -61,6 +61,12 @@ def build_parser() -> argparse.ArgumentParser:
                         help="'synthetic' (default), 'ou44' or an OU44-format CSV")
     parser.add_argument('--data', default='', help="OU44 measurements.csv for 'ou44'")
     parser.add_argument('--hours', type=int, default=72, help='control steps (default 72)')
+    parser.add_argument('--emulator-model', default=None,
+                        help='emulation model (default: the emulator.yaml one): python, fmu, '
+                             'fmu-cs, r1c1x2, an .fmu path or a model card (.yaml)')
+    parser.add_argument('--control-model', default=None,
+                        help='MPC model (default: the mpc.yaml one): python, fmu, fmu-cs, '
+                             'r1c1x2, an .fmu path or a model card (.yaml)')
     parser.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap')
     parser.add_argument('--out', type=pathlib.Path, default=pathlib.Path('out/processes'))
     parser.add_argument('--timeout', type=float, default=600.0,
@@ -123,8 +129,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     overrides = {
         'recorder': [f'bag_path:={bag}', 'overwrite:=true', f'storage:={args.storage}'],
         'forecaster': scenario,
-        'mpc': [],
-        'emulator': scenario + [f'output_dir:={emulator_dir}', 'exit_when_done:=true',
+        'mpc': [f'model:={args.control_model}'] if args.control_model else [],
+        'emulator': scenario + ([f'model:={args.emulator_model}'] if args.emulator_model
+                                else []) + [f'output_dir:={emulator_dir}', 'exit_when_done:=true',
                                 f'ready_endpoints:={run_requirements("mshoot")!r}',
                                 f'ready_timeout_s:={args.ready_timeout}',
                                 # the gate is the recorder's; a little slack for the others
