@@ -7,11 +7,16 @@ runs the 72 h MPC emulation (hourly control, R1C1 emulator, perfect
 forecasts) and writes ``kpis.json``, ``trajectories.csv``, ``steps.csv`` and
 ``plot.png`` to the output folder. ``synthetic`` instead of ``ou44`` runs the
 built-in scenario, which needs no data file.
+
+Exit codes: 0 done; 2 bad options or inputs (one line); 1 the emulated
+building failed (non-finite values): the files are still written for the
+steps done, ``kpis.json`` with the reason under ``stopped``.
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import logging
 import pathlib
 import sys
@@ -20,7 +25,7 @@ from typing import Any, Sequence
 
 import pandas as pd
 
-from mshoot_core.closed_loop import ClosedLoopResult, run_closed_loop
+from mshoot_core.closed_loop import ClosedLoopResult, EmulationStopped, run_closed_loop
 from mshoot_core.controller import Controller
 from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis
@@ -91,14 +96,31 @@ def run_case(scenario: pd.DataFrame, control: Model, emulator_model: Model,
         Initial zone temperature [degC].
     steps, log_every, progress, budget_s :
         See :func:`mshoot_core.closed_loop.run_closed_loop`.
+
+    Raises
+    ------
+    EmulationStopped
+        If the emulated building failed; its ``result`` holds the steps done
+        and its ``kpis`` their KPIs with the reason under ``stopped`` (None
+        without a step done).
     """
     if horizon is not None:
         options['horizon_steps'] = horizon
     settings = (settings or MpcSettings()).replace(options)
     controller = Controller(control, settings)
     emulator = Emulator(emulator_model, scenario, [initial_c + KELVIN])
-    result = run_closed_loop(controller, emulator, steps=steps, log_every=log_every,
-                             progress=progress, budget_s=budget_s)
+    try:
+        result = run_closed_loop(controller, emulator, steps=steps, log_every=log_every,
+                                 progress=progress, budget_s=budget_s)
+    except EmulationStopped as stop:
+        stop.kpis = None if stop.result is None else dict(
+            _case_kpis(stop.result, settings), stopped=str(stop))
+        raise
+    return result, _case_kpis(result, settings)
+
+
+def _case_kpis(result: ClosedLoopResult, settings: MpcSettings) -> dict:
+    """The KPIs of a run and the settings that made it."""
     p, c = settings.problem, settings.comfort
     kpis = closed_loop_kpis(result.steps, result.fine, p.step_s, result.wall_s)
     kpis.update(horizon_h=p.horizon_steps * p.step_s / 3600.0, cost=p.cost,
@@ -106,7 +128,7 @@ def run_case(scenario: pd.DataFrame, control: Model, emulator_model: Model,
                 fallbacks=int(result.steps['fallback'].sum()))
     if c.soft:
         kpis['soft_penalty'] = c.soft_penalty
-    return result, kpis
+    return kpis
 
 
 #: Controller settings offered as options of the case command.
@@ -171,7 +193,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the case as parsed by :func:`build_parser`; 0, or 2 on bad input (logged)."""
+    """Run the case as parsed by :func:`build_parser`; 0, 2 on bad input, 1 if the emulated
+    building failed (partial outputs written); the reason is logged."""
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format='%(asctime)s %(levelname)s %(name)s: %(message)s')
     settings, problems = option_problems(args)
@@ -197,13 +220,23 @@ def run(args: argparse.Namespace) -> int:
     horizon = settings.problem.horizon_steps
     logger.info('running %s: %d h, horizon %d h, control %s, cost %s, comfort %s',
                 args.scenario, args.hours, horizon, args.control, args.cost, args.comfort)
-    result, kpis = run_case(scenario, control, emulator, settings)
+    stopped = None
+    try:
+        result, kpis = run_case(scenario, control, emulator, settings)
+    except EmulationStopped as stop:
+        stopped, result, kpis = stop, stop.result, stop.kpis or {'stopped': str(stop)}
     kpis.update(scenario=args.scenario, control=args.control, emulator=args.emulator,
                 tolerance=args.tolerance, mode=args.mode, setup_s=setup_s)
     if report:
         kpis['training'] = report
     if args.scenario == 'ou44' and args.hours == 72 and horizon in PUBLISHED:
         kpis['published'] = PUBLISHED[horizon]
+    if stopped is not None:
+        _write_stopped(args.out, result, kpis, f'{args.scenario}: H = {horizon} h, control '
+                                               f'{args.control}, stopped')
+        logger.error('%s; wrote the %d steps done to %s', stopped,
+                     0 if result is None else len(result.steps), args.out)
+        return 1
     write_outputs(args.out, result, kpis, f'{args.scenario}: H = {horizon} h, control '
                                           f'{args.control}, {args.cost} cost')
     logger.info('energy %.2f kWh (heating %.2f, cooling %.2f), discomfort %.2f Kh (hourly '
@@ -213,6 +246,18 @@ def run(args: argparse.Namespace) -> int:
                 kpis['solve_s_median'], kpis['solver_failures'])
     logger.info('wrote %s', args.out / 'kpis.json')
     return 0
+
+
+def _write_stopped(out: pathlib.Path, result: ClosedLoopResult | None, kpis: dict,
+                   title: str) -> None:
+    """The files of a stopped run: those of its steps done, or ``kpis.json`` alone."""
+    if result is not None:
+        write_outputs(out, result, kpis, title)
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    for name in ('trajectories.csv', 'steps.csv', 'plot.png'):  # not from an earlier run
+        (out / name).unlink(missing_ok=True)
+    (out / 'kpis.json').write_text(json.dumps(kpis, indent=2, sort_keys=True) + '\n')
 
 
 if __name__ == '__main__':
