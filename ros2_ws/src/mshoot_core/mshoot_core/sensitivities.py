@@ -101,7 +101,7 @@ def finite_difference_jacobians(model: Model, x_start: np.ndarray, u: np.ndarray
         x_all, y_all = model.simulate_intervals(np.vstack(batch_x), np.vstack(batch_u), dt_s)
     else:
         x_all, y_all = model.simulate_intervals(np.vstack(batch_x), np.vstack(batch_u), dt_s,
-                                                t_start_s=np.tile(t_start_s, len(batch_x)))
+                                                t_start_s=np.concatenate([t_start_s] * len(batch_x)))
     x_all = x_all.reshape(1 + len(groups), batch, nx)
     y_all = y_all.reshape(1 + len(groups), batch, ny)
     base = np.concatenate([x_all[0], y_all[0]], axis=1)

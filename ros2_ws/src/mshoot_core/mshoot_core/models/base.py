@@ -14,6 +14,7 @@ import dataclasses
 import functools
 import inspect
 import logging
+import math
 from typing import Sequence
 
 import numpy as np
@@ -53,11 +54,15 @@ def interval_start_times(t_start_s: Sequence[float] | np.ndarray | None,
     """
     if t_start_s is None:
         return None
-    times = np.asarray(t_start_s, dtype=float).reshape(-1)
-    if times.shape != (batch,):
-        raise ValueError(f't_start_s must hold one start time [s] per interval ({batch}), got '
-                         f'shape {np.shape(t_start_s)}')
-    if not np.all(np.isfinite(times)):
+    times = t_start_s
+    if not (isinstance(times, np.ndarray) and times.dtype == np.float64
+            and times.shape == (batch,) and times.flags.c_contiguous):
+        # (the optimiser's own arrays skip the conversion)
+        times = np.ascontiguousarray(t_start_s, dtype=float).reshape(-1)
+        if times.shape != (batch,):
+            raise ValueError(f't_start_s must hold one start time [s] per interval ({batch}), '
+                             f'got shape {np.shape(t_start_s)}')
+    if not math.isfinite(times.sum()):
         raise ValueError('t_start_s must be finite times [s]')
     return times
 

@@ -263,12 +263,14 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         #: Time of FMU t = 0 in the caller's time base [s].
         self.time_origin_s = float(time_origin_s)
         try:
+            described: list[Any] = []  # read while checking a new extraction: not again
             if path.is_dir():
                 self._unzip_dir = path
             else:
-                self._unzip_dir = extract_fmu(
-                    path, check=lambda folder: read_fmu_description(folder, path.name))
-            self.model_description = read_fmu_description(self._unzip_dir, path.name)
+                self._unzip_dir = extract_fmu(path, check=lambda folder: described.append(
+                    read_fmu_description(folder, path.name)))
+            self.model_description = (described[0] if described
+                                      else read_fmu_description(self._unzip_dir, path.name))
             self._configure(inputs, states, outputs, dict(parameters or {}), fmi_type)
             self._instantiate(instance_name)
         except BaseException:
@@ -527,7 +529,9 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         """FMU start times of a batch's intervals (caller's times minus the origin), or None
         (every interval at FMU time 0)."""
         times = interval_start_times(t_start_s, batch)
-        return None if times is None else times - self.time_origin_s
+        if times is None or not self.time_origin_s:
+            return times
+        return times - self.time_origin_s
 
     def _check_batch(self, x_start: np.ndarray, u: np.ndarray,
                      dt_s: float) -> tuple[np.ndarray, np.ndarray, float]:
@@ -644,18 +648,16 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         self._plant = None  # the instance is re-initialised: a plant run ends here
         x_end = np.empty(x_start.shape)
         y_end = np.empty((x_start.shape[0], len(self.output_names)))
-        t_end = dt_s if t0 is None else t0 + dt_s
-        if self._batch_in_c(x_start, u, dt_s, x_end, y_end, t0) or (
+        if not (self._batch_in_c(x_start, u, dt_s, x_end, y_end, t0) or (
                 self.me_batch_plan() is None
-                and self._me_batch_in_c(x_start, u, dt_s, x_end, y_end, t_start=t0)):
-            self._check_finite(x_end, y_end, t_end)
-            return x_end, y_end
-        for b in range(x_start.shape[0]):
-            start = 0.0 if t0 is None else float(t0[b])
-            self._start_interval(x_start[b], u[b], start)
-            self._advance_checked(start, start + dt_s)
-            x_end[b], y_end[b] = self._read()
-        self._check_finite(x_end, y_end, t_end)
+                and self._me_batch_in_c(x_start, u, dt_s, x_end, y_end, t_start=t0))):
+            for b in range(x_start.shape[0]):
+                start = 0.0 if t0 is None else float(t0[b])
+                self._start_interval(x_start[b], u[b], start)
+                self._advance_checked(start, start + dt_s)
+                x_end[b], y_end[b] = self._read()
+        if not math.isfinite(x_end.sum() + y_end.sum()):
+            self._check_finite(x_end, y_end, dt_s if t0 is None else t0 + dt_s)
         return x_end, y_end
 
     def _batch_in_c(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
@@ -687,7 +689,7 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
             real_array(par_values), self._start_state_refs,
             np.ascontiguousarray(x_start[:, self._start_state_index]), self._input_refs,
             np.ascontiguousarray(u), self._state_refs, x_end, self._output_refs, y_end,
-            t_start=None if t_start is None else np.ascontiguousarray(t_start, dtype=float))
+            t_start=t_start)
         return True
 
 

@@ -61,6 +61,16 @@ def double_pointer(array: np.ndarray) -> Any:
     return array.ctypes.data_as(DOUBLE_P)
 
 
+def address(array: np.ndarray | None) -> int | None:
+    """The data address of a C-contiguous float64 ``array`` (kept alive by the caller) for a
+    ``const double *`` argument, or None (NULL)."""
+    if array is None:
+        return None
+    if array.dtype != np.float64 or not array.flags.c_contiguous:
+        raise ValueError('expected a C-contiguous float64 array')
+    return array.__array_interface__['data'][0]
+
+
 def _bind(fmu: FMU2Model | FMU2Slave, names: Sequence[str],
           optional: bool = False) -> list[int | None]:
     """Addresses of the FMU's functions ``names``; with ``optional``, None where not exported."""
@@ -134,8 +144,7 @@ class CsBatchDriver:
             len(start_refs), start_refs, double_pointer(starts),
             len(input_refs), input_refs, double_pointer(inputs),
             len(state_refs), state_refs, double_pointer(x_end),
-            len(output_refs), output_refs, double_pointer(y_end),
-            None if t_start is None else double_pointer(t_start))
+            len(output_refs), output_refs, double_pointer(y_end), address(t_start))
         if code:
             raise RuntimeError(f'{self.label}: FMI call {code % 16 - 1} of interval '
                                f'{code // 16} failed in the batched driver '
@@ -337,7 +346,7 @@ class MeBatchDriver:
             ctypes.byref(self._api), component, ctypes.byref(problem), batch,
             double_pointer(starts), double_pointer(inputs), double_pointer(x_end),
             double_pointer(y_end), double_pointer(s_end), double_pointer(dyo), stats,
-            None if t_start is None else double_pointer(t_start))
+            address(t_start))
         logger.debug('ME batch of %d: %d steps, %d rejected, %d evaluations', batch, stats[0],
                      stats[1], stats[2])
         if code == ME_TERMINATE:

@@ -261,12 +261,11 @@ class ModelExchangeIntegration:
             else np.zeros(1)
         starts = np.ascontiguousarray(x_start, dtype=float)
         inputs = np.ascontiguousarray(u, dtype=float)
-        times = None if t_start is None else np.ascontiguousarray(t_start, dtype=float)
         try:
             self._me_driver.run(self._fmu.component, problem, starts, inputs, x_end, y_end,
-                                s_end, dyo, t_start=times)
+                                s_end, dyo, t_start=t_start)
         except DriverGaveUp as gave_up:
-            self._non_finite_interval(x_start, u, dt_s, times, gave_up)
+            self._non_finite_interval(x_start, u, dt_s, t_start, gave_up)
             logger.warning('%s: the batched Model Exchange driver stopped at interval %d (%s); '
                            'this model integrates with CVode from now on', self.fmu_path.name,
                            gave_up.interval, gave_up.reason)
