@@ -97,11 +97,10 @@ def finite_difference_jacobians(model: Model, x_start: np.ndarray, u: np.ndarray
                 up[:, wrt_inputs[c - nx]] += signs[:, c] * steps[c]
         batch_x.append(xp)
         batch_u.append(up)
-    if t_start_s is None:
-        x_all, y_all = model.simulate_intervals(np.vstack(batch_x), np.vstack(batch_u), dt_s)
-    else:
-        x_all, y_all = model.simulate_intervals(np.vstack(batch_x), np.vstack(batch_u), dt_s,
-                                                t_start_s=np.concatenate([t_start_s] * len(batch_x)))
+    times = {} if t_start_s is None else {
+        't_start_s': np.concatenate([t_start_s] * len(batch_x))}  # each at its base's time
+    x_all, y_all = model.simulate_intervals(np.vstack(batch_x), np.vstack(batch_u), dt_s,
+                                            **times)
     x_all = x_all.reshape(1 + len(groups), batch, nx)
     y_all = y_all.reshape(1 + len(groups), batch, ny)
     base = np.concatenate([x_all[0], y_all[0]], axis=1)
