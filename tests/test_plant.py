@@ -245,3 +245,21 @@ def test_case_command_exits_1_and_writes_the_steps_done(timed_fmus, tmp_path, mo
     assert np.isfinite(fine['y_T']).all() and np.isfinite(kpis['discomfort_kh'])
     assert any('emulation stopped' in r.message and r.levelname == 'ERROR'
                for r in caplog.records)
+
+
+def test_case_command_stopped_at_the_first_step_writes_the_reason(timed_fmus, tmp_path,
+                                                                  monkeypatch):
+    """NaN from FMU time 0: no step done; kpis.json holds the reason, no stale files stay."""
+    monkeypatch.setitem(registry._REGISTERED, 'timed-nan-0', (
+        lambda tolerance: timed_model(timed_fmus['state'], nan_after=0.0), 'test FMU'))
+    out = tmp_path / 'out'
+    out.mkdir()
+    (out / 'steps.csv').write_text('from an earlier run\n')
+    args = case.build_parser().parse_args(['synthetic', '--hours', '4', '--horizon', '2',
+                                           '--out', str(out)])
+    args.emulator = 'timed-nan-0'
+    assert case.run(args) == 1
+    kpis = json.loads((out / 'kpis.json').read_text())
+    assert kpis['stopped'].startswith('emulation stopped at step 1/4 (t = 0 s, 0 steps done)')
+    assert "non-finite output 'T'" in kpis['stopped'] and kpis['emulator'] == 'timed-nan-0'
+    assert sorted(p.name for p in out.iterdir()) == ['kpis.json']

@@ -54,15 +54,13 @@ def interval_start_times(t_start_s: Sequence[float] | np.ndarray | None,
     """
     if t_start_s is None:
         return None
-    times = t_start_s
-    if not (isinstance(times, np.ndarray) and times.dtype == np.float64
-            and times.shape == (batch,) and times.flags.c_contiguous):
-        # (the optimiser's own arrays skip the conversion)
-        times = np.ascontiguousarray(t_start_s, dtype=float).reshape(-1)
+    times = np.ascontiguousarray(t_start_s, dtype=np.float64)  # (no copy if it is one)
+    if times.shape != (batch,):
+        times = times.reshape(-1)
         if times.shape != (batch,):
             raise ValueError(f't_start_s must hold one start time [s] per interval ({batch}), '
                              f'got shape {np.shape(t_start_s)}')
-    if not math.isfinite(times.sum()):
+    if not math.isfinite(np.add.reduce(times)):
         raise ValueError('t_start_s must be finite times [s]')
     return times
 

@@ -656,7 +656,7 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
                 self._start_interval(x_start[b], u[b], start)
                 self._advance_checked(start, start + dt_s)
                 x_end[b], y_end[b] = self._read()
-        if not math.isfinite(x_end.sum() + y_end.sum()):
+        if not math.isfinite(np.add.reduce(x_end, None) + np.add.reduce(y_end, None)):
             self._check_finite(x_end, y_end, dt_s if t0 is None else t0 + dt_s)
         return x_end, y_end
 

@@ -62,13 +62,10 @@ def double_pointer(array: np.ndarray) -> Any:
 
 
 def address(array: np.ndarray | None) -> int | None:
-    """The data address of a C-contiguous float64 ``array`` (kept alive by the caller) for a
-    ``const double *`` argument, or None (NULL)."""
-    if array is None:
-        return None
-    if array.dtype != np.float64 or not array.flags.c_contiguous:
-        raise ValueError('expected a C-contiguous float64 array')
-    return array.__array_interface__['data'][0]
+    """The data address of a C-contiguous float64 ``array`` (kept alive by the caller, e.g.
+    from :func:`~mshoot_core.models.base.interval_start_times`) for a ``const double *``
+    argument, or None (NULL)."""
+    return None if array is None else array.__array_interface__['data'][0]
 
 
 def _bind(fmu: FMU2Model | FMU2Slave, names: Sequence[str],

@@ -258,7 +258,7 @@ class ForwardSensitivities:
             done = self._me_batch_in_c(x_start, u, dt_s, x_end, y_end,
                                        self._sensitivity_request(wrt), t_start=t0)
             if done is not False:
-                if not math.isfinite(x_end.sum() + y_end.sum()):
+                if not math.isfinite(np.add.reduce(x_end, None) + np.add.reduce(y_end, None)):
                     self._check_finite(x_end, y_end, t_end)
                 s_end, dyo = done
                 sx, su = s_end[:, :, :nx], s_end[:, :, nx:]  # (B, n, nx), (B, n, m)
