@@ -38,7 +38,10 @@ def build_timed_fmu(out_dir: pathlib.Path, can_get_state: bool = True) -> pathli
     description = (SOURCES / 'timed_zone.xml').read_text().replace('@GUID@', guid).replace(
         '@CAN_STATE@', 'true' if can_get_state else 'false')
     target = out_dir / f'{IDENTIFIER}{variant}.fmu'
+    # fixed dates: the same sources give the same bytes, so one folder in the extraction cache
     with zipfile.ZipFile(target, 'w', compression=zipfile.ZIP_DEFLATED) as archive:
-        archive.writestr('modelDescription.xml', description)
-        archive.write(library, f'binaries/{platform_dir}/{library.name}')
+        for name, data in (('modelDescription.xml', description.encode()),
+                           (f'binaries/{platform_dir}/{library.name}', library.read_bytes())):
+            archive.writestr(zipfile.ZipInfo(name, date_time=(2020, 1, 1, 0, 0, 0)), data,
+                             compress_type=zipfile.ZIP_DEFLATED)
     return target
