@@ -60,3 +60,12 @@ def spin_for(executor: Any, wall_s: float) -> None:
     end = time.monotonic() + wall_s
     while time.monotonic() < end:
         executor.spin_once(timeout_sec=0.02)
+
+
+@pytest.fixture(scope='session')
+def timed_fmus(tmp_path_factory: pytest.TempPathFactory) -> dict[str, pathlib.Path]:
+    """The time-dependent test FMU (tests/fmus/timed_zone.c), built with gcc: ``'state'``
+    declares FMU-state get/set/serialise, ``'nostate'`` does not."""
+    from timed_fmu import build_timed_fmu
+    out = tmp_path_factory.mktemp('timed_fmu')
+    return {'state': build_timed_fmu(out, True), 'nostate': build_timed_fmu(out, False)}

@@ -408,7 +408,7 @@ def test_bad_simulation_arguments(r1c1_cs):
 
 # -- one extraction, one instance -------------------------------------------------------------
 @pytest.mark.parametrize('fmi_type', ['CoSimulation', 'ModelExchange'])
-def test_instance_is_extracted_and_instantiated_once(r1c1_fmu, monkeypatch, fmi_type):
+def test_instance_is_extracted_and_instantiated_once(r1c1_fmu, monkeypatch, tmp_path, fmi_type):
     counts = {'extract': 0, 'instantiate': 0, 'read': 0, 'reset': 0}
 
     def counting(name, function):
@@ -417,7 +417,12 @@ def test_instance_is_extracted_and_instantiated_once(r1c1_fmu, monkeypatch, fmi_
             return function(*args, **kwargs)
         return wrapper
 
-    monkeypatch.setattr(fmpy, 'extract', counting('extract', fmpy.extract))
+    # extractions go to a fresh cache folder (the drivers stay where make setup built them)
+    where = tmp_path / 'extracted'
+    monkeypatch.setattr(fmu_cache, 'extracted_dir',
+                        lambda path: where / fmu_cache.file_sha256(path)[:32])
+    monkeypatch.setattr(zipfile.ZipFile, 'extractall',
+                        counting('extract', zipfile.ZipFile.extractall))
     monkeypatch.setattr(fmpy, 'read_model_description',
                         counting('read', fmpy.read_model_description))
     for cls in (FMU2Model, FMU2Slave):
@@ -426,6 +431,7 @@ def test_instance_is_extracted_and_instantiated_once(r1c1_fmu, monkeypatch, fmi_
     udf = hourly_inputs(5, seed=11)
     with r1c1_fmi_model(fmi_type=fmi_type, fmu_path=r1c1_fmu) as model:
         unzip_dir = model._unzip_dir
+        assert unzip_dir.parent == where
         for _ in range(3):
             model.simulate(udf, [293.0])
         for _ in range(2):
@@ -436,7 +442,11 @@ def test_instance_is_extracted_and_instantiated_once(r1c1_fmu, monkeypatch, fmi_
     # reset per simulation instead of a new instance (the first simulation initialises the
     # fresh instance; Co-Simulation batches reset inside the compiled driver)
     assert counts['reset'] >= 2
-    assert not unzip_dir.exists()  # close() removed the extracted files
+    assert unzip_dir.is_dir()  # the extraction stays in the cache ...
+    with r1c1_fmi_model(fmi_type=fmi_type, fmu_path=r1c1_fmu) as again:
+        assert again._unzip_dir == unzip_dir  # ... for the next model of the same file
+    assert counts['extract'] == 1 and counts['read'] == 2  # (the second model read it)
+    assert list(where.iterdir()) == [unzip_dir]
 
 
 def test_batched_co_simulation_driver_equals_fmpy_calls():

@@ -11,6 +11,7 @@ import pandas as pd
 
 from mshoot_core.controller import Controller, StepOutcome
 from mshoot_core.emulation import Emulator, StepRecord
+from mshoot_core.models.base import ModelValueError
 from mshoot_core.mpc import MPC
 from mshoot_core.safety import NS_PER_S
 from mshoot_core.scenario import forecast_window  # noqa: F401 (API: used by the nodes)
@@ -40,6 +41,27 @@ class ClosedLoopResult:
     fine: pd.DataFrame
     plans: list[pd.DataFrame]
     wall_s: float
+
+
+class EmulationStopped(RuntimeError):
+    """The emulated building failed (non-finite values): the run stopped early.
+
+    Attributes
+    ----------
+    result : ClosedLoopResult or None
+        The steps done before the failing one (None if it was the first).
+    step : int
+        Index of the failing step in the run (0-based).
+    t_s : float
+        Start time of the failing step [s].
+    """
+
+    def __init__(self, message: str, result: ClosedLoopResult | None, step: int,
+                 t_s: float) -> None:
+        super().__init__(message)
+        self.result = result
+        self.step = step
+        self.t_s = t_s
 
 
 def step_row(outcome: StepOutcome, record: StepRecord, state_names: tuple[str, ...],
@@ -123,6 +145,13 @@ def run_closed_loop(controller: Controller | MPC, emulator: Emulator, steps: int
     budget_s : float, optional
         Wall-time budget of the whole run [s]: no step is started once it is
         spent, and the result holds the steps done (at least one).
+
+    Raises
+    ------
+    EmulationStopped
+        If the emulator produced non-finite values (a
+        :class:`~mshoot_core.models.base.ModelValueError`, chained): carries
+        the records of the steps done before (``result``).
     """
     if isinstance(controller, MPC):
         controller = Controller(mpc=controller)
@@ -149,7 +178,14 @@ def run_closed_loop(controller: Controller | MPC, emulator: Emulator, steps: int
             raise RuntimeError(f'the controller decided {[o.step_ns for o in outcomes]} at '
                                f'{now_ns} ns: expected exactly that step')
         outcome = outcomes[0]
-        record = emulator.advance(outcome.decision.controls)
+        try:
+            record = emulator.advance(outcome.decision.controls)
+        except ModelValueError as error:
+            done = (ClosedLoopResult(pd.DataFrame(rows).set_index('time_s'), pd.concat(fines),
+                                     plans, time.perf_counter() - started) if rows else None)
+            raise EmulationStopped(f'emulation stopped at step {k + 1}/{total} (t = '
+                                   f'{emulator.t_s:.0f} s, {len(rows)} steps done): {error}',
+                                   done, k, emulator.t_s) from error
         row = step_row(outcome, record, mpc.model.state_names, mpc.problem.control_names)
         rows.append(row)
         fines.append(record.fine if k == 0 else record.fine.iloc[1:])

@@ -3,6 +3,26 @@
 Both the offline MPC loop and the ROS emulator node drive an :class:`Emulator`,
 so a ROS run and a core-only run of the same scenario produce the same
 trajectory.
+
+A model that offers a plant (``plant_start``/``plant_step``, e.g.
+:class:`~mshoot_core.models.fmi.FmiModel`) is one FMU instance stepped forward
+for the whole run and never re-initialised, so every internal state of the
+building carries over (e.g. the R1C1 FMU's energy meter ``Qr`` keeps counting);
+its time is the scenario's (seconds since the first row), which the model maps
+to FMU time with its time origin. Other models (the exact Python R1C1) are
+simulated step by step from the state, which is all they have.
+
+A restart mid-run (``start_index`` > 0) resumes a plant from a saved state
+(``plant_state``, from :meth:`Emulator.save_plant_state`, where the FMU can
+serialise its state), or replays the run from the scenario start (``warmup``:
+the first state and the controls applied so far), or else starts the plant at
+that row from the given state (its other states then start from their start
+values).
+
+Non-finite states or outputs stop the emulation with a
+:class:`~mshoot_core.models.base.ModelValueError` (for FMUs an
+:class:`~mshoot_core.models.fmi_values.FmuValueError`) naming the variable and
+the time; the step is not recorded.
 """
 from __future__ import annotations
 
@@ -13,10 +33,32 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-from mshoot_core.models.base import Model
+from mshoot_core.models.base import Model, ModelValueError
 from mshoot_core.scenario import DISTURBANCE_COLUMNS, validate_scenario
 
 logger = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass(frozen=True)
+class Warmup:
+    """A replay from the scenario start that brings a restarted emulator to its start row.
+
+    Attributes
+    ----------
+    x0 : sequence of float
+        The state at the first scenario row (the interrupted run's initial state).
+    controls : array, shape (start_index, nc)
+        The controls applied at steps 0 .. start_index - 1 (e.g. from ``steps.csv``).
+    """
+
+    x0: Sequence[float]
+    controls: np.ndarray
+
+
+def is_plant(model: Model) -> bool:
+    """Whether ``model`` offers a persistent plant (``plant_start`` and ``plant_step``)."""
+    return all(callable(getattr(type(model), name, None))
+               for name in ('plant_start', 'plant_step'))
 
 
 @dataclasses.dataclass
@@ -63,14 +105,28 @@ class Emulator:
     fine_step_s : float
         Grid of the recorded fine trajectory [s] (60 s: the 1-minute KPI grid).
     start_index : int
-        Scenario row to start from (restarts mid-run).
+        Scenario row to start from (restarts mid-run); ``x0`` is the state there.
+    plant_state : bytes, optional
+        A plant saved by :meth:`save_plant_state` at row ``start_index``: the
+        plant resumes from it (every internal state, the FMU's time).
+    warmup : Warmup, optional
+        Instead, replay the run from the scenario start to ``start_index``
+        (first state and applied controls): every internal state as in the
+        interrupted run, for any model.
+
+    Raises
+    ------
+    ValueError
+        On bad arguments, a ``plant_state`` of another model or time, or one
+        for a model that cannot restore it.
     """
 
     def __init__(self, model: Model, scenario: pd.DataFrame, x0: Sequence[float], *,
                  control_names: Sequence[str] = ('q',),
                  control_bounds: Sequence[tuple[float, float]] = ((-2000.0, 2000.0),),
                  step_s: float = 3600.0, fine_step_s: float = 60.0,
-                 start_index: int = 0) -> None:
+                 start_index: int = 0, plant_state: bytes | None = None,
+                 warmup: Warmup | None = None) -> None:
         validate_scenario(scenario)
         unknown = [c for c in control_names if c not in model.input_names]
         if unknown:
@@ -100,6 +156,54 @@ class Emulator:
         self.x = np.asarray(x0, dtype=float).reshape(-1)
         if self.x.size != len(model.state_names) or not np.all(np.isfinite(self.x)):
             raise ValueError(f'x0 must be {len(model.state_names)} finite values, got {x0}')
+        #: Whether the model is stepped as a persistent plant.
+        self.plant = is_plant(model)
+        self._plant_running = False
+        self._y: np.ndarray | None = None  # the plant's outputs at the current time
+        if plant_state is not None and warmup is not None:
+            raise ValueError('give either plant_state or warmup, not both')
+        if plant_state is not None:
+            self._restore(plant_state)
+        elif warmup is not None:
+            self._warm_up(warmup)
+        elif self.plant and start_index > 0:
+            logger.info('emulator restarts at row %d without a saved plant state or a warm-up: '
+                        'the plant starts there from x0, its other states from their start '
+                        'values', start_index)
+
+    def _restore(self, plant_state: bytes) -> None:
+        """Resume the plant saved at this row (see :meth:`save_plant_state`)."""
+        if not self.plant or not callable(getattr(self.model, 'plant_restore', None)):
+            raise ValueError(f'plant_state needs a model with a persistent plant (an FMU), got '
+                             f'{type(self.model).__name__}')
+        x, y = self.model.plant_restore(plant_state)
+        saved_t = self.model.plant_time_s
+        if saved_t is None or abs(saved_t - self.t_s) > 1e-6 * max(1.0, abs(self.t_s)):
+            raise ValueError(f'the saved plant state is at t = {saved_t} s, the restart at row '
+                             f'{self.index} (t = {self.t_s} s)')
+        if not np.allclose(x, self.x, rtol=1e-9, atol=1e-9):
+            logger.warning('restored plant state %s differs from x0 %s: the saved state wins',
+                           x, self.x)
+        self.x, self._y, self._plant_running = np.asarray(x, dtype=float), y, True
+
+    def _warm_up(self, warmup: Warmup) -> None:
+        """Replay steps 0 .. start_index - 1 from the scenario start (records dropped)."""
+        target, x_target, nc = self.index, self.x.copy(), len(self.control_names)
+        controls = np.asarray(warmup.controls, dtype=float)
+        if controls.size != target * nc:
+            raise ValueError(f'warmup.controls must be ({target}, {nc}): the controls of the '
+                             f'{target} steps before start_index, got shape {controls.shape}')
+        controls = controls.reshape(target, nc)
+        x0 = np.asarray(warmup.x0, dtype=float).reshape(-1)
+        if x0.size != self.x.size or not np.all(np.isfinite(x0)):
+            raise ValueError(f'warmup.x0 must be {self.x.size} finite values, got {warmup.x0}')
+        self.index, self.x = 0, x0
+        for u in controls:
+            self.advance(u)
+        if not np.allclose(self.x, x_target, rtol=1e-6, atol=1e-6):
+            logger.warning('after the warm-up the state is %s, not x0 %s: the warm-up wins',
+                           self.x, x_target)
+        logger.info('emulator warmed up over %d steps to row %d', target, self.index)
 
     @property
     def t_s(self) -> float:
@@ -128,25 +232,92 @@ class Emulator:
             logger.warning('controls %s clipped to the actuator limits: %s', u, clipped)
         return clipped
 
+    def save_plant_state(self) -> bytes:
+        """The plant at the current row, for ``Emulator(..., start_index, plant_state=...)``.
+
+        Raises
+        ------
+        ValueError
+            If the model has no plant or cannot save its state.
+        RuntimeError
+            Before the first step (nothing to save yet: restart from x0).
+        """
+        if not self.plant or not callable(getattr(self.model, 'plant_save', None)):
+            raise ValueError(f'{type(self.model).__name__} has no plant state to save: restart '
+                             'it from its state x0')
+        if not self._plant_running:
+            raise RuntimeError('the plant has not started yet: nothing to save')
+        return self.model.plant_save()
+
+    def _step_inputs(self, u: np.ndarray, row: pd.Series) -> np.ndarray:
+        """The model's inputs over the step: the controls and the scenario row's columns."""
+        values = np.empty(len(self.model.input_names))
+        for i, name in enumerate(self.model.input_names):
+            if name in self.control_names:
+                values[i] = u[self.control_names.index(name)]
+            elif name in row.index:
+                values[i] = float(row[name])
+            else:
+                raise ValueError(f'model input {name!r} is neither a control nor a scenario '
+                                 f'column ({list(row.index)})')
+        return values
+
+    def _plant_step(self, inputs: np.ndarray,
+                    times: np.ndarray) -> tuple[pd.DataFrame, pd.DataFrame]:
+        """The plant over one control step on the fine grid ``times``."""
+        model = self.model
+        if not self._plant_running:
+            x, y = model.plant_start(self.x, self.t_s, inputs)
+            self._plant_running = True
+        else:
+            x, y = self.x, self._y
+        states, outputs = [x], [y]
+        for _ in range(times.size - 1):
+            x, y = model.plant_step(inputs, self.fine_step_s)
+            states.append(x)
+            outputs.append(y)
+        index = pd.Index(times, name='time_s')
+        return (pd.DataFrame(np.array(outputs), index=index, columns=list(model.output_names)),
+                pd.DataFrame(np.array(states), index=index, columns=list(model.state_names)))
+
+    def _check_finite(self, ydf: pd.DataFrame, xdf: pd.DataFrame) -> None:
+        """Raise ModelValueError for the first non-finite state or output of a step."""
+        for kind, frame in (('state', xdf), ('output', ydf)):
+            values = frame.to_numpy(dtype=float)
+            bad = np.argwhere(~np.isfinite(values))
+            if bad.size:
+                row, col = bad[0]
+                name, time = frame.columns[col], float(frame.index[row])
+                raise ModelValueError(f'{type(self.model).__name__}: non-finite {kind} '
+                                      f'{name!r} = {values[row, col]} at t = {time:.9g} s',
+                                      variable=str(name), time_s=time)
+
     def advance(self, controls: Sequence[float]) -> StepRecord:
-        """Apply ``controls`` over the current step and move to the next one."""
+        """Apply ``controls`` over the current step and move to the next one.
+
+        Raises
+        ------
+        ModelValueError
+            If the model produced a non-finite state or output (an FMU's
+            :class:`~mshoot_core.models.fmi_values.FmuValueError` names the FMU
+            time): the step is not taken, the emulation cannot go on.
+        """
         if self.steps_left <= 0:
             raise RuntimeError('the scenario is over: no step left to emulate')
         u = self.clip(controls)
         row = self.scenario.iloc[self.index]
         n_fine = int(round(self.step_s / self.fine_step_s))
         times = self.t_s + np.arange(n_fine + 1) * self.fine_step_s
-        inputs = {}
-        for name in self.model.input_names:
-            if name in self.control_names:
-                inputs[name] = np.full(n_fine + 1, u[self.control_names.index(name)])
-            elif name in row.index:
-                inputs[name] = np.full(n_fine + 1, float(row[name]))
-            else:
-                raise ValueError(f'model input {name!r} is neither a control nor a scenario '
-                                 f'column ({list(row.index)})')
-        udf = pd.DataFrame(inputs, index=pd.Index(times, name='time_s'))
-        ydf, xdf = self.model.simulate(udf, self.x)
+        inputs = self._step_inputs(u, row)
+        if self.plant:
+            ydf, xdf = self._plant_step(inputs, times)
+        else:
+            udf = pd.DataFrame(np.tile(inputs, (n_fine + 1, 1)),
+                               index=pd.Index(times, name='time_s'),
+                               columns=list(self.model.input_names))
+            ydf, xdf = self.model.simulate(udf, self.x)
+        self._check_finite(ydf, xdf)
+        self._y = ydf.to_numpy()[-1].copy()
         fine = pd.concat([xdf.add_prefix('x_'), ydf.add_prefix('y_')], axis=1)
         fine['comfort_min'] = float(row['comfort_min'])
         fine['comfort_max'] = float(row['comfort_max'])

@@ -12,16 +12,30 @@ headers, the template, the builder), so edited sources live under a new hash
 and are never mistaken for an old build. The runtime only *finds* builds here
 (:func:`find_fmu`, :func:`find_driver`): it never compiles, and a missing
 build is a :class:`NotBuiltError` naming the file and the command that builds
-it. This module needs only the standard library.
+it.
+
+Any FMU a model loads is extracted once, into
+``<cache>/extracted/<sha256 of the .fmu file>/`` (:func:`extract_fmu`): the
+next model of the same file (also in another process) uses that folder. An
+extraction is staged in a folder next to it and renamed into place when
+complete, so a failing or concurrent extraction never leaves a half-written
+folder nor a temporary one behind. This module needs only the standard library.
 """
 from __future__ import annotations
 
 import dataclasses
 import hashlib
+import logging
 import os
 import pathlib
+import shutil
 import struct
 import sys
+import tempfile
+from typing import Callable
+import zipfile
+
+logger = logging.getLogger(__name__)
 
 #: Directory of the C sources, modelDescription templates and FMI 2.0 headers.
 SOURCE_DIR = pathlib.Path(__file__).resolve().parent / 'fmu_src'
@@ -33,6 +47,10 @@ BUILDER = pathlib.Path(__file__).resolve().parent / 'fmu_build.py'
 CACHE_ENV = 'MSHOOT_FMU_DIR'
 #: The command that fills the cache (with FMU names: those FMUs too); ``make setup`` runs it.
 BUILD_COMMAND = 'python -m mshoot_core.fmu_build --cache'
+#: Sub-folder of the cache holding extracted FMUs, one folder per FMU file hash.
+EXTRACTED = 'extracted'
+#: Prefix of the staging folders of extractions in progress (inside :data:`EXTRACTED`).
+STAGING_PREFIX = '.staging-'
 
 
 @dataclasses.dataclass(frozen=True)
@@ -241,3 +259,83 @@ def find_driver(name: str) -> pathlib.Path:
         raise _missing(f'the {source.description} ({source.library}, from '
                        f'fmu_src/{source.c_file})', path, BUILD_COMMAND)
     return path
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """The sha256 of a file's bytes (64 hex digits)."""
+    digest = hashlib.sha256()
+    with open(path, 'rb') as stream:
+        for block in iter(lambda: stream.read(1 << 20), b''):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def extracted_dir(fmu_file: str | os.PathLike) -> pathlib.Path:
+    """Where the FMU file ``fmu_file`` is (or would be) extracted: keyed by its sha256."""
+    return cache_dir() / EXTRACTED / file_sha256(fmu_file)[:32]
+
+
+def _safe_members(archive: zipfile.ZipFile, label: str) -> list[str]:
+    """The archive's member names, refusing any that would land outside the target folder."""
+    names = archive.namelist()
+    for name in names:
+        parts = name.split('/')
+        if '\\' in name or ':' in name or name.startswith('/') or '..' in parts:
+            raise ValueError(f'{label}: illegal path {name!r} in the archive (an FMU holds '
+                             'relative paths with forward slashes only)')
+    return names
+
+
+def extract_fmu(fmu_file: str | os.PathLike,
+                check: Callable[[pathlib.Path], None] | None = None) -> pathlib.Path:
+    """Extract ``fmu_file`` into the cache once; return its folder.
+
+    The folder is ``<cache>/extracted/<sha256>``; an existing one is reused
+    as is. A new extraction goes to a staging folder beside it, is checked
+    with ``check(folder)`` (e.g. reading its modelDescription) and renamed
+    into place; on any failure the staging folder is removed, so nothing is
+    left behind.
+
+    Parameters
+    ----------
+    fmu_file : path
+        The ``.fmu`` file.
+    check : callable, optional
+        Called with the staged folder; raising rejects the extraction.
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``fmu_file`` does not exist.
+    ValueError
+        If the file is not a ZIP archive or holds illegal paths (and whatever
+        ``check`` raises).
+    """
+    path = pathlib.Path(fmu_file)
+    if not path.is_file():
+        raise FileNotFoundError(f'FMU not found: {path}')
+    target = extracted_dir(path)
+    if target.is_dir():
+        return target
+    target.parent.mkdir(parents=True, exist_ok=True)
+    staging = pathlib.Path(tempfile.mkdtemp(prefix=STAGING_PREFIX, dir=target.parent))
+    try:
+        try:
+            with zipfile.ZipFile(path) as archive:
+                archive.extractall(staging, members=_safe_members(archive, str(path)))
+        except zipfile.BadZipFile as error:
+            raise ValueError(f'{path} is not an FMU: not a ZIP archive ({error})') from error
+        if check is not None:
+            check(staging)
+        try:
+            os.rename(staging, target)
+        except OSError:
+            if not target.is_dir():  # not a concurrent extraction of the same file
+                raise
+            shutil.rmtree(staging, ignore_errors=True)  # another process was first
+        else:
+            logger.debug('extracted %s into %s', path, target)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return target

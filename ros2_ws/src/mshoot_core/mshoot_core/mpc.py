@@ -234,7 +234,8 @@ class MPC:
         x0 : sequence of float
             Current state (physical units, e.g. T in K).
         t_s : float
-            Current time [s] (labels the plan).
+            Current time [s]: labels the plan, and interval k is simulated from
+            ``t_s + k * step_s`` (time-dependent models see their own time).
         forecast : DataFrame, N+1 rows
             Row k: disturbances of interval k and the bound columns at its
             start (see :meth:`check_forecast`).
@@ -249,7 +250,7 @@ class MPC:
         lower, upper = self.bounds_from_forecast(forecast)
         with blas_threads(self.blas_threads):
             result = self.problem.solve(x0, disturbances, lower, upper, self.solver,
-                                        z0=self._warm_start, deadline=deadline)
+                                        z0=self._warm_start, deadline=deadline, t0_s=t_s)
         out = MpcResult(result)
         out.t_s = float(t_s)
         times = float(t_s) + np.arange(n) * self.step_s

@@ -45,8 +45,9 @@ def column_groups(pattern: np.ndarray) -> list[list[int]]:
 def finite_difference_jacobians(model: Model, x_start: np.ndarray, u: np.ndarray,
                                 dt_s: float, wrt_inputs: list[int], x_step: np.ndarray,
                                 u_step: np.ndarray, u_upper: np.ndarray,
-                                pattern: np.ndarray | None = None) -> tuple[IntervalJacobians,
-                                                                           int]:
+                                pattern: np.ndarray | None = None,
+                                t_start_s: np.ndarray | None = None
+                                ) -> tuple[IntervalJacobians, int]:
     """Forward-difference end values and sensitivities of B intervals in one batch.
 
     Parameters
@@ -67,6 +68,9 @@ def finite_difference_jacobians(model: Model, x_start: np.ndarray, u: np.ndarray
     pattern : ndarray of bool, shape (nx + ny, nx + nc), optional
         Structural non-zeros of [d(x_end, y_end) / d(x_start, controls)];
         None means dense.
+    t_start_s : ndarray, shape (B,), optional
+        Start time of each interval [s]; a perturbed interval is simulated at
+        the time of its base interval. None: not passed to the model.
 
     Returns
     -------
@@ -93,7 +97,10 @@ def finite_difference_jacobians(model: Model, x_start: np.ndarray, u: np.ndarray
                 up[:, wrt_inputs[c - nx]] += signs[:, c] * steps[c]
         batch_x.append(xp)
         batch_u.append(up)
-    x_all, y_all = model.simulate_intervals(np.vstack(batch_x), np.vstack(batch_u), dt_s)
+    times = {} if t_start_s is None else {
+        't_start_s': np.concatenate([t_start_s] * len(batch_x))}  # each at its base's time
+    x_all, y_all = model.simulate_intervals(np.vstack(batch_x), np.vstack(batch_u), dt_s,
+                                            **times)
     x_all = x_all.reshape(1 + len(groups), batch, nx)
     y_all = y_all.reshape(1 + len(groups), batch, ny)
     base = np.concatenate([x_all[0], y_all[0]], axis=1)

@@ -8,6 +8,9 @@ Decision variables (normalised, see :class:`NlpIndex`):
 - ``s[k]``: slack of the state bounds at the end of interval k (soft bounds only).
 
 Continuity constraints F(x_start_k, u_k) - x[k] = 0 tie the intervals together.
+Interval k starts at ``t0_s + k * step_s`` when the solve is given its start
+time ``t0_s`` (time-dependent models, e.g. an FMU with schedules, simulate it
+there); finite-difference perturbations keep the time of their interval.
 Because interval k depends only on its own start state and control, the
 constraint Jacobian is block-bidiagonal; all intervals (and, for finite
 differences, all their perturbations) are evaluated in one batched model call,
@@ -24,7 +27,8 @@ import numpy as np
 import pandas as pd
 from scipy import optimize, sparse
 
-from mshoot_core.models.base import IntervalJacobians, Model
+from mshoot_core.models.base import (accepts_start_times, IntervalJacobians, Model,
+                                     ModelValueError)
 from mshoot_core.sensitivities import finite_difference_jacobians
 from mshoot_core.settings import ComfortSettings, ProblemSettings, SettingsError
 from mshoot_core.solvers import Nlp, Solver
@@ -228,6 +232,12 @@ class ShootingProblem:
                               self.soft_bounds)
         self.model_evaluations = 0
         self._deadline: float | None = None
+        #: Whether the model's batch methods take interval start times.
+        self._takes_times = accepts_start_times(model)
+        if not self._takes_times:
+            logger.debug('%s takes no interval start times: treated as time-invariant',
+                         type(model).__name__)
+        self._t_start_s: np.ndarray | None = None
 
     # -- model evaluation ------------------------------------------------------------------
     def _full_inputs(self, controls: np.ndarray, disturbances: np.ndarray) -> np.ndarray:
@@ -236,31 +246,39 @@ class ShootingProblem:
         u[:, self.disturbance_cols] = disturbances
         return u
 
+    def _times(self, t_start_s: np.ndarray | None) -> dict:
+        """Keyword arguments passing interval start times to the model, if it takes them."""
+        return {'t_start_s': t_start_s} if t_start_s is not None and self._takes_times else {}
+
     def evaluate_intervals(self, x_start: np.ndarray, controls: np.ndarray,
-                           disturbances: np.ndarray, sensitivities: bool = True
-                           ) -> IntervalJacobians:
+                           disturbances: np.ndarray, sensitivities: bool = True,
+                           t_start_s: np.ndarray | None = None) -> IntervalJacobians:
         """End states, outputs and sensitivities of all intervals in one batch.
 
         Uses the model's analytic ``interval_jacobians`` where it has them,
         otherwise forward finite differences on normalised variables, all
         perturbations in one ``simulate_intervals`` call, columns grouped by the
         model's declared sparsity (:mod:`mshoot_core.sensitivities`).
+        ``t_start_s`` (B,): the intervals' start times [s] (None: time 0).
         """
         u = self._full_inputs(controls, disturbances)
+        times = self._times(t_start_s)
         if sensitivities:
-            jac = self.model.interval_jacobians(x_start, u, self.step_s, self.control_cols)
+            jac = self.model.interval_jacobians(x_start, u, self.step_s, self.control_cols,
+                                                **times)
             if jac is not None:
                 self.model_evaluations += x_start.shape[0]
                 return jac
         if not sensitivities:
-            x_end, y_end = self.model.simulate_intervals(x_start, u, self.step_s)
+            x_end, y_end = self.model.simulate_intervals(x_start, u, self.step_s, **times)
             self.model_evaluations += x_start.shape[0]
             empty = np.zeros((x_start.shape[0], 0, 0))
             return IntervalJacobians(x_end, y_end, empty, empty, empty, empty)
         jac, spent = finite_difference_jacobians(
             self.model, x_start, u, self.step_s, self.control_cols,
             self.fd_step * self._x_scaling.scale, self.fd_step * self.control_scaling.scale,
-            self.control_bounds[:, 1], self.model.jacobian_sparsity(self.control_cols))
+            self.control_bounds[:, 1], self.model.jacobian_sparsity(self.control_cols),
+            times.get('t_start_s'))
         self.model_evaluations += spent
         return jac
 
@@ -284,16 +302,20 @@ class ShootingProblem:
         """Element-wise min and max of the state trajectories under the extreme controls.
 
         Simulates the horizon with every control at its lower bound and at its
-        upper bound; returns (low, high), each (N, nx), the interval end states.
+        upper bound (interval k at the solve's start time + k steps); returns
+        (low, high), each (N, nx), the interval end states.
         """
         trajectories = []
+        times = self._t_start_s
         for side in (0, 1):
             controls = np.tile(self.control_bounds[:, side], (self.n_intervals, 1))
             u = self._full_inputs(controls, disturbances)
             x = x0.copy()
             ends = []
             for k in range(self.n_intervals):
-                x_end, _ = self.model.simulate_intervals(x[None, :], u[k:k + 1], self.step_s)
+                x_end, _ = self.model.simulate_intervals(
+                    x[None, :], u[k:k + 1], self.step_s,
+                    **self._times(None if times is None else times[k:k + 1]))
                 x = x_end[0]
                 ends.append(x)
             self.model_evaluations += self.n_intervals
@@ -326,7 +348,8 @@ class ShootingProblem:
 
     def solve(self, x0: Sequence[float], disturbances: np.ndarray, lower: np.ndarray,
               upper: np.ndarray, solver: Solver, z0: np.ndarray | None = None,
-              relax: bool = True, deadline: float | None = None) -> ShootingResult:
+              relax: bool = True, deadline: float | None = None,
+              t0_s: float | None = None) -> ShootingResult:
         """Optimise the horizon from ``x0``.
 
         With hard bounds, where the band cannot be reached from ``x0`` (the
@@ -355,10 +378,20 @@ class ShootingProblem:
         deadline : float, optional
             :func:`time.perf_counter` time [s] at which the solver stops (the
             result then has ``success=False`` and ``budget_exceeded=True``).
+        t0_s : float, optional
+            Start time of the horizon [s] (the caller's time base): interval k
+            is simulated from ``t0_s + k * step_s``. None: every interval
+            starts at t = 0 (time-invariant models).
 
         Returns
         -------
         ShootingResult
+
+        Raises
+        ------
+        ModelValueError
+            If the model produces non-finite values (e.g. an FMU's NaN): the
+            solve is over, the caller falls back.
         """
         started = time.perf_counter()
         self.model_evaluations = 0
@@ -374,6 +407,10 @@ class ShootingProblem:
             raise ValueError('disturbances must be finite')
         if np.any(lower > upper):
             raise ValueError('state bounds must have lower <= upper')
+        if t0_s is not None and not np.isfinite(float(t0_s)):
+            raise ValueError(f't0_s must be a finite time [s], got {t0_s}')
+        self._t_start_s = (None if t0_s is None
+                           else float(t0_s) + np.arange(n) * self.step_s)
         self._x_scaling = self._state_scaling_for(lower, upper)
         if z0 is None or np.asarray(z0).size != self.index.size:
             z0 = self.index.pack(np.zeros((n, self.index.n_controls)),
@@ -449,7 +486,8 @@ class ShootingProblem:
             if hit is None:
                 x_end_hat = idx.x(z)
                 x_start = np.vstack([x0[None, :], xs.from_hat(x_end_hat[:-1])])
-                jac = self.evaluate_intervals(x_start, us.from_hat(idx.u(z)), disturbances)
+                jac = self.evaluate_intervals(x_start, us.from_hat(idx.u(z)), disturbances,
+                                              t_start_s=self._t_start_s)
                 cache.clear()
                 cache[key] = (z.copy(), jac)
                 return jac
@@ -527,6 +565,8 @@ class ShootingProblem:
             success, status, message = bool(raw.success), int(raw.status), str(raw.message)
             nit, nfev = int(getattr(raw, 'nit', 0)), int(getattr(raw, 'nfev', 0))
             budget_exceeded = bool(getattr(raw, 'budget_exceeded', False))
+        except ModelValueError:
+            raise  # the model failed (non-finite values): no plan from this solve
         except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
             logger.warning('solver %s raised %s: %s', solver.name, type(exc).__name__, exc)
             z = np.clip(np.asarray(z0, dtype=float), lb, ub)
@@ -561,8 +601,10 @@ class ShootingProblem:
         u = self._full_inputs(controls, disturbances)
         x_end = np.empty_like(x_start)
         y_end = np.empty((x_start.shape[0], len(self.model.output_names)))
+        times = self._t_start_s if self._takes_times else None
         for k in range(x_start.shape[0]):
-            udf = pd.DataFrame(np.vstack([u[k], u[k]]), index=[0.0, self.step_s],
+            t0 = 0.0 if times is None else float(times[k])
+            udf = pd.DataFrame(np.vstack([u[k], u[k]]), index=[t0, t0 + self.step_s],
                                columns=list(self.model.input_names))
             ydf, xdf = simulate(udf, x_start[k])
             x_end[k] = xdf.to_numpy()[-1]

@@ -12,11 +12,16 @@ built-in scenario, which needs no data file.
 ``mshoot card check``): any FMU with its names mapped. The MPC then optimises
 the card's controls (bounded by their min/max) and the emulated building gets
 its start state and actuator limits from the emulator's card.
+
+Exit codes: 0 done; 2 bad options or inputs (one line); 1 the emulated
+building failed (non-finite values): the files are still written for the
+steps done, ``kpis.json`` with the reason under ``stopped``.
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import logging
 import pathlib
 import sys
@@ -26,7 +31,7 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
-from mshoot_core.closed_loop import ClosedLoopResult, run_closed_loop
+from mshoot_core.closed_loop import ClosedLoopResult, EmulationStopped, run_closed_loop
 from mshoot_core.controller import Controller
 from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis
@@ -148,6 +153,13 @@ def run_case(scenario: pd.DataFrame, control: Model, emulator_model: Model,
 
     The controls are ``settings.problem.control_names``; the energy KPIs count the
     control ``q`` (or the first control when there is no ``q``).
+
+    Raises
+    ------
+    EmulationStopped
+        If the emulated building failed; its ``result`` holds the steps done
+        and its ``kpis`` their KPIs with the reason under ``stopped`` (None
+        without a step done).
     """
     if horizon is not None:
         options['horizon_steps'] = horizon
@@ -159,9 +171,20 @@ def run_case(scenario: pd.DataFrame, control: Model, emulator_model: Model,
                         control_names=p.control_names,
                         control_bounds=p.control_bounds if actuator_bounds is None
                         else actuator_bounds)
-    result = run_closed_loop(controller, emulator, steps=steps, log_every=log_every,
-                             progress=progress, budget_s=budget_s)
-    c = settings.comfort
+    try:
+        result = run_closed_loop(controller, emulator, steps=steps, log_every=log_every,
+                                 progress=progress, budget_s=budget_s)
+    except EmulationStopped as stop:
+        stop.kpis = None if stop.result is None else dict(
+            _case_kpis(stop.result, settings), stopped=str(stop))
+        raise
+    return result, _case_kpis(result, settings)
+
+
+def _case_kpis(result: ClosedLoopResult, settings: MpcSettings) -> dict:
+    """The KPIs of a run and the settings that made it (the energy KPIs count the control
+    ``q``, or the first control when there is no ``q``)."""
+    p, c = settings.problem, settings.comfort
     energy_control = 'q' if 'q' in p.control_names else p.control_names[0]
     kpis = closed_loop_kpis(result.steps, result.fine, p.step_s, result.wall_s,
                             control=energy_control)
@@ -170,7 +193,7 @@ def run_case(scenario: pd.DataFrame, control: Model, emulator_model: Model,
                 fallbacks=int(result.steps['fallback'].sum()))
     if c.soft:
         kpis['soft_penalty'] = c.soft_penalty
-    return result, kpis
+    return kpis
 
 
 #: Controller settings offered as options of the case command.
@@ -244,7 +267,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the case as parsed by :func:`build_parser`; 0, or 2 on bad input (logged)."""
+    """Run the case as parsed by :func:`build_parser`; 0, 2 on bad input, 1 if the emulated
+    building failed (partial outputs written); the reason is logged."""
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format='%(asctime)s %(levelname)s %(name)s: %(message)s')
     settings, problems = option_problems(args)
@@ -275,14 +299,24 @@ def run(args: argparse.Namespace) -> int:
     horizon = settings.problem.horizon_steps
     logger.info('running %s: %d h, horizon %d h, control %s, cost %s, comfort %s',
                 args.scenario, args.hours, horizon, args.control, args.cost, args.comfort)
-    result, kpis = run_case(scenario, control, emulator, settings, x0=x0,
-                            actuator_bounds=actuators)
+    stopped = None
+    try:
+        result, kpis = run_case(scenario, control, emulator, settings, x0=x0,
+                                actuator_bounds=actuators)
+    except EmulationStopped as stop:
+        stopped, result, kpis = stop, stop.result, stop.kpis or {'stopped': str(stop)}
     kpis.update(scenario=args.scenario, control=args.control, emulator=args.emulator,
                 tolerance=args.tolerance, mode=args.mode, setup_s=setup_s)
     if report:
         kpis['training'] = report
     if args.scenario == 'ou44' and args.hours == 72 and horizon in PUBLISHED:
         kpis['published'] = PUBLISHED[horizon]
+    if stopped is not None:
+        _write_stopped(args.out, result, kpis, f'{args.scenario}: H = {horizon} h, control '
+                                               f'{args.control}, stopped')
+        logger.error('%s; wrote the %d steps done to %s', stopped,
+                     0 if result is None else len(result.steps), args.out)
+        return 1
     write_outputs(args.out, result, kpis, f'{args.scenario}: H = {horizon} h, control '
                                           f'{args.control}, {args.cost} cost')
     logger.info('energy %.2f kWh (heating %.2f, cooling %.2f), discomfort %.2f Kh (hourly '
@@ -361,6 +395,18 @@ def card_setup(args: argparse.Namespace, settings: MpcSettings, control: Model,
         bounds = dict(zip(emulator_card.control_names, emulator_card.control_bounds(default)))
         actuators = [bounds.get(c, default) for c in names]
     return settings, x0, actuators, problems
+
+
+def _write_stopped(out: pathlib.Path, result: ClosedLoopResult | None, kpis: dict,
+                   title: str) -> None:
+    """The files of a stopped run: those of its steps done, or ``kpis.json`` alone."""
+    if result is not None:
+        write_outputs(out, result, kpis, title)
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    for name in ('trajectories.csv', 'steps.csv', 'plot.png'):  # not from an earlier run
+        (out / name).unlink(missing_ok=True)
+    (out / 'kpis.json').write_text(json.dumps(kpis, indent=2, sort_keys=True) + '\n')
 
 
 if __name__ == '__main__':

@@ -24,7 +24,7 @@ import threading
 import time
 from typing import Any, Sequence
 
-from mshoot_core.models.base import IntervalJacobians, Model
+from mshoot_core.models.base import accepts_start_times, IntervalJacobians, Model
 from mshoot_core.solvers import Nlp, Solver
 import numpy as np
 import pandas as pd
@@ -143,15 +143,25 @@ class FaultyModel(Model):
         self._maybe_raise()
         return self.inner.simulate(udf, x0)
 
-    def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray,
-                           dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    def _times(self, t_start_s: np.ndarray | None) -> dict:
+        """Pass interval start times on to a wrapped model that takes them."""
+        if t_start_s is None or not accepts_start_times(self.inner):
+            return {}
+        return {'t_start_s': t_start_s}
+
+    def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
+                           t_start_s: np.ndarray | None = None) -> tuple[np.ndarray,
+                                                                        np.ndarray]:
         self._maybe_raise()
-        return self.inner.simulate_intervals(x_start, u, dt_s)
+        times = self._times(t_start_s)
+        return self.inner.simulate_intervals(x_start, u, dt_s, **times)
 
     def interval_jacobians(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
-                           wrt_inputs: Sequence[int]) -> IntervalJacobians | None:
+                           wrt_inputs: Sequence[int],
+                           t_start_s: np.ndarray | None = None) -> IntervalJacobians | None:
         self._maybe_raise()
-        return self.inner.interval_jacobians(x_start, u, dt_s, wrt_inputs)
+        times = self._times(t_start_s)
+        return self.inner.interval_jacobians(x_start, u, dt_s, wrt_inputs, **times)
 
     def jacobian_sparsity(self, wrt_inputs: Sequence[int]) -> np.ndarray | None:
         return self.inner.jacobian_sparsity(wrt_inputs)

@@ -8,9 +8,11 @@
  * fmi2NewDiscreteStates and enter continuous-time mode; or, for FMUs without FMU
  * states, reset, set parameters and start values, initialise with the inputs, iterate
  * the discrete states and write the start states. Then the states are integrated over
- * [0, dt] (fmi2SetTime / fmi2SetContinuousStates / fmi2GetDerivatives at every stage,
+ * [t0, t0 + dt] (fmi2SetTime / fmi2SetContinuousStates / fmi2GetDerivatives at every stage,
  * fmi2CompletedIntegratorStep after accepted steps when the FMU needs it), and the
- * states and outputs are read at t = dt.
+ * states and outputs are read at t0 + dt. The start time t0 of interval b is t_start[b]
+ * (NULL: 0): set after restoring the snapshot (fmi2SetTime, before the event iteration),
+ * or the experiment's start time on the reset path.
  *
  * Optionally the forward sensitivities S = [Sx | Su] (n x (k + m), row-major after x)
  * are integrated along with the states, S_j' = J_x S_j (+ J_u e_j), the products from
@@ -167,7 +169,8 @@ static const double E1 = 71.0 / 57600, E3 = -71.0 / 16695, E4 = 71.0 / 1920,
 __attribute__((visibility("default")))
 long mshoot_me_batch(const mshoot_me_api *api, fmi2Component c, const mshoot_me_problem *p,
                      size_t n_batch, const double *x0, const double *u,
-                     double *x_end, double *y_end, double *s_end, double *dyo, long *stats)
+                     double *x_end, double *y_end, double *s_end, double *dyo, long *stats,
+                     const double *t_start)
 {
     size_t n = p->n, nx = p->nx, b = 0, i, j;
     size_t columns = p->sensitivities ? nx + p->n_su : 0;
@@ -207,12 +210,16 @@ long mshoot_me_batch(const mshoot_me_api *api, fmi2Component c, const mshoot_me_
 
     for (b = 0; b < n_batch; b++) {
         const double *xb = x0 + b * nx, *ub = u + b * p->n_in;
+        /* t runs over [0, dt]; the FMU sees t0 + t (t0 = 0: the same numbers as before) */
+        const double t0 = t_start ? t_start[b] : 0.0;
         double t = 0.0, h, e, eps = 1e-12 * (dt > 1.0 ? dt : 1.0);
+        double eps_event = 1e-12 * (fabs(t0) + dt > 1.0 ? fabs(t0) + dt : 1.0);
         size_t steps = 0;
         int stage, last_rejected = 0;
         /* -- start the interval, as FmiModel._start_interval ------------------------------ */
         if (p->snapshot) {
             CHECK(api->set_fmu_state(c, p->snapshot), S_RESTORE);
+            if (t_start) CHECK(api->set_time(c, t0), S_RESTORE);
             CHECK(api->get_continuous_states(c, xfull, n), S_STATES);
             for (i = 0; i < nx; i++) xfull[p->x_pos[i]] = xb[i];
             CHECK(api->set_continuous_states(c, xfull, n), S_STATES);
@@ -223,7 +230,7 @@ long mshoot_me_batch(const mshoot_me_api *api, fmi2Component c, const mshoot_me_
             if (p->n_par) CHECK(api->set_real(c, p->par_vr, p->n_par, p->par_val), S_PARAMETERS);
             for (i = 0; i < p->n_start; i++) tmp[i] = xb[p->start_idx[i]];
             if (p->n_start) CHECK(api->set_real(c, p->start_vr, p->n_start, tmp), S_START);
-            CHECK(api->setup_experiment(c, fmi2True, rtol, 0.0, fmi2False, 0.0), S_SETUP);
+            CHECK(api->setup_experiment(c, fmi2True, rtol, t0, fmi2False, 0.0), S_SETUP);
             CHECK(api->enter_initialization(c), S_ENTER_INIT);
             if (p->n_in) CHECK(api->set_real(c, p->in_vr, p->n_in, ub), S_INPUTS);
             CHECK(api->exit_initialization(c), S_EXIT_INIT);
@@ -233,7 +240,8 @@ long mshoot_me_batch(const mshoot_me_api *api, fmi2Component c, const mshoot_me_
             CHECK(api->new_discrete_states(c, &info), S_EVENTS);
             if (info.terminateSimulation) FAIL(ME_TERMINATE);
         }
-        if (info.nextEventTimeDefined && info.nextEventTime <= dt + eps) FAIL(ME_TIME_EVENT);
+        if (info.nextEventTimeDefined && info.nextEventTime <= t0 + dt + eps_event)
+            FAIL(ME_TIME_EVENT);
         CHECK(api->enter_continuous_time_mode(c), S_CONTINUOUS);
         if (!p->snapshot) {
             CHECK(api->get_continuous_states(c, xfull, n), S_STATES);
@@ -259,13 +267,13 @@ long mshoot_me_batch(const mshoot_me_api *api, fmi2Component c, const mshoot_me_
          * the rate lam = d2 / d1, and h1 ~ (0.01 / ||y^(5)||)^(1/5) with
          * ||y^(5)|| ~ lam^4 ||y'|| (their (0.01 / max(d1, d2))^(1/5) mixes units and
          * starts slow building models with seconds-long steps) --------------------------- */
-        if ((stage = rhs(&ctx, 0.0, y, k1)) >= 0) CHECK(fmi2Error, stage);
+        if ((stage = rhs(&ctx, t0, y, k1)) >= 0) CHECK(fmi2Error, stage);
         {
             double d0 = wrms(y, y, NULL, atol, rtol, size), d1 = wrms(k1, y, NULL, atol, rtol, size);
             double h0 = (d0 < 1e-5 || d1 < 1e-5) ? 1e-6 * dt : 0.01 * d0 / d1, d2, h1 = dt;
             if (h0 > dt) h0 = dt;
             for (i = 0; i < size; i++) ynew[i] = y[i] + h0 * k1[i];
-            if ((stage = rhs(&ctx, h0, ynew, k2)) >= 0) CHECK(fmi2Error, stage);
+            if ((stage = rhs(&ctx, t0 + h0, ynew, k2)) >= 0) CHECK(fmi2Error, stage);
             for (i = 0; i < size; i++) err[i] = (k2[i] - k1[i]) / h0;
             d2 = wrms(err, y, NULL, atol, rtol, size);
             if (d1 >= 1e-5 && d2 > 0.0)
@@ -282,23 +290,25 @@ long mshoot_me_batch(const mshoot_me_api *api, fmi2Component c, const mshoot_me_
             if (h >= dt - t || t + 1.01 * h >= dt) { h = dt - t; final = 1; }
             if (h <= eps * 1e-3) FAIL(ME_STEP_SIZE);
             for (i = 0; i < size; i++) tmp[i] = y[i] + h * A21 * k1[i];
-            if ((stage = rhs(&ctx, t + C2 * h, tmp, k2)) >= 0) CHECK(fmi2Error, stage);
+            if ((stage = rhs(&ctx, t0 + t + C2 * h, tmp, k2)) >= 0) CHECK(fmi2Error, stage);
             for (i = 0; i < size; i++) tmp[i] = y[i] + h * (A31 * k1[i] + A32 * k2[i]);
-            if ((stage = rhs(&ctx, t + C3 * h, tmp, k3)) >= 0) CHECK(fmi2Error, stage);
+            if ((stage = rhs(&ctx, t0 + t + C3 * h, tmp, k3)) >= 0) CHECK(fmi2Error, stage);
             for (i = 0; i < size; i++)
                 tmp[i] = y[i] + h * (A41 * k1[i] + A42 * k2[i] + A43 * k3[i]);
-            if ((stage = rhs(&ctx, t + C4 * h, tmp, k4)) >= 0) CHECK(fmi2Error, stage);
+            if ((stage = rhs(&ctx, t0 + t + C4 * h, tmp, k4)) >= 0) CHECK(fmi2Error, stage);
             for (i = 0; i < size; i++)
                 tmp[i] = y[i] + h * (A51 * k1[i] + A52 * k2[i] + A53 * k3[i] + A54 * k4[i]);
-            if ((stage = rhs(&ctx, t + C5 * h, tmp, k5)) >= 0) CHECK(fmi2Error, stage);
+            if ((stage = rhs(&ctx, t0 + t + C5 * h, tmp, k5)) >= 0) CHECK(fmi2Error, stage);
             for (i = 0; i < size; i++)
                 tmp[i] = y[i] + h * (A61 * k1[i] + A62 * k2[i] + A63 * k3[i] + A64 * k4[i]
                                      + A65 * k5[i]);
-            if ((stage = rhs(&ctx, final ? dt : t + h, tmp, k6)) >= 0) CHECK(fmi2Error, stage);
+            if ((stage = rhs(&ctx, t0 + (final ? dt : t + h), tmp, k6)) >= 0)
+                CHECK(fmi2Error, stage);
             for (i = 0; i < size; i++)
                 ynew[i] = y[i] + h * (B1 * k1[i] + B3 * k3[i] + B4 * k4[i] + B5 * k5[i]
                                       + B6 * k6[i]);
-            if ((stage = rhs(&ctx, final ? dt : t + h, ynew, k7)) >= 0) CHECK(fmi2Error, stage);
+            if ((stage = rhs(&ctx, t0 + (final ? dt : t + h), ynew, k7)) >= 0)
+                CHECK(fmi2Error, stage);
             for (i = 0; i < size; i++)
                 err[i] = h * (E1 * k1[i] + E3 * k3[i] + E4 * k4[i] + E5 * k5[i] + E6 * k6[i]
                               + E7 * k7[i]);
@@ -314,7 +324,7 @@ long mshoot_me_batch(const mshoot_me_api *api, fmi2Component c, const mshoot_me_
                 last_rejected = 0;
                 if (p->needs_completed_step) {
                     fmi2Boolean enter_event = fmi2False, terminate = fmi2False;
-                    CHECK(api->set_time(c, t), S_STATES);
+                    CHECK(api->set_time(c, t0 + t), S_STATES);
                     CHECK(api->set_continuous_states(c, y, n), S_STATES);
                     CHECK(api->completed_integrator_step(c, fmi2True, &enter_event, &terminate),
                           S_STEP);
@@ -331,7 +341,7 @@ long mshoot_me_batch(const mshoot_me_api *api, fmi2Component c, const mshoot_me_
             }
         }
         /* -- the end of the interval: states, outputs, sensitivities ---------------------- */
-        CHECK(api->set_time(c, dt), S_STATES);
+        CHECK(api->set_time(c, t0 + dt), S_STATES);
         CHECK(api->set_continuous_states(c, y, n), S_STATES);
         if (nx) CHECK(api->get_real(c, p->x_vr, nx, x_end + b * nx), S_READ);
         if (p->ny) CHECK(api->get_real(c, p->y_vr, p->ny, y_end + b * p->ny), S_READ);

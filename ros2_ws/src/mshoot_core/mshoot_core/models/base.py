@@ -11,13 +11,79 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import functools
+import inspect
 import logging
+import math
 from typing import Sequence
 
 import numpy as np
 import pandas as pd
 
 logger = logging.getLogger(__name__)
+
+
+class ModelValueError(ValueError):
+    """A model produced non-finite states or outputs (NaN or inf).
+
+    Ends a solve (the controller falls back: 'solve_failed') and stops an
+    emulation; it is not an input error of the caller.
+
+    Attributes
+    ----------
+    variable : str
+        The model variable (state or output name) that is not finite.
+    time_s : float or None
+        When, in the model's own time [s] (for FMUs: FMU time), where known.
+    """
+
+    def __init__(self, message: str, variable: str = '', time_s: float | None = None) -> None:
+        super().__init__(message)
+        self.variable = variable
+        self.time_s = time_s
+
+
+def interval_start_times(t_start_s: Sequence[float] | np.ndarray | None,
+                         batch: int) -> np.ndarray | None:
+    """``t_start_s`` as a finite float array of shape (batch,), or None.
+
+    Raises
+    ------
+    ValueError
+        On a wrong shape or a non-finite time.
+    """
+    if t_start_s is None:
+        return None
+    times = np.ascontiguousarray(t_start_s, dtype=np.float64)  # (no copy if it is one)
+    if times.shape != (batch,):
+        times = times.reshape(-1)
+        if times.shape != (batch,):
+            raise ValueError(f't_start_s must hold one start time [s] per interval ({batch}), '
+                             f'got shape {np.shape(t_start_s)}')
+    if not math.isfinite(np.add.reduce(times)):
+        raise ValueError('t_start_s must be finite times [s]')
+    return times
+
+
+@functools.lru_cache(maxsize=64)
+def _takes_start_times(method: object) -> bool:
+    try:
+        parameters = inspect.signature(method).parameters
+    except (TypeError, ValueError):
+        return False
+    return 't_start_s' in parameters or any(
+        p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values())
+
+
+def accepts_start_times(model: 'Model') -> bool:
+    """Whether ``model``'s batch methods take ``t_start_s`` (models written before it did not).
+
+    The optimiser passes interval start times only to models that accept them;
+    others are time-invariant by construction.
+    """
+    cls = type(model)
+    return all(_takes_start_times(getattr(cls, name))
+               for name in ('simulate_intervals', 'interval_jacobians'))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -139,8 +205,9 @@ class Model(abc.ABC):
             raise ValueError('x_start and u must be finite')
         return x_start, u
 
-    def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray,
-                           dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
+                           t_start_s: np.ndarray | None = None) -> tuple[np.ndarray,
+                                                                        np.ndarray]:
         """Simulate B independent intervals of length ``dt_s`` (the batch path).
 
         Each interval starts from its own state with its own constant inputs.
@@ -155,6 +222,11 @@ class Model(abc.ABC):
             Inputs of each interval, columns in :attr:`input_names` order.
         dt_s : float
             Interval length [s].
+        t_start_s : ndarray, shape (B,), optional
+            Start time of each interval [s], in the caller's time base (the
+            MPC's: scenario-relative seconds). Time-invariant models ignore
+            it; time-dependent ones (an FMU with schedules) simulate each
+            interval at its own time. None: every interval starts at t = 0.
 
         Returns
         -------
@@ -163,10 +235,12 @@ class Model(abc.ABC):
         """
         x_start = np.atleast_2d(np.asarray(x_start, dtype=float))
         u = np.atleast_2d(np.asarray(u, dtype=float))
+        times = interval_start_times(t_start_s, x_start.shape[0])
         x_end = np.empty_like(x_start)
         y_end = np.empty((x_start.shape[0], len(self.output_names)))
         for b in range(x_start.shape[0]):
-            udf = pd.DataFrame(np.vstack([u[b], u[b]]), index=[0.0, float(dt_s)],
+            t0 = 0.0 if times is None else float(times[b])
+            udf = pd.DataFrame(np.vstack([u[b], u[b]]), index=[t0, t0 + float(dt_s)],
                                columns=list(self.input_names))
             ydf, xdf = self.simulate(udf, x_start[b])
             x_end[b] = xdf.to_numpy()[-1]
@@ -174,7 +248,8 @@ class Model(abc.ABC):
         return x_end, y_end
 
     def interval_jacobians(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
-                           wrt_inputs: Sequence[int]) -> IntervalJacobians | None:
+                           wrt_inputs: Sequence[int],
+                           t_start_s: np.ndarray | None = None) -> IntervalJacobians | None:
         """Analytic end values and derivatives of B intervals, or None.
 
         Models with analytic (or forward-sensitivity) derivatives override
@@ -189,6 +264,8 @@ class Model(abc.ABC):
             Interval length [s].
         wrt_inputs : sequence of int
             Column indices of ``u`` to differentiate with respect to.
+        t_start_s : ndarray, shape (B,), optional
+            Start time of each interval [s] (see :meth:`simulate_intervals`).
         """
         return None
 

@@ -984,6 +984,27 @@ class CardFmiModel(FmiModel):
                                                   *args, **kwargs)
         return self._x_out(x_end), self._y_out(y_end)
 
+    def plant_start(self, x0: Sequence[float], t_s: float,
+                    u: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`FmiModel.plant_start` in canonical units."""
+        x, y = super().plant_start(self._x_in(x0), t_s, self._u_in(u))
+        return self._x_out(x), self._y_out(y)
+
+    def plant_step(self, u: Sequence[float], dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`FmiModel.plant_step` in canonical units."""
+        x, y = super().plant_step(self._u_in(u), dt_s)
+        return self._x_out(x), self._y_out(y)
+
+    def plant_read(self) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`FmiModel.plant_read` in canonical units."""
+        x, y = super().plant_read()
+        return self._x_out(x), self._y_out(y)
+
+    def plant_restore(self, saved: bytes) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`FmiModel.plant_restore` in canonical units."""
+        x, y = super().plant_restore(saved)
+        return self._x_out(x), self._y_out(y)
+
     def interval_jacobians(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                            wrt_inputs: Sequence[int], *args: Any,
                            **kwargs: Any) -> IntervalJacobians | None:

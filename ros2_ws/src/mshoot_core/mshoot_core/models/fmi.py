@@ -1,7 +1,8 @@
 """Any FMI 2.0 FMU (Model Exchange or Co-Simulation) as a :class:`Model`, through fmpy.
 
-The FMU is extracted, its modelDescription read and one instance created
-once, in the constructor; every simulation resets that instance
+The FMU is extracted once into the cache (keyed by the file's sha256, see
+:func:`mshoot_core.fmu_cache.extract_fmu`), its modelDescription read and one
+instance created once, in the constructor; every simulation resets that instance
 (``fmi2Reset``), sets the parameters and the start states, initialises, and
 then feeds the inputs held constant over each interval:
 
@@ -12,6 +13,25 @@ then feeds the inputs held constant over each interval:
   C loop;
 - Model Exchange: fmpy's CVode, or for batches the compiled Runge-Kutta
   driver, with events handled (:mod:`~mshoot_core.models.fmi_me`).
+
+Time: every time the model is given (``udf.index`` of :meth:`FmiModel.simulate`,
+the interval start times ``t_start_s``, the plant's start time) is in the
+caller's time base; the FMU sees ``t - time_origin_s``. Interval k of a batch
+starts at its own FMU time: Model Exchange sets the time (and the states)
+after restoring its FMU-state snapshot or initialises there; Co-Simulation
+re-initialises at that time from the mapped states (``fmi2SetupExperiment``
+start time). Limits: a Co-Simulation FMU's states other than the mapped ones
+start each interval from their start values (FMI 2.0 lets an importer set a
+Co-Simulation FMU's states only before initialisation; an FMU state is opaque),
+and a Model Exchange FMU restored from its snapshot must accept a new time
+(``fmi2SetTime``) followed by an event iteration at that time. Intervals
+without start times start at FMU time 0 (time-invariant models).
+
+The emulated building uses the same instance as a plant
+(:class:`~mshoot_core.models.fmi_plant.FmuPlant`): stepped forward for the
+whole run, never re-initialised. Non-finite states or outputs raise
+:class:`~mshoot_core.models.fmi_values.FmuValueError` (variable and FMU time).
+FMI 3.0 FMUs are refused with a plain ValueError (not supported yet).
 
 Derivatives: for Model Exchange FMUs with ``providesDirectionalDerivative``,
 :meth:`FmiModel.interval_jacobians` integrates the forward sensitivities along
@@ -41,7 +61,6 @@ import dataclasses
 import logging
 import math
 import pathlib
-import shutil
 from typing import Any, Mapping, Sequence, Union
 
 import fmpy
@@ -50,17 +69,20 @@ from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYP
 import numpy as np
 import pandas as pd
 
-from mshoot_core.fmu_cache import find_fmu
-from mshoot_core.models.base import Model
+from mshoot_core.fmu_cache import extract_fmu, find_fmu
+from mshoot_core.models.base import interval_start_times, Model
 from mshoot_core.models.fmi_drivers import (CsBatchDriver, MeBatchDriver, MeProblem,
                                             real_array, vr_array)
 from mshoot_core.models.fmi_me import (MAX_SOLVER_STEPS, ME_MAX_STEPS,
                                        ModelExchangeIntegration)
+from mshoot_core.models.fmi_plant import FmuPlant
 from mshoot_core.models.fmi_sensitivities import (ForwardSensitivities,
                                                   SENSITIVITY_NOMINAL_FACTOR)
+from mshoot_core.models.fmi_values import FmuValueError, NonFiniteChecks
 
-__all__ = ['FMI_TYPES', 'FmiModel', 'MAX_SOLVER_STEPS', 'ME_MAX_STEPS', 'R1C1_VARIABLES',
-           'r1c1_fmi_model', 'SENSITIVITY_NOMINAL_FACTOR', 'VariableNames']
+__all__ = ['FMI_TYPES', 'FmiModel', 'FmuValueError', 'MAX_SOLVER_STEPS', 'ME_MAX_STEPS',
+           'R1C1_VARIABLES', 'r1c1_fmi_model', 'read_fmu_description',
+           'SENSITIVITY_NOMINAL_FACTOR', 'VariableNames']
 
 logger = logging.getLogger(__name__)
 
@@ -126,14 +148,45 @@ def _listed(names: Sequence[str]) -> str:
     return str(names)
 
 
-class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
+def read_fmu_description(folder: str | pathlib.Path, label: str) -> Any:
+    """Read the modelDescription of an extracted FMU; refuse what FmiModel cannot run.
+
+    Parameters
+    ----------
+    folder : path
+        The extracted FMU.
+    label : str
+        The FMU's name in messages (its file).
+
+    Raises
+    ------
+    ValueError
+        If the modelDescription is missing or unreadable, or the FMU is an
+        FMI 3.0 FMU (not supported yet).
+    """
+    try:
+        md = fmpy.read_model_description(str(folder))
+    except Exception as error:  # noqa: BLE001 - fmpy raises plain Exceptions, lxml, KeyError
+        raise ValueError(f'{label} is not a readable FMU: its modelDescription.xml '
+                         f'could not be read ({type(error).__name__}: {error})') from error
+    version = str(md.fmiVersion)
+    if version.startswith('3'):
+        raise ValueError(f'{label}: FMI 3.0 FMUs are not supported yet (fmiVersion '
+                         f'{version!r}); export the model as an FMI 2.0 FMU (Model Exchange or '
+                         'Co-Simulation)')
+    return md
+
+
+class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFiniteChecks,
+               Model):
     """An FMI 2.0 FMU behind the :class:`Model` interface (fmpy).
 
     Parameters
     ----------
     fmu_path : path
-        The ``.fmu`` file (extracted once into a temporary directory, removed
-        by :meth:`close`) or an already extracted FMU directory (kept).
+        The ``.fmu`` file (extracted once into the FMU cache, keyed by its
+        sha256, and reused by every model of the same file) or an already
+        extracted FMU directory.
     inputs, states, outputs : sequence of str or mapping str -> str
         FMU variable names, or ``{model name: FMU variable name}``. Inputs
         must be Real variables with causality ``input``; states Real
@@ -157,6 +210,9 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
         fmpy does), else Model Exchange.
     instance_name : str
         Name of the FMU instance (appears in its log messages).
+    time_origin_s : float
+        Time of FMU t = 0 in the caller's time base [s]: the FMU sees
+        ``t - time_origin_s`` (default 0: the caller's time is FMU time).
 
     Raises
     ------
@@ -167,7 +223,8 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
         batches use is not built: ``make setup`` builds it.
     ValueError
         For unknown variable names (the message lists the valid ones), an
-        FMI type the FMU lacks, or a bad tolerance.
+        FMI type the FMU lacks, a bad tolerance or time origin, a file that is
+        not an FMU, or an FMI 3.0 FMU.
 
     Notes
     -----
@@ -185,11 +242,14 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
                  states: VariableNames, outputs: VariableNames,
                  parameters: Mapping[str, Any] | None = None, tolerance: float = 1e-8,
                  fmi_type: str | None = None, instance_name: str = 'mshoot',
-                 fixed_inputs: Mapping[str, Any] | None = None) -> None:
+                 fixed_inputs: Mapping[str, Any] | None = None,
+                 time_origin_s: float = 0.0) -> None:
         self._fmu: FMU2Model | FMU2Slave | None = None
         self._unzip_dir: pathlib.Path | None = None
-        self._owns_unzip_dir = False
         self._snapshot: Any = None
+        self._plant: Any = None
+        self._fmu_time: float | None = None
+        self._non_finite_seen: tuple | None = None
         self._solver: Any = None
         self._sensitivity_solvers: dict[tuple[int, ...], tuple[Any, Any]] = {}
         self._sensitivity_requests: dict[tuple[int, ...], Any] = {}
@@ -198,18 +258,25 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
             raise ValueError(f'tolerance must be a float in (0, 1), got {tolerance!r}')
         if fmi_type not in (None, *FMI_TYPES):
             raise ValueError(f'fmi_type must be one of {[None, *FMI_TYPES]}, got {fmi_type!r}')
+        if isinstance(time_origin_s, bool) or not isinstance(time_origin_s, (int, float)) \
+                or not math.isfinite(float(time_origin_s)):
+            raise ValueError(f'time_origin_s must be a finite time [s], got {time_origin_s!r}')
         path = pathlib.Path(fmu_path)
         if not path.exists():
             raise FileNotFoundError(f'FMU not found: {path}')
         self.fmu_path = path
         self.tolerance = float(tolerance)
+        #: Time of FMU t = 0 in the caller's time base [s].
+        self.time_origin_s = float(time_origin_s)
         try:
+            described: list[Any] = []  # read while checking a new extraction: not again
             if path.is_dir():
                 self._unzip_dir = path
             else:
-                self._unzip_dir = pathlib.Path(fmpy.extract(str(path)))
-                self._owns_unzip_dir = True
-            self.model_description = fmpy.read_model_description(str(self._unzip_dir))
+                self._unzip_dir = extract_fmu(path, check=lambda folder: described.append(
+                    read_fmu_description(folder, path.name)))
+            self.model_description = (described[0] if described
+                                      else read_fmu_description(self._unzip_dir, path.name))
             self._configure(inputs, states, outputs, dict(parameters or {}), fmi_type,
                             dict(fixed_inputs or {}))
             self._instantiate(instance_name)
@@ -327,10 +394,15 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
     def _instantiate(self, instance_name: str) -> None:
         md = self.model_description
         cls = FMU2Model if self.is_model_exchange else FMU2Slave
-        self._fmu = cls(guid=md.guid, unzipDirectory=str(self._unzip_dir),
-                        modelIdentifier=self._interface.modelIdentifier,
-                        instanceName=instance_name)
-        self._fmu.instantiate(callbacks=_CALLBACKS)
+        try:
+            fmu = cls(guid=md.guid, unzipDirectory=str(self._unzip_dir),
+                      modelIdentifier=self._interface.modelIdentifier,
+                      instanceName=instance_name)
+            fmu.instantiate(callbacks=_CALLBACKS)
+        except Exception as error:  # noqa: BLE001 - fmpy: OSError, plain Exception
+            raise ValueError(f'{self.fmu_path.name} ({self.fmi_type}) cannot be instantiated '
+                             f'on this platform: {error}') from error
+        self._fmu = fmu
         self._initialized_once = False
         self._cs_driver = None
         self._me_driver = None
@@ -359,6 +431,7 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
         self._sensitivity_solvers = {}
         self._me_problems = {}
         self._cs_driver = self._me_driver = None  # bound to the instance's library
+        self._plant = None
         if fmu is not None:
             self._fmu = None
             try:
@@ -368,10 +441,7 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
             except Exception as error:  # noqa: BLE001 - freeing must not raise
                 logger.warning('freeing the FMU instance failed: %s', error)
         self._snapshot = None
-        unzip_dir = getattr(self, '_unzip_dir', None)
-        if unzip_dir is not None and getattr(self, '_owns_unzip_dir', False):
-            shutil.rmtree(unzip_dir, ignore_errors=True)
-        self._unzip_dir = None
+        self._unzip_dir = None  # the extracted files stay in the cache for the next model
 
     def __enter__(self) -> 'FmiModel':
         return self
@@ -450,17 +520,36 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
         else:
             self._fmu.doStep(t, t_end - t)
 
-    def _start_interval(self, x0: np.ndarray, u: np.ndarray) -> None:
-        """Bring the instance to t = 0 with states ``x0`` and inputs ``u``.
+    def _advance_checked(self, t: float, t_end: float) -> None:
+        """:meth:`_advance`; an integrator failure on non-finite values is an FmuValueError."""
+        self._non_finite_seen = None
+        try:
+            self._advance(t, t_end)
+        except FmuValueError:
+            raise
+        except Exception as error:  # CVode's RuntimeError, fmpy's FMICallException
+            self._diagnose(error, f' (step from FMU time {t:.9g} s)')
+            raise
+
+    def _start_interval(self, x0: np.ndarray, u: np.ndarray, t0: float = 0.0) -> None:
+        """Bring the instance to FMU time ``t0`` with states ``x0`` and inputs ``u``.
 
         Model Exchange FMUs that support FMU states restore a snapshot taken
-        after the first initialisation (no re-initialisation); others are
-        reset and initialised.
+        after the first initialisation (no re-initialisation) and set the
+        time; others are reset and initialised at ``t0``.
         """
         if self.is_model_exchange and self.can_snapshot:
-            self._restore_snapshot(x0, u)
+            self._restore_snapshot(x0, u, t0)
         else:
-            self._initialize(0.0, x0, u)
+            self._initialize(t0, x0, u)
+
+    def _fmu_start_times(self, t_start_s: np.ndarray | None, batch: int) -> np.ndarray | None:
+        """FMU start times of a batch's intervals (caller's times minus the origin), or None
+        (every interval at FMU time 0)."""
+        times = interval_start_times(t_start_s, batch)
+        if times is None or not self.time_origin_s:
+            return times
+        return times - self.time_origin_s
 
     def _check_batch(self, x_start: np.ndarray, u: np.ndarray,
                      dt_s: float) -> tuple[np.ndarray, np.ndarray, float]:
@@ -493,16 +582,21 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
             ``xdf.iloc[0]`` equals ``x0``.
         """
         t, u, x0_arr = self.check_inputs(udf, x0)
+        self._plant = None  # the instance is re-initialised: a plant run ends here
+        if self.time_origin_s:
+            t = t - self.time_origin_s
         states = np.empty((t.size, len(self.state_names)))
         outputs = np.empty((t.size, len(self.output_names)))
         self._initialize(t[0], x0_arr, u[0])
         states[0] = x0_arr
         outputs[0] = self._read()[1]
+        self._check_finite(states[0], outputs[0], t[0])
         for k in range(t.size - 1):
             if k > 0:
                 self._switch_inputs(t[k], u[k])
-            self._advance(t[k], t[k + 1])
+            self._advance_checked(t[k], t[k + 1])
             states[k + 1], outputs[k + 1] = self._read()
+            self._check_finite(states[k + 1], outputs[k + 1], t[k + 1])
         ydf = pd.DataFrame(outputs, index=udf.index, columns=list(self.output_names))
         xdf = pd.DataFrame(states, index=udf.index, columns=list(self.state_names))
         return ydf, xdf
@@ -526,12 +620,14 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
         start.update({self._state_vars[i].name: float(x0_arr[i])
                       for i in self._start_state_index})
         outputs = [v.name for v in self._state_vars] + [v.name for v in self._output_vars]
+        fmu_t = t - self.time_origin_s
         result = fmpy.simulate_fmu(
-            str(self.fmu_path), fmi_type=self.fmi_type, start_time=t[0], stop_time=t[-1],
+            str(self.fmu_path), fmi_type=self.fmi_type, start_time=fmu_t[0],
+            stop_time=fmu_t[-1],
             start_values=start, input=table, output=list(dict.fromkeys(outputs)),
             relative_tolerance=self.tolerance, output_interval=float(np.min(np.diff(t))))
         times = result['time']
-        pick = [int(np.argmin(np.abs(times - tk))) for tk in t]
+        pick = [int(np.argmin(np.abs(times - tk))) for tk in fmu_t]
         xdf = pd.DataFrame({m: result[v.name][pick] for m, v in
                             zip(self.state_names, self._state_vars)}, index=udf.index)
         ydf = pd.DataFrame({m: result[v.name][pick] for m, v in
@@ -539,8 +635,9 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
         xdf.iloc[0] = x0_arr
         return ydf, xdf
 
-    def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray,
-                           dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
+                           t_start_s: np.ndarray | None = None) -> tuple[np.ndarray,
+                                                                        np.ndarray]:
         """Simulate B independent intervals of ``dt_s`` [s] on the one instance.
 
         Parameters
@@ -549,32 +646,47 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
         u : ndarray, shape (B, nu)
         dt_s : float
             Interval length [s].
+        t_start_s : ndarray, shape (B,), optional
+            Start time of each interval [s], caller's time base: interval b
+            runs from FMU time ``t_start_s[b] - time_origin_s``. None: every
+            interval starts at FMU time 0.
 
         Returns
         -------
         x_end : ndarray, shape (B, nx)
         y_end : ndarray, shape (B, ny)
+
+        Raises
+        ------
+        FmuValueError
+            If a state or output is not finite (names it and the FMU time).
         """
         x_start, u, dt_s = self._check_batch(x_start, u, dt_s)
+        t0 = self._fmu_start_times(t_start_s, x_start.shape[0])
+        self._plant = None  # the instance is re-initialised: a plant run ends here
         x_end = np.empty(x_start.shape)
         y_end = np.empty((x_start.shape[0], len(self.output_names)))
-        if self._batch_in_c(x_start, u, dt_s, x_end, y_end):
-            return x_end, y_end
-        if self.me_batch_plan() is None and self._me_batch_in_c(x_start, u, dt_s, x_end, y_end):
-            return x_end, y_end
-        for b in range(x_start.shape[0]):
-            self._start_interval(x_start[b], u[b])
-            self._advance(0.0, dt_s)
-            x_end[b], y_end[b] = self._read()
+        if not (self._batch_in_c(x_start, u, dt_s, x_end, y_end, t0) or (
+                self.me_batch_plan() is None
+                and self._me_batch_in_c(x_start, u, dt_s, x_end, y_end, t_start=t0))):
+            for b in range(x_start.shape[0]):
+                start = 0.0 if t0 is None else float(t0[b])
+                self._start_interval(x_start[b], u[b], start)
+                self._advance_checked(start, start + dt_s)
+                x_end[b], y_end[b] = self._read()
+        if not math.isfinite(np.add.reduce(x_end, None) + np.add.reduce(y_end, None)):
+            self._check_finite(x_end, y_end, dt_s if t0 is None else t0 + dt_s)
         return x_end, y_end
 
     def _batch_in_c(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
-                    x_end: np.ndarray, y_end: np.ndarray) -> bool:
+                    x_end: np.ndarray, y_end: np.ndarray,
+                    t_start: np.ndarray | None = None) -> bool:
         """Run a Co-Simulation batch in the compiled driver; False where it does not apply.
 
         Applies to Co-Simulation FMUs whose parameters are all Real, after the
         first initialisation through fmpy; each interval makes the same FMI
-        calls as :meth:`_initialize` + ``doStep`` + :meth:`_read`.
+        calls as :meth:`_initialize` + ``doStep`` + :meth:`_read`, at its FMU
+        start time ``t_start[b]`` (None: 0).
 
         Raises
         ------
@@ -594,7 +706,8 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
             fmu.component, dt_s, self.tolerance, vr_array(par_refs),
             real_array(par_values), self._start_state_refs,
             np.ascontiguousarray(x_start[:, self._start_state_index]), self._input_refs,
-            np.ascontiguousarray(u), self._state_refs, x_end, self._output_refs, y_end)
+            np.ascontiguousarray(u), self._state_refs, x_end, self._output_refs, y_end,
+            t_start=t_start)
         return True
 
 

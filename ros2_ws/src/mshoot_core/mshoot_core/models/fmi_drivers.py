@@ -6,11 +6,15 @@ the instance), so that a batch costs one Python call instead of dozens per
 interval:
 
 - :class:`CsBatchDriver`: per interval ``fmi2Reset``, parameters, start
-  values, initialisation with the inputs, one ``fmi2DoStep``, read;
-- :class:`MeBatchDriver`: per interval the restore of an FMU state (or a
-  reset and initialisation), an input event, and an explicit Dormand-Prince
-  5(4) integration over the interval, optionally with the forward
-  sensitivities (:class:`SensitivityRequest`).
+  values, initialisation with the inputs at the interval's start time, one
+  ``fmi2DoStep``, read;
+- :class:`MeBatchDriver`: per interval the restore of an FMU state and the
+  interval's start time (or a reset and initialisation at that time), an
+  input event, and an explicit Dormand-Prince 5(4) integration over the
+  interval, optionally with the forward sensitivities (:class:`SensitivityRequest`).
+
+Both take optional per-interval FMU start times (``t_start``; None: every
+interval at FMU time 0).
 
 ``make setup`` builds the drivers (:mod:`mshoot_core.fmu_build`); here they
 are only found (:func:`mshoot_core.fmu_cache.find_driver`): a missing driver
@@ -55,6 +59,13 @@ def vr_array(refs: Sequence[int]) -> ctypes.Array:
 def double_pointer(array: np.ndarray) -> Any:
     """A ``double *`` to the data of the contiguous float64 ``array`` (no copy)."""
     return array.ctypes.data_as(DOUBLE_P)
+
+
+def address(array: np.ndarray | None) -> int | None:
+    """The data address of a C-contiguous float64 ``array`` (kept alive by the caller, e.g.
+    from :func:`~mshoot_core.models.base.interval_start_times`) for a ``const double *``
+    argument, or None (NULL)."""
+    return None if array is None else array.__array_interface__['data'][0]
 
 
 def _bind(fmu: FMU2Model | FMU2Slave, names: Sequence[str],
@@ -102,7 +113,7 @@ class CsBatchDriver:
         size, real, ptr = ctypes.c_size_t, ctypes.c_double, ctypes.c_void_p
         self._batch.argtypes = [ptr, ptr, size, real, ctypes.c_int, real,
                                 size, ptr, ptr, size, ptr, ptr, size, ptr, ptr,
-                                size, ptr, ptr, size, ptr, ptr]
+                                size, ptr, ptr, size, ptr, ptr, ptr]
         self._library = library
         self._api = CsApi(*_bind(fmu, CS_FUNCTIONS))
 
@@ -110,12 +121,13 @@ class CsBatchDriver:
             par_refs: ctypes.Array, par_values: ctypes.Array, start_refs: ctypes.Array,
             starts: np.ndarray, input_refs: ctypes.Array, inputs: np.ndarray,
             state_refs: ctypes.Array, x_end: np.ndarray, output_refs: ctypes.Array,
-            y_end: np.ndarray) -> None:
+            y_end: np.ndarray, t_start: np.ndarray | None = None) -> None:
         """Run B intervals of ``dt_s`` [s]; fill ``x_end`` (B, nx) and ``y_end`` (B, ny).
 
         ``starts`` (B, len(start_refs)) are the start values of the states set
         before initialisation, ``inputs`` (B, len(input_refs)) the inputs
-        held over each interval; all float64 and C-contiguous.
+        held over each interval, ``t_start`` (B,) the FMU start times [s]
+        (None: 0); all float64 and C-contiguous.
 
         Raises
         ------
@@ -129,7 +141,7 @@ class CsBatchDriver:
             len(start_refs), start_refs, double_pointer(starts),
             len(input_refs), input_refs, double_pointer(inputs),
             len(state_refs), state_refs, double_pointer(x_end),
-            len(output_refs), output_refs, double_pointer(y_end))
+            len(output_refs), output_refs, double_pointer(y_end), address(t_start))
         if code:
             raise RuntimeError(f'{self.label}: FMI call {code % 16 - 1} of interval '
                                f'{code // 16} failed in the batched driver '
@@ -303,14 +315,16 @@ class MeBatchDriver:
         self._batch.restype = ctypes.c_long
         ptr = ctypes.c_void_p
         self._batch.argtypes = [ptr, ptr, ptr, ctypes.c_size_t, ptr, ptr, ptr, ptr,
-                                ptr, ptr, ptr]
+                                ptr, ptr, ptr, ptr]
         self._library = library
         self._api = MeApi(*_bind(fmu, ME_FUNCTIONS, optional=True))
 
     def run(self, component: Any, problem: MeProblem, starts: np.ndarray, inputs: np.ndarray,
             x_end: np.ndarray, y_end: np.ndarray, s_end: np.ndarray,
-            dyo: np.ndarray) -> None:
+            dyo: np.ndarray, t_start: np.ndarray | None = None) -> None:
         """Integrate B intervals from ``starts`` (B, nx) with ``inputs`` (B, nu).
+
+        Interval b starts at FMU time ``t_start[b]`` [s] (None: every one at 0).
 
         Fills ``x_end`` (B, nx), ``y_end`` (B, ny) and, with sensitivities,
         ``s_end`` (B, n, nx + m) and the output partials ``dyo``
@@ -328,7 +342,8 @@ class MeBatchDriver:
         code = self._batch(
             ctypes.byref(self._api), component, ctypes.byref(problem), batch,
             double_pointer(starts), double_pointer(inputs), double_pointer(x_end),
-            double_pointer(y_end), double_pointer(s_end), double_pointer(dyo), stats)
+            double_pointer(y_end), double_pointer(s_end), double_pointer(dyo), stats,
+            address(t_start))
         logger.debug('ME batch of %d: %d steps, %d rejected, %d evaluations', batch, stats[0],
                      stats[1], stats[2])
         if code == ME_TERMINATE:

@@ -17,7 +17,10 @@ Two integrators, the same FMI calls around them:
   build (a missing driver is an error).
 
 FMUs that support FMU states start each interval by restoring a snapshot
-taken after the first initialisation instead of re-initialising.
+taken after the first initialisation (at FMU time 0) instead of
+re-initialising; an interval starting at another FMU time then sets that time
+(``fmi2SetTime``) and iterates the events there, so schedules and time events
+inside the FMU see the interval's own time.
 """
 from __future__ import annotations
 
@@ -27,6 +30,7 @@ import numpy as np
 
 from mshoot_core.models.fmi_drivers import (double_pointer, DriverGaveUp, me_problem,
                                             MeBatchDriver, MeProblem, SensitivityRequest)
+from mshoot_core.models.fmi_values import FmuValueError
 
 logger = logging.getLogger(__name__)
 
@@ -85,8 +89,8 @@ class ModelExchangeIntegration:
             self._solver = CVodeSolver(
                 nx=self._n_continuous, nz=self.model_description.numberOfEventIndicators,
                 get_x=fmu.getContinuousStates, set_x=fmu.setContinuousStates,
-                get_dx=fmu.getDerivatives, get_z=fmu.getEventIndicators,
-                get_nominals=fmu.getNominalsOfContinuousStates, set_time=fmu.setTime,
+                get_dx=self._derivatives_checked, get_z=fmu.getEventIndicators,
+                get_nominals=fmu.getNominalsOfContinuousStates, set_time=self._record_time,
                 input=HeldInputs(), startTime=t0, relativeTolerance=self.tolerance,
                 maxNumSteps=MAX_SOLVER_STEPS)
         else:
@@ -132,23 +136,30 @@ class ModelExchangeIntegration:
                 fmu.enterContinuousTimeMode()
                 self._solver.reset(t)
 
-    def _restore_snapshot(self, x0: np.ndarray, u: np.ndarray) -> None:
-        """Bring the instance to t = 0 with ``x0`` and ``u`` through its FMU-state snapshot.
+    def _restore_snapshot(self, x0: np.ndarray, u: np.ndarray, t0: float = 0.0) -> None:
+        """Bring the instance to FMU time ``t0`` with ``x0`` and ``u`` through its snapshot.
 
-        The first call initialises and takes the snapshot; later ones restore
-        it (no re-initialisation), write the states and apply the inputs as
-        an event.
+        The first call initialises at time 0 and takes the snapshot; later
+        ones restore it (no re-initialisation), write the states and apply the
+        inputs as an event. A start time other than 0 is set before that
+        event, whose iteration updates the FMU's time-dependent discrete
+        states (schedules) and its next time event.
         """
         fmu = self._fmu
         if self._snapshot is None:
             self._initialize(0.0, x0, u)
             self._snapshot = fmu.getFMUstate()
             self._snapshot_event_time = self._next_event_time
+            if t0 != 0.0:
+                fmu.setTime(t0)
+                self._input_event(t0, u)
             return
         fmu.setFMUstate(self._snapshot)
         self._next_event_time = self._snapshot_event_time
+        if t0 != 0.0:
+            fmu.setTime(t0)
         self._write_states(x0)
-        self._input_event(0.0, u)
+        self._input_event(t0, u)
 
     # -- the compiled batch ---------------------------------------------------------------
     def me_batch_plan(self) -> str | None:
@@ -196,7 +207,8 @@ class ModelExchangeIntegration:
 
     def _me_batch_in_c(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                        x_end: np.ndarray, y_end: np.ndarray,
-                       sensitivities: SensitivityRequest | None = None
+                       sensitivities: SensitivityRequest | None = None,
+                       t_start: np.ndarray | None = None
                        ) -> tuple[np.ndarray, np.ndarray] | bool:
         """Run a Model Exchange batch in the compiled driver; False where it does not apply.
 
@@ -211,7 +223,12 @@ class ModelExchangeIntegration:
         the model outputs w.r.t. (continuous states, those inputs), shape
         (B, n_yo, n + m). A batch the driver gives up on (a time or step
         event, too many steps) is logged, the driver disabled for this
-        instance, and False returned: the caller then uses CVode.
+        instance, and False returned: the caller then uses CVode; unless the
+        FMU computed non-finite values there (an
+        :class:`~mshoot_core.models.fmi_values.FmuValueError`, found by
+        integrating that interval with CVode), which is raised and leaves
+        the driver on. Interval b starts at FMU time ``t_start[b]`` (None:
+        every interval at 0).
 
         Raises
         ------
@@ -223,7 +240,8 @@ class ModelExchangeIntegration:
         if self._me_driver is None:
             self._me_driver = MeBatchDriver(self.fmu, self.fmu_path.name)
         if (self._snapshot is None if self.can_snapshot else not self._initialized_once):
-            self._start_interval(x_start[0], u[0])  # first initialisation through fmpy
+            # first initialisation through fmpy
+            self._start_interval(x_start[0], u[0], 0.0 if t_start is None else t_start[0])
         if self._next_event_time is not None:
             logger.debug('%s: time events, Model Exchange batches use CVode', self.fmu_path.name)
             return False
@@ -245,11 +263,30 @@ class ModelExchangeIntegration:
         inputs = np.ascontiguousarray(u, dtype=float)
         try:
             self._me_driver.run(self._fmu.component, problem, starts, inputs, x_end, y_end,
-                                s_end, dyo)
+                                s_end, dyo, t_start=t_start)
         except DriverGaveUp as gave_up:
+            self._non_finite_interval(x_start, u, dt_s, t_start, gave_up)
             logger.warning('%s: the batched Model Exchange driver stopped at interval %d (%s); '
                            'this model integrates with CVode from now on', self.fmu_path.name,
                            gave_up.interval, gave_up.reason)
             self._me_driver = False
             return False
         return (s_end, dyo) if sensitivities is not None else True
+
+    def _non_finite_interval(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
+                             t_start: np.ndarray | None, gave_up: DriverGaveUp) -> None:
+        """Integrate the interval the driver gave up on with CVode: raise its FmuValueError
+        if the FMU computes non-finite values there, else return (any other failure is
+        left to the CVode run of the whole batch)."""
+        b = gave_up.interval
+        if not 0 <= b < x_start.shape[0]:
+            return
+        t0 = 0.0 if t_start is None else float(t_start[b])
+        try:
+            self._start_interval(x_start[b], u[b], t0)
+            self._advance_checked(t0, t0 + dt_s)
+            self._check_finite(*self._read(), t0 + dt_s)
+        except FmuValueError as error:
+            raise error from gave_up
+        except Exception:  # noqa: BLE001 - not a non-finite value: the batch goes to CVode
+            return

@@ -14,6 +14,7 @@ over ``simulate_intervals``.
 from __future__ import annotations
 
 import logging
+import math
 from typing import Any, Sequence
 
 from fmpy.fmi2 import FMU2Model
@@ -172,7 +173,7 @@ class ForwardSensitivities:
             system.load(self._x_full)
             solver = CVodeSolver(nx=system.size, nz=0, get_x=system.get_x, set_x=system.set_x,
                                  get_dx=system.get_dx, get_z=system.get_z,
-                                 get_nominals=system.get_nominals, set_time=self._fmu.setTime,
+                                 get_nominals=system.get_nominals, set_time=self._record_time,
                                  input=HeldInputs(), startTime=0.0,
                                  relativeTolerance=self.tolerance,
                                  maxNumSteps=MAX_SOLVER_STEPS)
@@ -203,7 +204,8 @@ class ForwardSensitivities:
         return dy_dx, dy_du
 
     def interval_jacobians(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
-                           wrt_inputs: Sequence[int]) -> IntervalJacobians | None:
+                           wrt_inputs: Sequence[int],
+                           t_start_s: np.ndarray | None = None) -> IntervalJacobians | None:
         """End values and forward-sensitivity derivatives of B intervals (ME), or None.
 
         Integrates ``[x, Sx, Su]`` at the model's tolerance, the Jacobian-vector
@@ -222,6 +224,14 @@ class ForwardSensitivities:
             Interval length [s].
         wrt_inputs : sequence of int
             Column indices of ``u`` to differentiate with respect to.
+        t_start_s : ndarray, shape (B,), optional
+            Start time of each interval [s] in the caller's time base (see
+            :meth:`~mshoot_core.models.fmi.FmiModel.simulate_intervals`).
+
+        Raises
+        ------
+        FmuValueError
+            If a state or output is not finite (names it and the FMU time).
         """
         wrt = [int(j) for j in wrt_inputs]
         bad = [j for j in wrt if not 0 <= j < len(self.input_names)]
@@ -232,6 +242,9 @@ class ForwardSensitivities:
             logger.debug('interval_jacobians unavailable (%s): finite differences', reason)
             return None
         x_start, u, dt_s = self._check_batch(x_start, u, dt_s)
+        t0 = self._fmu_start_times(t_start_s, x_start.shape[0])
+        t_end = dt_s if t0 is None else t0 + dt_s  # (the end times, for messages)
+        self._plant = None  # the instance is re-initialised: a plant run ends here
         batch, m = x_start.shape[0], len(wrt)
         nx, ny = len(self.state_names), len(self.output_names)
         pos = self._state_positions
@@ -243,8 +256,10 @@ class ForwardSensitivities:
         dy_du = np.empty((batch, ny, m))
         if self.me_batch_plan() is None:
             done = self._me_batch_in_c(x_start, u, dt_s, x_end, y_end,
-                                       self._sensitivity_request(wrt))
+                                       self._sensitivity_request(wrt), t_start=t0)
             if done is not False:
+                if not math.isfinite(np.add.reduce(x_end, None) + np.add.reduce(y_end, None)):
+                    self._check_finite(x_end, y_end, t_end)
                 s_end, dyo = done
                 sx, su = s_end[:, :, :nx], s_end[:, :, nx:]  # (B, n, nx), (B, n, m)
                 n = self._n_continuous
@@ -261,12 +276,17 @@ class ForwardSensitivities:
                                          dy_dx @ su + dy_du_direct)
         wrt_refs = [self._input_vars[j].valueReference for j in wrt]
         for b in range(batch):
-            self._start_interval(x_start[b], u[b])
+            start = 0.0 if t0 is None else float(t0[b])
+            self._start_interval(x_start[b], u[b], start)
             system, solver = self._sensitivity_solver(wrt)
             self._fmu.getContinuousStates(double_pointer(self._x_full), self._n_continuous)
             system.load(self._x_full)
-            solver.reset(0.0)
-            _, _, t = solver.step(0.0, dt_s)
+            solver.reset(start)
+            try:
+                _, _, t = solver.step(start, start + dt_s)
+            except Exception as error:  # noqa: BLE001 - CVode's RuntimeError
+                self._diagnose(error, f' (interval from FMU time {start:.9g} s)')
+                raise
             self._fmu.setTime(t)
             s = system.matrix()
             sx, su = s[:, :nx], s[:, nx:]  # (n, nx): d x_FMU / d x0_model; (n, m)
@@ -276,4 +296,5 @@ class ForwardSensitivities:
             dx_du[b] = su[pos]
             dy_dx0[b] = dy_dx @ sx
             dy_du[b] = dy_dx @ su + dy_du_direct
+        self._check_finite(x_end, y_end, t_end)
         return IntervalJacobians(x_end, y_end, dx_dx0, dx_du, dy_dx0, dy_du)

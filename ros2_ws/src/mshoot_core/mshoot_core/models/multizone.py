@@ -85,8 +85,10 @@ class MultiZoneModel(Model):
         ydf = pd.DataFrame(states - KELVIN, index=udf.index, columns=list(self.output_names))
         return ydf, xdf
 
-    def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray,
-                           dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
+                           t_start_s: np.ndarray | None = None) -> tuple[np.ndarray,
+                                                                        np.ndarray]:
+        """Exact end values of B intervals (``t_start_s`` ignored: time-invariant)."""
         x_start = np.atleast_2d(np.asarray(x_start, dtype=float))
         f, g, cap = self._coefficients(np.atleast_2d(np.asarray(u, dtype=float)))
         decay = np.exp(-g * dt_s / cap)
@@ -94,7 +96,9 @@ class MultiZoneModel(Model):
         return x_end, x_end - KELVIN
 
     def interval_jacobians(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
-                           wrt_inputs: Sequence[int]) -> IntervalJacobians | None:
+                           wrt_inputs: Sequence[int],
+                           t_start_s: np.ndarray | None = None) -> IntervalJacobians | None:
+        """Exact derivatives w.r.t. the zone inputs (``t_start_s`` ignored), else None."""
         wrt = list(wrt_inputs)
         if any(col < 4 for col in wrt):
             return None  # derivatives w.r.t. shared disturbances: use finite differences

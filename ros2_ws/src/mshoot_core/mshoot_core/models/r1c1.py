@@ -130,8 +130,10 @@ class R1C1Model(Model):
         ydf = pd.DataFrame({'T': temps - KELVIN, 'Qr': heat}, index=index)
         return ydf, xdf
 
-    def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray,
-                           dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
+                           t_start_s: np.ndarray | None = None) -> tuple[np.ndarray,
+                                                                        np.ndarray]:
+        """Exact end values of B intervals (``t_start_s`` ignored: time-invariant)."""
         x_start = np.atleast_2d(np.asarray(x_start, dtype=float))
         u = np.atleast_2d(np.asarray(u, dtype=float))
         f, g = self.affine_coefficients(u)
@@ -140,7 +142,9 @@ class R1C1Model(Model):
         return t_end[:, None], np.column_stack([t_end - KELVIN, u[:, 4] * dt_s])
 
     def interval_jacobians(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
-                           wrt_inputs: Sequence[int]) -> IntervalJacobians:
+                           wrt_inputs: Sequence[int],
+                           t_start_s: np.ndarray | None = None) -> IntervalJacobians:
+        """Exact end values and derivatives (``t_start_s`` ignored: time-invariant)."""
         x_start = np.atleast_2d(np.asarray(x_start, dtype=float))
         u = np.atleast_2d(np.asarray(u, dtype=float))
         x_end, y_end = self.simulate_intervals(x_start, u, dt_s)

@@ -577,8 +577,9 @@ class SklearnModel(Model):
                              f'step_s = {self.step_s:g} s, got {dt_s!r} s')
         return n
 
-    def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray,
-                           dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
+                           t_start_s: np.ndarray | None = None) -> tuple[np.ndarray,
+                                                                        np.ndarray]:
         """Simulate B independent intervals, one ``predict`` per learned step for the batch.
 
         Parameters
@@ -589,6 +590,8 @@ class SklearnModel(Model):
             Inputs of each interval, columns in :attr:`input_names` order.
         dt_s : float
             Interval length [s], a whole multiple of :attr:`step_s`.
+        t_start_s : ndarray, shape (B,), optional
+            Ignored: the learned dynamics do not depend on time.
 
         Returns
         -------

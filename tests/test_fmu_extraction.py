@@ -1,0 +1,116 @@
+"""FMUs are extracted once into the cache, keyed by their hash, and bad ones leave nothing
+behind; FMI 3.0 FMUs get a plain answer."""
+import os
+import pathlib
+import tempfile
+import threading
+import zipfile
+
+import pytest
+
+from mshoot_core import fmu_cache
+from mshoot_core.models.fmi import FmiModel, r1c1_fmi_model
+
+FMI3_DESCRIPTION = """<?xml version="1.0" encoding="UTF-8"?>
+<fmiModelDescription fmiVersion="3.0" modelName="Zone3" instantiationToken="{8c4e810f-3df3}">
+  <CoSimulation modelIdentifier="Zone3"/>
+  <ModelVariables>
+    <Float64 name="time" valueReference="0" causality="independent" variability="continuous"/>
+    <Float64 name="T" valueReference="1" causality="output" variability="continuous"/>
+  </ModelVariables>
+  <ModelStructure><Output valueReference="1"/></ModelStructure>
+</fmiModelDescription>
+"""
+
+
+@pytest.fixture
+def isolated(tmp_path, monkeypatch):
+    """Temporary folders and FMU extractions under tmp_path (the drivers stay where they are)."""
+    temp = tmp_path / 'tmp'
+    temp.mkdir()
+    monkeypatch.setattr(tempfile, 'tempdir', str(temp))
+    monkeypatch.setenv('TMPDIR', str(temp))
+    extracted = tmp_path / 'cache' / fmu_cache.EXTRACTED
+    monkeypatch.setattr(fmu_cache, 'extracted_dir',
+                        lambda path: extracted / fmu_cache.file_sha256(path)[:32])
+    return temp, extracted
+
+
+def _everything(folder: pathlib.Path) -> list[str]:
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob('*')) if folder.exists() \
+        else []
+
+
+def _zip(path: pathlib.Path, members: dict[str, str | bytes]) -> pathlib.Path:
+    with zipfile.ZipFile(path, 'w') as archive:
+        for name, data in members.items():
+            archive.writestr(name, data)
+    return path
+
+
+def test_bad_fmus_leave_no_temporary_folder(isolated, tmp_path):
+    temp, extracted = isolated
+    r1c1 = fmu_cache.find_fmu('r1c1')
+    with zipfile.ZipFile(r1c1) as archive:
+        description = archive.read('modelDescription.xml')
+    cases = {
+        'not_a_zip.fmu': (b'this is not a zip archive', r'not an FMU: not a ZIP archive'),
+        'no_description.fmu': ({'binaries/readme.txt': 'nothing'},
+                               r'not a readable FMU: its modelDescription.xml could not be read'),
+        'traversal.fmu': ({'modelDescription.xml': description, '../evil.txt': 'x'},
+                          r"illegal path '../evil.txt'"),
+        'no_binary.fmu': ({'modelDescription.xml': description},
+                          r'no_binary.fmu \(ModelExchange\) cannot be instantiated'),
+    }
+    for name, (content, message) in cases.items():
+        path = tmp_path / name
+        if isinstance(content, bytes):
+            path.write_bytes(content)
+        else:
+            _zip(path, content)
+        with pytest.raises(ValueError, match=message):
+            r1c1_fmi_model(fmi_type='ModelExchange', fmu_path=path)
+    assert _everything(temp) == []  # no temporary folder anywhere
+    assert not (tmp_path / 'evil.txt').exists()
+    # only the archive that extracted and read well stays, complete, in the cache
+    kept = [p.name for p in extracted.iterdir()]
+    assert kept == [fmu_cache.file_sha256(tmp_path / 'no_binary.fmu')[:32]]
+    assert not any(p.name.startswith(fmu_cache.STAGING_PREFIX) for p in extracted.iterdir())
+
+
+def test_fmi3_fmus_are_refused_plainly(isolated, tmp_path):
+    temp, extracted = isolated
+    path = _zip(tmp_path / 'zone3.fmu', {'modelDescription.xml': FMI3_DESCRIPTION})
+    with pytest.raises(ValueError, match=r'zone3.fmu: FMI 3.0 FMUs are not supported yet '
+                                         r"\(fmiVersion '3.0'\); export the model as an FMI "
+                                         r'2.0 FMU'):
+        FmiModel(path, inputs=[], states=[], outputs=['T'])
+    assert _everything(temp) == [] and _everything(extracted) == []
+
+
+def test_an_fmu_is_extracted_once_for_every_model_and_process(isolated, tmp_path):
+    """Same bytes, same folder (also under another name); concurrent extractions agree."""
+    _, extracted = isolated
+    r1c1 = fmu_cache.find_fmu('r1c1')
+    copy = tmp_path / 'renamed.fmu'
+    copy.write_bytes(r1c1.read_bytes())
+    folders = []
+    errors = []
+
+    def extract(path):
+        try:
+            folders.append(fmu_cache.extract_fmu(path))
+        except Exception as error:  # noqa: BLE001 - collected for the assertion
+            errors.append(error)
+
+    threads = [threading.Thread(target=extract, args=(p,)) for p in (r1c1, copy) * 3]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert errors == [] and len(set(folders)) == 1
+    with r1c1_fmi_model(fmi_type='CoSimulation', fmu_path=copy) as model:
+        assert model._unzip_dir == folders[0]
+    assert [p.name for p in extracted.iterdir()] == [folders[0].name]
+    assert (folders[0] / 'modelDescription.xml').is_file()
+    assert os.listdir(folders[0] / 'binaries')
