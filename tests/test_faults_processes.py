@@ -156,7 +156,7 @@ def test_bringups_exit_2_with_one_line_on_a_bad_configuration(tmp_path):
     common = ['--hours', '2', '--no-bag', '--out', str(tmp_path / 'out')]
     cases = {  # command, what the error line must say
         'bad_fmu': (bringup + common + ['--emulator-model', str(bad_fmu)],
-                    'emulator: cannot start: BadZipFile: File is not a zip file'),
+                    f"emulator: cannot start: {bad_fmu} is not an FMU: not a ZIP archive"),
         'missing_fmu': (bringup + common + ['--control-model', str(tmp_path / 'none.fmu')],
                         f"mpc: cannot start: FMU file '{tmp_path / 'none.fmu'}' not found"),
         'mismatch': (bringup + common + ['--control-model', 'r1c1x2', '--emulator-model',
