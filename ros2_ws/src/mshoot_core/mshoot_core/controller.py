@@ -293,9 +293,10 @@ class Controller:
                      or self._forecast_gate.check(stamp_ns, now_ns))
         if rejection is None:
             n = len(next(iter(series.values())))
-            frame = pd.DataFrame({name: np.asarray(values, dtype=float).reshape(-1)
-                                  for name, values in series.items()})
-            bad = [c for c in frame.columns if not np.all(np.isfinite(frame[c]))]
+            arrays = {name: np.asarray(values, dtype=float).reshape(-1)
+                      for name, values in series.items()}
+            frame = pd.DataFrame(arrays)
+            bad = [c for c, values in arrays.items() if not np.isfinite(values).all()]
             if bad or len(frame) != n:
                 rejection = Rejection('non_finite', f'forecast series {bad} hold non-finite '
                                       'values')

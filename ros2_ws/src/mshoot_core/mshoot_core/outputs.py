@@ -7,12 +7,16 @@ from __future__ import annotations
 
 import json
 import pathlib
+from typing import TYPE_CHECKING
 
 from mshoot_core.closed_loop import ClosedLoopResult
 
+if TYPE_CHECKING:  # matplotlib only where plots are made
+    from mshoot_core.plotting import PlotWorker
+
 
 def write_outputs(out: pathlib.Path, result: ClosedLoopResult, kpis: dict,
-                  title: str) -> None:
+                  title: str, plotter: PlotWorker | None = None) -> None:
     """Write ``kpis.json``, ``trajectories.csv``, ``steps.csv`` and ``plot.png`` to ``out``.
 
     Parameters
@@ -27,12 +31,22 @@ def write_outputs(out: pathlib.Path, result: ClosedLoopResult, kpis: dict,
         discomfort [K h], wall time [s], ...) plus anything JSON-ready.
     title : str
         First line of the plot's title (the KPIs make the second).
+    plotter : PlotWorker, optional
+        A worker process started with the run (:class:`mshoot_core.plotting.PlotWorker`):
+        it draws the figure while the other files are written. Default: the
+        figure is drawn in this process. Either way the PNG is written when
+        this function returns.
     """
     out.mkdir(parents=True, exist_ok=True)
+    subtitle = (f"{kpis['energy_kwh']:.1f} kWh, {kpis['discomfort_kh']:.1f} Kh "
+                f"({kpis['discomfort_kh_hourly']:.1f} Kh hourly), wall {kpis['wall_s']:.1f} s")
+    if plotter is not None:
+        plotter.send(result.fine, result.steps, out / 'plot.png', f'{title}\n{subtitle}')
     (out / 'kpis.json').write_text(json.dumps(kpis, indent=2, sort_keys=True) + '\n')
     result.fine.to_csv(out / 'trajectories.csv', index_label='time_s')
     result.steps.to_csv(out / 'steps.csv', index_label='time_s')
-    from mshoot_core.plotting import plot_closed_loop  # matplotlib only where plots are made
-    subtitle = (f"{kpis['energy_kwh']:.1f} kWh, {kpis['discomfort_kh']:.1f} Kh "
-                f"({kpis['discomfort_kh_hourly']:.1f} Kh hourly), wall {kpis['wall_s']:.1f} s")
-    plot_closed_loop(result.fine, result.steps, out / 'plot.png', f'{title}\n{subtitle}')
+    if plotter is not None:
+        plotter.wait()
+    else:
+        from mshoot_core.plotting import plot_closed_loop
+        plot_closed_loop(result.fine, result.steps, out / 'plot.png', f'{title}\n{subtitle}')

@@ -14,7 +14,6 @@ import argparse
 import dataclasses
 import logging
 import pathlib
-import sys
 import time
 from typing import Any, Sequence
 
@@ -29,6 +28,7 @@ from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.models.registry import (BUILTIN, build_model, CONTROL_TOLERANCE,
                                          EMULATOR_TOLERANCE, MODEL_PARAMETERS, ModelSettings)
 from mshoot_core.outputs import write_outputs
+from mshoot_core.plotting import PlotWorker
 from mshoot_core.scenario import DEFAULT_DATA, PUBLISHED, reference_scenario
 from mshoot_core.settings import (add_arguments, from_arguments, MpcSettings, option_wording,
                                   SettingsError)
@@ -178,26 +178,39 @@ def run(args: argparse.Namespace) -> int:
     if problems:
         logger.error('invalid options: %s', '; '.join(problems))
         return 2
+    with PlotWorker() as plotter:  # imports matplotlib on another core while the case runs
+        return _run(args, settings, plotter)
+
+
+def _run(args: argparse.Namespace, settings: MpcSettings, plotter: PlotWorker) -> int:
     data = args.data
     if data is None and DEFAULT_DATA.is_file():
         data = DEFAULT_DATA.resolve()
+    models: list[Model] = []
     try:
-        scenario = reference_scenario(args.scenario, data, args.hours)
-        settings, problems = option_problems(args, len(scenario) - 1)
-        if problems:
-            raise ValueError(f"invalid options: {'; '.join(problems)}")
-        started = time.perf_counter()
-        report: dict = {}
-        control = control_model(args.control, args.tolerance, data, report)
-        emulator = build_model(args.emulator, EMULATOR_TOLERANCE)
-        setup_s = time.perf_counter() - started
-    except (FileNotFoundError, ValueError) as exc:
-        logger.error('%s', exc)
-        return 2
-    horizon = settings.problem.horizon_steps
-    logger.info('running %s: %d h, horizon %d h, control %s, cost %s, comfort %s',
-                args.scenario, args.hours, horizon, args.control, args.cost, args.comfort)
-    result, kpis = run_case(scenario, control, emulator, settings)
+        try:
+            scenario = reference_scenario(args.scenario, data, args.hours)
+            settings, problems = option_problems(args, len(scenario) - 1)
+            if problems:
+                raise ValueError(f"invalid options: {'; '.join(problems)}")
+            started = time.perf_counter()
+            report: dict = {}
+            models.append(control_model(args.control, args.tolerance, data, report))
+            models.append(build_model(args.emulator, EMULATOR_TOLERANCE))
+            control, emulator = models
+            setup_s = time.perf_counter() - started
+        except (FileNotFoundError, ValueError) as exc:
+            logger.error('%s', exc)
+            return 2
+        horizon = settings.problem.horizon_steps
+        logger.info('running %s: %d h, horizon %d h, control %s, cost %s, comfort %s',
+                    args.scenario, args.hours, horizon, args.control, args.cost, args.comfort)
+        result, kpis = run_case(scenario, control, emulator, settings)
+    finally:
+        for model in models:  # FMUs: free the instances, remove their extracted files
+            close = getattr(model, 'close', None)
+            if close is not None:
+                close()
     kpis.update(scenario=args.scenario, control=args.control, emulator=args.emulator,
                 tolerance=args.tolerance, mode=args.mode, setup_s=setup_s)
     if report:
@@ -205,7 +218,7 @@ def run(args: argparse.Namespace) -> int:
     if args.scenario == 'ou44' and args.hours == 72 and horizon in PUBLISHED:
         kpis['published'] = PUBLISHED[horizon]
     write_outputs(args.out, result, kpis, f'{args.scenario}: H = {horizon} h, control '
-                                          f'{args.control}, {args.cost} cost')
+                                          f'{args.control}, {args.cost} cost', plotter)
     logger.info('energy %.2f kWh (heating %.2f, cooling %.2f), discomfort %.2f Kh (hourly '
                 'samples %.2f Kh), wall %.2f s, median solve %.4f s, %d solver failures',
                 kpis['energy_kwh'], kpis['heating_kwh'], kpis['cooling_kwh'],
@@ -216,4 +229,5 @@ def run(args: argparse.Namespace) -> int:
 
 
 if __name__ == '__main__':
-    sys.exit(main())
+    from mshoot_studies.cli import exit_now
+    exit_now(main())
