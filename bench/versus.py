@@ -108,7 +108,8 @@ def run_timed(command: list[str]) -> tuple[float, str, float, float, float]:
 
 # -- the instrumented run of our command (a subprocess of its own) --------------------------------
 class Timers:
-    """Wall-time totals [s] and call counts of wrapped functions, by group.
+    """Wall-time and CPU-time (the process's) totals [s] and call counts of wrapped
+    functions, by group.
 
     Nested calls within one group count once (the outermost call), so a batch
     function calling another batch function is not counted twice.
@@ -116,11 +117,13 @@ class Timers:
 
     def __init__(self) -> None:
         self.total: dict[str, float] = {}
+        self.cpu: dict[str, float] = {}
         self.calls: dict[str, int] = {}
         self._depth: dict[str, int] = {}
 
     def wrap(self, group: str, function: Callable) -> Callable:
         self.total.setdefault(group, 0.0)
+        self.cpu.setdefault(group, 0.0)
         self.calls.setdefault(group, 0)
         self._depth.setdefault(group, 0)
 
@@ -129,11 +132,12 @@ class Timers:
             if self._depth[group]:
                 return function(*args, **kwargs)
             self._depth[group] += 1
-            started = time.perf_counter()
+            started, cpu = time.perf_counter(), time.process_time()
             try:
                 return function(*args, **kwargs)
             finally:
                 self.total[group] += time.perf_counter() - started
+                self.cpu[group] += time.process_time() - cpu
                 self.calls[group] += 1
                 self._depth[group] -= 1
         return timed
@@ -166,9 +170,10 @@ def instrumented_case(argv: list[str], report: pathlib.Path, profile: bool) -> i
     """Run our case command's ``main(argv)`` with timers (or with cProfile on inside the
     solves); write the figures to ``report``."""
     script_start_epoch = time.time()
-    started = time.perf_counter()
+    started, cpu = time.perf_counter(), time.process_time()
     module = importlib.import_module(CASE_MODULE)
     imports_s = time.perf_counter() - started
+    imports_cpu_s = time.process_time() - cpu
     from mshoot_core.emulation import Emulator
     from mshoot_core.models import fmi
     from mshoot_core.mpc import MPC
@@ -193,9 +198,13 @@ def instrumented_case(argv: list[str], report: pathlib.Path, profile: bool) -> i
     started = time.perf_counter()
     code = module.main(argv)
     main_s = time.perf_counter() - started
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
     figures = {'imports_s': imports_s, 'main_s': main_s, 'code': code, 'patched': patched,
                'total_s': timers.total, 'calls': timers.calls,
-               'script_start_epoch': script_start_epoch}
+               'script_start_epoch': script_start_epoch,
+               'imports_cpu_s': imports_cpu_s, 'cpu_s': timers.cpu,
+               'process_cpu_s': time.process_time(),  # since the interpreter started
+               'children_cpu_s': children.ru_utime + children.ru_stime}  # the plot worker
     if profile:
         figures['profile'] = profile_figures(pstats.Stats(profiler))
     figures['main_end_epoch'] = time.time()
@@ -316,6 +325,16 @@ def breakdown(repeats: int, tmp: pathlib.Path) -> dict:
                'simulation_calls': c['simulations'], 'solve_calls': c['solves']}
         run['other'] = wall - sum(run[k] for k in ('interpreter', 'imports', 'data', 'models',
                                                    'loop', 'output', 'exit'))
+        t = figures['cpu_s']
+        cpu = {'imports': figures['imports_cpu_s'], 'data': t['data'], 'models': t['models'],
+               'loop': t['loop'], 'solves': t['solves'], 'simulations': t['simulations'],
+               'native': t.get('native', 0.0), 'glue': t['solves'] - t['simulations'],
+               'plant': t['plant'], 'loop_other': t['loop'] - t['solves'] - t['plant'],
+               'output': t['output'], 'main_process': figures['process_cpu_s'],
+               'plot_worker': figures['children_cpu_s']}
+        cpu['other'] = cpu['main_process'] - sum(cpu[k] for k in ('imports', 'data', 'models',
+                                                                  'loop', 'output'))
+        run.update({f'cpu_{key}': value for key, value in cpu.items()})
         ours_runs.append(run)
         wall, _, launched, exited, _ = run_timed(casadi_command(tmp / 'casadi_instrumented'))
         t = json.loads((tmp / 'casadi_instrumented' / 'kpis.json').read_text())['timing']
@@ -328,6 +347,16 @@ def breakdown(repeats: int, tmp: pathlib.Path) -> dict:
                'output': t['output_s'], 'exit': exited - t['main_end_epoch']}
         run['other'] = wall - sum(run[k] for k in ('interpreter', 'imports', 'data', 'models',
                                                    'loop', 'output', 'exit'))
+        cpu = {'imports': t['main_start_cpu_s'], 'data': t['data_cpu_s'],
+               'models': t['build_cpu_s'], 'loop': t['loop_cpu_s'] + t['kpis_cpu_s'],
+               'solves': t['solves_cpu_s'], 'glue': t['solves_cpu_s'],
+               'plant': t['plant_cpu_s'],
+               'loop_other': t['loop_cpu_s'] + t['kpis_cpu_s'] - t['solves_cpu_s']
+               - t['plant_cpu_s'], 'output': t['output_cpu_s'],
+               'main_process': t['main_end_cpu_s'], 'plot_worker': 0.0}
+        cpu['other'] = cpu['main_process'] - sum(cpu[k] for k in ('imports', 'data', 'models',
+                                                                  'loop', 'output'))
+        run.update({f'cpu_{key}': value for key, value in cpu.items()})
         casadi_runs.append(run)
     result = {name: {key: statistics.median(run[key] for run in runs) for key in runs[0]}
               for name, runs in (('ours', ours_runs), ('casadi', casadi_runs))}
@@ -628,15 +657,27 @@ def report(whole: dict, zones: list[dict], parts: dict) -> None:
              ('exit (after main)', 'exit', ''),
              ('other (argparse, logging)', 'other', ''),
              ('total (instrumented run)', 'total', ''))
-    logger.info('%s %10s %7s %10s %7s', 'phase'.ljust(34), 'ours', '%', 'casadi', '%')
+    logger.info('%s %10s %7s %10s %7s %9s %9s', 'phase'.ljust(34), 'ours', '%', 'casadi', '%',
+                'ours cpu', 'casadi cpu')
+    cpu_keys = {'imports': 'imports', 'data': 'data', 'models': 'models', 'loop': 'loop',
+                'solves': 'solves', 'simulations': 'simulations', 'native': 'native',
+                'glue': 'glue', 'plant': 'plant', 'loop_other': 'loop_other',
+                'output': 'output', 'other': 'other', 'total': 'main_process'}
     for label, key, _ in lines:
         ours_v = ours_b.get(key)
         theirs_v = theirs_b.get(key)
-        logger.info('%s %10s %7s %10s %7s', label.ljust(34),
+        cpus = [run.get(f'cpu_{cpu_keys[key]}') if key in cpu_keys else None
+                for run in (ours_b, theirs_b)]
+        logger.info('%s %10s %7s %10s %7s %9s %9s', label.ljust(34),
                     '-' if ours_v is None else f'{ours_v:.3f}',
                     '-' if ours_v is None else f'{100 * ours_v / ours_b["total"]:.0f}',
                     '-' if theirs_v is None else f'{theirs_v:.3f}',
-                    '-' if theirs_v is None else f'{100 * theirs_v / theirs_b["total"]:.0f}')
+                    '-' if theirs_v is None else f'{100 * theirs_v / theirs_b["total"]:.0f}',
+                    *('-' if v is None else f'{v:.3f}' for v in cpus))
+    logger.info('cpu: CPU time of the main process [s] (less sensitive to other load than the '
+                'wall time); "other" includes the interpreter start, "total" the whole main '
+                'process; our plot worker (a process of its own, in parallel): %.3f s',
+                ours_b['cpu_plot_worker'])
     logger.info('ours: %d solves, %d batched model calls, glue %.0f us per model call; '
                 'casadi: model evaluations = its function/derivative evaluations, glue = IPOPT '
                 'and the call', ours_b['solve_calls'], ours_b['simulation_calls'],

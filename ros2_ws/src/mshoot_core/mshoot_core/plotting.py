@@ -62,6 +62,42 @@ def closed_loop_series(fine: Any, steps: Any, temperature_column: str = 'y_T',
             'q_kw': steps[control].to_numpy(dtype=float) / 1000.0}
 
 
+def _figure() -> tuple[Any, Any, Any]:
+    """The figure of a run without its data: two axes (temperature above, heat rate below),
+    labels, grids, fixed margins (no layout pass at draw time)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    fig = Figure(figsize=(10, 6))
+    FigureCanvasAgg(fig)
+    ax_t, ax_q = fig.subplots(2, 1, sharex=True, gridspec_kw={'height_ratios': [3, 2]})
+    fig.subplots_adjust(left=0.085, right=0.985, bottom=0.085, top=0.875, hspace=0.07)
+    ax_t.set_ylabel('temperature [°C]')
+    ax_t.grid(alpha=0.3)
+    ax_q.axhline(0.0, color='k', lw=0.5)
+    ax_q.set_ylabel('heat rate q [kW]\n(+ heating, − cooling)')
+    ax_q.set_xlabel('time [h]')
+    ax_q.grid(alpha=0.3)
+    return fig, ax_t, ax_q
+
+
+def _finish(figure: tuple[Any, Any, Any], series: dict[str, np.ndarray],
+            path: str | pathlib.Path, title: str) -> pathlib.Path:
+    """Add the run's data and title to a :func:`_figure` and write the PNG."""
+    fig, ax_t, ax_q = figure
+    path = pathlib.Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    hours = series['hours']
+    ax_t.fill_between(hours, series['comfort_min'], series['comfort_max'], step='post',
+                      color='tab:green', alpha=0.15, label='comfort band')
+    ax_t.plot(hours, series['temperature'], color='tab:red', lw=1.5, label='zone T')
+    ax_t.legend(loc='lower left', framealpha=0.9)
+    ax_q.step(series['step_hours'], series['q_kw'], where='post', color='tab:blue', lw=1.5)
+    if title:
+        fig.suptitle(title)
+    fig.savefig(path, dpi=DPI, pil_kwargs={'compress_level': PNG_COMPRESSION})
+    return path
+
+
 def draw_closed_loop(series: dict[str, np.ndarray], path: str | pathlib.Path,
                      title: str = '') -> pathlib.Path:
     """Draw the zone temperature with its comfort band and the heat rate to a PNG.
@@ -75,30 +111,7 @@ def draw_closed_loop(series: dict[str, np.ndarray], path: str | pathlib.Path,
     title : str
         Figure title (e.g. the KPIs).
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-    path = pathlib.Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig = Figure(figsize=(10, 6))
-    FigureCanvasAgg(fig)
-    ax_t, ax_q = fig.subplots(2, 1, sharex=True, gridspec_kw={'height_ratios': [3, 2]})
-    hours = series['hours']
-    ax_t.fill_between(hours, series['comfort_min'], series['comfort_max'], step='post',
-                      color='tab:green', alpha=0.15, label='comfort band')
-    ax_t.plot(hours, series['temperature'], color='tab:red', lw=1.5, label='zone T')
-    ax_t.set_ylabel('temperature [°C]')
-    ax_t.legend(loc='lower left', framealpha=0.9)
-    ax_t.grid(alpha=0.3)
-    ax_q.step(series['step_hours'], series['q_kw'], where='post', color='tab:blue', lw=1.5)
-    ax_q.axhline(0.0, color='k', lw=0.5)
-    ax_q.set_ylabel('heat rate q [kW]\n(+ heating, − cooling)')
-    ax_q.set_xlabel('time [h]')
-    ax_q.grid(alpha=0.3)
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=DPI, pil_kwargs={'compress_level': PNG_COMPRESSION})
-    return path
+    return _finish(_figure(), series, path, title)
 
 
 def plot_closed_loop(fine: Any, steps: Any, path: str | pathlib.Path, title: str = '',
@@ -221,16 +234,18 @@ class PlotWorker:
 
 
 def _serve() -> None:
-    """The worker: import matplotlib, then draw the figure read from stdin (a pickle)."""
+    """The worker: import matplotlib, lay out the figure and draw it once (fonts and text
+    are cached on that first draw), then add the data read from stdin (a pickle) and
+    write the PNG."""
     import matplotlib
     matplotlib.use('Agg')
-    import matplotlib.backends.backend_agg  # noqa: F401 - the imports are the head start
-    import matplotlib.figure  # noqa: F401
+    figure = _figure()
+    figure[0].canvas.draw()
     data = sys.stdin.buffer.read()
     if not data:  # the run ended without a figure
         return
     request = pickle.loads(data)
-    draw_closed_loop(request['series'], request['path'], request['title'])
+    _finish(figure, request['series'], request['path'], request['title'])
 
 
 if __name__ == '__main__':

@@ -272,16 +272,11 @@ class ShootingProblem:
     def _state_scaling_for(self, lower: np.ndarray, upper: np.ndarray) -> Scaling:
         if self.state_scaling is not None:
             return self.state_scaling
-        nx = lower.shape[1]
-        offset = np.zeros(nx)
-        scale = np.ones(nx)
-        for i in range(nx):
-            lo = lower[:, i][np.isfinite(lower[:, i])]
-            hi = upper[:, i][np.isfinite(upper[:, i])]
-            if lo.size and hi.size and hi.max() > lo.min():
-                offset[i] = lo.min()
-                scale[i] = hi.max() - lo.min()
-        return Scaling(offset, scale)
+        # per state: the lowest finite lower bound and the highest finite upper bound
+        lo = np.where(np.isfinite(lower), lower, np.inf).min(axis=0)
+        hi = np.where(np.isfinite(upper), upper, -np.inf).max(axis=0)
+        bounded = np.isfinite(lo) & np.isfinite(hi) & (hi > lo)
+        return Scaling(np.where(bounded, lo, 0.0), np.where(bounded, hi - lo, 1.0))
 
     def reachable_envelope(self, x0: np.ndarray, disturbances: np.ndarray) -> tuple[np.ndarray,
                                                                                    np.ndarray]:
