@@ -167,9 +167,18 @@ def timed_drivers(timers: Timers) -> None:
 
 
 def instrumented_case(argv: list[str], report: pathlib.Path, profile: bool) -> int:
-    """Run our case command's ``main(argv)`` with timers (or with cProfile on inside the
-    solves); write the figures to ``report``."""
+    """Run our case command as ``mshoot case`` runs it (its verb environment, its plot worker
+    started first, ``mshoot_studies.cli.main``, the fast exit) with timers (or with cProfile
+    on inside the solves); write the figures to ``report``."""
     script_start_epoch = time.time()
+    # as the mshoot command starts: its environment for the verb, its plot worker first
+    cli = importlib.import_module('mshoot_studies.cli')
+    for name, value in getattr(cli, 'VERB_ENVIRONMENT', {}).get('case', {}).items():
+        os.environ.setdefault(name, value)
+    worker = None
+    if 'case' in getattr(cli, 'FIGURE_VERBS', ()):
+        from mshoot_core.plotting import PlotWorker
+        worker = PlotWorker()
     started, cpu = time.perf_counter(), time.process_time()
     module = importlib.import_module(CASE_MODULE)
     imports_s = time.perf_counter() - started
@@ -196,7 +205,8 @@ def instrumented_case(argv: list[str], report: pathlib.Path, profile: bool) -> i
             timers.patch(fmi.FmiModel, name, 'simulations')        # (inherited ones too)
         timed_drivers(timers)
     started = time.perf_counter()
-    code = module.main(argv)
+    code = (cli.main(['case', *argv], plot_worker=worker) if worker is not None
+            else module.main(argv))
     main_s = time.perf_counter() - started
     children = resource.getrusage(resource.RUSAGE_CHILDREN)
     figures = {'imports_s': imports_s, 'main_s': main_s, 'code': code, 'patched': patched,

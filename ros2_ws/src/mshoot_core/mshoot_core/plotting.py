@@ -7,23 +7,26 @@ output) while the run computes, then draws the figure it is sent at the end,
 while the run writes its other files. A command that makes one figure is then
 shorter by the import, on a machine with a core to spare.
 
-This module imports only the standard library and numpy at load time (the
-worker runs it as a script, ``python -I plotting.py``, with nothing of
-mshoot_core on its path); matplotlib is imported where a figure is drawn,
-with the Agg backend and without pyplot.
+This module imports only the standard library at load time (a command can
+start the worker before it loads anything else; the worker runs this file as
+a script, ``python -I plotting.py``, with nothing of mshoot_core on its
+path); matplotlib is imported where a figure is drawn, with the Agg backend
+and without pyplot.
 """
 from __future__ import annotations
 
 import logging
+import os
 import pathlib
 import pickle
 import subprocess
 import sys
 import tempfile
 import threading
-from typing import Any
+from typing import Any, TYPE_CHECKING
 
-import numpy as np
+if TYPE_CHECKING:
+    import numpy as np
 
 logger = logging.getLogger(__name__)
 
@@ -250,3 +253,6 @@ def _serve() -> None:
 
 if __name__ == '__main__':
     _serve()
+    sys.stderr.flush()
+    os._exit(0)  # the PNG is written and closed: skip the interpreter's teardown, which the
+    # run would wait for (a tenth of a second with matplotlib loaded)

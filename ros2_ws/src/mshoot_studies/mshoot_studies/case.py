@@ -178,8 +178,9 @@ def run(args: argparse.Namespace) -> int:
     if problems:
         logger.error('invalid options: %s', '; '.join(problems))
         return 2
-    with PlotWorker() as plotter:  # imports matplotlib on another core while the case runs
-        return _run(args, settings, plotter)
+    plotter = getattr(args, 'plot_worker', None)  # started by the mshoot command
+    with plotter if plotter is not None else PlotWorker() as plotter:
+        return _run(args, settings, plotter)  # the worker imports matplotlib meanwhile
 
 
 def _run(args: argparse.Namespace, settings: MpcSettings, plotter: PlotWorker) -> int:

@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import argparse
 import atexit
+import contextlib
 import importlib
 import logging
 import os
 import sys
-from typing import Sequence
+from typing import Any, Sequence
 
 #: Verbs of ``mshoot``: name -> (module with build_parser(parser) and run(args), summary).
 VERBS: dict[str, tuple[str, str]] = {
@@ -27,6 +28,27 @@ VERBS: dict[str, tuple[str, str]] = {
     'study': ('mshoot_studies.study', 'the reference study: every table and figure, runs on '
                                       'local worker processes or a Dask cluster'),
 }
+
+
+#: Environment of a verb's process, set by the console script before any module of the verb
+#: loads (a value the user set wins). The case's solves use one BLAS thread (the
+#: ``blas_threads`` setting, which the case keeps at 1); a BLAS library that starts with a
+#: pool of more threads only burns CPU: every OpenBLAS loaded (numpy's, SciPy's, IPOPT's;
+#: the plot worker's) starts its worker threads when it loads and they busy-wait for about
+#: 0.1 s, some 0.2-0.3 s of CPU per run for nothing, taken from the run on a busy machine.
+VERB_ENVIRONMENT: dict[str, dict[str, str]] = {'case': {'OPENBLAS_NUM_THREADS': '1'}}
+
+
+#: Verbs that draw a closed-loop figure: the console script starts their plot worker
+#: (:class:`mshoot_core.plotting.PlotWorker`) before it loads the verb, so that the worker
+#: imports matplotlib while the verb imports and runs.
+FIGURE_VERBS = frozenset({'case'})
+
+
+def _verb(argv: Sequence[str]) -> str | None:
+    """The verb of a command line (its first word that is not an option), if it is one."""
+    word = next((word for word in argv if not word.startswith('-')), None)
+    return word if word in VERBS else None
 
 
 def build_parser(verbs: Sequence[str] | None = None) -> argparse.ArgumentParser:
@@ -55,11 +77,18 @@ def build_parser(verbs: Sequence[str] | None = None) -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Parse ``argv`` (default: the process arguments) and run the verb; its exit code."""
+def main(argv: Sequence[str] | None = None, plot_worker: Any = None) -> int:
+    """Parse ``argv`` (default: the process arguments) and run the verb; its exit code.
+
+    ``plot_worker``, a started :class:`mshoot_core.plotting.PlotWorker`, is handed to a
+    verb of :data:`FIGURE_VERBS` (as ``args.plot_worker``); without it the verb starts its
+    own.
+    """
     argv = list(sys.argv[1:] if argv is None else argv)
-    verb = next((word for word in argv if not word.startswith('-')), None)
-    args = build_parser([verb] if verb in VERBS else []).parse_args(argv)
+    verb = _verb(argv)
+    args = build_parser([verb] if verb else []).parse_args(argv)
+    if plot_worker is not None:
+        args.plot_worker = plot_worker
     return args.run(args)
 
 
@@ -87,13 +116,22 @@ def exit_now(code: int) -> None:
 
 
 def console_main() -> None:
-    """The ``mshoot`` console script: :func:`main`, then a fast :func:`exit_now`."""
-    try:
-        code = main()
-    except SystemExit as stop:  # argparse errors and --help: as sys.exit would report them
-        code = stop.code if isinstance(stop.code, int) else (0 if stop.code is None else 1)
-        if stop.code is not None and not isinstance(stop.code, int):
-            print(stop.code, file=sys.stderr)
+    """The ``mshoot`` console script: the verb's :data:`VERB_ENVIRONMENT`, :func:`main`, then
+    a fast :func:`exit_now`."""
+    verb = _verb(sys.argv[1:])
+    for name, value in VERB_ENVIRONMENT.get(verb, {}).items():
+        os.environ.setdefault(name, value)
+    with contextlib.ExitStack() as stack:
+        worker = None
+        if verb in FIGURE_VERBS:
+            from mshoot_core.plotting import PlotWorker  # the standard library only
+            worker = stack.enter_context(PlotWorker())
+        try:
+            code = main(plot_worker=worker)
+        except SystemExit as stop:  # argparse errors and --help: as sys.exit reports them
+            code = stop.code if isinstance(stop.code, int) else (0 if stop.code is None else 1)
+            if stop.code is not None and not isinstance(stop.code, int):
+                print(stop.code, file=sys.stderr)
     exit_now(code)
 
 
