@@ -5,18 +5,22 @@
 In one run (issue 16, part 1):
 
 1. the reference case (OU44, 1 zone, H = 10 h, 72 h, FMU control model at its
-   default tolerance) as a whole command, ours (:data:`CASE_MODULE`, SLSQP by
-   default, and with ``--solver ipopt``) and ``bench/casadi_ref.py`` (RK4,
-   exact derivatives, IPOPT), each run ``--repeats`` times as a subprocess,
-   interleaved, medians; with the control loop, the median solve and the KPIs
-   of both (so a reader sees they solve the same problem);
+   default tolerance) as a whole command, ours (``mshoot case``, the console
+   script as a user runs it; SLSQP by default, and with ``--solver ipopt``) and
+   ``bench/casadi_ref.py`` (RK4, exact derivatives, IPOPT), each run
+   ``--repeats`` times as a subprocess, interleaved, medians of wall and CPU
+   time (CPU: the process and those it waited for, e.g. our plot worker); with
+   the control loop, the median solve and the KPIs of both (so a reader sees
+   they solve the same problem);
 2. the Z-zone scale problem of ``bench/scale.py`` (Z independent R1C1 zones,
    IPOPT) at Z = 10, 50, 100 and H = 10 h, ours next to CasADi's formulation
-   of the same zones: build, cold first solve, warm median per step;
+   of the same zones: build, cold first solve, warm median per step (wall and
+   CPU time);
 3. where the time of both whole commands goes: interpreter, imports, data,
    models, solves (ours: model evaluations vs glue; CasADi: its function
-   evaluations vs IPOPT), plant, output, by timers wrapped around the
-   functions of an instrumented run (medians of ``--repeats``), the imports
+   evaluations vs IPOPT), plant, output, by timers (wall and CPU) wrapped
+   around the functions of an instrumented run that starts as ``mshoot case``
+   does (medians of ``--repeats``), the imports
    per package (``python -X importtime``), and a cProfile run of ours for
    the top functions inside the solves.
 
@@ -44,10 +48,8 @@ import tempfile
 import time
 from typing import Any, Callable, Sequence
 
-#: The module of the case command timed as ours (``python -m CASE_MODULE ...``): the one place
-#: to change when the command moves. Its ``main(argv)`` is run by the instrumented breakdown,
-#: which times its ``reference_scenario``, ``control_model``, ``run_case`` and
-#: ``write_outputs`` where the module has them.
+#: The module of the case command (``mshoot case``): the instrumented breakdown times its
+#: ``reference_scenario``, ``control_model``, ``run_case`` and ``write_outputs``.
 CASE_MODULE = 'mshoot_studies.case'
 BENCH = pathlib.Path(__file__).resolve().parent
 ROOT = BENCH.parent

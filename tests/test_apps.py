@@ -152,6 +152,29 @@ def test_mshoot_command_exits_fast_and_clean(tmp_path):
     assert bad.returncode == 2 and '--hours must be >= 1' in bad.stderr
 
 
+@pytest.mark.parametrize('with_thread', [False, True])
+def test_exit_now_does_what_a_normal_exit_does_for_the_outputs(tmp_path, with_thread):
+    """Buffered output, atexit handlers (logging's, finalizers) and a running thread: all
+    done before the process ends with the code given."""
+    probe = ('import atexit, logging, sys, threading, time\n'
+             'from mshoot_studies.cli import exit_now\n'
+             f'logging.basicConfig(filename={str(tmp_path / "log.txt")!r}, level=logging.INFO)\n'
+             'logging.getLogger("probe").info("logged")\n'
+             'atexit.register(lambda: print("atexit ran", file=sys.stderr))\n'
+             'if sys.argv[1] == "thread":\n'
+             '    late = lambda: (time.sleep(0.3), print("thread done"))\n'
+             '    threading.Thread(target=late).start()\n'
+             'print("buffered", end="")\n'
+             'exit_now(3)\n')
+    done = subprocess.run([sys.executable, '-c', probe, 'thread' if with_thread else 'none'],
+                          capture_output=True, text=True, timeout=60,
+                          env={k: v for k, v in os.environ.items() if k != 'PYTHONUNBUFFERED'})
+    assert done.returncode == 3
+    assert done.stdout == ('buffered' + ('thread done\n' if with_thread else ''))
+    assert done.stderr == 'atexit ran\n'
+    assert (tmp_path / 'log.txt').read_text() == 'INFO:probe:logged\n'
+
+
 # -- Setup 2 ----------------------------------------------------------------------------------
 @pytest.mark.parametrize('ventilation', ['measured', 'off'])
 def test_setup2_svr_on_ou44(ou44_csv, ventilation):

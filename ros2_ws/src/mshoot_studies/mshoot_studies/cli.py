@@ -19,6 +19,7 @@ import importlib
 import logging
 import os
 import sys
+import threading
 from typing import Any, Sequence
 
 #: Verbs of ``mshoot``: name -> (module with build_parser(parser) and run(args), summary).
@@ -101,8 +102,13 @@ def exit_now(code: int) -> None:
     handlers (``logging.shutdown`` flushes and closes the log handlers, weakref
     finalizers remove temporary folders), then the standard streams are flushed.
     Only for a command's process, after its ``main`` returned: a caller that
-    imports the module and calls ``main`` gets its exit code back instead.
+    imports the module and calls ``main`` gets its exit code back instead. While
+    a thread other than daemons is still running (a pool the verb did not shut
+    down), the normal exit waits for it: ``sys.exit``.
     """
+    if any(thread.is_alive() and not thread.daemon and thread is not threading.main_thread()
+           for thread in threading.enumerate()):
+        sys.exit(code)
     try:
         atexit._run_exitfuncs()  # what Py_Finalize runs first; then it only frees memory
     except Exception:  # noqa: BLE001 - the handlers report their own errors; exit anyway
