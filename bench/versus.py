@@ -5,18 +5,22 @@
 In one run (issue 16, part 1):
 
 1. the reference case (OU44, 1 zone, H = 10 h, 72 h, FMU control model at its
-   default tolerance) as a whole command, ours (:data:`CASE_MODULE`, SLSQP by
-   default, and with ``--solver ipopt``) and ``bench/casadi_ref.py`` (RK4,
-   exact derivatives, IPOPT), each run ``--repeats`` times as a subprocess,
-   interleaved, medians; with the control loop, the median solve and the KPIs
-   of both (so a reader sees they solve the same problem);
+   default tolerance) as a whole command, ours (``mshoot case``, the console
+   script as a user runs it; SLSQP by default, and with ``--solver ipopt``) and
+   ``bench/casadi_ref.py`` (RK4, exact derivatives, IPOPT), each run
+   ``--repeats`` times as a subprocess, interleaved, medians of wall and CPU
+   time (CPU: the process and those it waited for, e.g. our plot worker); with
+   the control loop, the median solve and the KPIs of both (so a reader sees
+   they solve the same problem);
 2. the Z-zone scale problem of ``bench/scale.py`` (Z independent R1C1 zones,
    IPOPT) at Z = 10, 50, 100 and H = 10 h, ours next to CasADi's formulation
-   of the same zones: build, cold first solve, warm median per step;
+   of the same zones: build, cold first solve, warm median per step (wall and
+   CPU time);
 3. where the time of both whole commands goes: interpreter, imports, data,
    models, solves (ours: model evaluations vs glue; CasADi: its function
-   evaluations vs IPOPT), plant, output, by timers wrapped around the
-   functions of an instrumented run (medians of ``--repeats``), the imports
+   evaluations vs IPOPT), plant, output, by timers (wall and CPU) wrapped
+   around the functions of an instrumented run that starts as ``mshoot case``
+   does (medians of ``--repeats``), the imports
    per package (``python -X importtime``), and a cProfile run of ours for
    the top functions inside the solves.
 
@@ -35,6 +39,8 @@ import json
 import os
 import pathlib
 import pstats
+import resource
+import shutil
 import statistics
 import subprocess
 import sys
@@ -42,10 +48,8 @@ import tempfile
 import time
 from typing import Any, Callable, Sequence
 
-#: The module of the case command timed as ours (``python -m CASE_MODULE ...``): the one place
-#: to change when the command moves. Its ``main(argv)`` is run by the instrumented breakdown,
-#: which times its ``reference_scenario``, ``control_model``, ``run_case`` and
-#: ``write_outputs`` where the module has them.
+#: The module of the case command (``mshoot case``): the instrumented breakdown times its
+#: ``reference_scenario``, ``control_model``, ``run_case`` and ``write_outputs``.
 CASE_MODULE = 'mshoot_studies.case'
 BENCH = pathlib.Path(__file__).resolve().parent
 ROOT = BENCH.parent
@@ -61,10 +65,24 @@ def data_file() -> pathlib.Path:
     return path
 
 
+def case_arguments(out: pathlib.Path, *extra: str) -> list[str]:
+    """The arguments of our case command (the issue's command line), after ``mshoot case``."""
+    return ['ou44', '--data', str(data_file()), '--horizon', str(HORIZON), '--control', 'fmu',
+            '--out', str(out), *extra]
+
+
+def mshoot_script() -> str:
+    """The ``mshoot`` console script of the workspace (``source env.sh`` puts it on PATH)."""
+    path = shutil.which('mshoot')
+    if path is None:
+        raise SystemExit('mshoot not on PATH: source env.sh')
+    return path
+
+
 def ours_command(out: pathlib.Path, *extra: str, python_flags: Sequence[str] = ()) -> list[str]:
-    """Our whole command of the reference case (the issue's command line)."""
-    return [sys.executable, *python_flags, '-m', CASE_MODULE, 'ou44', '--data', str(data_file()),
-            '--horizon', str(HORIZON), '--control', 'fmu', '--out', str(out), *extra]
+    """Our whole command of the reference case, ``mshoot case ou44 ...`` as a user types it
+    (the console script run by the interpreter, so that ``python_flags`` apply)."""
+    return [sys.executable, *python_flags, mshoot_script(), 'case', *case_arguments(out, *extra)]
 
 
 def casadi_command(out: pathlib.Path, python_flags: Sequence[str] = ()) -> list[str]:
@@ -73,22 +91,27 @@ def casadi_command(out: pathlib.Path, python_flags: Sequence[str] = ()) -> list[
             '--horizon', str(HORIZON), '--out', str(out)]
 
 
-def run_timed(command: list[str]) -> tuple[float, str, float, float]:
-    """Wall time [s] of a subprocess (which must succeed), its stderr, and its launch and
-    exit times (epoch [s])."""
+def run_timed(command: list[str]) -> tuple[float, str, float, float, float]:
+    """Wall time [s] of a subprocess (which must succeed), its stderr, its launch and exit
+    times (epoch [s]), and its CPU time [s] (user + system, with the processes it waited
+    for, e.g. our plot worker)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     launched = time.time()
     started = time.perf_counter()
     done = subprocess.run(command, capture_output=True, text=True, cwd=ROOT)
     wall = time.perf_counter() - started
     exited = time.time()
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     if done.returncode:
         raise SystemExit(f'{" ".join(command)} failed ({done.returncode}):\n{done.stderr}')
-    return wall, done.stderr, launched, exited
+    return wall, done.stderr, launched, exited, cpu
 
 
 # -- the instrumented run of our command (a subprocess of its own) --------------------------------
 class Timers:
-    """Wall-time totals [s] and call counts of wrapped functions, by group.
+    """Wall-time and CPU-time (the process's) totals [s] and call counts of wrapped
+    functions, by group.
 
     Nested calls within one group count once (the outermost call), so a batch
     function calling another batch function is not counted twice.
@@ -96,11 +119,13 @@ class Timers:
 
     def __init__(self) -> None:
         self.total: dict[str, float] = {}
+        self.cpu: dict[str, float] = {}
         self.calls: dict[str, int] = {}
         self._depth: dict[str, int] = {}
 
     def wrap(self, group: str, function: Callable) -> Callable:
         self.total.setdefault(group, 0.0)
+        self.cpu.setdefault(group, 0.0)
         self.calls.setdefault(group, 0)
         self._depth.setdefault(group, 0)
 
@@ -109,11 +134,12 @@ class Timers:
             if self._depth[group]:
                 return function(*args, **kwargs)
             self._depth[group] += 1
-            started = time.perf_counter()
+            started, cpu = time.perf_counter(), time.process_time()
             try:
                 return function(*args, **kwargs)
             finally:
                 self.total[group] += time.perf_counter() - started
+                self.cpu[group] += time.process_time() - cpu
                 self.calls[group] += 1
                 self._depth[group] -= 1
         return timed
@@ -127,34 +153,40 @@ class Timers:
         return True
 
 
-def timed_drivers(timers: Timers, fmi: Any) -> None:
-    """Time the compiled batch drivers' C entry points (native integration)."""
-    for loader_name, entry in (('_load_me_driver', 'mshoot_me_batch'),
-                               ('_load_cs_driver', 'mshoot_cs_batch')):
-        loader = getattr(fmi, loader_name, None)
-        if loader is None:
-            continue
+def timed_drivers(timers: Timers) -> None:
+    """Time the compiled batch drivers' C entry points (native integration): each driver's
+    ``_batch`` (the ctypes function of ``mshoot_cs_batch`` / ``mshoot_me_batch``) is wrapped
+    when the driver is bound, so 'native' is the C call alone, without the Python argument
+    preparation of ``run``."""
+    from mshoot_core.models import fmi_drivers
+    for cls in (fmi_drivers.CsBatchDriver, fmi_drivers.MeBatchDriver):
+        init = cls.__init__
 
-        def load(fmu: Any, _loader: Callable = loader, _entry: str = entry) -> Any:
-            loaded = _loader(fmu)
-            if not loaded:
-                return loaded
-            driver, api = loaded
-            proxy = type('TimedDriver', (), {})()
-            setattr(proxy, _entry, timers.wrap('native', getattr(driver, _entry)))
-            return proxy, api
-        setattr(fmi, loader_name, load)
+        def bound(self: Any, *args: Any, _init: Callable = init, **kwargs: Any) -> None:
+            _init(self, *args, **kwargs)
+            self._batch = timers.wrap('native', self._batch)
+        cls.__init__ = bound
 
 
 def instrumented_case(argv: list[str], report: pathlib.Path, profile: bool) -> int:
-    """Run our case command's ``main(argv)`` with timers (or with cProfile on inside the
-    solves); write the figures to ``report``."""
+    """Run our case command as ``mshoot case`` runs it (its verb environment, its plot worker
+    started first, ``mshoot_studies.cli.main``, the fast exit) with timers (or with cProfile
+    on inside the solves); write the figures to ``report``."""
     script_start_epoch = time.time()
-    started = time.perf_counter()
+    # as the mshoot command starts: its environment for the verb, its plot worker first
+    cli = importlib.import_module('mshoot_studies.cli')
+    for name, value in getattr(cli, 'VERB_ENVIRONMENT', {}).get('case', {}).items():
+        os.environ.setdefault(name, value)
+    worker = None
+    if 'case' in getattr(cli, 'FIGURE_VERBS', ()):
+        from mshoot_core.plotting import PlotWorker
+        worker = PlotWorker()
+    started, cpu = time.perf_counter(), time.process_time()
     module = importlib.import_module(CASE_MODULE)
     imports_s = time.perf_counter() - started
+    imports_cpu_s = time.process_time() - cpu
     from mshoot_core.emulation import Emulator
-    from mshoot_core.models import fmi, r1c1
+    from mshoot_core.models import fmi
     from mshoot_core.mpc import MPC
     timers = Timers()
     profiler = cProfile.Profile()
@@ -171,21 +203,27 @@ def instrumented_case(argv: list[str], report: pathlib.Path, profile: bool) -> i
             ('run_case', 'loop'), ('write_outputs', 'output'))}
         timers.patch(MPC, 'solve', 'solves')
         timers.patch(Emulator, 'advance', 'plant')
-        for cls in (fmi.FmiModel, r1c1.R1C1Model):
-            for name in ('simulate_intervals', 'interval_jacobians'):
-                if name in cls.__dict__:
-                    timers.patch(cls, name, 'simulations')
-        timed_drivers(timers, fmi)
+        for name in ('simulate_intervals', 'interval_jacobians'):  # the FMU control model's
+            timers.patch(fmi.FmiModel, name, 'simulations')        # (inherited ones too)
+        timed_drivers(timers)
     started = time.perf_counter()
-    code = module.main(argv)
+    code = (cli.main(['case', *argv], plot_worker=worker) if worker is not None
+            else module.main(argv))
     main_s = time.perf_counter() - started
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
     figures = {'imports_s': imports_s, 'main_s': main_s, 'code': code, 'patched': patched,
                'total_s': timers.total, 'calls': timers.calls,
-               'script_start_epoch': script_start_epoch}
+               'script_start_epoch': script_start_epoch,
+               'imports_cpu_s': imports_cpu_s, 'cpu_s': timers.cpu,
+               'process_cpu_s': time.process_time(),  # since the interpreter started
+               'children_cpu_s': children.ru_utime + children.ru_stime}  # the plot worker
     if profile:
         figures['profile'] = profile_figures(pstats.Stats(profiler))
     figures['main_end_epoch'] = time.time()
     report.write_text(json.dumps(figures, indent=2))
+    exit_now = getattr(importlib.import_module('mshoot_studies.cli'), 'exit_now', None)
+    if exit_now is not None:  # end as the mshoot command does
+        exit_now(code)
     return code
 
 
@@ -222,11 +260,11 @@ def whole_commands(repeats: int, tmp: pathlib.Path) -> dict:
                               ('ours_ipopt', ours_command(tmp / 'ours_ipopt', '--solver',
                                                           'ipopt')),
                               ('casadi', casadi_command(tmp / 'casadi'))):
-            wall = run_timed(command)[0]
+            wall, _, _, _, cpu = run_timed(command)
             kpis = json.loads((tmp / name / 'kpis.json').read_text())
             with open(tmp / name / 'steps.csv', newline='') as steps:
                 kpis['iterations'] = sum(int(row['iterations']) for row in csv.DictReader(steps))
-            runs[name].append({'wall_s': wall, 'loop_s': kpis['wall_s'],
+            runs[name].append({'wall_s': wall, 'cpu_s': cpu, 'loop_s': kpis['wall_s'],
                                'solve_s_median': kpis['solve_s_median'],
                                'solve_s_total': kpis['solve_s_total'], 'kpis': kpis})
     summary = {}
@@ -235,6 +273,8 @@ def whole_commands(repeats: int, tmp: pathlib.Path) -> dict:
         summary[name] = {
             'walls_s': [r['wall_s'] for r in items],
             'wall_s': statistics.median(r['wall_s'] for r in items),
+            'cpus_s': [r['cpu_s'] for r in items],
+            'cpu_s': statistics.median(r['cpu_s'] for r in items),
             'loop_s': statistics.median(r['loop_s'] for r in items),
             'solve_s_median': statistics.median(r['solve_s_median'] for r in items),
             'solve_s_total': statistics.median(r['solve_s_total'] for r in items),
@@ -280,9 +320,8 @@ def breakdown(repeats: int, tmp: pathlib.Path) -> dict:
     ours_runs, casadi_runs = [], []
     for repeat in range(repeats):
         report = tmp / f'instrumented_{repeat}.json'
-        argv = ours_command(tmp / 'instrumented')[3:]  # after python -m MODULE
-        wall, _, _, exited = run_timed([sys.executable, this, '--instrument', str(report), '--',
-                                        *argv])
+        wall, _, _, exited, _ = run_timed([sys.executable, this, '--instrument', str(report),
+                                           '--', *case_arguments(tmp / 'instrumented')])
         figures = json.loads(report.read_text())
         missing = [name for name, ok in figures['patched'].items() if not ok]
         if missing:
@@ -290,15 +329,26 @@ def breakdown(repeats: int, tmp: pathlib.Path) -> dict:
         t, c = figures['total_s'], figures['calls']
         run = {'total': wall, 'interpreter': python_s, 'imports': figures['imports_s'],
                'data': t['data'], 'models': t['models'], 'loop': t['loop'],
-               'solves': t['solves'], 'simulations': t['simulations'], 'native': t['native'],
+               'solves': t['solves'], 'simulations': t['simulations'],
+               'native': t.get('native', 0.0),
                'glue': t['solves'] - t['simulations'], 'plant': t['plant'],
                'loop_other': t['loop'] - t['solves'] - t['plant'], 'output': t['output'],
                'exit': exited - figures['main_end_epoch'],
                'simulation_calls': c['simulations'], 'solve_calls': c['solves']}
         run['other'] = wall - sum(run[k] for k in ('interpreter', 'imports', 'data', 'models',
                                                    'loop', 'output', 'exit'))
+        t = figures['cpu_s']
+        cpu = {'imports': figures['imports_cpu_s'], 'data': t['data'], 'models': t['models'],
+               'loop': t['loop'], 'solves': t['solves'], 'simulations': t['simulations'],
+               'native': t.get('native', 0.0), 'glue': t['solves'] - t['simulations'],
+               'plant': t['plant'], 'loop_other': t['loop'] - t['solves'] - t['plant'],
+               'output': t['output'], 'main_process': figures['process_cpu_s'],
+               'plot_worker': figures['children_cpu_s']}
+        cpu['other'] = cpu['main_process'] - sum(cpu[k] for k in ('imports', 'data', 'models',
+                                                                  'loop', 'output'))
+        run.update({f'cpu_{key}': value for key, value in cpu.items()})
         ours_runs.append(run)
-        wall, _, launched, exited = run_timed(casadi_command(tmp / 'casadi_instrumented'))
+        wall, _, launched, exited, _ = run_timed(casadi_command(tmp / 'casadi_instrumented'))
         t = json.loads((tmp / 'casadi_instrumented' / 'kpis.json').read_text())['timing']
         run = {'total': wall, 'interpreter': python_s,
                'imports': t['main_start_epoch'] - launched - python_s, 'data': t['data_s'],
@@ -309,6 +359,16 @@ def breakdown(repeats: int, tmp: pathlib.Path) -> dict:
                'output': t['output_s'], 'exit': exited - t['main_end_epoch']}
         run['other'] = wall - sum(run[k] for k in ('interpreter', 'imports', 'data', 'models',
                                                    'loop', 'output', 'exit'))
+        cpu = {'imports': t['main_start_cpu_s'], 'data': t['data_cpu_s'],
+               'models': t['build_cpu_s'], 'loop': t['loop_cpu_s'] + t['kpis_cpu_s'],
+               'solves': t['solves_cpu_s'], 'glue': t['solves_cpu_s'],
+               'plant': t['plant_cpu_s'],
+               'loop_other': t['loop_cpu_s'] + t['kpis_cpu_s'] - t['solves_cpu_s']
+               - t['plant_cpu_s'], 'output': t['output_cpu_s'],
+               'main_process': t['main_end_cpu_s'], 'plot_worker': 0.0}
+        cpu['other'] = cpu['main_process'] - sum(cpu[k] for k in ('imports', 'data', 'models',
+                                                                  'loop', 'output'))
+        run.update({f'cpu_{key}': value for key, value in cpu.items()})
         casadi_runs.append(run)
     result = {name: {key: statistics.median(run[key] for run in runs) for key in runs[0]}
               for name, runs in (('ours', ours_runs), ('casadi', casadi_runs))}
@@ -323,7 +383,7 @@ def breakdown(repeats: int, tmp: pathlib.Path) -> dict:
     # cProfile of ours inside the solves: totals of the batch functions, the top functions
     report = tmp / 'profiled.json'
     run_timed([sys.executable, this, '--instrument', str(report), '--profile', '--',
-               *ours_command(tmp / 'profiled')[3:]])
+               *case_arguments(tmp / 'profiled')])
     result['ours_cprofile'] = json.loads(report.read_text())['profile']
     return result
 
@@ -354,6 +414,7 @@ class ZoneLoop:
         self.model, self.mpc, self.scenario, self.x = zone_case(n_zones, HORIZON, 'ipopt',
                                                                 steps + 1)
         self.times_s: list[float] = []
+        self.cpus_s: list[float] = []
         self.model_s: list[float] = []
         self.iterations: list[int] = []
         self.failures = 0
@@ -367,9 +428,10 @@ class ZoneLoop:
 
     def step(self, k: int) -> None:
         import numpy as np
-        started = time.perf_counter()
+        started, cpu = time.perf_counter(), time.process_time()
         q, iterations, success, model_s = self.solve(k)
         self.times_s.append(time.perf_counter() - started)
+        self.cpus_s.append(time.process_time() - cpu)
         self.model_s.append(model_s)
         self.iterations.append(iterations)
         self.failures += not success
@@ -384,6 +446,7 @@ class ZoneLoop:
         from mshoot_core.models.r1c1 import KELVIN
         return {'variables': self.variables, 'build_s': self.build_s,
                 'first_s': self.times_s[0], 'warm_s': float(np.median(self.times_s[1:])),
+                'warm_cpu_s': float(np.median(self.cpus_s[1:])), 'cpus_s': self.cpus_s,
                 'iterations': float(np.mean(self.iterations[1:])),
                 'model_warm_s': float(np.median(self.model_s[1:])),
                 'failures': self.failures, 'times_s': self.times_s,
@@ -496,6 +559,8 @@ def zone_rows(zones: Sequence[int], steps: int) -> list[dict]:
                 row[f'{name}_first_step_max_dq_w'] = float(np.max(np.abs(
                     loops['ours'].controls_w[0] - loop.controls_w[0])))
                 row[f'{name}_warm_ratio'] = row['ours_warm_s'] / row[f'{name}_warm_s']
+                row[f'{name}_warm_cpu_ratio'] = (row['ours_warm_cpu_s']
+                                                 / row[f'{name}_warm_cpu_s'])
                 row[f'{name}_first_ratio'] = row['ours_first_s'] / row[f'{name}_first_s']
         rows.append(row)
     return rows
@@ -512,6 +577,7 @@ def report(whole: dict, zones: list[dict], parts: dict) -> None:
                 'ours (ipopt)', 'casadi', 'ratio', 'ratio ipopt')
     for label, key, fmt, scale, ratio in (
             ('whole command [s]', 'wall_s', '.3f', 1.0, True),
+            ('  its CPU time [s]', 'cpu_s', '.3f', 1.0, True),
             ('control loop [s]', 'loop_s', '.3f', 1.0, True),
             ('solves, total [s]', 'solve_s_total', '.3f', 1.0, True),
             ('median solve [ms]', 'solve_s_median', '.2f', 1e3, True),
@@ -525,6 +591,11 @@ def report(whole: dict, zones: list[dict], parts: dict) -> None:
                  for run in (ours, ipopt, theirs)]
         ratios = [f'{run[key] / theirs[key]:.2f}' if ratio else '' for run in (ours, ipopt)]
         logger.info('%s %14s %14s %14s %10s %10s', label.ljust(width), *cells, *ratios)
+    for key, what in (('walls_s', 'wall'), ('cpus_s', 'CPU')):
+        logger.info('whole command, ratio ours/casadi of each run (%s; runs interleaved): '
+                    'slsqp %s, ipopt %s', what,
+                    ' '.join(f'{a / b:.2f}' for a, b in zip(ours[key], theirs[key])),
+                    ' '.join(f'{a / b:.2f}' for a, b in zip(ipopt[key], theirs[key])))
 
     logger.info('\n== Z zones, H = %d h, IPOPT: seconds per MPC step (first: cold; warm: '
                 'median of the others) ==', HORIZON)
@@ -540,6 +611,13 @@ def report(whole: dict, zones: list[dict], parts: dict) -> None:
                         ('casadi_model_warm_s', 'casadi evals', '.3f'),
                         ('casadi_first_ratio', 'ratio first', '.2f'),
                         ('casadi_warm_ratio', 'ratio warm', '.2f')])
+    logger.info('the same, CPU time per warm step (the process, all threads; less sensitive to '
+                'other load on the machine than the wall time) [s]:')
+    print_table(zones, [('zones', 'Z', 'd'), ('ours_warm_cpu_s', 'ours cpu', '.3f'),
+                        ('casadi_warm_cpu_s', 'casadi cpu', '.3f'),
+                        ('casadi_warm_cpu_ratio', 'ratio cpu', '.2f'),
+                        ('casadi_tuned_warm_cpu_s', 'tuned cpu', '.3f'),
+                        ('casadi_tuned_warm_cpu_ratio', 'ratio tuned cpu', '.2f')])
     logger.info('CasADi with our IPOPT options (%s):', ', '.join(
         f'{k}={v}' for k, v in zones[0]['casadi_tuned_ipopt_options'].items()))
     print_table(zones, [('zones', 'Z', 'd'), ('casadi_tuned_first_s', 'tuned first', '.3f'),
@@ -591,15 +669,27 @@ def report(whole: dict, zones: list[dict], parts: dict) -> None:
              ('exit (after main)', 'exit', ''),
              ('other (argparse, logging)', 'other', ''),
              ('total (instrumented run)', 'total', ''))
-    logger.info('%s %10s %7s %10s %7s', 'phase'.ljust(34), 'ours', '%', 'casadi', '%')
+    logger.info('%s %10s %7s %10s %7s %9s %9s', 'phase'.ljust(34), 'ours', '%', 'casadi', '%',
+                'ours cpu', 'casadi cpu')
+    cpu_keys = {'imports': 'imports', 'data': 'data', 'models': 'models', 'loop': 'loop',
+                'solves': 'solves', 'simulations': 'simulations', 'native': 'native',
+                'glue': 'glue', 'plant': 'plant', 'loop_other': 'loop_other',
+                'output': 'output', 'other': 'other', 'total': 'main_process'}
     for label, key, _ in lines:
         ours_v = ours_b.get(key)
         theirs_v = theirs_b.get(key)
-        logger.info('%s %10s %7s %10s %7s', label.ljust(34),
+        cpus = [run.get(f'cpu_{cpu_keys[key]}') if key in cpu_keys else None
+                for run in (ours_b, theirs_b)]
+        logger.info('%s %10s %7s %10s %7s %9s %9s', label.ljust(34),
                     '-' if ours_v is None else f'{ours_v:.3f}',
                     '-' if ours_v is None else f'{100 * ours_v / ours_b["total"]:.0f}',
                     '-' if theirs_v is None else f'{theirs_v:.3f}',
-                    '-' if theirs_v is None else f'{100 * theirs_v / theirs_b["total"]:.0f}')
+                    '-' if theirs_v is None else f'{100 * theirs_v / theirs_b["total"]:.0f}',
+                    *('-' if v is None else f'{v:.3f}' for v in cpus))
+    logger.info('cpu: CPU time of the main process [s] (less sensitive to other load than the '
+                'wall time); "other" includes the interpreter start, "total" the whole main '
+                'process; our plot worker (a process of its own, in parallel): %.3f s',
+                ours_b['cpu_plot_worker'])
     logger.info('ours: %d solves, %d batched model calls, glue %.0f us per model call; '
                 'casadi: model evaluations = its function/derivative evaluations, glue = IPOPT '
                 'and the call', ours_b['solve_calls'], ours_b['simulation_calls'],

@@ -113,6 +113,68 @@ def test_python_m_modules_keep_working():
         assert done.stdout.startswith('usage: ')
 
 
+def test_mshoot_case_loads_only_what_the_case_uses(tmp_path):
+    """``mshoot case`` imports neither the study (nor its cluster client) nor matplotlib
+    (its plot worker does)."""
+    probe = ('import json, sys\n'
+             'from mshoot_studies import cli\n'
+             'code = cli.main(sys.argv[1:])\n'
+             'print(json.dumps([code, sorted(sys.modules)]))\n')
+    done = subprocess.run(
+        [sys.executable, '-c', probe, 'case', 'synthetic', '--horizon', '3', '--hours', '4',
+         '--control', 'fmu', '--out', str(tmp_path / 'case')],
+        capture_output=True, text=True, timeout=120, env=dict(os.environ))
+    assert done.returncode == 0, done.stderr
+    code, modules = json.loads(done.stdout.splitlines()[-1])
+    assert code == 0 and 'mshoot_studies.case' in modules and 'mshoot_core.mpc' in modules
+    assert not [m for m in modules if m.split('.')[0] in ('matplotlib', 'dask', 'distributed')
+                or m == 'mshoot_studies.study']
+    assert (tmp_path / 'case' / 'plot.png').stat().st_size > 10_000
+
+
+def test_mshoot_command_exits_fast_and_clean(tmp_path):
+    """The console script ends without the interpreter's teardown, after what a normal
+    exit does: every file and log line out, no extracted FMU left behind."""
+    out, scratch = tmp_path / 'case', tmp_path / 'tmp'
+    scratch.mkdir()
+    done = subprocess.run(
+        [shutil.which('mshoot'), 'case', 'synthetic', '--horizon', '3', '--hours', '4',
+         '--control', 'fmu', '--emulator', 'fmu-cs', '--out', str(out)],
+        capture_output=True, text=True, timeout=120, env=dict(os.environ, TMPDIR=str(scratch)))
+    assert done.returncode == 0, done.stderr
+    assert done.stderr.rstrip().endswith(f'wrote {out / "kpis.json"}')  # the last log line
+    assert sorted(p.name for p in out.iterdir()) == ['kpis.json', 'plot.png', 'steps.csv',
+                                                     'trajectories.csv']
+    assert json.loads((out / 'kpis.json').read_text())['steps'] == 4
+    assert list(scratch.iterdir()) == []
+    bad = subprocess.run([shutil.which('mshoot'), 'case', 'synthetic', '--hours', '0'],
+                         capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and '--hours must be >= 1' in bad.stderr
+
+
+@pytest.mark.parametrize('with_thread', [False, True])
+def test_exit_now_does_what_a_normal_exit_does_for_the_outputs(tmp_path, with_thread):
+    """Buffered output, atexit handlers (logging's, finalizers) and a running thread: all
+    done before the process ends with the code given."""
+    probe = ('import atexit, logging, sys, threading, time\n'
+             'from mshoot_studies.cli import exit_now\n'
+             f'logging.basicConfig(filename={str(tmp_path / "log.txt")!r}, level=logging.INFO)\n'
+             'logging.getLogger("probe").info("logged")\n'
+             'atexit.register(lambda: print("atexit ran", file=sys.stderr))\n'
+             'if sys.argv[1] == "thread":\n'
+             '    late = lambda: (time.sleep(0.3), print("thread done"))\n'
+             '    threading.Thread(target=late).start()\n'
+             'print("buffered", end="")\n'
+             'exit_now(3)\n')
+    done = subprocess.run([sys.executable, '-c', probe, 'thread' if with_thread else 'none'],
+                          capture_output=True, text=True, timeout=60,
+                          env={k: v for k, v in os.environ.items() if k != 'PYTHONUNBUFFERED'})
+    assert done.returncode == 3
+    assert done.stdout == ('buffered' + ('thread done\n' if with_thread else ''))
+    assert done.stderr == 'atexit ran\n'
+    assert (tmp_path / 'log.txt').read_text() == 'INFO:probe:logged\n'
+
+
 # -- Setup 2 ----------------------------------------------------------------------------------
 @pytest.mark.parametrize('ventilation', ['measured', 'off'])
 def test_setup2_svr_on_ou44(ou44_csv, ventilation):

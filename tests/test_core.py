@@ -11,7 +11,9 @@ from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis, discomfort_kh, energy_kwh
 from mshoot_core.models import Model, R1C1Model, R1C1Parameters
 from mshoot_core.mpc import MPC
+from mshoot_core import plotting
 from mshoot_core.outputs import write_outputs
+from mshoot_core.plotting import PlotWorker
 from mshoot_core.scenario import synthetic_scenario
 from mshoot_core.settings import ComfortSettings, MpcSettings, ProblemSettings, SettingsError
 from mshoot_core.shooting import NlpIndex, ShootingProblem
@@ -274,6 +276,20 @@ def test_mpc_rejects_bad_forecast():
     bad.loc[bad.index[2], 'Tout'] = np.nan
     with pytest.raises(ValueError, match='non-finite'):
         mpc.solve([293.0], 0.0, bad)
+    with pytest.raises(ValueError, match=r"lacks columns \['occ'\]"):
+        mpc.solve([293.0], 0.0, s.iloc[:4].drop(columns='occ'))
+    with pytest.raises(TypeError, match='DataFrame'):
+        mpc.solve([293.0], 0.0, s.iloc[:4].to_dict())
+
+
+def test_mpc_reads_the_forecast_columns_it_needs_only():
+    """Columns the MPC does not use may hold anything, in any order: the plan is the same."""
+    s = synthetic_scenario(hours=10)
+    window = forecast_window(s, 6, 3)
+    other = window[window.columns[::-1]].assign(note='a label', Tout_text=window['Tout'].map(str))
+    plans = [MPC(R1C1Model(), horizon_steps=3).solve([293.6], window.index[0], w).controls
+             for w in (window, other)]
+    np.testing.assert_array_equal(plans[0], plans[1])
 
 
 def test_kpis_against_hand_computation():
@@ -360,3 +376,43 @@ def test_write_outputs_writes_the_run_files(tmp_path):
     steps = pd.read_csv(tmp_path / 'run' / 'steps.csv', index_col='time_s')
     np.testing.assert_allclose(steps['q'].to_numpy(), result.steps['q'].to_numpy())
     assert (tmp_path / 'run' / 'plot.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+
+
+def _small_run():
+    scenario = synthetic_scenario(hours=7)
+    result = run_closed_loop(MPC(R1C1Model(), horizon_steps=3),
+                             Emulator(R1C1Model(), scenario, [20.0 + KELVIN]), log_every=0)
+    return result, closed_loop_kpis(result.steps, result.fine, 3600.0, result.wall_s)
+
+
+def test_plot_worker_draws_the_figure_of_this_process(tmp_path):
+    """The worker process (its own interpreter, matplotlib imported while the run computes)
+    writes the PNG this process would, pixel for pixel."""
+    import matplotlib.image
+    result, kpis = _small_run()
+    with PlotWorker() as plotter:
+        write_outputs(tmp_path / 'worker', result, kpis, 'a title', plotter)
+    write_outputs(tmp_path / 'here', result, kpis, 'a title')
+    worker, here = (matplotlib.image.imread(tmp_path / name / 'plot.png')
+                    for name in ('worker', 'here'))
+    assert worker.shape == here.shape == (600, 1000, 4)
+    np.testing.assert_array_equal(worker, here)
+    assert len(np.unique(here.reshape(-1, 4), axis=0)) > 20  # a drawn figure, not a blank
+
+
+def test_plot_worker_that_cannot_run_still_gives_the_figure(tmp_path, monkeypatch, caplog):
+    result, kpis = _small_run()
+    monkeypatch.setattr(plotting.sys, 'executable', str(tmp_path / 'no-python'))
+    with PlotWorker() as plotter:  # the interpreter does not exist: not started
+        write_outputs(tmp_path / 'run', result, kpis, 'a title', plotter)
+    assert (tmp_path / 'run' / 'plot.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    assert 'drawn in this process' in caplog.text
+    broken = tmp_path / 'broken-python'
+    broken.write_text('#!/bin/sh\necho "no figure today" >&2\nexit 3\n')
+    broken.chmod(0o755)
+    monkeypatch.setattr(plotting.sys, 'executable', str(broken))
+    caplog.clear()
+    with PlotWorker() as plotter:  # starts, then fails: the figure is drawn here
+        path = plotter.plot(result.fine, result.steps, tmp_path / 'again' / 'plot.png', 'x')
+    assert path.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    assert 'exit code 3: no figure today' in caplog.text

@@ -12,7 +12,8 @@ from mshoot_core.models.multizone import MultiZoneModel, multizone_mpc_options
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import reference_scenario, synthetic_scenario
 from mshoot_core.sensitivities import column_groups, finite_difference_jacobians
-from mshoot_core.shooting import ContinuityStructure, NlpIndex
+from mshoot_core.shooting import _band_jacobian, ContinuityStructure, NlpIndex
+from mshoot_core.solvers import SparseJacobian
 
 
 @pytest.mark.parametrize('horizon', [2, 4, 10])
@@ -106,6 +107,56 @@ def test_continuity_structure_is_block_bidiagonal():
     np.testing.assert_array_equal(jac[2:4, 8:10], 2 * np.eye(2))   # d x_1 / d x_0
     np.testing.assert_array_equal(jac[2:4, 10:12], -np.eye(2))
     assert not np.any(jac[4:6, 8:10])                             # nothing two blocks back
+
+
+def test_sparse_jacobian_gives_the_same_matrix_dense_and_sparse():
+    rows, cols = np.array([0, 2, 1, 2]), np.array([3, 0, 1, 2])
+    jac = SparseJacobian(rows, cols, (3, 4), lambda z: z[:4] * 10.0)
+    z = np.array([1.0, 2.0, 3.0, 4.0])
+    expected = np.zeros((3, 4))
+    expected[rows, cols] = [10.0, 20.0, 30.0, 40.0]
+    np.testing.assert_array_equal(jac.dense(z), expected)
+    np.testing.assert_array_equal(jac(z).toarray(), expected)
+    with pytest.raises(ValueError, match='one length'):
+        SparseJacobian(rows, cols[:3], (3, 4), lambda z: z)
+
+
+def test_soft_band_jacobian_is_the_derivative_of_the_band_rows():
+    """x - lower + s >= 0 for finite lower bounds, upper - x + s >= 0 for finite upper ones:
+    +-1 on the state, +1 on its slack, one row each, in that order."""
+    idx = NlpIndex(3, 1, 2, soft=True)
+    finite_lo = np.array([True, False, True, True, True, False])
+    finite_hi = np.array([True, True, False, True, False, True])
+    jac = _band_jacobian(idx, finite_lo, finite_hi).dense(np.zeros(idx.size))
+    expected = []
+    for finite, sign in ((finite_lo, 1.0), (finite_hi, -1.0)):
+        for i in np.flatnonzero(finite):
+            row = np.zeros(idx.size)
+            row[idx.x_slice.start + i] = sign
+            row[idx.s_slice.start + i] = 1.0
+            expected.append(row)
+    np.testing.assert_array_equal(jac, np.array(expected))
+
+
+def test_reachable_envelope_is_the_extreme_trajectories():
+    """Both extreme trajectories, simulated side by side, equal each simulated alone."""
+    model = MultiZoneModel(3, seed=2)
+    mpc = MPC(model, horizon_steps=5, **multizone_mpc_options(model, 'slsqp'))
+    problem = mpc.problem
+    disturbances = synthetic_scenario(hours=6)[list(problem.disturbance_names)].to_numpy()[:5]
+    x0 = np.array([290.0, 295.0, 300.0])
+    low, high = problem.reachable_envelope(x0, disturbances)
+    sides = []
+    for side in (0, 1):
+        x, ends = x0, []
+        for k in range(5):
+            u = np.concatenate([disturbances[k], problem.control_bounds[:, side]])[None, :]
+            x = model.simulate_intervals(x[None, :], u, 3600.0)[0][0]
+            ends.append(x)
+        sides.append(np.array(ends))
+    np.testing.assert_array_equal(low, np.minimum(*sides))
+    np.testing.assert_array_equal(high, np.maximum(*sides))
+    assert np.all(sides[1] > sides[0])  # full heating ends warmer than full cooling
 
 
 @pytest.mark.parametrize('solver', ['ipopt', 'trust-constr'])

@@ -20,7 +20,7 @@ setup(
     extras_require={'test': ['pytest']},
     entry_points={
         'console_scripts': [
-            'mshoot = mshoot_studies.cli:main',
+            'mshoot = mshoot_studies.cli:console_main',
         ],
     },
 )

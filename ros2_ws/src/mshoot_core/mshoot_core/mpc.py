@@ -209,21 +209,33 @@ class MPC:
 
     def check_forecast(self, forecast: pd.DataFrame) -> None:
         """Raise ValueError unless ``forecast`` has N+1 rows of finite needed columns."""
+        self._forecast_values(forecast)
+
+    def _forecast_values(self, forecast: pd.DataFrame) -> np.ndarray:
+        """The first N+1 rows of :attr:`forecast_columns` as floats, shape (N+1, columns),
+        checked as :meth:`check_forecast` says (one conversion of the frame per solve)."""
         if not isinstance(forecast, pd.DataFrame):
             raise TypeError(f'forecast must be a DataFrame, got {type(forecast).__name__}')
-        missing = [c for c in self.forecast_columns if c not in forecast.columns]
+        columns = self.forecast_columns
+        positions = {name: i for i, name in enumerate(forecast.columns)}
+        missing = [c for c in columns if c not in positions]
         if missing:
-            raise ValueError(f'forecast lacks columns {missing}; needs {self.forecast_columns}')
-        if len(forecast) < self.horizon_steps + 1:
-            raise ValueError(f'forecast must have horizon_steps + 1 = {self.horizon_steps + 1} '
+            raise ValueError(f'forecast lacks columns {missing}; needs {columns}')
+        rows = self.horizon_steps + 1
+        if len(forecast) < rows:
+            raise ValueError(f'forecast must have horizon_steps + 1 = {rows} '
                              f'rows (bounds at every interval end), got {len(forecast)}')
-        values = forecast[self.forecast_columns].to_numpy(dtype=float)[:self.horizon_steps + 1]
+        try:  # all columns at once (a numeric frame): far cheaper than selecting columns
+            values = forecast.to_numpy(dtype=float)[:rows, [positions[c] for c in columns]]
+        except (TypeError, ValueError):  # a column that is not numeric: take ours one by one
+            values = np.column_stack([forecast[c].to_numpy(dtype=float)[:rows]
+                                      for c in columns])
         if not np.all(np.isfinite(values)):
             raise ValueError('forecast holds non-finite values')
         for lo, hi, _ in self.state_bounds.values():
-            if np.any(forecast[lo].to_numpy()[:self.horizon_steps + 1]
-                      > forecast[hi].to_numpy()[:self.horizon_steps + 1]):
+            if np.any(values[:, columns.index(lo)] > values[:, columns.index(hi)]):
                 raise ValueError(f'forecast bound {lo} exceeds {hi}')
+        return values
 
     def solve(self, x0: Sequence[float], t_s: float, forecast: pd.DataFrame,
               deadline: float | None = None) -> MpcResult:
@@ -243,22 +255,27 @@ class MPC:
             :func:`time.perf_counter` time [s] at which the solver stops
             (``budget_exceeded`` in the result).
         """
-        self.check_forecast(forecast)
+        values = self._forecast_values(forecast)
         n = self.horizon_steps
-        disturbances = forecast[list(self.problem.disturbance_names)].to_numpy(
-            dtype=float)[:n]
-        lower, upper = self.bounds_from_forecast(forecast)
+        columns = self.forecast_columns
+        disturbances = values[:n, :len(self.problem.disturbance_names)]  # columns come first
+        names = self.model.state_names
+        lower = np.full((n, len(names)), -np.inf)
+        upper = np.full((n, len(names)), np.inf)
+        for name, (lo, hi, offset) in self.state_bounds.items():
+            i = names.index(name)
+            lower[:, i] = values[1:n + 1, columns.index(lo)] + offset
+            upper[:, i] = values[1:n + 1, columns.index(hi)] + offset
         with blas_threads(self.blas_threads):
             result = self.problem.solve(x0, disturbances, lower, upper, self.solver,
                                         z0=self._warm_start, deadline=deadline, t0_s=t_s)
         out = MpcResult(result)
         out.t_s = float(t_s)
         times = float(t_s) + np.arange(n) * self.step_s
-        plan = pd.DataFrame(result.controls, columns=list(self.problem.control_names),
-                            index=pd.Index(times, name='time_s'))
-        for i, name in enumerate(self.model.state_names):
-            plan[f'{name}_end'] = result.states[1:, i]
-        out.plan = plan
+        out.plan = pd.DataFrame(  # one block: a column per state would fragment the frame
+            np.hstack([result.controls, result.states[1:]]),
+            columns=[*self.problem.control_names, *(f'{name}_end' for name in names)],
+            index=pd.Index(times, name='time_s'))
         if not result.success:
             logger.warning('MPC step at t=%.0f s: solver %s did not converge (%s); returning '
                            'its best plan (max defect %.2e)', t_s, self.solver.name,

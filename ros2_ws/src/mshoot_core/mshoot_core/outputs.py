@@ -7,12 +7,17 @@ from __future__ import annotations
 
 import json
 import pathlib
+from typing import TYPE_CHECKING
 
 from mshoot_core.closed_loop import ClosedLoopResult
 
+if TYPE_CHECKING:  # matplotlib only where plots are made
+    from mshoot_core.plotting import PlotWorker
+
 
 def write_outputs(out: pathlib.Path, result: ClosedLoopResult, kpis: dict,
-                  title: str, *, control: str = 'q', temperature_column: str = 'y_T') -> None:
+                  title: str, plotter: PlotWorker | None = None, *, control: str = 'q',
+                  temperature_column: str = 'y_T') -> None:
     """Write ``kpis.json``, ``trajectories.csv``, ``steps.csv`` and ``plot.png`` to ``out``.
 
     Parameters
@@ -27,16 +32,27 @@ def write_outputs(out: pathlib.Path, result: ClosedLoopResult, kpis: dict,
         discomfort [K h], wall time [s], ...) plus anything JSON-ready.
     title : str
         First line of the plot's title (the KPIs make the second).
+    plotter : PlotWorker, optional
+        A worker process started with the run (:class:`mshoot_core.plotting.PlotWorker`):
+        it draws the figure while the other files are written. Default: the
+        figure is drawn in this process. Either way the PNG is written when
+        this function returns.
     control, temperature_column : str
         The heat rate column of ``steps`` [W] and the zone temperature column of
         ``fine`` [degC] plotted (a multi-zone run: those of its first zone).
     """
     out.mkdir(parents=True, exist_ok=True)
+    subtitle = (f"{kpis['energy_kwh']:.1f} kWh, {kpis['discomfort_kh']:.1f} Kh "
+                f"({kpis['discomfort_kh_hourly']:.1f} Kh hourly), wall {kpis['wall_s']:.1f} s")
+    if plotter is not None:
+        plotter.send(result.fine, result.steps, out / 'plot.png', f'{title}\n{subtitle}',
+                     temperature_column, control)
     (out / 'kpis.json').write_text(json.dumps(kpis, indent=2, sort_keys=True) + '\n')
     result.fine.to_csv(out / 'trajectories.csv', index_label='time_s')
     result.steps.to_csv(out / 'steps.csv', index_label='time_s')
-    from mshoot_core.plotting import plot_closed_loop  # matplotlib only where plots are made
-    subtitle = (f"{kpis['energy_kwh']:.1f} kWh, {kpis['discomfort_kh']:.1f} Kh "
-                f"({kpis['discomfort_kh_hourly']:.1f} Kh hourly), wall {kpis['wall_s']:.1f} s")
-    plot_closed_loop(result.fine, result.steps, out / 'plot.png', f'{title}\n{subtitle}',
-                     temperature_column=temperature_column, control=control)
+    if plotter is not None:
+        plotter.wait()
+    else:
+        from mshoot_core.plotting import plot_closed_loop
+        plot_closed_loop(result.fine, result.steps, out / 'plot.png', f'{title}\n{subtitle}',
+                         temperature_column=temperature_column, control=control)

@@ -31,7 +31,7 @@ from mshoot_core.models.base import (accepts_start_times, IntervalJacobians, Mod
                                      ModelValueError)
 from mshoot_core.sensitivities import finite_difference_jacobians
 from mshoot_core.settings import ComfortSettings, ProblemSettings, SettingsError
-from mshoot_core.solvers import Nlp, Solver
+from mshoot_core.solvers import Nlp, Solver, SparseJacobian
 
 logger = logging.getLogger(__name__)
 
@@ -207,6 +207,9 @@ class ShootingProblem:
         self.disturbance_names = tuple(n for n in model.input_names
                                        if n not in self.control_names)
         self.disturbance_cols = [model.input_names.index(c) for c in self.disturbance_names]
+        # the same columns as index arrays: a list index is converted at every batch
+        self._control_index = np.array(self.control_cols, dtype=np.intp)
+        self._disturbance_index = np.array(self.disturbance_cols, dtype=np.intp)
         bounds = np.asarray(problem.control_bounds, dtype=float)
         self.control_bounds = bounds
         nominal = (np.abs(bounds).max(axis=1) if control_nominal is None
@@ -238,12 +241,13 @@ class ShootingProblem:
             logger.debug('%s takes no interval start times: treated as time-invariant',
                          type(model).__name__)
         self._t_start_s: np.ndarray | None = None
+        self._structures: dict[NlpIndex, ContinuityStructure] = {}
 
     # -- model evaluation ------------------------------------------------------------------
     def _full_inputs(self, controls: np.ndarray, disturbances: np.ndarray) -> np.ndarray:
         u = np.empty((controls.shape[0], len(self.model.input_names)))
-        u[:, self.control_cols] = controls
-        u[:, self.disturbance_cols] = disturbances
+        u[:, self._control_index] = controls
+        u[:, self._disturbance_index] = disturbances
         return u
 
     def _times(self, t_start_s: np.ndarray | None) -> dict:
@@ -286,41 +290,35 @@ class ShootingProblem:
     def _state_scaling_for(self, lower: np.ndarray, upper: np.ndarray) -> Scaling:
         if self.state_scaling is not None:
             return self.state_scaling
-        nx = lower.shape[1]
-        offset = np.zeros(nx)
-        scale = np.ones(nx)
-        for i in range(nx):
-            lo = lower[:, i][np.isfinite(lower[:, i])]
-            hi = upper[:, i][np.isfinite(upper[:, i])]
-            if lo.size and hi.size and hi.max() > lo.min():
-                offset[i] = lo.min()
-                scale[i] = hi.max() - lo.min()
-        return Scaling(offset, scale)
+        # per state: the lowest finite lower bound and the highest finite upper bound
+        lo = np.where(np.isfinite(lower), lower, np.inf).min(axis=0)
+        hi = np.where(np.isfinite(upper), upper, -np.inf).max(axis=0)
+        bounded = np.isfinite(lo) & np.isfinite(hi) & (hi > lo)
+        return Scaling(np.where(bounded, lo, 0.0), np.where(bounded, hi - lo, 1.0))
 
     def reachable_envelope(self, x0: np.ndarray, disturbances: np.ndarray) -> tuple[np.ndarray,
                                                                                    np.ndarray]:
         """Element-wise min and max of the state trajectories under the extreme controls.
 
         Simulates the horizon with every control at its lower bound and at its
-        upper bound (interval k at the solve's start time + k steps); returns
-        (low, high), each (N, nx), the interval end states.
+        upper bound (both trajectories side by side: one batch of two intervals
+        per step, interval k at the solve's start time + k steps); returns (low,
+        high), each (N, nx), the interval end states.
         """
-        trajectories = []
+        n = self.n_intervals
+        sides = [self._full_inputs(np.tile(self.control_bounds[:, side], (n, 1)), disturbances)
+                 for side in (0, 1)]
+        u = np.stack(sides, axis=1)  # (N, 2, nu): interval k of the lower and upper sides
+        x = np.tile(x0, (2, 1))
+        ends = np.empty((n, 2, x0.size))
         times = self._t_start_s
-        for side in (0, 1):
-            controls = np.tile(self.control_bounds[:, side], (self.n_intervals, 1))
-            u = self._full_inputs(controls, disturbances)
-            x = x0.copy()
-            ends = []
-            for k in range(self.n_intervals):
-                x_end, _ = self.model.simulate_intervals(
-                    x[None, :], u[k:k + 1], self.step_s,
-                    **self._times(None if times is None else times[k:k + 1]))
-                x = x_end[0]
-                ends.append(x)
-            self.model_evaluations += self.n_intervals
-            trajectories.append(np.array(ends))
-        return np.minimum(*trajectories), np.maximum(*trajectories)
+        for k in range(n):
+            x, _ = self.model.simulate_intervals(
+                x, u[k], self.step_s, **self._times(None if times is None
+                                                    else np.repeat(times[k], 2)))
+            ends[k] = x
+        self.model_evaluations += 2 * n
+        return np.minimum(ends[:, 0], ends[:, 1]), np.maximum(ends[:, 0], ends[:, 1])
 
     def relax_bounds(self, x0: np.ndarray, disturbances: np.ndarray, lower: np.ndarray,
                      upper: np.ndarray, margin: float = 1e-4) -> tuple[np.ndarray, np.ndarray,
@@ -497,11 +495,13 @@ class ShootingProblem:
             jac = evaluate(z)
             return (xs.to_hat(jac.x_end) - idx.x(z)).reshape(-1)
 
-        structure = ContinuityStructure(idx, self.model.jacobian_sparsity(self.control_cols))
+        structure = self._continuity_structure(idx)
 
-        def eq_jac(z: np.ndarray) -> sparse.coo_array:
+        def eq_jac_values(z: np.ndarray) -> np.ndarray:
             jac = evaluate(z)
-            return structure.matrix(jac.dx_du, jac.dx_dx0, xs.scale, us.scale)
+            return structure.values(jac.dx_du, jac.dx_dx0, xs.scale, us.scale)
+
+        eq_jac = SparseJacobian(structure.rows, structure.cols, structure.shape, eq_jac_values)
 
         cost_fun, cost_grad = self._cost_functions(evaluate, idx)
         cost_hess = self._cost_hessian_diag(idx)
@@ -542,13 +542,7 @@ class ShootingProblem:
                 return np.concatenate([(x_hat - lower_hat.reshape(-1) + s_hat)[finite_lo],
                                        (upper_hat.reshape(-1) - x_hat + s_hat)[finite_hi]])
 
-            eye = sparse.eye_array(n * nx, format='csr')
-            left = sparse.csr_array((n * nx, idx.x_slice.start))
-            jac_const = sparse.vstack([sparse.hstack([left, eye, eye])[finite_lo],
-                                       sparse.hstack([left, -eye, eye])[finite_hi]]).tocoo()
-
-            def ineq_jac(z: np.ndarray) -> sparse.coo_array:
-                return jac_const
+            ineq_jac = _band_jacobian(idx, finite_lo, finite_hi)
         else:
             lb[idx.x_slice] = lower_hat.reshape(-1)
             ub[idx.x_slice] = upper_hat.reshape(-1)
@@ -589,6 +583,14 @@ class ShootingProblem:
             simulated_states=np.vstack([x0[None, :], jac.x_end]),
             solve_time_s=0.0, model_evaluations=0, budget_exceeded=budget_exceeded)
         return result
+
+    def _continuity_structure(self, idx: NlpIndex) -> 'ContinuityStructure':
+        """The continuity-constraint structure of the layout ``idx`` (built once per layout:
+        the model's pattern is fixed)."""
+        if idx not in self._structures:
+            self._structures[idx] = ContinuityStructure(
+                idx, self.model.jacobian_sparsity(self.control_cols))
+        return self._structures[idx]
 
     def simulate_serially(self, x_start: np.ndarray, controls: np.ndarray,
                           disturbances: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -752,14 +754,36 @@ class ContinuityStructure:
         self.shape = (n * nx, idx.size)
         self.minus_ones = -np.ones(n * nx)
 
-    def matrix(self, dx_du: np.ndarray, dx_dx0: np.ndarray, x_scale: np.ndarray,
-               u_scale: np.ndarray) -> sparse.coo_array:
-        """The Jacobian (normalised variables) from the interval sensitivities."""
+    def values(self, dx_du: np.ndarray, dx_dx0: np.ndarray, x_scale: np.ndarray,
+               u_scale: np.ndarray) -> np.ndarray:
+        """The entries at (:attr:`rows`, :attr:`cols`) from the interval sensitivities."""
         du = dx_du[:, self.u_rows, self.u_cols] * (u_scale[self.u_cols] / x_scale[self.u_rows])
         dx = dx_dx0[1:, self.x_rows, self.x_cols] * (x_scale[self.x_cols]
                                                      / x_scale[self.x_rows])
-        data = np.concatenate([du.ravel(), self.minus_ones, dx.ravel()])
-        return sparse.coo_array((data, (self.rows, self.cols)), shape=self.shape)
+        return np.concatenate([du.ravel(), self.minus_ones, dx.ravel()])
+
+    def matrix(self, dx_du: np.ndarray, dx_dx0: np.ndarray, x_scale: np.ndarray,
+               u_scale: np.ndarray) -> sparse.coo_array:
+        """The Jacobian (normalised variables) from the interval sensitivities."""
+        return sparse.coo_array((self.values(dx_du, dx_dx0, x_scale, u_scale),
+                                 (self.rows, self.cols)), shape=self.shape)
+
+
+def _band_jacobian(idx: NlpIndex, finite_lo: np.ndarray,
+                   finite_hi: np.ndarray) -> SparseJacobian:
+    """The constant Jacobian of the soft band x_hat - lower + s_hat >= 0 (rows of the
+    finite lower bounds), upper - x_hat + s_hat >= 0 (finite upper bounds): per row the
+    entry of x, then that of s."""
+    x_cols = idx.x_slice.start + np.arange(idx.n_intervals * idx.n_states)
+    s_cols = idx.s_slice.start + np.arange(idx.n_intervals * idx.n_states)
+    parts = [(x_cols[finite_lo], s_cols[finite_lo], 1.0),
+             (x_cols[finite_hi], s_cols[finite_hi], -1.0)]
+    m = int(np.count_nonzero(finite_lo) + np.count_nonzero(finite_hi))
+    rows = np.repeat(np.arange(m), 2)
+    cols = np.concatenate([np.column_stack([x, s]).ravel() for x, s, _ in parts])
+    data = np.concatenate([np.column_stack([np.full(x.size, sign), np.ones(x.size)]).ravel()
+                           for x, _, sign in parts])
+    return SparseJacobian(rows, cols, (m, idx.size), lambda z: data)
 
 
 def _block(part: slice, k: int, width: int) -> slice:

@@ -20,7 +20,7 @@ import abc
 import dataclasses
 import logging
 import time
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 from scipy import optimize, sparse
@@ -65,6 +65,45 @@ class Nlp:
     ineq_fun: Callable[[Vector], Vector] | None = None
     ineq_jac: Callable[[Vector], Matrix] | None = None
     objective_hessian_diag: Callable[[Vector], Vector] | None = None
+
+
+class SparseJacobian:
+    """A constraint Jacobian with a fixed sparsity pattern, usable as ``Nlp.eq_jac``.
+
+    Calling it returns the ``scipy.sparse.coo_array`` as any Jacobian callable
+    of an :class:`Nlp` does; solvers that know it take the pattern once and only
+    the entries at each call (IPOPT), or fill a dense matrix without a sparse
+    object in between (SLSQP).
+
+    Parameters
+    ----------
+    rows, cols : ndarray of int
+        Positions of the entries (no position twice), in the order of ``values``.
+    shape : (int, int)
+        (m, n).
+    values : callable
+        ``values(z) -> (nnz,)`` the entries at z.
+    """
+
+    def __init__(self, rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int],
+                 values: Callable[[Vector], Vector]) -> None:
+        self.rows = np.asarray(rows, dtype=np.intp)
+        self.cols = np.asarray(cols, dtype=np.intp)
+        if self.rows.shape != self.cols.shape or self.rows.ndim != 1:
+            raise ValueError(f'rows and cols must be two 1-d arrays of one length, got '
+                             f'{self.rows.shape} and {self.cols.shape}')
+        self.shape = (int(shape[0]), int(shape[1]))
+        self.values = values
+        self._flat = self.rows * self.shape[1] + self.cols
+
+    def __call__(self, z: Vector) -> sparse.coo_array:
+        return sparse.coo_array((self.values(z), (self.rows, self.cols)), shape=self.shape)
+
+    def dense(self, z: Vector) -> Matrix:
+        """The Jacobian at ``z`` as a dense (m, n) array."""
+        out = np.zeros(self.shape)
+        out.reshape(-1)[self._flat] = self.values(z)
+        return out
 
 
 class Solver(abc.ABC):
@@ -137,7 +176,9 @@ def _scipy_constraint(kind: str, fun: Callable, jac: Callable | None) -> dict:
     """A SciPy (SLSQP) constraint dict with a dense Jacobian; without ``jac`` SciPy
     estimates it by finite differences."""
     constraint = {'type': kind, 'fun': fun}
-    if jac is not None:
+    if isinstance(jac, SparseJacobian):
+        constraint['jac'] = jac.dense
+    elif jac is not None:
         constraint['jac'] = lambda z: jac(z).toarray()
     return constraint
 
@@ -173,9 +214,25 @@ class TrustConstrSolver(Solver):
         return res
 
 
+#: IPOPT options for large, structured problems (many zones), where the linear algebra is
+#: most of a solve. The wheel's IPOPT has one linear solver, MUMPS (5.5.1 without METIS;
+#: the HSL solvers are not built in), whose solve phase is slow on the many tiny fronts
+#: of a multiple-shooting KKT system: each front costs BLAS calls, with a lock per call
+#: in the bundled OpenBLAS 0.3.15. These two options cut that cost by a third at 100
+#: zones with the same iterates there: no iterative-refinement step where the first
+#: solve is already accurate (IPOPT still refines when its residual test asks), and the
+#: approximate minimum degree ordering, which suits the block-banded structure. Not the
+#: default: on small, badly conditioned problems (one zone with the smoothed energy
+#: cost) they change the rounding enough to move the converged plans by ~1 W.
+IPOPT_LARGE_PROBLEM_OPTIONS: dict[str, Any] = {'min_refinement_steps': 0,
+                                               'mumps_pivot_order': 0}
+
+
 class IpoptSolver(Solver):
     """IPOPT through cyipopt (the ``cyipopt-wheels`` package), with sparse Jacobians
-    and a limited-memory Hessian approximation."""
+    (the pattern taken once from a :class:`SparseJacobian`), and the exact diagonal
+    objective Hessian where the problem gives it, else a limited-memory
+    approximation; ``options`` are IPOPT's (e.g. :data:`IPOPT_LARGE_PROBLEM_OPTIONS`)."""
 
     name = 'ipopt'
 
@@ -200,12 +257,20 @@ class IpoptSolver(Solver):
         n = z0.size
         z_start = np.clip(z0, nlp.lb, nlp.ub)
         jacobians = [nlp.eq_jac] + ([nlp.ineq_jac] if nlp.ineq_fun is not None else [])
-        offsets, row_parts, col_parts = [0], [], []
+        offsets, row_parts, col_parts, entries = [0], [], [], []
         for jac in jacobians:
-            structure = jac(z_start)
-            row_parts.append(structure.row + offsets[-1])
-            col_parts.append(structure.col)
-            offsets.append(offsets[-1] + structure.shape[0])
+            if isinstance(jac, SparseJacobian):  # the pattern without an evaluation
+                rows, cols, m_part, values = jac.rows, jac.cols, jac.shape[0], jac.values
+            else:
+                structure = jac(z_start)
+                rows, cols, m_part = structure.row, structure.col, structure.shape[0]
+
+                def values(z: Vector, jac: Callable = jac) -> Vector:
+                    return jac(z).data
+            row_parts.append(rows + offsets[-1])
+            col_parts.append(cols)
+            offsets.append(offsets[-1] + m_part)
+            entries.append(values)
         rows, cols = np.concatenate(row_parts), np.concatenate(col_parts)
         m, n_eq = offsets[-1], offsets[1]
         counter = {'nfev': 0, 'nit': 0}
@@ -228,7 +293,7 @@ class IpoptSolver(Solver):
                 return np.concatenate(parts)
 
             def jacobian(self, z):
-                return np.concatenate([jac(z).data for jac in jacobians])
+                return np.concatenate([values(z) for values in entries])
 
             def jacobianstructure(self):
                 return rows, cols

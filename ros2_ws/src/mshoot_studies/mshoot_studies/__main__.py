@@ -1,7 +1,5 @@
 """``python -m mshoot_studies``: the ``mshoot`` command."""
-import sys
-
-from mshoot_studies.cli import main
+from mshoot_studies.cli import console_main
 
 if __name__ == '__main__':
-    sys.exit(main())
+    console_main()

@@ -24,7 +24,6 @@ import dataclasses
 import json
 import logging
 import pathlib
-import sys
 import time
 from typing import Any, Sequence
 
@@ -42,6 +41,7 @@ from mshoot_core.models.registry import (BUILTIN, build_model, check_model, CONT
                                          EMULATOR_TOLERANCE, is_card_path, MODEL_PARAMETERS,
                                          model_names, ModelSettings)
 from mshoot_core.outputs import write_outputs
+from mshoot_core.plotting import PlotWorker
 from mshoot_core.scenario import DEFAULT_DATA, PUBLISHED, reference_scenario
 from mshoot_core.settings import (add_arguments, from_arguments, MpcSettings, option_wording,
                                   SettingsError)
@@ -275,36 +275,50 @@ def run(args: argparse.Namespace) -> int:
     if problems:
         logger.error('invalid options: %s', '; '.join(problems))
         return 2
+    plotter = getattr(args, 'plot_worker', None)  # started by the mshoot command
+    with plotter if plotter is not None else PlotWorker() as plotter:
+        return _run(args, settings, plotter)  # the worker imports matplotlib meanwhile
+
+
+def _run(args: argparse.Namespace, settings: MpcSettings, plotter: PlotWorker) -> int:
     data = args.data
     if data is None and DEFAULT_DATA.is_file():
         data = DEFAULT_DATA.resolve()
+    models: list[Model] = []
     try:
-        scenario = reference_scenario(args.scenario, data, args.hours)
-        settings, problems = option_problems(args, len(scenario) - 1)
-        if problems:
-            raise ValueError(f"invalid options: {'; '.join(problems)}")
-        started = time.perf_counter()
-        report: dict = {}
-        start = scenario.attrs.get('start')
-        control = control_model(args.control, args.tolerance, data, report, start)
-        emulator = emulator_model(args.emulator, start)
-        settings, x0, actuators, problems = card_setup(args, settings, control, emulator,
-                                                       scenario)
-        if problems:
-            raise ValueError(f"invalid options: {'; '.join(problems)}")
-        setup_s = time.perf_counter() - started
-    except (FileNotFoundError, ValueError) as exc:
-        logger.error('%s', exc)
-        return 2
-    horizon = settings.problem.horizon_steps
-    logger.info('running %s: %d h, horizon %d h, control %s, cost %s, comfort %s',
-                args.scenario, args.hours, horizon, args.control, args.cost, args.comfort)
-    stopped = None
-    try:
-        result, kpis = run_case(scenario, control, emulator, settings, x0=x0,
-                                actuator_bounds=actuators)
-    except EmulationStopped as stop:
-        stopped, result, kpis = stop, stop.result, stop.kpis or {'stopped': str(stop)}
+        try:
+            scenario = reference_scenario(args.scenario, data, args.hours)
+            settings, problems = option_problems(args, len(scenario) - 1)
+            if problems:
+                raise ValueError(f"invalid options: {'; '.join(problems)}")
+            started = time.perf_counter()
+            report: dict = {}
+            start = scenario.attrs.get('start')
+            models.append(control_model(args.control, args.tolerance, data, report, start))
+            models.append(emulator_model(args.emulator, start))
+            control, emulator = models
+            settings, x0, actuators, problems = card_setup(args, settings, control, emulator,
+                                                           scenario)
+            if problems:
+                raise ValueError(f"invalid options: {'; '.join(problems)}")
+            setup_s = time.perf_counter() - started
+        except (FileNotFoundError, ValueError) as exc:
+            logger.error('%s', exc)
+            return 2
+        horizon = settings.problem.horizon_steps
+        logger.info('running %s: %d h, horizon %d h, control %s, cost %s, comfort %s',
+                    args.scenario, args.hours, horizon, args.control, args.cost, args.comfort)
+        stopped = None
+        try:
+            result, kpis = run_case(scenario, control, emulator, settings, x0=x0,
+                                    actuator_bounds=actuators)
+        except EmulationStopped as stop:
+            stopped, result, kpis = stop, stop.result, stop.kpis or {'stopped': str(stop)}
+    finally:
+        for model in models:  # FMUs: free the instances
+            close = getattr(model, 'close', None)
+            if close is not None:
+                close()
     kpis.update(scenario=args.scenario, control=args.control, emulator=args.emulator,
                 tolerance=args.tolerance, mode=args.mode, setup_s=setup_s)
     if report:
@@ -318,7 +332,7 @@ def run(args: argparse.Namespace) -> int:
                      0 if result is None else len(result.steps), args.out)
         return 1
     write_outputs(args.out, result, kpis, f'{args.scenario}: H = {horizon} h, control '
-                                          f'{args.control}, {args.cost} cost')
+                                          f'{args.control}, {args.cost} cost', plotter)
     logger.info('energy %.2f kWh (heating %.2f, cooling %.2f), discomfort %.2f Kh (hourly '
                 'samples %.2f Kh), wall %.2f s, median solve %.4f s, %d solver failures',
                 kpis['energy_kwh'], kpis['heating_kwh'], kpis['cooling_kwh'],
@@ -410,4 +424,5 @@ def _write_stopped(out: pathlib.Path, result: ClosedLoopResult | None, kpis: dic
 
 
 if __name__ == '__main__':
-    sys.exit(main())
+    from mshoot_studies.cli import exit_now
+    exit_now(main())

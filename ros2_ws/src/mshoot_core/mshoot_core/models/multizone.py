@@ -136,9 +136,10 @@ def multizone_mpc_options(model: MultiZoneModel, solver: str = 'ipopt') -> dict:
 
     One heater per zone (-2000..2000 W), every zone bounded by the comfort
     band, and for IPOPT the large-problem configuration: a single
-    exact-penalty solve where the band is out of reach, and Mehrotra's
+    exact-penalty solve where the band is out of reach, Mehrotra's
     predictor-corrector (the problem is a convex QP: the zones are affine in
-    state and heat rate, the cost is quadratic).
+    state and heat rate, the cost is quadratic), and the linear-algebra
+    settings of :data:`mshoot_core.solvers.IPOPT_LARGE_PROBLEM_OPTIONS`.
     """
     options = {'control_names': model.control_names,
                'heat_rate_min_w': -2000.0, 'heat_rate_max_w': 2000.0,
@@ -146,6 +147,8 @@ def multizone_mpc_options(model: MultiZoneModel, solver: str = 'ipopt') -> dict:
                                 for name in model.comfort_states},
                'solver': solver}
     if solver == 'ipopt':
+        from mshoot_core.solvers import IPOPT_LARGE_PROBLEM_OPTIONS
         options.update(relaxation='exact-penalty',
-                       solver_extra={'options': {'mehrotra_algorithm': 'yes'}})
+                       solver_extra={'options': {'mehrotra_algorithm': 'yes',
+                                                 **IPOPT_LARGE_PROBLEM_OPTIONS}})
     return options
