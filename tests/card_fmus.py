@@ -25,6 +25,7 @@ FMU_SOURCES = pathlib.Path(__file__).resolve().parent / 'fmus'
 TEST_FMUS = {
     'zone': ('Zone', 'zone.c', 'zone.xml', ()),
     'zone2': ('Zone2', 'zone.c', 'zone2.xml', ('-DTWO_CONTROLS',)),
+    'zone_cs': ('ZoneCs', 'zone.c', 'zone_cs.xml', ()),  # Co-Simulation only
 }
 
 

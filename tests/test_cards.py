@@ -569,3 +569,24 @@ def test_case_scenario_has_the_series_of_the_zone_card(zone_cards):
     card = load_card(zone_cards[0])
     scenario = reference_scenario('synthetic', hours=3)
     assert set(card.disturbance_names) <= set(scenario.columns)
+
+
+def test_co_simulation_only_fmu_runs_from_its_card(tmp_path):
+    """An FMU that offers only Co-Simulation: `auto` picks it, `model-exchange` is a problem
+    of the card, and as control model and emulator it gives the built-in CS FMU's KPIs."""
+    fmu = build_test_fmu('zone_cs')
+    auto = write_card(tmp_path, 'zone_cs.yaml', ZONE_CARD, fmu)
+    model = cards.build_model(auto)
+    try:
+        assert model.fmi_type == 'CoSimulation'
+    finally:
+        model.close()
+    me = write_card(tmp_path, 'zone_me.yaml', with_changes(ZONE_CARD, fmi_type='model-exchange'))
+    with pytest.raises(CardError, match=r"offers \['CoSimulation'\] only, got 'model-exchange'"):
+        load_card(me)
+    common = ['synthetic', '--hours', '12', '--horizon', '6']
+    assert case.main([*common, '--control', str(auto), '--emulator', str(auto), '--out',
+                      str(tmp_path / 'card')]) == 0
+    assert case.main([*common, '--control', 'fmu-cs', '--emulator', 'fmu-cs', '--out',
+                      str(tmp_path / 'builtin')]) == 0
+    _assert_same_kpis(_kpis(tmp_path / 'card'), _kpis(tmp_path / 'builtin'), rel=1e-5)

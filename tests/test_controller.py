@@ -295,6 +295,30 @@ def test_core_and_ros_make_the_same_decisions(fault, context):
     assert (steps['source'].drop(steps.index[FAULT_STEP]) == 'optimum').all()
 
 
+def test_model_raising_from_hour_20_same_decisions_over_ros(context):
+    """The 72 h run whose control model raises from hour 20 on, over ROS (lockstep, real
+    nodes in one process): the decisions of the core run, step by step."""
+    from mshoot_testing.harness import ClosedLoop
+    steps = core_decisions('raise', hours=72, fault_steps=(20, 72))
+    model, solver = fault_setup('raise')
+    loop = ClosedLoop(context, {'emulator': {'hours': 72, 'model': 'python'},
+                                'forecaster': {'hours': 72},
+                                'mpc': {'model': 'python', **FAULT_MPC}}, mpc_model=model)
+    try:
+        loop.mpc.mpc.set_solver(solver)
+        loop.run_steps(20)
+        inject('raise', model, solver, True)
+        loop.run_to_end(120.0)
+        history = list(loop.mpc_history())[:72]
+    finally:
+        loop.close()
+    assert [s.source for _, s in history] == steps['source'].tolist()
+    assert [s.fallback_reason for _, s in history] == steps['fallback_code'].tolist()
+    np.testing.assert_allclose([sp.control_values[0] for sp, _ in history], steps['q'], rtol=0,
+                               atol=1e-9)
+    assert steps['source'].tolist() == ['optimum'] * 20 + ['plan'] * 2 + ['safe'] * 50
+
+
 def test_core_run_whose_model_raises_from_hour_20_completes(tmp_path):
     """72 steps; the control model raises from hour 20 on: the last good plan for
     max_plan_age_steps steps, then the safe setpoint, all recorded in steps.csv."""
