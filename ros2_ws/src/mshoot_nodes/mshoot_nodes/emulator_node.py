@@ -62,6 +62,7 @@ must not wait on a simulated-time timer).
 from __future__ import annotations
 
 import collections
+import logging
 import json
 import pathlib
 import sys
@@ -88,6 +89,7 @@ from mshoot_nodes.readiness import check_requirements, parse_requirements, Readi
 from mshoot_nodes.startup import run_node
 from mshoot_nodes.validation import RejectionLog
 
+logger = logging.getLogger(__name__)
 PARAMS = (
     ParamSpec('scenario', 'synthetic', "the scenario: 'synthetic' (built in, no files), 'ou44' "
               '(the OU44 classroom data, see data) or a path to a CSV in the OU44 format',
@@ -151,6 +153,9 @@ PARAMS = (
               read_only=True),
     ParamSpec('output_dir', '', 'folder for trajectories.csv, applied.csv and run.json when '
               "the scenario ends ('' = write nothing)", read_only=True),
+    ParamSpec('plant_state_file', '', 'file of the FMU plant state: saved after every step '
+              '(where the FMU can serialise its state); a run with start_step > 0 resumes '
+              "from it when it holds that step ('' = none)", read_only=True),
     ParamSpec('records_kept', 0, 'step records kept in memory (0 = all; the outputs cover the '
               'kept ones: a bound for long runs) [-]', low=0, high=100_000_000, read_only=True),
     ParamSpec('zone', 'zone', 'zone name (header.frame_id of the published messages)',
@@ -189,12 +194,19 @@ def build_emulator(p: dict[str, Any]) -> Emulator:
     controls (:func:`~mshoot_core.models.registry.control_interface`) within the actuator
     limits, every state starting at ``initial_temperature_c`` (in K)."""
     scenario = sources.load_scenario(p['scenario'], p['data'], p['hours'])
-    model = sources.build_model(p['model'], p['fmu_tolerance'])
+    model = sources.build_model(p['model'], p['fmu_tolerance'], role='emulator')
     controls = control_interface(model).control_names
+    start = p.get('start_step', 0)
+    saved = p.get('plant_state_file', '')
+    plant_state = None
+    if start > 0 and saved and pathlib.Path(saved).is_file():
+        plant_state = pathlib.Path(saved).read_bytes()  # its time is checked on restore
+        logger.info('resuming the plant at step %d from %s', start, saved)
     return Emulator(model, scenario, [p['initial_temperature_c'] + KELVIN] * len(
         model.state_names), control_names=controls,
         control_bounds=((p['heat_rate_min_w'], p['heat_rate_max_w']),) * len(controls),
-        step_s=p['step_s'], fine_step_s=p['fine_step_s'], start_index=p.get('start_step', 0))
+        step_s=p['step_s'], fine_step_s=p['fine_step_s'], start_index=start,
+        plant_state=plant_state)
 
 
 class EmulatorNode(ManagedNode):
@@ -256,6 +268,7 @@ class EmulatorNode(ManagedNode):
         self.steps_done = 0
         self.done = False
         self.failed = ''
+        self._plant_unsaveable = False
         self.started = False
         self.rejections = RejectionLog(self, p['reject_log_period_s'])
         self.applied_sources: list[str] = []
@@ -565,6 +578,7 @@ class EmulatorNode(ManagedNode):
         self._step_started_ns = self._steady_ns()
         self.records.append(record)
         self.steps_done += 1
+        self._save_plant_state()
         if self.params['records_kept'] and len(self.records) > self.params['records_kept']:
             del self.records[:-self.params['records_kept']]
         self.applied_sources.append(source)
@@ -576,6 +590,23 @@ class EmulatorNode(ManagedNode):
         self._publish_step()
         if self.emulator.steps_left == 0:
             self._finish()
+
+    def _save_plant_state(self) -> None:
+        """Write the plant state after a step (``plant_state_file``; atomically)."""
+        path = self.params['plant_state_file']
+        if not path or self._plant_unsaveable:
+            return
+        try:
+            data = self.emulator.save_plant_state()
+        except (ValueError, RuntimeError) as exc:
+            self._plant_unsaveable = True
+            self.get_logger().warning(f'plant state not saved ({exc}): a restart starts from '
+                                      'initial_temperature_c')
+            return
+        target = pathlib.Path(path)
+        staged = target.with_name(f'.{target.name}.tmp')
+        staged.write_bytes(data)
+        staged.replace(target)
 
     def _fail(self, reason: str) -> None:
         """End the run early with an error (the process exits with code 1)."""
