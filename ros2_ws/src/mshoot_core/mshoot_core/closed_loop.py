@@ -20,7 +20,8 @@ logger = logging.getLogger(__name__)
 
 @dataclasses.dataclass
 class ClosedLoopResult:
-    """Records of a closed-loop run.
+    """
+    Records of a closed-loop run.
 
     Attributes
     ----------
@@ -34,6 +35,7 @@ class ClosedLoopResult:
         The plan of every step.
     wall_s : float
         Wall time of the whole loop [s].
+
     """
 
     steps: pd.DataFrame
@@ -44,7 +46,8 @@ class ClosedLoopResult:
 
 def step_row(outcome: StepOutcome, record: StepRecord, state_names: tuple[str, ...],
              control_names: tuple[str, ...]) -> dict:
-    """The per-step record of one loop iteration (shared with the ROS nodes' tools).
+    """
+    Return the per-step record of one loop iteration (shared with the ROS nodes' tools).
 
     Columns: ``time_s``, the applied controls, ``{state}_start``, ``{state}_end``,
     ``{state}_predicted`` (NaN for the safe setpoint), the solve's
@@ -78,8 +81,12 @@ def step_row(outcome: StepOutcome, record: StepRecord, state_names: tuple[str, .
 
 
 def offer_scenario_inputs(controller: Controller, emulator: Emulator, now_ns: int) -> None:
-    """Give the controller the emulated state and a perfect forecast (the scenario's next
-    N+1 rows) stamped at the emulator's time, as the emulator and forecaster nodes do."""
+    """
+    Give the controller the emulated state and a perfect forecast, as the nodes do.
+
+    The forecast (the scenario's next N+1 rows) is stamped at the emulator's time, as the emulator
+    and forecaster nodes do.
+    """
     window = forecast_window(emulator.scenario, emulator.index, controller.mpc.horizon_steps)
     values = window.to_numpy(dtype=float)
     series = {name: values[:, j] for j, name in enumerate(window.columns)}
@@ -94,8 +101,8 @@ def offer_scenario_inputs(controller: Controller, emulator: Emulator, now_ns: in
 def run_closed_loop(controller: Controller | MPC, emulator: Emulator, steps: int | None = None,
                     progress: Callable[[list[dict], list[pd.DataFrame]], None] | None = None,
                     log_every: int = 12, budget_s: float | None = None) -> ClosedLoopResult:
-    """Run the controller against the emulator for ``steps`` control steps (default: to the
-    end).
+    """
+    Run the controller against the emulator for ``steps`` control steps (default: to the end).
 
     Every step the controller gets the emulated state and a perfect forecast
     and decides (:meth:`Controller.poll`): its optimum, or a fallback (the last
@@ -121,6 +128,7 @@ def run_closed_loop(controller: Controller | MPC, emulator: Emulator, steps: int
     budget_s : float, optional
         Wall-time budget of the whole run [s]: no step is started once it is
         spent, and the result holds the steps done (at least one).
+
     """
     if isinstance(controller, MPC):
         controller = Controller(mpc=controller)
@@ -169,7 +177,7 @@ def run_closed_loop(controller: Controller | MPC, emulator: Emulator, steps: int
 
 
 def _plan_frame(outcome: StepOutcome, mpc: MPC) -> pd.DataFrame:
-    """The plan of a decision (controls and predicted end states by interval start)."""
+    """Return the plan of a decision (controls and predicted end states by interval start)."""
     d = outcome.decision
     if outcome.result is not None and not d.fallback:
         return outcome.result.plan

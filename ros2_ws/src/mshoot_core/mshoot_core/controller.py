@@ -1,4 +1,5 @@
-"""The supervisory controller: every per-step decision of the MPC, in one place.
+"""
+The supervisory controller: every per-step decision of the MPC, in one place.
 
 A :class:`Controller` owns the MPC, the validation and staleness rules of its
 inputs, the due-step logic, the solve in flight and its time budget, and the
@@ -62,7 +63,8 @@ KEEP_INPUTS = 8
 
 @dataclasses.dataclass(frozen=True)
 class StepOutcome:
-    """The decision of one control step, with what led to it.
+    """
+    The decision of one control step, with what led to it.
 
     Attributes
     ----------
@@ -76,6 +78,7 @@ class StepOutcome:
         Wall time of the solve, or of the wait that ended in a fallback [s].
     x0 : ndarray or None
         The state the step was solved from.
+
     """
 
     step_ns: int
@@ -102,7 +105,8 @@ class _Solve:
 
 
 class Controller:
-    """Supervisory MPC: inputs in, one decision per control step out (see the module).
+    """
+    Supervisory MPC: inputs in, one decision per control step out (see the module).
 
     Parameters
     ----------
@@ -132,6 +136,7 @@ class Controller:
         Rejected inputs by stream ('state', 'forecast') and kind.
     results : dict
         Step stamp [ns] -> MpcResult of the latest steps (late ones included).
+
     """
 
     def __init__(self, model: Model | None = None, settings: MpcSettings | None = None, *,
@@ -176,9 +181,12 @@ class Controller:
         return self.mpc.model
 
     def state_range(self) -> tuple[np.ndarray, np.ndarray]:
-        """Plausible (lower, upper) values of the states: zone temperatures (the states
-        bounded by a comfort band) within :data:`~mshoot_core.safety.LIMITS`, others
-        unbounded (physical units)."""
+        """
+        Return plausible (lower, upper) values of the states (physical units).
+
+        Zone temperatures (the states bounded by a comfort band) lie within
+        :data:`~mshoot_core.safety.LIMITS`; the other states are unbounded.
+        """
         names = self.model.state_names
         low, high = np.full(len(names), -np.inf), np.full(len(names), np.inf)
         for name, (_, _, offset) in self.mpc.state_bounds.items():
@@ -203,7 +211,8 @@ class Controller:
         self._input_wait = InputWait(i.input_wait_s, i.input_deadline_s)
 
     def update(self, settings: MpcSettings) -> str:
-        """Apply new settings between solves (deferred while one runs).
+        """
+        Apply new settings between solves (deferred while one runs).
 
         Returns
         -------
@@ -216,6 +225,7 @@ class Controller:
         ------
         ValueError
             If a setting fixed once running changes (see :meth:`MPC.update`).
+
         """
         fixed = self._fixed_changes(settings)
         if fixed:
@@ -246,13 +256,15 @@ class Controller:
         return rejection
 
     def offer_state(self, stamp_ns: int, x: Sequence[float], now_ns: int) -> Rejection | None:
-        """A measured state (physical units, e.g. [K]) stamped ``stamp_ns``.
+        """
+        Offer a measured state (physical units, e.g. [K]) stamped ``stamp_ns``.
 
         Returns
         -------
         Rejection or None
             Why it was refused (non-finite, implausible, wrong length, stamp
             stale, in the future or backwards), or None when it was taken.
+
         """
         names = self.model.state_names
         values = np.asarray(x, dtype=float).reshape(-1)
@@ -272,21 +284,28 @@ class Controller:
         return None
 
     def is_repeat_of_decided_step(self, stamp_ns: int) -> bool:
-        """True when a state stamped ``stamp_ns`` was already taken and its step decided:
-        a heartbeat of the same state (the decision may have been lost: send it again)."""
+        """
+        Return True when a state stamped ``stamp_ns`` was already taken and its step decided.
+
+        Such a state is a heartbeat of the same state (the decision may have been lost: send it
+        again).
+        """
         return (int(stamp_ns) in self._states and self._last_step_ns == int(stamp_ns)
                 and self._inflight is None)
 
     def offer_forecast(self, stamp_ns: int, step_s: float,
                        series: Mapping[str, Sequence[float]], now_ns: int) -> Rejection | None:
-        """A forecast: samples every ``step_s`` [s] from ``stamp_ns`` on, by column
-        (Tout [degC], solrad [W/m2], occ, comfort_min, comfort_max [degC], and any
-        other model input).
+        """
+        Offer a forecast: samples every ``step_s`` [s] from ``stamp_ns`` on, by column.
+
+        The columns are Tout [degC], solrad [W/m2], occ, comfort_min, comfort_max [degC], and any
+        other model input.
 
         Returns
         -------
         Rejection or None
             Why it was refused, or None when it was taken.
+
         """
         rejection = (check_forecast(step_s, series,
                                     expected_step_s=self.settings.problem.step_s)
@@ -348,16 +367,17 @@ class Controller:
     # -- deciding -------------------------------------------------------------------------
     @property
     def busy(self) -> bool:
-        """True while a solve runs."""
+        """Return True while a solve runs."""
         return self._inflight is not None
 
     @property
     def last_step_ns(self) -> int | None:
-        """The newest step decided or being solved [ns] (None before the first)."""
+        """Return the newest step decided or being solved [ns] (None before the first)."""
         return self._last_step_ns
 
     def poll(self, now_ns: int, steady_ns: int | None = None) -> list[StepOutcome]:
-        """Decide what is due at ``now_ns`` (see the module docstring).
+        """
+        Decide what is due at ``now_ns`` (see the module docstring).
 
         Parameters
         ----------
@@ -371,6 +391,7 @@ class Controller:
         -------
         list of StepOutcome
             The steps decided by this call, in order (usually none or one).
+
         """
         steady_ns = time.monotonic_ns() if steady_ns is None else int(steady_ns)
         now_ns = int(now_ns)
@@ -466,7 +487,7 @@ class Controller:
             future.add_done_callback(lambda _: callback())
 
     def _collect(self, outcomes: list[StepOutcome], steady_ns: int) -> None:
-        """The outcome of a finished solve, if there is one."""
+        """Collect the outcome of a finished solve, if there is one."""
         job = self._inflight
         if job is None or not job.future.done():
             return
@@ -490,8 +511,8 @@ class Controller:
             logger.warning('solve for %.0f s finished after its time budget (%.3f s): result '
                            'not used, warm start kept', step_s, result.solve_time_s)
             return
-        if getattr(result, 'budget_exceeded', False) or (budget > 0 and
-                                                          result.solve_time_s > budget):
+        if getattr(result, 'budget_exceeded', False) or (
+                budget > 0 and result.solve_time_s > budget):
             outcomes.append(self._fallback(job.step_ns, 'budget', f'time budget exceeded '
                                            f'({budget:g} s): solver stopped after '
                                            f'{result.nit} iterations', result.solve_time_s,
@@ -508,9 +529,12 @@ class Controller:
         return StepOutcome(step_ns, decision, result, waited_s, x0)
 
     def hand_back(self, now_ns: int) -> StepOutcome:
-        """The safe setpoint for the current step, when the controller stops controlling
-        (hands the building back to its own control); no further steps are decided until
-        the clock passes this one."""
+        """
+        Return the safe setpoint for the current step, when the controller stops controlling.
+
+        The controller hands the building back to its own control; no further steps are decided
+        until the clock passes this one.
+        """
         step = (int(now_ns) // self.step_ns) * self.step_ns
         self._last_step_ns = max(step, self._last_step_ns or step)
         if self._inflight is not None:  # its result will only warm the next start
@@ -534,4 +558,3 @@ def _ns(seconds: float) -> int:
 def _trim(items: dict[int, Any], keep: int = KEEP_INPUTS) -> None:
     for stamp in sorted(items)[:-keep]:
         del items[stamp]
-

@@ -1,4 +1,5 @@
-"""The emulated building: advances a model one control step at a time.
+"""
+The emulated building: advances a model one control step at a time.
 
 Both the offline MPC loop and the ROS emulator node drive an :class:`Emulator`,
 so a ROS run and a core-only run of the same scenario produce the same
@@ -21,7 +22,8 @@ logger = logging.getLogger(__name__)
 
 @dataclasses.dataclass
 class StepRecord:
-    """What the emulator did over one control step.
+    """
+    What the emulator did over one control step.
 
     Attributes
     ----------
@@ -34,6 +36,7 @@ class StepRecord:
     fine : DataFrame
         States and outputs on the fine grid over [t_start, t_start + step], with
         the comfort band; index time [s].
+
     """
 
     t_start_s: float
@@ -44,7 +47,8 @@ class StepRecord:
 
 
 class Emulator:
-    """Steps a model through a scenario with controls given step by step.
+    """
+    Steps a model through a scenario with controls given step by step.
 
     Parameters
     ----------
@@ -64,6 +68,7 @@ class Emulator:
         Grid of the recorded fine trajectory [s] (60 s: the 1-minute KPI grid).
     start_index : int
         Scenario row to start from (restarts mid-run).
+
     """
 
     def __init__(self, model: Model, scenario: pd.DataFrame, x0: Sequence[float], *,
@@ -103,12 +108,12 @@ class Emulator:
 
     @property
     def t_s(self) -> float:
-        """Current time [s]."""
+        """Return the current time [s]."""
         return float(self.scenario.index[self.index])
 
     @property
     def steps_left(self) -> int:
-        """Number of control steps left in the scenario."""
+        """Return the number of control steps left in the scenario."""
         return len(self.scenario) - 1 - self.index
 
     def disturbances(self) -> pd.Series:

@@ -16,7 +16,8 @@ def comfort_violation(temperature_c: np.ndarray, comfort_min: np.ndarray,
 
 
 def energy_kwh(heat_rate_w: np.ndarray, step_s: float) -> dict[str, float]:
-    """Energy of a piecewise-constant heat rate: total sum |q| dt, heating and cooling apart.
+    """
+    Energy of a piecewise-constant heat rate: total sum |q| dt, heating and cooling apart.
 
     Parameters
     ----------
@@ -28,6 +29,7 @@ def energy_kwh(heat_rate_w: np.ndarray, step_s: float) -> dict[str, float]:
     Returns
     -------
     dict with 'energy_kwh', 'heating_kwh', 'cooling_kwh' [kWh] (all >= 0).
+
     """
     q = np.asarray(heat_rate_w, dtype=float)
     return {'energy_kwh': float(np.sum(np.abs(q)) * step_s / JOULES_PER_KWH),
@@ -37,7 +39,8 @@ def energy_kwh(heat_rate_w: np.ndarray, step_s: float) -> dict[str, float]:
 
 def discomfort_kh(fine: pd.DataFrame, temperature_column: str = 'y_T',
                   sample_every_s: float = 3600.0) -> dict[str, float]:
-    """Thermal discomfort [K h] of a trajectory on a fine grid.
+    """
+    Thermal discomfort [K h] of a trajectory on a fine grid.
 
     Parameters
     ----------
@@ -55,6 +58,7 @@ def discomfort_kh(fine: pd.DataFrame, temperature_column: str = 'y_T',
     fine grid, BOPTEST-style) and 'discomfort_kh_hourly' (sum over the samples
     at multiples of ``sample_every_s``, each weighted by that spacing, as the
     original reported it).
+
     """
     t = np.asarray(fine.index, dtype=float)
     dist = comfort_violation(fine[temperature_column].to_numpy(), fine['comfort_min'].to_numpy(),
@@ -68,7 +72,8 @@ def discomfort_kh(fine: pd.DataFrame, temperature_column: str = 'y_T',
 def closed_loop_kpis(steps: pd.DataFrame, fine: pd.DataFrame, step_s: float,
                      wall_s: float, control: str = 'q',
                      temperature_column: str = 'y_T') -> dict[str, float]:
-    """All KPIs of a closed-loop run (the keys of ``kpis.json``).
+    """
+    All KPIs of a closed-loop run (the keys of ``kpis.json``).
 
     Parameters
     ----------
@@ -80,6 +85,11 @@ def closed_loop_kpis(steps: pd.DataFrame, fine: pd.DataFrame, step_s: float,
         Control step [s].
     wall_s : float
         Wall time of the whole run [s].
+    control : str
+        Column of ``steps`` with the applied heat rate [W].
+    temperature_column : str
+        Column of ``fine`` with the zone temperature [degC].
+
     """
     kpis = energy_kwh(steps[control].to_numpy(), step_s)
     kpis.update(discomfort_kh(fine, temperature_column, step_s))

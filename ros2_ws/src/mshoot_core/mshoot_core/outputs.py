@@ -1,4 +1,5 @@
-"""The files of a closed-loop run: KPIs, per-step records, trajectories and a plot.
+"""
+The files of a closed-loop run: KPIs, per-step records, trajectories and a plot.
 
 One writer for every way a run is made (the core loop, the ROS nodes, the
 applications), so their output folders read alike.
@@ -13,7 +14,8 @@ from mshoot_core.closed_loop import ClosedLoopResult
 
 def write_outputs(out: pathlib.Path, result: ClosedLoopResult, kpis: dict,
                   title: str) -> None:
-    """Write ``kpis.json``, ``trajectories.csv``, ``steps.csv`` and ``plot.png`` to ``out``.
+    """
+    Write ``kpis.json``, ``trajectories.csv``, ``steps.csv`` and ``plot.png`` to ``out``.
 
     Parameters
     ----------
@@ -27,6 +29,7 @@ def write_outputs(out: pathlib.Path, result: ClosedLoopResult, kpis: dict,
         discomfort [K h], wall time [s], ...) plus anything JSON-ready.
     title : str
         First line of the plot's title (the KPIs make the second).
+
     """
     out.mkdir(parents=True, exist_ok=True)
     (out / 'kpis.json').write_text(json.dumps(kpis, indent=2, sort_keys=True) + '\n')

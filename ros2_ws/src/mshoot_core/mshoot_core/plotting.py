@@ -13,7 +13,8 @@ import pandas as pd  # noqa: E402
 def plot_closed_loop(fine: pd.DataFrame, steps: pd.DataFrame, path: str | pathlib.Path,
                      title: str = '', temperature_column: str = 'y_T',
                      control: str = 'q') -> pathlib.Path:
-    """Plot the zone temperature with its comfort band and the heat rate.
+    """
+    Plot the zone temperature with its comfort band and the heat rate.
 
     Parameters
     ----------
@@ -26,6 +27,11 @@ def plot_closed_loop(fine: pd.DataFrame, steps: pd.DataFrame, path: str | pathli
         PNG file to write.
     title : str
         Figure title (e.g. the KPIs).
+    temperature_column : str
+        Column of ``fine`` with the zone temperature [degC].
+    control : str
+        Column of ``steps`` with the applied heat rate [W].
+
     """
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

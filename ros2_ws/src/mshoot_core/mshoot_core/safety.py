@@ -1,4 +1,5 @@
-"""Safety rules of the supervisory loop: input validation and the fallback chains.
+"""
+Safety rules of the supervisory loop: input validation and the fallback chains.
 
 A supervisory controller that stops publishing, or publishes NaN, is worse
 than none. This module holds the decisions; the ROS nodes only convert
@@ -49,7 +50,8 @@ FORECAST_SERIES = ('Tout', 'solrad', 'occ', 'comfort_min', 'comfort_max')
 
 @dataclasses.dataclass(frozen=True)
 class Rejection:
-    """Why an input was refused.
+    """
+    Why an input was refused.
 
     Attributes
     ----------
@@ -57,6 +59,7 @@ class Rejection:
         One of :data:`REJECTION_KINDS`.
     reason : str
         One sentence naming the bad value and what was expected.
+
     """
 
     kind: str
@@ -65,7 +68,8 @@ class Rejection:
 
 @dataclasses.dataclass(frozen=True)
 class Limits:
-    """Plausible ranges of the inputs (inclusive); values outside are rejected.
+    """
+    Plausible ranges of the inputs (inclusive); values outside are rejected.
 
     Attributes
     ----------
@@ -84,6 +88,7 @@ class Limits:
         setpoint is clipped; beyond this it is rejected).
     max_samples : int
         Longest forecast or plan accepted [-].
+
     """
 
     zone_temperature_c: tuple[float, float] = (-50.0, 80.0)
@@ -109,7 +114,7 @@ LIMITS = Limits()
 # -- value checks -------------------------------------------------------------------------
 def check_value(name: str, value: Any, low: float = -math.inf,
                 high: float = math.inf) -> Rejection | None:
-    """A finite scalar within [low, high], else the rejection."""
+    """Check a finite scalar within [low, high]; return the rejection, else None."""
     try:
         x = float(value)
     except (TypeError, ValueError):
@@ -137,7 +142,7 @@ def check_series(name: str, values: Sequence[float], low: float = -math.inf,
 
 
 def check_stamp_fields(sec: int, nanosec: int) -> Rejection | None:
-    """A time stamp given as (seconds, nanoseconds): nanoseconds must be below 1e9."""
+    """Check a time stamp given as (seconds, nanoseconds): nanoseconds must be below 1e9."""
     if not 0 <= int(nanosec) < NS_PER_S:
         return Rejection('stamp', f'stamp nanosec = {nanosec} is outside [0, 999999999]')
     if int(sec) < 0:
@@ -147,7 +152,7 @@ def check_stamp_fields(sec: int, nanosec: int) -> Rejection | None:
 
 def check_zone_state(temperature_c: float, heat_rate_w: float,
                      limits: Limits = LIMITS) -> Rejection | None:
-    """A measured zone state: temperature [degC] and the heat rate applied [W]."""
+    """Check a measured zone state: temperature [degC] and the heat rate applied [W]."""
     return (check_value('temperature_c', temperature_c, *limits.zone_temperature_c)
             or check_value('heat_rate_w', heat_rate_w, -limits.heat_rate_abs_w,
                            limits.heat_rate_abs_w))
@@ -166,7 +171,8 @@ def check_disturbances(outdoor_temperature_c: float, solar_radiation_w_m2: float
 def check_forecast(step_s: float, series: Mapping[str, Sequence[float]],
                    expected_step_s: float | None = None,
                    limits: Limits = LIMITS) -> Rejection | None:
-    """A forecast of the disturbances and the comfort band.
+    """
+    Check a forecast of the disturbances and the comfort band.
 
     Parameters
     ----------
@@ -179,6 +185,7 @@ def check_forecast(step_s: float, series: Mapping[str, Sequence[float]],
         The control step the forecast must be sampled at [s].
     limits : Limits
         Plausible ranges.
+
     """
     rejection = check_value('step_s', step_s, 1e-9, math.inf)
     if rejection:
@@ -216,7 +223,8 @@ def check_setpoint(heat_rate_w: float, temperature_c: float, step_s: float,
                    plan_temperature_c: Sequence[float] = (),
                    expected_step_s: float | None = None,
                    limits: Limits = LIMITS) -> Rejection | None:
-    """A supervisory setpoint: heat rate [W], predicted temperature [degC], its plan.
+    """
+    Check a supervisory setpoint: heat rate [W], predicted temperature [degC], its plan.
 
     Heat rates within ``limits.heat_rate_abs_w`` but beyond the actuator limits
     are not rejected here: the building clips them (with a warning).
@@ -246,7 +254,8 @@ def check_setpoint(heat_rate_w: float, temperature_c: float, step_s: float,
 
 # -- time stamps --------------------------------------------------------------------------
 class StampGate:
-    """Refuses stamps that go backwards, lie in the future or are too old to be used.
+    """
+    Refuses stamps that go backwards, lie in the future or are too old to be used.
 
     One gate per input stream. The rules, in order, for a stamp ``t`` when the
     receiver's clock reads ``now`` (0: no clock yet, e.g. simulated time before
@@ -267,6 +276,7 @@ class StampGate:
     max_future_ns : int
         Largest lead over the clock [ns] (data and clock topics are not
         ordered, so a stamp one step ahead is normal in simulated time).
+
     """
 
     def __init__(self, step_ns: int, max_age_ns: int = 0, max_future_ns: int = 0) -> None:
@@ -279,7 +289,7 @@ class StampGate:
         self.latest_ns: int | None = None
 
     def check(self, stamp_ns: int, now_ns: int) -> Rejection | None:
-        """The rejection of a stamp, or None if it is acceptable (see the class docstring)."""
+        """Return the rejection of a stamp, None if acceptable (see the class docstring)."""
         stamp_ns, now_ns = int(stamp_ns), int(now_ns)
         if self.latest_ns is not None:
             if stamp_ns == self.latest_ns:
@@ -300,8 +310,11 @@ class StampGate:
         return None
 
     def accept(self, stamp_ns: int, now_ns: int) -> None:
-        """Remember an accepted stamp (only once a clock runs: a stamp that could not be
-        checked against the clock must not lock out the ones that follow)."""
+        """
+        Remember an accepted stamp, only once a clock runs.
+
+        A stamp that could not be checked against the clock must not lock out the ones that follow.
+        """
         if int(now_ns) > 0:
             self.latest_ns = max(int(stamp_ns), self.latest_ns or 0)
 
@@ -315,12 +328,14 @@ def _s(ns: int) -> str:
 
 
 class RejectionCounter:
-    """Counts rejections per input stream and kind.
+    """
+    Counts rejections per input stream and kind.
 
     Attributes
     ----------
     counts : Counter
         (stream, kind) -> number of rejections.
+
     """
 
     def __init__(self) -> None:
@@ -347,7 +362,8 @@ class RejectionCounter:
 # -- the MPC fallback chain ---------------------------------------------------------------
 @dataclasses.dataclass(frozen=True)
 class Decision:
-    """The setpoint of one control step and where it comes from.
+    """
+    The setpoint of one control step and where it comes from.
 
     Attributes
     ----------
@@ -370,6 +386,7 @@ class Decision:
         '' or one of :data:`FALLBACK_CODES`: why the solve result was not used.
     reason : str
         '' or one sentence saying why, and what was used instead.
+
     """
 
     t_s: float
@@ -391,7 +408,8 @@ class _GoodPlan:
 
 
 class SetpointSupervisor:
-    """The MPC's fallback chain: the optimum, else the last good plan, else the safe setpoint.
+    """
+    The MPC's fallback chain: the optimum, else the last good plan, else the safe setpoint.
 
     Parameters
     ----------
@@ -411,6 +429,7 @@ class SetpointSupervisor:
         Relative slack on the control bounds before a plan is refused (a
         solver's bound satisfaction is only up to its tolerance; within it the
         controls are clipped).
+
     """
 
     def __init__(self, control_bounds: Sequence[tuple[float, float]], step_s: float,
@@ -453,8 +472,11 @@ class SetpointSupervisor:
         self.consecutive_fallbacks = 0
 
     def plan_problem(self, controls: Any, states: Any) -> str | None:
-        """Why a plan cannot be applied (non-finite, outside the bounds or the state
-        range, wrong shape), or None."""
+        """
+        Return why a plan cannot be applied, or None.
+
+        The reasons: non-finite, outside the bounds or the state range, wrong shape.
+        """
         try:
             u = np.asarray(controls, dtype=float)
             x = np.asarray(states, dtype=float)
@@ -481,7 +503,8 @@ class SetpointSupervisor:
         return None
 
     def review(self, t_s: float, result: Any, *, accept_unconverged: bool = True) -> Decision:
-        """The setpoint of the step at ``t_s`` given its solve result.
+        """
+        Return the setpoint of the step at ``t_s`` given its solve result.
 
         Parameters
         ----------
@@ -493,6 +516,7 @@ class SetpointSupervisor:
         accept_unconverged : bool
             Use the best plan of a solver that did not converge (the offline
             loop does) if it is sane; else fall back.
+
         """
         try:
             controls = np.asarray(result.controls, dtype=float)
@@ -514,7 +538,8 @@ class SetpointSupervisor:
                         states.copy(), 'optimum', False)
 
     def fallback(self, t_s: float, code: str, reason: str) -> Decision:
-        """The fallback of the step at ``t_s``: the last good plan's interval, else safe.
+        """
+        Return the fallback of the step at ``t_s``: the last good plan's interval, else safe.
 
         Parameters
         ----------
@@ -524,6 +549,7 @@ class SetpointSupervisor:
             One of :data:`FALLBACK_CODES`.
         reason : str
             Why the step's own solve cannot be used.
+
         """
         if code not in FALLBACK_CODES:
             raise ValueError(f'code must be one of {list(FALLBACK_CODES)}, got {code!r}')
@@ -545,7 +571,7 @@ class SetpointSupervisor:
                          f'{self.safe_controls.tolist()} ({why})')
 
     def safe(self, t_s: float, code: str, reason: str) -> Decision:
-        """The last link of the chain: the safe setpoint, with ``reason`` as given."""
+        """Return the last link of the chain: the safe setpoint, with ``reason`` as given."""
         self.sources['safe'] += 1
         nx = self._plan.states.shape[1] if self._plan is not None else 0
         return Decision(float(t_s), self.safe_controls.copy(), None,
@@ -556,7 +582,8 @@ class SetpointSupervisor:
 # -- waiting for inputs -------------------------------------------------------------------
 @dataclasses.dataclass(frozen=True)
 class InputWait:
-    """How long a due control step waits for a missing or stale input.
+    """
+    How long a due control step waits for a missing or stale input.
 
     The wait is measured from the moment the controller found the step due
     (a controller started in the middle of a step waits too), on two clocks:
@@ -569,13 +596,14 @@ class InputWait:
     deadline_s : float
         Time on the controller's own clock [s] (simulated time running freely,
         or real time) after which the step gets a fallback; 0 disables it.
+
     """
 
     wait_s: float = 5.0
     deadline_s: float = 1800.0
 
     def overdue(self, waited_wall_s: float, waited_clock_s: float) -> bool:
-        """True when the step should stop waiting and fall back."""
+        """Return True when the step should stop waiting and fall back."""
         return waited_wall_s >= self.wait_s or (
             self.deadline_s > 0 and waited_clock_s >= self.deadline_s)
 
@@ -583,7 +611,8 @@ class InputWait:
 # -- the emulator's hold policy -----------------------------------------------------------
 @dataclasses.dataclass(frozen=True)
 class HoldDecision:
-    """Controls the building applies over a step.
+    """
+    Controls the building applies over a step.
 
     Attributes
     ----------
@@ -596,6 +625,7 @@ class HoldDecision:
         NaN for 'safe').
     reason : str
         '' for 'setpoint', else one sentence.
+
     """
 
     controls: np.ndarray
@@ -605,7 +635,8 @@ class HoldDecision:
 
 
 class SetpointHold:
-    """What a building applies when the supervisory setpoint of a step is missing.
+    """
+    What a building applies when the supervisory setpoint of a step is missing.
 
     Parameters
     ----------
@@ -613,6 +644,7 @@ class SetpointHold:
         The safe default controls.
     hold_s : float
         How long after its step's start a setpoint may still be applied [s].
+
     """
 
     def __init__(self, safe_controls: Sequence[float], hold_s: float) -> None:
@@ -630,7 +662,7 @@ class SetpointHold:
         return None if self._latest is None else self._latest[0]
 
     def offer(self, t_s: float, controls: Sequence[float]) -> None:
-        """A validated setpoint for the step starting at ``t_s`` (older ones are ignored)."""
+        """Offer a validated setpoint for the step starting at ``t_s`` (older ones are ignored)."""
         u = np.asarray(controls, dtype=float).reshape(-1)
         if u.shape != self.safe_controls.shape or not np.all(np.isfinite(u)):
             raise ValueError(f'controls must be {self.safe_controls.size} finite values, '
@@ -639,7 +671,7 @@ class SetpointHold:
             self._latest = (float(t_s), u.copy())
 
     def controls_for(self, t_s: float) -> HoldDecision:
-        """The controls of the step starting at ``t_s``."""
+        """Return the controls of the step starting at ``t_s``."""
         if self._latest is not None:
             stamp, u = self._latest
             age = float(t_s) - stamp

@@ -1,4 +1,5 @@
-"""NLP solvers behind one interface: SciPy SLSQP, SciPy trust-constr, IPOPT (cyipopt).
+"""
+NLP solvers behind one interface: SciPy SLSQP, SciPy trust-constr, IPOPT (cyipopt).
 
 A :class:`Nlp` is the smooth problem
 
@@ -33,7 +34,8 @@ Matrix = np.ndarray
 
 @dataclasses.dataclass
 class Nlp:
-    """A smooth nonlinear program in the variables z (length n).
+    """
+    A smooth nonlinear program in the variables z (length n).
 
     Attributes
     ----------
@@ -54,6 +56,7 @@ class Nlp:
         Lagrangian, which is exact when the constraints are affine (e.g. the
         R1C1 zones: interval end states are affine in start state and heat
         rate) and a Gauss-Newton-like approximation otherwise.
+
     """
 
     fun: Callable[[Vector], float]
@@ -84,8 +87,10 @@ class Solver(abc.ABC):
     @abc.abstractmethod
     def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None
               ) -> optimize.OptimizeResult:
-        """Solve ``nlp`` from ``z0``; return an OptimizeResult (x, fun, success, status,
-        message, nit, nfev, budget_exceeded).
+        """
+        Solve ``nlp`` from ``z0``.
+
+        Return an OptimizeResult (x, fun, success, status, message, nit, nfev, budget_exceeded).
 
         ``deadline`` is a :func:`time.perf_counter` time [s]: the solver stops at
         its first iteration past it (``success=False``, ``budget_exceeded=True``).
@@ -93,7 +98,7 @@ class Solver(abc.ABC):
 
 
 def _deadline_callback(deadline: float | None) -> Callable | None:
-    """A SciPy ``callback(intermediate_result)`` that stops the solve past ``deadline``."""
+    """Return a SciPy ``callback(intermediate_result)`` that stops the solve past ``deadline``."""
     if deadline is None:
         return None
 
@@ -134,8 +139,11 @@ class SlsqpSolver(Solver):
 
 
 def _scipy_constraint(kind: str, fun: Callable, jac: Callable | None) -> dict:
-    """A SciPy (SLSQP) constraint dict with a dense Jacobian; without ``jac`` SciPy
-    estimates it by finite differences."""
+    """
+    Return a SciPy (SLSQP) constraint dict with a dense Jacobian.
+
+    Without ``jac`` SciPy estimates it by finite differences.
+    """
     constraint = {'type': kind, 'fun': fun}
     if jac is not None:
         constraint['jac'] = lambda z: jac(z).toarray()
@@ -150,6 +158,7 @@ class TrustConstrSolver(Solver):
     def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None
               ) -> optimize.OptimizeResult:
         n_eq = nlp.eq_fun(z0).size
+
         def sparse_jac(jac: Callable | None) -> Callable | str:
             return '2-point' if jac is None else (lambda z: sparse.csr_array(jac(z)))
         constraints = [optimize.NonlinearConstraint(
@@ -174,8 +183,11 @@ class TrustConstrSolver(Solver):
 
 
 class IpoptSolver(Solver):
-    """IPOPT through cyipopt (the ``cyipopt-wheels`` package), with sparse Jacobians
-    and a limited-memory Hessian approximation."""
+    """
+    IPOPT through cyipopt (the ``cyipopt-wheels`` package).
+
+    With sparse Jacobians and a limited-memory Hessian approximation.
+    """
 
     name = 'ipopt'
 
@@ -214,6 +226,7 @@ class IpoptSolver(Solver):
         diag = np.arange(n)
 
         class _Problem:
+
             def objective(self, z):
                 counter['nfev'] += 1
                 return nlp.fun(z)
@@ -271,8 +284,8 @@ class IpoptSolver(Solver):
         return res
 
 
-SOLVERS: dict[str, type[Solver]] = {cls.name: cls for cls in (SlsqpSolver, TrustConstrSolver,
-                                                               IpoptSolver)}
+SOLVERS: dict[str, type[Solver]] = {
+    cls.name: cls for cls in (SlsqpSolver, TrustConstrSolver, IpoptSolver)}
 
 
 def make_solver(name: str | Solver, **options) -> Solver:

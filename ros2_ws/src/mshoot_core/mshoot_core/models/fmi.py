@@ -1,4 +1,5 @@
-"""Any FMI 2.0 FMU (Model Exchange or Co-Simulation) as a :class:`Model`, through fmpy.
+"""
+Any FMI 2.0 FMU (Model Exchange or Co-Simulation) as a :class:`Model`, through fmpy.
 
 The FMU is extracted, its modelDescription read and one instance created
 once, in the constructor; every simulation resets that instance
@@ -127,7 +128,8 @@ def _listed(names: Sequence[str]) -> str:
 
 
 class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
-    """An FMI 2.0 FMU behind the :class:`Model` interface (fmpy).
+    """
+    An FMI 2.0 FMU behind the :class:`Model` interface (fmpy).
 
     Parameters
     ----------
@@ -174,6 +176,7 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
     :class:`~mshoot_core.models.fmi_me.ModelExchangeIntegration` and the
     forward sensitivities (:meth:`interval_jacobians`) from
     :class:`~mshoot_core.models.fmi_sensitivities.ForwardSensitivities`.
+
     """
 
     def __init__(self, fmu_path: str | pathlib.Path, inputs: VariableNames,
@@ -321,7 +324,8 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
         logger.debug('instantiated %s as %s', self.fmu_path.name, self.fmi_type)
 
     def _bind_drivers(self) -> None:
-        """Find and bind the compiled driver this model's batches will use, if any.
+        """
+        Find and bind the compiled driver this model's batches will use, if any.
 
         Done at construction, so that a missing build stops the model here
         (a :class:`~mshoot_core.fmu_cache.NotBuiltError` naming the command
@@ -373,7 +377,7 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
 
     @property
     def fmu(self) -> FMU2Model | FMU2Slave:
-        """The fmpy instance (raises if closed)."""
+        """Return the fmpy instance (raises if closed)."""
         if self._fmu is None:
             raise RuntimeError('the FmiModel is closed')
         return self._fmu
@@ -433,7 +437,8 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
             self._fmu.doStep(t, t_end - t)
 
     def _start_interval(self, x0: np.ndarray, u: np.ndarray) -> None:
-        """Bring the instance to t = 0 with states ``x0`` and inputs ``u``.
+        """
+        Bring the instance to t = 0 with states ``x0`` and inputs ``u``.
 
         Model Exchange FMUs that support FMU states restore a snapshot taken
         after the first initialisation (no re-initialisation); others are
@@ -455,7 +460,8 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
     # -- the Model interface ----------------------------------------------------------------
     def simulate(self, udf: pd.DataFrame,
                  x0: Sequence[float]) -> tuple[pd.DataFrame, pd.DataFrame]:
-        """Simulate from ``x0`` over the index of ``udf`` (inputs held per interval).
+        """
+        Simulate from ``x0`` over the index of ``udf`` (inputs held per interval).
 
         Outputs at ``t_{k+1}`` are those at the end of interval k (evaluated
         with interval k's inputs), as in :meth:`simulate_intervals`; outputs
@@ -473,6 +479,7 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
         ydf : DataFrame, shape (T, ny)
         xdf : DataFrame, shape (T, nx)
             ``xdf.iloc[0]`` equals ``x0``.
+
         """
         t, u, x0_arr = self.check_inputs(udf, x0)
         states = np.empty((t.size, len(self.state_names)))
@@ -491,7 +498,8 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
 
     def simulate_fresh(self, udf: pd.DataFrame,
                        x0: Sequence[float]) -> tuple[pd.DataFrame, pd.DataFrame]:
-        """Simulate as the ancestor did: ``fmpy.simulate_fmu`` from the file, every time.
+        """
+        Simulate as the ancestor did: ``fmpy.simulate_fmu`` from the file, every time.
 
         Extracts, instantiates and frees the FMU for this one simulation (the
         per-simulation cost the ``naive`` optimiser mode reproduces); inputs
@@ -523,12 +531,15 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
 
     def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray,
                            dt_s: float) -> tuple[np.ndarray, np.ndarray]:
-        """Simulate B independent intervals of ``dt_s`` [s] on the one instance.
+        """
+        Simulate B independent intervals of ``dt_s`` [s] on the one instance.
 
         Parameters
         ----------
         x_start : ndarray, shape (B, nx)
+            State at the start of each interval (physical units).
         u : ndarray, shape (B, nu)
+            Inputs of each interval, held over it (all columns).
         dt_s : float
             Interval length [s].
 
@@ -536,6 +547,7 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
         -------
         x_end : ndarray, shape (B, nx)
         y_end : ndarray, shape (B, ny)
+
         """
         x_start, u, dt_s = self._check_batch(x_start, u, dt_s)
         x_end = np.empty(x_start.shape)
@@ -552,7 +564,8 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
 
     def _batch_in_c(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                     x_end: np.ndarray, y_end: np.ndarray) -> bool:
-        """Run a Co-Simulation batch in the compiled driver; False where it does not apply.
+        """
+        Run a Co-Simulation batch in the compiled driver; False where it does not apply.
 
         Applies to Co-Simulation FMUs whose parameters are all Real, after the
         first initialisation through fmpy; each interval makes the same FMI
@@ -562,6 +575,7 @@ class FmiModel(ModelExchangeIntegration, ForwardSensitivities, Model):
         ------
         NotBuiltError
             If the driver is not built (``make setup``).
+
         """
         if self.is_model_exchange or not self._initialized_once or any(
                 kind != 'Real' for kind in self._parameter_groups):
@@ -591,7 +605,8 @@ R1C1_VARIABLES: dict[str, Any] = {
 def r1c1_fmi_model(parameters: Any = None, fmi_type: str | None = 'CoSimulation',
                    tolerance: float = 1e-8,
                    fmu_path: str | pathlib.Path | None = None) -> FmiModel:
-    """Return the R1C1 zone as an :class:`FmiModel` with the names of ``R1C1Model``.
+    """
+    Return the R1C1 zone as an :class:`FmiModel` with the names of ``R1C1Model``.
 
     Inputs ``solrad, Tout, occ, dpos, q``; state ``T`` [K] (the FMU's
     ``heatCapacitor.T``); outputs ``T`` [degC] and ``Qr`` [J].
@@ -614,6 +629,7 @@ def r1c1_fmi_model(parameters: Any = None, fmi_type: str | None = 'CoSimulation'
     NotBuiltError
         Without ``fmu_path``, if the built-in FMU is not built (the message
         names the command that builds it).
+
     """
     if parameters is None:
         values: dict[str, Any] = {}

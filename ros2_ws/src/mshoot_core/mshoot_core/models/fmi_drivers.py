@@ -1,4 +1,5 @@
-"""ctypes bindings of the batch drivers ``fmu_src/cs_batch.c`` and ``fmu_src/me_batch.c``.
+"""
+ctypes bindings of the batch drivers ``fmu_src/cs_batch.c`` and ``fmu_src/me_batch.c``.
 
 A driver runs a batch of independent intervals of one FMU instance in one C
 loop, calling the FMU's own functions (taken from the library fmpy loaded for
@@ -38,22 +39,22 @@ SIZE_P = ctypes.POINTER(ctypes.c_size_t)
 
 
 def size_array(values: Sequence[int]) -> ctypes.Array:
-    """A ``size_t`` array of ``values`` (at least one element)."""
+    """Return a ``size_t`` array of ``values`` (at least one element)."""
     return (ctypes.c_size_t * max(len(values), 1))(*values)
 
 
 def real_array(values: Sequence[float]) -> ctypes.Array:
-    """An ``fmi2Real`` (double) array of ``values``."""
+    """Return an ``fmi2Real`` (double) array of ``values``."""
     return (ctypes.c_double * len(values))(*values)
 
 
 def vr_array(refs: Sequence[int]) -> ctypes.Array:
-    """An ``fmi2ValueReference`` (unsigned int) array of ``refs``."""
+    """Return an ``fmi2ValueReference`` (unsigned int) array of ``refs``."""
     return (ctypes.c_uint * len(refs))(*refs)
 
 
 def double_pointer(array: np.ndarray) -> Any:
-    """A ``double *`` to the data of the contiguous float64 ``array`` (no copy)."""
+    """Return a ``double *`` to the data of the contiguous float64 ``array`` (no copy)."""
     return array.ctypes.data_as(DOUBLE_P)
 
 
@@ -78,7 +79,8 @@ CS_FUNCTIONS = ('fmi2Reset', 'fmi2SetReal', 'fmi2GetReal', 'fmi2SetupExperiment'
 
 
 class CsBatchDriver:
-    """The batched Co-Simulation driver bound to one FMU's functions.
+    """
+    The batched Co-Simulation driver bound to one FMU's functions.
 
     Parameters
     ----------
@@ -91,6 +93,7 @@ class CsBatchDriver:
     ------
     NotBuiltError
         If the driver is not built (``make setup``).
+
     """
 
     def __init__(self, fmu: FMU2Slave, label: str) -> None:
@@ -111,7 +114,8 @@ class CsBatchDriver:
             starts: np.ndarray, input_refs: ctypes.Array, inputs: np.ndarray,
             state_refs: ctypes.Array, x_end: np.ndarray, output_refs: ctypes.Array,
             y_end: np.ndarray) -> None:
-        """Run B intervals of ``dt_s`` [s]; fill ``x_end`` (B, nx) and ``y_end`` (B, ny).
+        """
+        Run B intervals of ``dt_s`` [s]; fill ``x_end`` (B, nx) and ``y_end`` (B, ny).
 
         ``starts`` (B, len(start_refs)) are the start values of the states set
         before initialisation, ``inputs`` (B, len(input_refs)) the inputs
@@ -121,6 +125,7 @@ class CsBatchDriver:
         ------
         RuntimeError
             If an FMI call fails (the message names the call and the interval).
+
         """
         code = self._batch(
             ctypes.byref(self._api), component, x_end.shape[0], dt_s,
@@ -177,7 +182,8 @@ class MeProblem(ctypes.Structure):
 
 @dataclasses.dataclass(frozen=True)
 class SensitivityRequest:
-    """Forward sensitivities the Model Exchange driver integrates along with the states.
+    """
+    Forward sensitivities the Model Exchange driver integrates along with the states.
 
     The columns are the model states', then those of the inputs ``input_refs``;
     the absolute tolerance of S_ij is ``nominal_factor * x_nom_i / nom_j``.
@@ -190,6 +196,7 @@ class SensitivityRequest:
         Their nominal values (same units as the inputs).
     nominal_factor : float
         Tightening of the sensitivities' absolute tolerances relative to the states'.
+
     """
 
     input_refs: tuple[int, ...]
@@ -211,7 +218,8 @@ ME_STAGES = ('restore/reset', 'parameters', 'start values', 'setup', 'enter init
 
 
 class DriverGaveUp(Exception):
-    """The Model Exchange driver met what it does not do (an event, stiffness).
+    """
+    The Model Exchange driver met what it does not do (an event, stiffness).
 
     Attributes
     ----------
@@ -219,6 +227,7 @@ class DriverGaveUp(Exception):
         What it met.
     interval : int
         Index of the interval in the batch.
+
     """
 
     def __init__(self, reason: str, interval: int) -> None:
@@ -235,7 +244,8 @@ def me_problem(*, snapshot: int | None, needs_completed_step: bool, tolerance: f
                par_values: Sequence[float], start_refs: Sequence[int],
                start_index: Sequence[int], fmu_output_refs: Sequence[int],
                sensitivities: SensitivityRequest | None) -> tuple[MeProblem, list]:
-    """Describe a Model Exchange batch for the driver.
+    """
+    Describe a Model Exchange batch for the driver.
 
     Returns the structure and the arrays it points to: keep both alive while
     the structure is used. ``fmu_output_refs`` are the model outputs that are
@@ -277,7 +287,8 @@ def me_problem(*, snapshot: int | None, needs_completed_step: bool, tolerance: f
 
 
 class MeBatchDriver:
-    """The batched Model Exchange driver bound to one FMU's functions.
+    """
+    The batched Model Exchange driver bound to one FMU's functions.
 
     Functions an FMU may not export (optional capabilities) stay NULL; the
     driver only calls them where the model description says they exist.
@@ -293,6 +304,7 @@ class MeBatchDriver:
     ------
     NotBuiltError
         If the driver is not built (``make setup``).
+
     """
 
     def __init__(self, fmu: FMU2Model, label: str) -> None:
@@ -310,7 +322,8 @@ class MeBatchDriver:
     def run(self, component: Any, problem: MeProblem, starts: np.ndarray, inputs: np.ndarray,
             x_end: np.ndarray, y_end: np.ndarray, s_end: np.ndarray,
             dyo: np.ndarray) -> None:
-        """Integrate B intervals from ``starts`` (B, nx) with ``inputs`` (B, nu).
+        """
+        Integrate B intervals from ``starts`` (B, nx) with ``inputs`` (B, nu).
 
         Fills ``x_end`` (B, nx), ``y_end`` (B, ny) and, with sensitivities,
         ``s_end`` (B, n, nx + m) and the output partials ``dyo``
@@ -322,6 +335,7 @@ class MeBatchDriver:
             For an interval the driver does not do (an event, too many steps).
         RuntimeError
             If an FMI call fails or the FMU requests termination.
+
         """
         batch = starts.shape[0]
         stats = (ctypes.c_long * 4)()

@@ -1,4 +1,5 @@
-"""Model Exchange integration of an :class:`~mshoot_core.models.fmi.FmiModel`.
+"""
+Model Exchange integration of an :class:`~mshoot_core.models.fmi.FmiModel`.
 
 Two integrators, the same FMI calls around them:
 
@@ -46,7 +47,8 @@ class HeldInputs:
 
 
 class ModelExchangeIntegration:
-    """Model Exchange part of :class:`~mshoot_core.models.fmi.FmiModel` (a mixin).
+    """
+    Model Exchange part of :class:`~mshoot_core.models.fmi.FmiModel` (a mixin).
 
     Works on the model's FMU instance and configuration; keeps on the
     instance the CVode solver (``_solver``), the FMU-state snapshot
@@ -133,7 +135,8 @@ class ModelExchangeIntegration:
                 self._solver.reset(t)
 
     def _restore_snapshot(self, x0: np.ndarray, u: np.ndarray) -> None:
-        """Bring the instance to t = 0 with ``x0`` and ``u`` through its FMU-state snapshot.
+        """
+        Bring the instance to t = 0 with ``x0`` and ``u`` through its FMU-state snapshot.
 
         The first call initialises and takes the snapshot; later ones restore
         it (no re-initialisation), write the states and apply the inputs as
@@ -152,7 +155,8 @@ class ModelExchangeIntegration:
 
     # -- the compiled batch ---------------------------------------------------------------
     def me_batch_plan(self) -> str | None:
-        """Why Model Exchange intervals cannot go to the compiled driver, or None if they can.
+        """
+        Why Model Exchange intervals cannot go to the compiled driver, or None if they can.
 
         The driver integrates with an explicit Runge-Kutta method and handles
         no events, so it applies to Model Exchange FMUs without event
@@ -174,7 +178,7 @@ class ModelExchangeIntegration:
 
     def _me_problem(self, dt_s: float,
                     sensitivities: SensitivityRequest | None) -> tuple[MeProblem, list]:
-        """The driver's description of a batch, and the arrays it points to (keep both)."""
+        """Return the driver's description of a batch, and the arrays it points to (keep both)."""
         par_refs, par_values = self._parameter_groups.get('Real', ([], []))
         fmu_outputs = {o.variable.name for o in self.model_description.outputs}
         return me_problem(
@@ -198,7 +202,8 @@ class ModelExchangeIntegration:
                        x_end: np.ndarray, y_end: np.ndarray,
                        sensitivities: SensitivityRequest | None = None
                        ) -> tuple[np.ndarray, np.ndarray] | bool:
-        """Run a Model Exchange batch in the compiled driver; False where it does not apply.
+        """
+        Run a Model Exchange batch in the compiled driver; False where it does not apply.
 
         Each interval makes the FMI calls of :meth:`_start_interval`, then
         integrates with Dormand-Prince 5(4) at :attr:`tolerance` (absolute
@@ -217,6 +222,7 @@ class ModelExchangeIntegration:
         ------
         NotBuiltError
             If the driver is not built (``make setup``).
+
         """
         if self._me_driver is False:
             return False

@@ -1,4 +1,5 @@
-"""A building of Z R1C1 zones, vectorised: the scale test case of the optimiser.
+"""
+A building of Z R1C1 zones, vectorised: the scale test case of the optimiser.
 
 Every zone follows the R1C1 equations of :mod:`mshoot_core.models.r1c1` with
 its own size, solar aperture and occupancy share, under the shared outdoor
@@ -19,7 +20,8 @@ from mshoot_core.models.r1c1 import KELVIN, R1C1Model, R1C1Parameters
 
 
 class MultiZoneModel(Model):
-    """Z independent R1C1 zones in one model.
+    """
+    Z independent R1C1 zones in one model.
 
     Parameters
     ----------
@@ -33,6 +35,7 @@ class MultiZoneModel(Model):
 
     Inputs ``solrad``, ``Tout``, ``occ``, ``dpos`` (shared) and ``q_0`` ...
     ``q_{Z-1}`` [W]; states ``T_0`` ... [K]; outputs ``Tc_0`` ... [degC].
+
     """
 
     def __init__(self, n_zones: int, seed: int = 0,
@@ -53,7 +56,7 @@ class MultiZoneModel(Model):
         self.output_names = tuple(f'Tc_{i}' for i in range(self.n_zones))
 
     def _zone_inputs(self, u: np.ndarray) -> np.ndarray:
-        """Inputs of every zone, shape (B, Z, 5), from the model inputs (B, 4 + Z)."""
+        """Return the inputs of every zone, shape (B, Z, 5), from the model inputs (B, 4 + Z)."""
         batch = u.shape[0]
         zone_u = np.empty((batch, self.n_zones, 5))
         zone_u[:, :, 0] = u[:, [0]] * self.solar_share
@@ -64,12 +67,12 @@ class MultiZoneModel(Model):
         return zone_u
 
     def _coefficients(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """f [W], g [W/K] and capacity C [J/K] per batch row and zone, shapes (B, Z)."""
+        """Return f [W], g [W/K] and capacity C [J/K] per batch row and zone, shapes (B, Z)."""
         f, g = self.zones.affine_coefficients(self._zone_inputs(u))
         return f, g, np.broadcast_to(self.zones.parameters.capacity_j_k, f.shape)
 
-    def simulate(self, udf: pd.DataFrame, x0: Sequence[float]) -> tuple[pd.DataFrame,
-                                                                       pd.DataFrame]:
+    def simulate(self, udf: pd.DataFrame,
+                 x0: Sequence[float]) -> tuple[pd.DataFrame, pd.DataFrame]:
         t, u, x0_arr = self.check_inputs(udf, x0)
         states = np.empty((t.size, self.n_zones))
         states[0] = x0_arr
@@ -123,7 +126,8 @@ class MultiZoneModel(Model):
 
 
 def multizone_mpc_options(model: MultiZoneModel, solver: str = 'ipopt') -> dict:
-    """MPC keyword arguments for a :class:`MultiZoneModel`.
+    """
+    MPC keyword arguments for a :class:`MultiZoneModel`.
 
     One heater per zone (-2000..2000 W), every zone bounded by the comfort
     band, and for IPOPT the large-problem configuration: a single

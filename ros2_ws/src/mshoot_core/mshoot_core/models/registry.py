@@ -1,4 +1,5 @@
-"""One registry of zone models: one vocabulary and one set of defaults everywhere.
+"""
+One registry of zone models: one vocabulary and one set of defaults everywhere.
 
 The case command, the study, the benchmarks and the ROS nodes build their
 models here, by name:
@@ -24,7 +25,7 @@ import pathlib
 from typing import Callable
 
 from mshoot_core.models.base import Model
-from mshoot_core.settings import SettingsGroup, fields_of, setting, SettingField
+from mshoot_core.settings import fields_of, setting, SettingField, SettingsGroup
 
 logger = logging.getLogger(__name__)
 
@@ -40,7 +41,8 @@ _REGISTERED: dict[str, tuple[Callable[[float], Model], str]] = {}
 
 
 def register(name: str, factory: Callable[[float], Model], description: str) -> None:
-    """Add a model name (e.g. a trained data-driven model) to the vocabulary.
+    """
+    Add a model name (e.g. a trained data-driven model) to the vocabulary.
 
     Parameters
     ----------
@@ -50,6 +52,7 @@ def register(name: str, factory: Callable[[float], Model], description: str) -> 
         ``factory(tolerance) -> Model``.
     description : str
         One line for help texts.
+
     """
     if name in BUILTIN or name.endswith('.fmu') or not name:
         raise ValueError(f'cannot register a model named {name!r}')
@@ -72,7 +75,8 @@ def check_model(name: str) -> str | None:
 
 
 def build_model(name: str, tolerance: float = CONTROL_TOLERANCE) -> Model:
-    """The model named ``name`` (see the module docstring).
+    """
+    Build the model named ``name`` (see the module docstring).
 
     Parameters
     ----------
@@ -85,6 +89,7 @@ def build_model(name: str, tolerance: float = CONTROL_TOLERANCE) -> Model:
     ------
     ValueError
         Unknown name, missing FMU file, or FMU support missing.
+
     """
     problem = check_model(name)
     if problem:
@@ -121,7 +126,7 @@ class ModelSettings(SettingsGroup):
         return [problem] if problem else []
 
     def build(self) -> Model:
-        """The model (see :func:`build_model`)."""
+        """Build the model (see :func:`build_model`)."""
         return build_model(self.model, self.fmu_tolerance)
 
 
