@@ -1,4 +1,5 @@
-"""Messages <-> numpy arrays and pandas DataFrames, and ROS time <-> seconds.
+"""
+Messages <-> numpy arrays and pandas DataFrames, and ROS time <-> seconds.
 
 The nodes stay thin by converting at their edges only: everything inside is
 :mod:`mshoot_core` data (states in K as arrays, forecasts and scenarios as
@@ -36,7 +37,7 @@ def seconds_to_ns(seconds: float) -> int:
 
 
 def stamp_to_ns(stamp: Time) -> int:
-    """A ``builtin_interfaces/Time`` as integer nanoseconds."""
+    """Return a ``builtin_interfaces/Time`` as integer nanoseconds."""
     return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
 
 
@@ -47,19 +48,20 @@ def ns_to_stamp(ns: int) -> Time:
 
 
 def clock_msg(ns: int) -> Clock:
-    """A ``rosgraph_msgs/Clock`` at ``ns``."""
+    """Return a ``rosgraph_msgs/Clock`` at ``ns``."""
     return Clock(clock=ns_to_stamp(ns))
 
 
 def floor_to_step(ns: int, step_ns: int) -> int:
-    """The start of the step holding ``ns`` on the grid of multiples of ``step_ns``."""
+    """Return the start of the step holding ``ns`` on the grid of multiples of ``step_ns``."""
     return (int(ns) // int(step_ns)) * int(step_ns)
 
 
 # -- zone state ---------------------------------------------------------------------------
 def zone_state_msg(stamp_ns: int, temperature_k: float, heat_rate_w: float,
                    zone: str = '') -> ZoneState:
-    """The zone state at ``stamp_ns``: temperature from the model state [K] to [degC].
+    """
+    Return the zone state at ``stamp_ns``: temperature from the model state [K] to [degC].
 
     Parameters
     ----------
@@ -71,6 +73,7 @@ def zone_state_msg(stamp_ns: int, temperature_k: float, heat_rate_w: float,
         Heat rate applied over the last step [W].
     zone : str
         Zone name (``header.frame_id``).
+
     """
     msg = ZoneState()
     msg.header.stamp = ns_to_stamp(stamp_ns)
@@ -81,7 +84,7 @@ def zone_state_msg(stamp_ns: int, temperature_k: float, heat_rate_w: float,
 
 
 def zone_state_to_x(msg: ZoneState) -> np.ndarray:
-    """The model state of a zone state message: ``[T]`` [K], shape (1,)."""
+    """Return the model state of a zone state message: ``[T]`` [K], shape (1,)."""
     return np.array([msg.temperature_c + KELVIN])
 
 
@@ -98,7 +101,7 @@ def disturbances_msg(stamp_ns: int, row: pd.Series, zone: str = '') -> Disturban
 
 
 def disturbances_to_series(msg: Disturbances) -> pd.Series:
-    """A Disturbances message as a Series with the scenario columns Tout, solrad, occ."""
+    """Return a Disturbances message as a Series with the scenario columns Tout, solrad, occ."""
     return pd.Series({'Tout': msg.outdoor_temperature_c, 'solrad': msg.solar_radiation_w_m2,
                       'occ': msg.occupancy})
 
@@ -106,7 +109,8 @@ def disturbances_to_series(msg: Disturbances) -> pd.Series:
 # -- forecast -----------------------------------------------------------------------------
 def forecast_msg(stamp_ns: int, step_s: float, window: pd.DataFrame,
                  zone: str = '') -> Forecast:
-    """A forecast message from a window of scenario rows.
+    """
+    Return a forecast message from a window of scenario rows.
 
     Parameters
     ----------
@@ -117,6 +121,9 @@ def forecast_msg(stamp_ns: int, step_s: float, window: pd.DataFrame,
     window : DataFrame, shape (n, >= 5)
         Rows of the columns Tout, solrad, occ, comfort_min, comfort_max (e.g.
         :func:`mshoot_core.closed_loop.forecast_window`: N+1 rows).
+    zone : str
+        Zone name (``header.frame_id``).
+
     """
     msg = Forecast()
     msg.header.stamp = ns_to_stamp(stamp_ns)
@@ -128,7 +135,7 @@ def forecast_msg(stamp_ns: int, step_s: float, window: pd.DataFrame,
 
 
 def forecast_length(msg: Forecast) -> int:
-    """Number of samples of a forecast; ValueError if its arrays differ in length."""
+    """Return the number of samples of a forecast; ValueError if its arrays differ in length."""
     lengths = {field: len(getattr(msg, field)) for field in FORECAST_FIELDS.values()}
     if len(set(lengths.values())) != 1:
         raise ValueError(f'forecast arrays differ in length: {lengths}')
@@ -136,13 +143,18 @@ def forecast_length(msg: Forecast) -> int:
 
 
 def forecast_series(msg: Forecast) -> dict[str, Sequence[float]]:
-    """The arrays of a forecast by scenario column (Tout, solrad, occ, comfort_min,
-    comfort_max), unchecked: what :func:`mshoot_core.safety.check_forecast` validates."""
+    """
+    Return the arrays of a forecast by scenario column, unchecked.
+
+    The columns are Tout, solrad, occ, comfort_min and comfort_max; unchecked: what
+    :func:`mshoot_core.safety.check_forecast` validates.
+    """
     return {column: getattr(msg, field) for column, field in FORECAST_FIELDS.items()}
 
 
 def forecast_to_frame(msg: Forecast, dpos: float = 0.0) -> pd.DataFrame:
-    """A forecast message as a DataFrame with the scenario columns.
+    """
+    Return a forecast message as a DataFrame with the scenario columns.
 
     Parameters
     ----------
@@ -157,6 +169,7 @@ def forecast_to_frame(msg: Forecast, dpos: float = 0.0) -> pd.DataFrame:
     DataFrame, shape (n, 6)
         Columns solrad, Tout, occ, dpos, comfort_min, comfort_max; index the
         sample start times [s] (ROS time).
+
     """
     n = forecast_length(msg)
     t0 = stamp_to_ns(msg.header.stamp) / NS_PER_S
@@ -169,8 +182,12 @@ def forecast_to_frame(msg: Forecast, dpos: float = 0.0) -> pd.DataFrame:
 
 # -- setpoint and status ------------------------------------------------------------------
 def setpoint_msg(stamp_ns: int, result: MpcResult, step_s: float, zone: str = '') -> Setpoint:
-    """The setpoint of a solved MPC step: first control, its predicted end temperature and
-    the plan (first control ``q``, first state ``T`` in K)."""
+    """
+    Return the setpoint of a solved MPC step.
+
+    The first control, its predicted end temperature and the plan (first control ``q``, first state
+    ``T`` in K).
+    """
     msg = Setpoint()
     msg.header.stamp = ns_to_stamp(stamp_ns)
     msg.header.frame_id = zone
@@ -188,7 +205,7 @@ def fallback_setpoint_msg(stamp_ns: int, heat_rate_w: float, temperature_c: floa
                           step_s: float, plan_heat_rate_w: Sequence[float] = (),
                           plan_temperature_c: Sequence[float] = (),
                           zone: str = '') -> Setpoint:
-    """A setpoint that is not a fresh optimum (e.g. the previous plan's next interval)."""
+    """Return a setpoint that is not a fresh optimum (e.g. the previous plan's next interval)."""
     msg = Setpoint()
     msg.header.stamp = ns_to_stamp(stamp_ns)
     msg.header.frame_id = zone
@@ -201,13 +218,13 @@ def fallback_setpoint_msg(stamp_ns: int, heat_rate_w: float, temperature_c: floa
 
 
 def setpoint_to_controls(msg: Setpoint) -> np.ndarray:
-    """The controls of a setpoint: ``[q]`` [W], shape (1,)."""
+    """Return the controls of a setpoint: ``[q]`` [W], shape (1,)."""
     return np.array([msg.heat_rate_w])
 
 
 def status_msg(stamp_ns: int, result: MpcResult | None, *, fallback: bool = False,
                message: str = '', solve_time_s: float = 0.0) -> MpcStatus:
-    """The status of an MPC step; ``result`` None when no solve produced the setpoint."""
+    """Return the status of an MPC step; ``result`` None when no solve produced the setpoint."""
     msg = MpcStatus()
     msg.header.stamp = ns_to_stamp(stamp_ns)
     msg.fallback = bool(fallback)
@@ -229,7 +246,8 @@ def status_msg(stamp_ns: int, result: MpcResult | None, *, fallback: bool = Fals
 
 def decision_setpoint_msg(stamp_ns: int, decision: Decision, step_s: float,
                           safe_temperature_c: float, zone: str = '') -> Setpoint:
-    """The setpoint of a supervisor decision (first control ``q``, first state ``T`` [K]).
+    """
+    Return the setpoint of a supervisor decision (first control ``q``, first state ``T`` [K]).
 
     Parameters
     ----------
@@ -243,6 +261,7 @@ def decision_setpoint_msg(stamp_ns: int, decision: Decision, step_s: float,
         Temperature setpoint sent with a safe setpoint (which predicts nothing) [degC].
     zone : str
         ``header.frame_id``.
+
     """
     temperature_c = (float(decision.predicted_state[0]) - KELVIN
                      if decision.predicted_state is not None else float(safe_temperature_c))
@@ -256,7 +275,8 @@ def decision_status_msg(stamp_ns: int, decision: Decision, result: MpcResult | N
                         solve_time_s: float, rejected_states: int = 0,
                         rejected_forecasts: int = 0,
                         consecutive_fallbacks: int = 0) -> MpcStatus:
-    """The status of a supervisor decision; never a non-finite number.
+    """
+    Return the status of a supervisor decision; never a non-finite number.
 
     ``result`` is the step's solve result if there is one (its numbers are
     reported even when it was not used); without one, ``objective`` and
@@ -287,7 +307,8 @@ def _int32(value: int) -> int:
 # -- records of a run ---------------------------------------------------------------------
 def mpc_records_frame(setpoints: Iterable[Setpoint], statuses: Iterable[MpcStatus],
                       epoch_ns: int = 0) -> pd.DataFrame:
-    """Per-step MPC records from setpoint and status messages (the first of each stamp).
+    """
+    Per-step MPC records from setpoint and status messages (the first of each stamp).
 
     Returns
     -------
@@ -296,6 +317,7 @@ def mpc_records_frame(setpoints: Iterable[Setpoint], statuses: Iterable[MpcStatu
         ``q_setpoint`` [W], ``T_predicted_c`` [degC], ``success``, ``fallback``,
         ``iterations``, ``solve_time_s``, ``objective``, ``max_defect``,
         ``message``, ``source``, ``fallback_reason``.
+
     """
     rows: dict[int, dict] = {}
     for msg in setpoints:

@@ -1,4 +1,5 @@
-"""The emulator node: the building, simulated by :class:`mshoot_core.emulation.Emulator`.
+"""
+The emulator node: the building, simulated by :class:`mshoot_core.emulation.Emulator`.
 
 Publishes ``/clock`` (it drives simulated time), ``/zone/state`` and
 ``/zone/disturbances`` at every control step and applies the setpoints from
@@ -175,7 +176,7 @@ def _check_sources(v: dict[str, Any]) -> str | None:
 
 
 def build_emulator(p: dict[str, Any]) -> Emulator:
-    """The core emulator configured by the node's parameter values ``p``."""
+    """Build the core emulator configured by the node's parameter values ``p``."""
     scenario = sources.load_scenario(p['scenario'], p['data'], p['hours'])
     model = sources.build_model(p['model'], p['fmu_tolerance'])
     return Emulator(model, scenario, [p['initial_temperature_c'] + KELVIN], control_names=('q',),
@@ -185,7 +186,8 @@ def build_emulator(p: dict[str, Any]) -> Emulator:
 
 
 class EmulatorNode(ManagedNode):
-    """The emulated building (see the module docstring).
+    """
+    The emulated building (see the module docstring).
 
     Attributes
     ----------
@@ -216,6 +218,7 @@ class EmulatorNode(ManagedNode):
         The start gate while it waits.
     diagnostics : DiagnosticsPublisher
         Publishes :meth:`health` on /diagnostics.
+
     """
 
     def __init__(self, **kwargs: Any) -> None:
@@ -315,7 +318,7 @@ class EmulatorNode(ManagedNode):
 
     # -- health -----------------------------------------------------------------------------
     def health(self) -> Report:
-        """The emulator's status for /diagnostics."""
+        """Return the emulator's status for /diagnostics."""
         sources_count = collections.Counter(self.applied_sources)
         rejected = self.rejections.total()
         values_ = {
@@ -387,7 +390,7 @@ class EmulatorNode(ManagedNode):
 
     # -- start ----------------------------------------------------------------------------
     def _start(self) -> None:
-        """The start gate opened: publish the first step and start the run timer."""
+        """Start once the start gate opened: publish the first step and start the run timer."""
         self.gate = None
         self.started = True
         self._run_started_ns = self._step_started_ns = self._steady_ns()
@@ -567,14 +570,15 @@ class EmulatorNode(ManagedNode):
 
     # -- records --------------------------------------------------------------------------
     def fine_frame(self) -> pd.DataFrame:
-        """The fine-grid trajectory of all steps so far (as the core loop builds it)."""
+        """Return the fine-grid trajectory of all steps so far (as the core loop builds it)."""
         if not self.records:
             return pd.DataFrame()
         return pd.concat([r.fine if k == 0 else r.fine.iloc[1:]
                           for k, r in enumerate(self.records)])
 
     def applied_frame(self) -> pd.DataFrame:
-        """One row per step: ROS stamp [ns], applied controls [W], start and end states.
+        """
+        One row per step: ROS stamp [ns], applied controls [W], start and end states.
 
         Index ``time_s`` (scenario time [s]); columns ``stamp_ns``, ``q``,
         ``<state>_start``, ``<state>_end``.

@@ -1,4 +1,5 @@
-"""The outputs of a ROS run: per-step records, KPIs, plot, as the case command writes them.
+"""
+The outputs of a ROS run: per-step records, KPIs, plot, as the case command writes them.
 
 A ROS run is recorded in two places: the emulator knows what it applied and
 the fine trajectory (:meth:`EmulatorNode.applied_frame`, ``fine_frame``, or
@@ -25,7 +26,8 @@ MPC_COLUMNS = ('solve_time_s', 'success', 'fallback', 'iterations', 'objective',
 
 
 def steps_frame(applied: pd.DataFrame, mpc_records: pd.DataFrame) -> pd.DataFrame:
-    """One row per control step: what the emulator applied and what the MPC reported.
+    """
+    One row per control step: what the emulator applied and what the MPC reported.
 
     Parameters
     ----------
@@ -41,6 +43,7 @@ def steps_frame(applied: pd.DataFrame, mpc_records: pd.DataFrame) -> pd.DataFram
         ``applied`` joined with the MPC columns, plus ``T_predicted`` [K];
         steps without an MPC record (should not happen in lockstep) get
         ``success`` False and ``solve_time_s`` 0.
+
     """
     steps = applied.drop(columns=['stamp_ns'], errors='ignore').join(
         mpc_records.reindex(columns=list(MPC_COLUMNS)), how='left')
@@ -54,7 +57,7 @@ def steps_frame(applied: pd.DataFrame, mpc_records: pd.DataFrame) -> pd.DataFram
 
 def run_kpis(steps: pd.DataFrame, fine: pd.DataFrame, step_s: float, wall_s: float,
              **extra: object) -> dict:
-    """KPIs of a ROS run: :func:`closed_loop_kpis` plus ``extra`` and ``fallbacks``."""
+    """Return the KPIs of a ROS run: :func:`closed_loop_kpis` plus ``extra`` and ``fallbacks``."""
     kpis = closed_loop_kpis(steps, fine, step_s, wall_s)
     kpis['fallbacks'] = int(np.sum(steps['fallback'].to_numpy(dtype=bool)))
     kpis['mpc_records_missing'] = int(np.sum(~steps['mpc_record'].to_numpy(dtype=bool)))
@@ -73,7 +76,7 @@ def run_outputs(out: pathlib.Path, applied: pd.DataFrame, fine: pd.DataFrame,
 
 
 def kpi_summary(kpis: dict) -> str:
-    """A few lines with the KPIs an operator looks at first."""
+    """Return a few lines with the KPIs an operator looks at first."""
     missing = kpis.get('mpc_records_missing', 0)
     return (f"energy {kpis['energy_kwh']:.2f} kWh (heating {kpis['heating_kwh']:.2f}, cooling "
             f"{kpis['cooling_kwh']:.2f})\n"
