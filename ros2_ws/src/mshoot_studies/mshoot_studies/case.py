@@ -1,6 +1,7 @@
-"""The reference case (OU44 classroom, SPEC section 3) as a command.
+r"""
+The reference case (OU44 classroom, SPEC section 3) as a command.
 
-    mshoot case ou44 --data PATH --horizon 10 --control fmu --tolerance 1e-6 \\
+    mshoot case ou44 --data PATH --horizon 10 --control fmu --tolerance 1e-6 \
         --cost quadratic --out out/case
 
 runs the 72 h MPC emulation (hourly control, R1C1 emulator, perfect
@@ -18,20 +19,19 @@ import sys
 import time
 from typing import Any, Sequence
 
-import pandas as pd
-
 from mshoot_core.closed_loop import ClosedLoopResult, run_closed_loop
 from mshoot_core.controller import Controller
 from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis
 from mshoot_core.models.base import Model
 from mshoot_core.models.r1c1 import KELVIN
-from mshoot_core.models.registry import (BUILTIN, build_model, CONTROL_TOLERANCE,
+from mshoot_core.models.registry import (build_model, BUILTIN, CONTROL_TOLERANCE,
                                          EMULATOR_TOLERANCE, MODEL_PARAMETERS, ModelSettings)
 from mshoot_core.outputs import write_outputs
 from mshoot_core.scenario import DEFAULT_DATA, PUBLISHED, reference_scenario
 from mshoot_core.settings import (add_arguments, from_arguments, MpcSettings, option_wording,
                                   SettingsError)
+import pandas as pd
 
 logger = logging.getLogger(__name__)
 
@@ -42,7 +42,8 @@ CONTROL_MODELS = BUILTIN + DATA_DRIVEN
 
 def control_model(kind: str, tolerance: float = CONTROL_TOLERANCE,
                   data: str | pathlib.Path | None = None, report: dict | None = None) -> Model:
-    """Build the control model of the case.
+    """
+    Build the control model of the case.
 
     Parameters
     ----------
@@ -51,8 +52,13 @@ def control_model(kind: str, tolerance: float = CONTROL_TOLERANCE,
         'python', 'fmu', 'fmu-cs' or a path to an .fmu), or a scikit-learn
         model trained as in Setup 2 ('svr' is Setup 2 itself, 'linear', 'ridge',
         'knn', 'random_forest', 'mlp'; needs ``data``).
+    tolerance : float
+        Relative tolerance of an FMU control model's integrator.
+    data : path-like, optional
+        The OU44 measurements the data-driven models train on.
     report : dict, optional
         Filled with the training/validation report of data-driven models.
+
     """
     if kind in DATA_DRIVEN:
         if data is None:
@@ -74,7 +80,8 @@ def run_case(scenario: pd.DataFrame, control: Model, emulator_model: Model,
              initial_c: float = 20.0, steps: int | None = None, log_every: int = 12,
              progress: Any = None, budget_s: float | None = None,
              **options: Any) -> tuple[ClosedLoopResult, dict]:
-    """Run the MPC emulation of a scenario and return the records and the KPIs.
+    """
+    Run the MPC emulation of a scenario and return the records and the KPIs.
 
     Parameters
     ----------
@@ -87,10 +94,13 @@ def run_case(scenario: pd.DataFrame, control: Model, emulator_model: Model,
         ``options`` (flat names such as ``cost='energy'``, ``solver='ipopt'``,
         ``comfort='soft'``, ``mode='naive'``; ``horizon`` is short for
         ``horizon_steps``).
+    horizon : int, optional
+        MPC horizon in control steps (``horizon_steps``).
     initial_c : float
         Initial zone temperature [degC].
     steps, log_every, progress, budget_s :
         See :func:`mshoot_core.closed_loop.run_closed_loop`.
+
     """
     if horizon is not None:
         options['horizon_steps'] = horizon
@@ -116,8 +126,11 @@ CASE_SETTINGS = ('horizon_steps', 'cost', 'comfort', 'soft_penalty', 'solver', '
 
 def option_problems(args: argparse.Namespace,
                     scenario_steps: int | None = None) -> tuple[MpcSettings | None, list[str]]:
-    """The controller settings of parsed options, and every problem of the options at once
-    (settings, FMU tolerance, hours, and a horizon longer than the forecasts)."""
+    """
+    Return the controller settings of parsed options, and every problem of the options.
+
+    All problems at once: settings, FMU tolerance, hours, and a horizon longer than the forecasts.
+    """
     problems = ModelSettings(fmu_tolerance=args.tolerance).problems()
     if args.hours < 1:
         problems.append(f'--hours must be >= 1, got {args.hours}')
@@ -135,8 +148,11 @@ def option_problems(args: argparse.Namespace,
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    """The command line of the case: fills ``parser`` (e.g. the ``case`` verb of ``mshoot``),
-    or a new parser when None."""
+    """
+    Build the command line of the case.
+
+    It fills ``parser`` (e.g. the ``case`` verb of ``mshoot``), or a new parser when None.
+    """
     if parser is None:
         parser = argparse.ArgumentParser(
             prog='python -m mshoot_studies.case', description=__doc__,
