@@ -1,4 +1,5 @@
-"""The controller in core: every per-step decision, the same offline and over ROS.
+"""
+The controller in core: every per-step decision, the same offline and over ROS.
 
 Plain tests of :class:`mshoot_core.controller.Controller` (input validation and
 gating, waiting, the fallback chain, the time budget that stops the solver
@@ -13,12 +14,12 @@ import time
 from mshoot_core.closed_loop import forecast_window, run_closed_loop
 from mshoot_core.controller import Controller
 from mshoot_core.emulation import Emulator
-from mshoot_testing.faults import FaultyModel, FaultySolver
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import reference_scenario, synthetic_scenario
 from mshoot_core.settings import MpcSettings
 from mshoot_core.solvers import make_solver
+from mshoot_testing.faults import FaultyModel, FaultySolver
 import numpy as np
 import pandas as pd
 import pytest
@@ -28,8 +29,11 @@ STEP_NS = 3600 * NS
 
 
 class SlowModel(R1C1Model):
-    """The exact R1C1 whose every batched call sleeps ``delay_s`` while ``slow`` is set
-    (a control model that cannot finish a solve within its budget)."""
+    """
+    The exact R1C1 whose every batched call sleeps ``delay_s`` while ``slow`` is set.
+
+    A control model that cannot finish a solve within its budget.
+    """
 
     def __init__(self, delay_s: float) -> None:
         super().__init__()
@@ -249,8 +253,12 @@ def test_core_and_ros_make_the_same_decisions(fault, context):
 
 
 def test_core_run_whose_model_raises_from_hour_20_completes(tmp_path):
-    """72 steps; the control model raises from hour 20 on: the last good plan for
-    max_plan_age_steps steps, then the safe setpoint, all recorded in steps.csv."""
+    """
+    72 steps, the control model raising from hour 20 on: the fallbacks, recorded in steps.csv.
+
+    The last good plan for max_plan_age_steps steps, then the safe setpoint, all recorded in
+    steps.csv.
+    """
     steps = core_decisions('raise', hours=72, fault_steps=(20, 72))
     steps.to_csv(tmp_path / 'steps.csv')
     read = pd.read_csv(tmp_path / 'steps.csv', index_col='time_s', keep_default_na=False)

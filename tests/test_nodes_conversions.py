@@ -3,13 +3,12 @@ from mshoot_core.closed_loop import forecast_window
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import reference_scenario, synthetic_scenario
-import numpy as np
-import pandas as pd
-import pytest
-
 from mshoot_nodes import conversions as cv
 from mshoot_nodes import sources
 from mshoot_nodes.forecaster_node import forecast_errors
+import numpy as np
+import pandas as pd
+import pytest
 
 
 def test_stamps_are_exact_integer_nanoseconds():

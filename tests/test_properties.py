@@ -1,5 +1,8 @@
-"""Property-based tests (hypothesis): malformed input never crashes a node, never reaches
-the optimiser or the building, is always counted, and nothing non-finite is published.
+"""
+Property-based tests (hypothesis): malformed input never crashes a node.
+
+Malformed input never reaches the optimiser or the building, is always counted, and nothing
+non-finite is published.
 
 The core rules (:mod:`mshoot_core.safety`) are checked on arbitrary values; the MPC
 and the emulator nodes get batches of malformed messages (one defect each, from
@@ -15,14 +18,6 @@ from hypothesis.extra import numpy as hnp
 from mshoot_core.safety import (check_forecast, check_setpoint, FORECAST_SERIES, Limits,
                                 SetpointHold, SetpointSupervisor, SOURCES, StampGate)
 from mshoot_msgs.msg import Disturbances, Forecast, MpcStatus, Setpoint, ZoneState
-import numpy as np
-import pandas as pd
-import pytest
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.parameter import Parameter
-from rosgraph_msgs.msg import Clock
-
 from mshoot_nodes import contract
 from mshoot_nodes.conversions import (clock_msg, fallback_setpoint_msg, forecast_msg, NS_PER_S,
                                       zone_state_msg)
@@ -30,6 +25,13 @@ from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_nodes.mpc_node import MpcNode
 from mshoot_testing.harness import (FORECAST_DEFECTS, malformed_forecast, malformed_setpoint,
                                     malformed_zone_state, SETPOINT_DEFECTS, STATE_DEFECTS)
+import numpy as np
+import pandas as pd
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock
 
 from conftest import private_context
 
@@ -47,6 +49,7 @@ floats = st.floats(allow_nan=True, allow_infinity=True, width=64)
 
 # -- the core rules on arbitrary values ---------------------------------------------------
 class _Result:
+
     def __init__(self, controls, states, success):
         self.controls, self.states, self.success, self.message = controls, states, success, ''
 
@@ -202,7 +205,7 @@ def _valid_window(rng, rows):
 
 @pytest.fixture(scope='module')
 def mpc_rig():
-    """An MPC node on simulated time and a probe that drives its clock and inputs."""
+    """Yield an MPC node on simulated time and a probe that drives its clock and inputs."""
     context = private_context()
     mpc = MpcNode(context=context, parameter_overrides=[
         Parameter('use_sim_time', value=True), Parameter('model', value='python'),
@@ -283,7 +286,7 @@ def test_mpc_rejects_and_counts_every_malformed_input(mpc_rig, states, forecasts
 
 @pytest.fixture(scope='module')
 def emulator_rig():
-    """A lockstep emulator (python R1C1) and a probe that sends it setpoints."""
+    """Yield a lockstep emulator (python R1C1) and a probe that sends it setpoints."""
     context = private_context()
     emulator = EmulatorNode(context=context, parameter_overrides=[
         Parameter('hours', value=2000), Parameter('model', value='python'),
