@@ -6,15 +6,15 @@ import shutil
 import subprocess
 import sys
 
+from mshoot_core.models.r1c1 import R1C1Model
+from mshoot_core.scenario import PUBLISHED, reference_scenario
+from mshoot_studies import case, cli, study
+from mshoot_studies.setup2 import SETUP2_SPLIT, SETUP2_START, train_setup2
 import numpy as np
 import pandas as pd
 import pytest
 
 from conftest import ROOT
-from mshoot_core.models.r1c1 import R1C1Model
-from mshoot_core.scenario import PUBLISHED, reference_scenario
-from mshoot_studies import case, cli, study
-from mshoot_studies.setup2 import SETUP2_SPLIT, SETUP2_START, train_setup2
 
 KPI_KEYS = ('energy_kwh', 'heating_kwh', 'cooling_kwh', 'discomfort_kh', 'discomfort_kh_hourly',
             'steps', 'horizon_h', 'wall_s', 'solve_s_median', 'solver_failures')

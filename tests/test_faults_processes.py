@@ -1,5 +1,7 @@
-"""Processes: an MPC killed mid-run and restarted picks up within one step; bad
-configuration ends a node at start-up with a clear line and a non-zero exit code.
+"""
+Processes: an MPC killed mid-run and restarted picks up within one step.
+
+Bad configuration ends a node at start-up with a clear line and a non-zero exit code.
 
 The emulator and the forecaster run in this process (lockstep), the MPC as its own
 process (``lib/mshoot_nodes/mpc``, what ``ros2 run`` runs), over DDS on this host.
@@ -12,16 +14,15 @@ import time
 
 from mshoot_core import fmu_build
 from mshoot_msgs.msg import MpcStatus
-import pytest
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.parameter import Parameter
-
 from mshoot_nodes import contract
 from mshoot_nodes.conversions import NS_PER_S, stamp_to_ns
 from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_nodes.forecaster_node import ForecasterNode
 from mshoot_nodes.processes import executable
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
 
 pytestmark = pytest.mark.ros
 EPOCH_NS = 1522886400 * NS_PER_S

@@ -1,4 +1,5 @@
-"""Bring-up as separate processes: emulator, forecaster, MPC and recorder, one process each.
+"""
+Bring-up as separate processes: emulator, forecaster, MPC and recorder, one process each.
 
     bringup_processes --hours 24 --out out/processes
 
@@ -94,7 +95,7 @@ def _stop(procs: dict[str, subprocess.Popen], grace_s: float = 10.0) -> None:
 
 
 def last_error(log: pathlib.Path) -> str:
-    """The last ERROR or FATAL line of a node's log ('' when there is none)."""
+    """Return the last ERROR or FATAL line of a node's log ('' when there is none)."""
     lines = log.read_text(errors='replace').splitlines() if log.exists() else []
     errors = [line for line in lines if '[ERROR]' in line or '[FATAL]' in line]
     return errors[-1] if errors else ''

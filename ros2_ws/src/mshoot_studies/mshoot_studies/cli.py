@@ -1,4 +1,5 @@
-"""The ``mshoot`` command: one entry point, one verb per application.
+"""
+The ``mshoot`` command: one entry point, one verb per application.
 
     mshoot case ou44 --data PATH --horizon 10 --control fmu --out out/case
     mshoot case synthetic --control zone.yaml --emulator zone_cs.yaml --out out/zone
