@@ -1,4 +1,5 @@
-"""Versus: mshoot next to a CasADi/IPOPT multiple-shooting implementation of the same cases.
+"""
+Versus: mshoot next to a CasADi/IPOPT multiple-shooting implementation of the same cases.
 
     python bench/versus.py [--repeats 3] [--zones 10 50 100] [--zone-steps 6]
 
@@ -80,8 +81,10 @@ def mshoot_script() -> str:
 
 
 def ours_command(out: pathlib.Path, *extra: str, python_flags: Sequence[str] = ()) -> list[str]:
-    """Our whole command of the reference case, ``mshoot case ou44 ...`` as a user types it
-    (the console script run by the interpreter, so that ``python_flags`` apply)."""
+    """
+    Our whole command of the reference case, ``mshoot case ou44 ...`` as a user types it
+    (the console script run by the interpreter, so that ``python_flags`` apply).
+    """
     return [sys.executable, *python_flags, mshoot_script(), 'case', *case_arguments(out, *extra)]
 
 
@@ -92,9 +95,11 @@ def casadi_command(out: pathlib.Path, python_flags: Sequence[str] = ()) -> list[
 
 
 def run_timed(command: list[str]) -> tuple[float, str, float, float, float]:
-    """Wall time [s] of a subprocess (which must succeed), its stderr, its launch and exit
+    """
+    Wall time [s] of a subprocess (which must succeed), its stderr, its launch and exit
     times (epoch [s]), and its CPU time [s] (user + system, with the processes it waited
-    for, e.g. our plot worker)."""
+    for, e.g. our plot worker).
+    """
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     launched = time.time()
     started = time.perf_counter()
@@ -110,7 +115,8 @@ def run_timed(command: list[str]) -> tuple[float, str, float, float, float]:
 
 # -- the instrumented run of our command (a subprocess of its own) --------------------------------
 class Timers:
-    """Wall-time and CPU-time (the process's) totals [s] and call counts of wrapped
+    """
+    Wall-time and CPU-time (the process's) totals [s] and call counts of wrapped
     functions, by group.
 
     Nested calls within one group count once (the outermost call), so a batch
@@ -154,10 +160,12 @@ class Timers:
 
 
 def timed_drivers(timers: Timers) -> None:
-    """Time the compiled batch drivers' C entry points (native integration): each driver's
+    """
+    Time the compiled batch drivers' C entry points (native integration): each driver's
     ``_batch`` (the ctypes function of ``mshoot_cs_batch`` / ``mshoot_me_batch``) is wrapped
     when the driver is bound, so 'native' is the C call alone, without the Python argument
-    preparation of ``run``."""
+    preparation of ``run``.
+    """
     from mshoot_core.models import fmi_drivers
     for cls in (fmi_drivers.CsBatchDriver, fmi_drivers.MeBatchDriver):
         init = cls.__init__
@@ -169,9 +177,11 @@ def timed_drivers(timers: Timers) -> None:
 
 
 def instrumented_case(argv: list[str], report: pathlib.Path, profile: bool) -> int:
-    """Run our case command as ``mshoot case`` runs it (its verb environment, its plot worker
+    """
+    Run our case command as ``mshoot case`` runs it (its verb environment, its plot worker
     started first, ``mshoot_studies.cli.main``, the fast exit) with timers (or with cProfile
-    on inside the solves); write the figures to ``report``."""
+    on inside the solves); write the figures to ``report``.
+    """
     script_start_epoch = time.time()
     # as the mshoot command starts: its environment for the verb, its plot worker first
     cli = importlib.import_module('mshoot_studies.cli')
@@ -228,8 +238,10 @@ def instrumented_case(argv: list[str], report: pathlib.Path, profile: bool) -> i
 
 
 def profile_figures(stats: pstats.Stats, top: int = 12) -> dict:
-    """cProfile totals of the solve and the model's batch functions, and the top functions
-    by own time (tottime) [s]."""
+    """
+    cProfile totals of the solve and the model's batch functions, and the top functions
+    by own time (tottime) [s].
+    """
     def label(key: tuple) -> str:
         path, line, name = key
         return f'{pathlib.Path(path).name}:{line}({name})' if line else name
@@ -291,8 +303,10 @@ def interpreter_s(repeats: int) -> float:
 
 
 def import_packages(stderr: str, floor_s: float = 0.005) -> dict[str, float]:
-    """Import time [s] per top-level package from ``-X importtime`` output (own times summed,
-    so packages add up to the whole import time); packages under ``floor_s`` as 'other'."""
+    """
+    Import time [s] per top-level package from ``-X importtime`` output (own times summed,
+    so packages add up to the whole import time); packages under ``floor_s`` as 'other'.
+    """
     per_package: dict[str, float] = {}
     for line in stderr.splitlines():
         if not line.startswith('import time:') or 'self [us]' in line:
@@ -308,7 +322,8 @@ def import_packages(stderr: str, floor_s: float = 0.005) -> dict[str, float]:
 
 
 def breakdown(repeats: int, tmp: pathlib.Path) -> dict:
-    """Where the time of both whole commands goes (medians of ``repeats`` runs) [s].
+    """
+    Where the time of both whole commands goes (medians of ``repeats`` runs) [s].
 
     interpreter: a bare ``python -c pass`` (start and exit); imports: ours, the import of
     :data:`CASE_MODULE` timed inside the run; CasADi's, from launch to its ``main`` less the
@@ -403,7 +418,8 @@ def zone_figures(controls_w: list, states_k: list, scenario: Any, kelvin: float)
 
 
 class ZoneLoop:
-    """A closed loop on the scale problem, one MPC step at a time, with its records.
+    """
+    A closed loop on the scale problem, one MPC step at a time, with its records.
 
     Subclasses set ``build_s`` and ``variables`` and implement :meth:`solve`; the plant is
     the exact multi-zone model (``MultiZoneModel.simulate_intervals``), as in ``scale.py``.
@@ -422,8 +438,10 @@ class ZoneLoop:
         self.states_k: list = []
 
     def solve(self, k: int) -> tuple[Any, int, bool, float]:
-        """Plan step k from ``self.x``: (applied heat rates [W] (Z,), iterations, success,
-        model or function evaluation time [s])."""
+        """
+        Plan step k from ``self.x``: (applied heat rates [W] (Z,), iterations, success,
+        model or function evaluation time [s]).
+        """
         raise NotImplementedError
 
     def step(self, k: int) -> None:
@@ -492,15 +510,19 @@ class OurZones(ZoneLoop):
 
 
 def our_ipopt_options(mpc: Any) -> dict:
-    """The IPOPT options our scale problem runs with, in CasADi's spelling: the solver's own
-    (``IpoptSolver``: adaptive barrier update) and ``multizone_mpc_options``' (Mehrotra)."""
+    """
+    The IPOPT options our scale problem runs with, in CasADi's spelling: the solver's own
+    (``IpoptSolver``: adaptive barrier update) and ``multizone_mpc_options``' (Mehrotra).
+    """
     return {'ipopt.mu_strategy': 'adaptive',
             **{f'ipopt.{key}': value for key, value in mpc.solver.options.items()}}
 
 
 class CasadiZones(ZoneLoop):
-    """CasADi's formulation of the same zones, scenario, band and initial state: with IPOPT's
-    defaults, or (``tuned``) with our IPOPT options; model time = its function evaluations."""
+    """
+    CasADi's formulation of the same zones, scenario, band and initial state: with IPOPT's
+    defaults, or (``tuned``) with our IPOPT options; model time = its function evaluations.
+    """
 
     def __init__(self, n_zones: int, steps: int, tuned: bool) -> None:
         from casadi_ref import CasadiMpc, ZoneParameters
@@ -528,9 +550,11 @@ class CasadiZones(ZoneLoop):
 
 
 def zone_rows(zones: Sequence[int], steps: int) -> list[dict]:
-    """One row per Z: build, cold first solve, warm median per step, iterations and model
+    """
+    One row per Z: build, cold first solve, warm median per step, iterations and model
     time of ours, CasADi with IPOPT's defaults ('casadi') and with our IPOPT options
-    ('casadi_tuned'); the three loops step in turn, so load on the machine hits them alike."""
+    ('casadi_tuned'); the three loops step in turn, so load on the machine hits them alike.
+    """
     import warnings
 
     import numpy as np

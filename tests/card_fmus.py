@@ -1,4 +1,5 @@
-"""Test FMUs of the model-card tests, built from ``tests/fmus/`` with gcc (not by the runtime).
+"""
+Test FMUs of the model-card tests, built from ``tests/fmus/`` with gcc (not by the runtime).
 
 - ``zone``: an R1C1 zone with names of its own (state ``cair.T``, inputs ``solrad, Tout, occ,
   q``, no ``dpos``; outputs ``T, Qr``), Model Exchange and Co-Simulation;

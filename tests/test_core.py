@@ -1,12 +1,12 @@
 """mshoot_core: R1C1 analytics, multiple shooting, MPC loop, KPIs, scenarios and outputs."""
 import json
 
+from mshoot_core import plotting
 from mshoot_core.closed_loop import forecast_window, run_closed_loop
 from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis, discomfort_kh, energy_kwh
 from mshoot_core.models import Model, R1C1Model, R1C1Parameters
 from mshoot_core.mpc import MPC
-from mshoot_core import plotting
 from mshoot_core.outputs import write_outputs
 from mshoot_core.plotting import PlotWorker
 from mshoot_core.scenario import synthetic_scenario
@@ -386,8 +386,10 @@ def _small_run():
 
 
 def test_plot_worker_draws_the_figure_of_this_process(tmp_path):
-    """The worker process (its own interpreter, matplotlib imported while the run computes)
-    writes the PNG this process would, pixel for pixel."""
+    """
+    The worker process (its own interpreter, matplotlib imported while the run computes)
+    writes the PNG this process would, pixel for pixel.
+    """
     import matplotlib.image
     result, kpis = _small_run()
     with PlotWorker() as plotter:

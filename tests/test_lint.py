@@ -6,8 +6,8 @@ import order, single quotes, the flake8 plugins ament_flake8 expects, and pep257
 ignore list. The only addition is what google import order cannot guess: the application
 (``application-import-names``), which forms the last import group. For a package that is the
 package itself; for tests/ and bench/ the local modules they import through ``sys.path``
-(conftest, bench's common and casadi_ref). Everything else, the workspace's other packages
-included, is third party, sorted by module name. ``tools/ament_layout.py`` applies the
+(conftest, card_fmus, timed_fmu, bench's common and casadi_ref). Everything else, the
+workspace's other packages included, is third party, sorted by module name. ``tools/ament_layout.py`` applies the
 mechanical part (docstring layout, import groups).
 
 Both linters run as subprocesses from the folder they check, as ``colcon test`` runs them from
@@ -31,7 +31,7 @@ LINTED = {
     'ros2_ws/src/mshoot_nodes': ('mshoot_nodes',),
     'ros2_ws/src/mshoot_studies': ('mshoot_studies',),
     'ros2_ws/src/mshoot_testing': ('mshoot_testing',),
-    'tests': ('casadi_ref', 'conftest'),
+    'tests': ('card_fmus', 'casadi_ref', 'conftest', 'timed_fmu'),
     'bench': ('casadi_ref', 'common'),
     'tools': (),
 }

@@ -214,8 +214,10 @@ ZONES_HOURS = 12
 
 @pytest.fixture(scope='module')
 def two_zone_run(tmp_path_factory):
-    """A lockstep run over ROS of two R1C1 zones (controls q_0, q_1: registry name 'r1c1x2')
-    with a price forecast, and the core-only loop of the same case."""
+    """
+    A lockstep run over ROS of two R1C1 zones (controls q_0, q_1: registry name 'r1c1x2')
+    with a price forecast, and the core-only loop of the same case.
+    """
     bag = tmp_path_factory.mktemp('two_zones') / 'bag'
     ctx = private_context()
     try:

@@ -1,4 +1,5 @@
-"""The supervisory controller: every per-step decision of the MPC, in one place.
+"""
+The supervisory controller: every per-step decision of the MPC, in one place.
 
 A :class:`Controller` owns the MPC, the validation and staleness rules of its
 inputs, the due-step logic, the solve in flight and its time budget, and the
@@ -65,7 +66,8 @@ KEEP_INPUTS = 8
 
 @dataclasses.dataclass(frozen=True)
 class StepOutcome:
-    """The decision of one control step, with what led to it.
+    """
+    The decision of one control step, with what led to it.
 
     Attributes
     ----------
@@ -79,6 +81,7 @@ class StepOutcome:
         Wall time of the solve, or of the wait that ended in a fallback [s].
     x0 : ndarray or None
         The state the step was solved from.
+
     """
 
     step_ns: int
@@ -105,7 +108,8 @@ class _Solve:
 
 
 class Controller:
-    """Supervisory MPC: inputs in, one decision per control step out (see the module).
+    """
+    Supervisory MPC: inputs in, one decision per control step out (see the module).
 
     Parameters
     ----------
@@ -135,6 +139,7 @@ class Controller:
         Rejected inputs by stream ('state', 'forecast') and kind.
     results : dict
         Step stamp [ns] -> MpcResult of the latest steps (late ones included).
+
     """
 
     def __init__(self, model: Model | None = None, settings: MpcSettings | None = None, *,
@@ -180,15 +185,19 @@ class Controller:
 
     @property
     def interface(self) -> ControlInterface:
-        """The controls (the settings' ``control_names``) and the zone temperatures (the
-        MPC's comfort-bounded states) this controller works with."""
+        """
+        The controls (the settings' ``control_names``) and the zone temperatures (the
+        MPC's comfort-bounded states) this controller works with.
+        """
         return ControlInterface(tuple(self.settings.problem.control_names),
                                 tuple(self.model.state_names), dict(self.mpc.state_bounds))
 
     def state_range(self) -> tuple[np.ndarray, np.ndarray]:
-        """Plausible (lower, upper) values of the states: zone temperatures (the states
+        """
+        Plausible (lower, upper) values of the states: zone temperatures (the states
         bounded by a comfort band) within :data:`~mshoot_core.safety.LIMITS`, others
-        unbounded (physical units)."""
+        unbounded (physical units).
+        """
         names = self.model.state_names
         low, high = np.full(len(names), -np.inf), np.full(len(names), np.inf)
         for name, (_, _, offset) in self.mpc.state_bounds.items():
@@ -213,7 +222,8 @@ class Controller:
         self._input_wait = InputWait(i.input_wait_s, i.input_deadline_s)
 
     def update(self, settings: MpcSettings) -> str:
-        """Apply new settings between solves (deferred while one runs).
+        """
+        Apply new settings between solves (deferred while one runs).
 
         Returns
         -------
@@ -226,6 +236,7 @@ class Controller:
         ------
         ValueError
             If a setting fixed once running changes (see :meth:`MPC.update`).
+
         """
         fixed = self._fixed_changes(settings)
         if fixed:
@@ -256,13 +267,15 @@ class Controller:
         return rejection
 
     def offer_state(self, stamp_ns: int, x: Sequence[float], now_ns: int) -> Rejection | None:
-        """A measured state (physical units, e.g. [K]) stamped ``stamp_ns``.
+        """
+        A measured state (physical units, e.g. [K]) stamped ``stamp_ns``.
 
         Returns
         -------
         Rejection or None
             Why it was refused (non-finite, implausible, wrong length, stamp
             stale, in the future or backwards), or None when it was taken.
+
         """
         names = self.model.state_names
         values = np.asarray(x, dtype=float).reshape(-1)
@@ -286,7 +299,8 @@ class Controller:
                           output_names: Sequence[str] = (), output_values: Sequence[float] = (),
                           control_names: Sequence[str] = (),
                           control_values: Sequence[float] = ()) -> Rejection | None:
-        """A measured state as named values (any order; states in SI units, e.g. [K]), with
+        """
+        A measured state as named values (any order; states in SI units, e.g. [K]), with
         the measured outputs and the controls applied over the last step.
 
         The names are checked (:func:`~mshoot_core.safety.check_zone_state`: exactly the
@@ -303,27 +317,34 @@ class Controller:
                                                   self.model.state_names), now_ns)
 
     def is_repeat_of_decided_step(self, stamp_ns: int) -> bool:
-        """True when a state stamped ``stamp_ns`` was already taken and its step decided:
-        a heartbeat of the same state (the decision may have been lost: send it again)."""
+        """
+        True when a state stamped ``stamp_ns`` was already taken and its step decided:
+        a heartbeat of the same state (the decision may have been lost: send it again).
+        """
         return (int(stamp_ns) in self._states and self._last_step_ns == int(stamp_ns)
                 and self._inflight is None)
 
     @property
     def forecast_required(self) -> tuple[str, ...]:
-        """Series a forecast must carry: the model's disturbances (but those assumed, see
-        ``assumed_inputs``) and the comfort band."""
+        """
+        Series a forecast must carry: the model's disturbances (but those assumed, see
+        ``assumed_inputs``) and the comfort band.
+        """
         return tuple(c for c in self.mpc.forecast_columns if c not in self.assumed_inputs)
 
     @property
     def forecast_known(self) -> tuple[str, ...]:
-        """Every series name a forecast may carry: the required ones, the assumed inputs,
-        the comfort band and the energy price (``price`` [currency/kWh])."""
+        """
+        Every series name a forecast may carry: the required ones, the assumed inputs,
+        the comfort band and the energy price (``price`` [currency/kWh]).
+        """
         names = [*self.forecast_required, *self.assumed_inputs, *COMFORT_SERIES, PRICE_SERIES]
         return tuple(dict.fromkeys(names))
 
     def offer_forecast(self, stamp_ns: int, step_s: float,
                        series: Mapping[str, Sequence[float]], now_ns: int) -> Rejection | None:
-        """A forecast: samples every ``step_s`` [s] from ``stamp_ns`` on, by name: the
+        """
+        A forecast: samples every ``step_s`` [s] from ``stamp_ns`` on, by name: the
         model's disturbances (e.g. Tout [degC], solrad [W/m2], occ), comfort_min,
         comfort_max [degC] and optionally price [currency/kWh]
         (:attr:`forecast_required`, :attr:`forecast_known`).
@@ -332,6 +353,7 @@ class Controller:
         -------
         Rejection or None
             Why it was refused, or None when it was taken.
+
         """
         rejection = (check_forecast(step_s, series,
                                     expected_step_s=self.settings.problem.step_s,
@@ -403,7 +425,8 @@ class Controller:
         return self._last_step_ns
 
     def poll(self, now_ns: int, steady_ns: int | None = None) -> list[StepOutcome]:
-        """Decide what is due at ``now_ns`` (see the module docstring).
+        """
+        Decide what is due at ``now_ns`` (see the module docstring).
 
         Parameters
         ----------
@@ -417,6 +440,7 @@ class Controller:
         -------
         list of StepOutcome
             The steps decided by this call, in order (usually none or one).
+
         """
         steady_ns = time.monotonic_ns() if steady_ns is None else int(steady_ns)
         now_ns = int(now_ns)
@@ -554,9 +578,11 @@ class Controller:
         return StepOutcome(step_ns, decision, result, waited_s, x0)
 
     def hand_back(self, now_ns: int) -> StepOutcome:
-        """The safe setpoint for the current step, when the controller stops controlling
+        """
+        The safe setpoint for the current step, when the controller stops controlling
         (hands the building back to its own control); no further steps are decided until
-        the clock passes this one."""
+        the clock passes this one.
+        """
         step = (int(now_ns) // self.step_ns) * self.step_ns
         self._last_step_ns = max(step, self._last_step_ns or step)
         if self._inflight is not None:  # its result will only warm the next start
@@ -575,7 +601,8 @@ class Controller:
 
 def controller_for(model: Model, settings: MpcSettings | None = None,
                    **kwargs: Any) -> Controller:
-    """A controller of ``model`` with its controls and zone temperatures
+    """
+    A controller of ``model`` with its controls and zone temperatures
     (:func:`~mshoot_core.models.registry.control_interface`): the settings'
     ``control_names`` and the MPC's comfort-bounded states follow the model.
 
@@ -586,6 +613,7 @@ def controller_for(model: Model, settings: MpcSettings | None = None,
         Every other setting (default: the defaults).
     **kwargs
         Passed to :class:`Controller` (executor, assumed_inputs, ...).
+
     """
     interface = control_interface(model)
     settings = (settings or MpcSettings()).replace(control_names=interface.control_names)

@@ -304,7 +304,8 @@ def _safe_members(archive: zipfile.ZipFile, label: str) -> list[str]:
 
 def extract_fmu(fmu_file: str | os.PathLike,
                 check: Callable[[pathlib.Path], None] | None = None) -> pathlib.Path:
-    """Extract ``fmu_file`` into the cache once; return its folder.
+    """
+    Extract ``fmu_file`` into the cache once; return its folder.
 
     The folder is ``<cache>/extracted/<sha256>``; an existing one is reused
     as is. A new extraction goes to a staging folder beside it, is checked
@@ -326,6 +327,7 @@ def extract_fmu(fmu_file: str | os.PathLike,
     ValueError
         If the file is not a ZIP archive or holds illegal paths (and whatever
         ``check`` raises).
+
     """
     path = pathlib.Path(fmu_file)
     if not path.is_file():

@@ -223,8 +223,10 @@ class MPC:
         self._forecast_values(forecast)
 
     def _forecast_values(self, forecast: pd.DataFrame) -> np.ndarray:
-        """The first N+1 rows of :attr:`forecast_columns` as floats, shape (N+1, columns),
-        checked as :meth:`check_forecast` says (one conversion of the frame per solve)."""
+        """
+        The first N+1 rows of :attr:`forecast_columns` as floats, shape (N+1, columns),
+        checked as :meth:`check_forecast` says (one conversion of the frame per solve).
+        """
         if not isinstance(forecast, pd.DataFrame):
             raise TypeError(f'forecast must be a DataFrame, got {type(forecast).__name__}')
         columns = self.forecast_columns

@@ -1,4 +1,5 @@
-"""NLP solvers behind one interface: SciPy SLSQP, SciPy trust-constr, IPOPT (cyipopt).
+"""
+NLP solvers behind one interface: SciPy SLSQP, SciPy trust-constr, IPOPT (cyipopt).
 
 A :class:`Nlp` is the smooth problem
 
@@ -33,7 +34,8 @@ Matrix = np.ndarray
 
 @dataclasses.dataclass
 class Nlp:
-    """A smooth nonlinear program in the variables z (length n).
+    """
+    A smooth nonlinear program in the variables z (length n).
 
     Attributes
     ----------
@@ -54,6 +56,7 @@ class Nlp:
         Lagrangian, which is exact when the constraints are affine (e.g. the
         R1C1 zones: interval end states are affine in start state and heat
         rate) and a Gauss-Newton-like approximation otherwise.
+
     """
 
     fun: Callable[[Vector], float]
@@ -68,7 +71,8 @@ class Nlp:
 
 
 class SparseJacobian:
-    """A constraint Jacobian with a fixed sparsity pattern, usable as ``Nlp.eq_jac``.
+    """
+    A constraint Jacobian with a fixed sparsity pattern, usable as ``Nlp.eq_jac``.
 
     Calling it returns the ``scipy.sparse.coo_array`` as any Jacobian callable
     of an :class:`Nlp` does; solvers that know it take the pattern once and only
@@ -83,6 +87,7 @@ class SparseJacobian:
         (m, n).
     values : callable
         ``values(z) -> (nnz,)`` the entries at z.
+
     """
 
     def __init__(self, rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int],
@@ -123,7 +128,8 @@ class Solver(abc.ABC):
     @abc.abstractmethod
     def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None
               ) -> optimize.OptimizeResult:
-        """Solve ``nlp`` from ``z0``; return an OptimizeResult (x, fun, success, status,
+        """
+        Solve ``nlp`` from ``z0``; return an OptimizeResult (x, fun, success, status,
         message, nit, nfev, budget_exceeded).
 
         ``deadline`` is a :func:`time.perf_counter` time [s]: the solver stops at
@@ -173,8 +179,10 @@ class SlsqpSolver(Solver):
 
 
 def _scipy_constraint(kind: str, fun: Callable, jac: Callable | None) -> dict:
-    """A SciPy (SLSQP) constraint dict with a dense Jacobian; without ``jac`` SciPy
-    estimates it by finite differences."""
+    """
+    A SciPy (SLSQP) constraint dict with a dense Jacobian; without ``jac`` SciPy
+    estimates it by finite differences.
+    """
     constraint = {'type': kind, 'fun': fun}
     if isinstance(jac, SparseJacobian):
         constraint['jac'] = jac.dense
@@ -229,10 +237,12 @@ IPOPT_LARGE_PROBLEM_OPTIONS: dict[str, Any] = {'min_refinement_steps': 0,
 
 
 class IpoptSolver(Solver):
-    """IPOPT through cyipopt (the ``cyipopt-wheels`` package), with sparse Jacobians
+    """
+    IPOPT through cyipopt (the ``cyipopt-wheels`` package), with sparse Jacobians
     (the pattern taken once from a :class:`SparseJacobian`), and the exact diagonal
     objective Hessian where the problem gives it, else a limited-memory
-    approximation; ``options`` are IPOPT's (e.g. :data:`IPOPT_LARGE_PROBLEM_OPTIONS`)."""
+    approximation; ``options`` are IPOPT's (e.g. :data:`IPOPT_LARGE_PROBLEM_OPTIONS`).
+    """
 
     name = 'ipopt'
 

@@ -1,4 +1,5 @@
-"""Messages <-> numpy arrays and pandas DataFrames, and ROS time <-> seconds.
+"""
+Messages <-> numpy arrays and pandas DataFrames, and ROS time <-> seconds.
 
 The nodes stay thin by converting at their edges only: everything inside is
 :mod:`mshoot_core` data (states in K as arrays, forecasts and scenarios as
@@ -76,8 +77,10 @@ def flatten(series: Mapping[str, Sequence[float]]) -> tuple[list[str], list[floa
 
 
 def unflatten_series(names: Sequence[str], values: Sequence[float]) -> dict[str, np.ndarray]:
-    """Named series flattened name-major back to a dict (ValueError on a length that does
-    not split evenly)."""
+    """
+    Named series flattened name-major back to a dict (ValueError on a length that does
+    not split evenly).
+    """
     if not names:
         if len(values):
             raise ValueError(f'{len(values)} values for no names')
@@ -93,7 +96,8 @@ def unflatten_series(names: Sequence[str], values: Sequence[float]) -> dict[str,
 def zone_state_msg(stamp_ns: int, states: Mapping[str, float],
                    outputs: Mapping[str, float] | None = None,
                    controls: Mapping[str, float] | None = None, zone: str = '') -> ZoneState:
-    """The state of a building's zones at ``stamp_ns`` as named vectors.
+    """
+    The state of a building's zones at ``stamp_ns`` as named vectors.
 
     Parameters
     ----------
@@ -107,6 +111,7 @@ def zone_state_msg(stamp_ns: int, states: Mapping[str, float],
         Controls applied over the last step by name (heat rates [W]).
     zone : str
         Building or zone name (``header.frame_id``).
+
     """
     msg = ZoneState()
     msg.header.stamp = ns_to_stamp(stamp_ns)
@@ -143,7 +148,8 @@ def disturbances_to_series(msg: Disturbances) -> pd.Series:
 # -- forecast -----------------------------------------------------------------------------
 def forecast_msg(stamp_ns: int, step_s: float, window: pd.DataFrame,
                  series: Sequence[str] = FORECAST_DISTURBANCES, zone: str = '') -> Forecast:
-    """A forecast message from a window of scenario rows.
+    """
+    A forecast message from a window of scenario rows.
 
     Parameters
     ----------
@@ -159,6 +165,7 @@ def forecast_msg(stamp_ns: int, step_s: float, window: pd.DataFrame,
         The disturbance columns to send (default: Tout, solrad, occ).
     zone : str
         ``header.frame_id``.
+
     """
     msg = Forecast()
     msg.header.stamp = ns_to_stamp(stamp_ns)
@@ -178,7 +185,8 @@ def forecast_length(msg: Forecast) -> int:
 
 
 def forecast_series(msg: Forecast) -> tuple[dict[str, np.ndarray], Rejection | None]:
-    """The series of a forecast by name: its disturbances, ``comfort_min``,
+    """
+    The series of a forecast by name: its disturbances, ``comfort_min``,
     ``comfort_max`` and ``price`` (when given), checked for their names and lengths only
     (:func:`mshoot_core.safety.named_series`); what
     :func:`mshoot_core.safety.check_forecast` validates.
@@ -188,13 +196,15 @@ def forecast_series(msg: Forecast) -> tuple[dict[str, np.ndarray], Rejection | N
     (series, rejection)
         ``rejection`` when the names repeat or clash, or the flattened values do not
         hold one series of n samples per name (then ``series`` is empty).
+
     """
     return named_series(list(msg.series_names), msg.series_values, msg.comfort_min_c,
                         msg.comfort_max_c, msg.price_per_kwh)
 
 
 def forecast_to_frame(msg: Forecast, assumed: Mapping[str, float] | None = None) -> pd.DataFrame:
-    """A forecast message as a DataFrame of its series (ValueError if malformed).
+    """
+    A forecast message as a DataFrame of its series (ValueError if malformed).
 
     Parameters
     ----------
@@ -208,6 +218,7 @@ def forecast_to_frame(msg: Forecast, assumed: Mapping[str, float] | None = None)
         One column per series (disturbances, comfort_min, comfort_max, price
         when given, then the assumed ones); index the sample start times [s]
         (ROS time).
+
     """
     series, rejection = forecast_series(msg)
     if rejection:
@@ -231,7 +242,8 @@ def setpoint_msg(stamp_ns: int, step_s: float, controls: Mapping[str, float],
                  plan_controls: Mapping[str, Sequence[float]] | None = None,
                  plan_temperatures_c: Mapping[str, Sequence[float]] | None = None,
                  zone: str = '') -> Setpoint:
-    """A setpoint: named controls, zone temperature setpoints and the plan behind them.
+    """
+    A setpoint: named controls, zone temperature setpoints and the plan behind them.
 
     Parameters
     ----------
@@ -249,6 +261,7 @@ def setpoint_msg(stamp_ns: int, step_s: float, controls: Mapping[str, float],
         (``temperatures_c``). None: no plan.
     zone : str
         ``header.frame_id``.
+
     """
     msg = Setpoint()
     msg.header.stamp = ns_to_stamp(stamp_ns)
@@ -270,8 +283,10 @@ def setpoint_controls(msg: Setpoint) -> dict[str, float]:
 
 
 def setpoint_plan(msg: Setpoint) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """The plan of a (checked) setpoint: (controls by name, predicted zone temperatures
-    [degC] by name), each over the plan's intervals."""
+    """
+    The plan of a (checked) setpoint: (controls by name, predicted zone temperatures
+    [degC] by name), each over the plan's intervals.
+    """
     m = len(msg.plan_controls) // max(len(msg.control_names), 1)
     controls = np.asarray(msg.plan_controls, dtype=float).reshape(len(msg.control_names), m)
     temperatures = np.asarray(msg.plan_temperatures_c, dtype=float).reshape(
@@ -305,7 +320,8 @@ def status_msg(stamp_ns: int, result: MpcResult | None, *, fallback: bool = Fals
 def decision_setpoint_msg(stamp_ns: int, decision: Decision, step_s: float,
                           interface: ControlInterface, safe_temperature_c: float,
                           zone: str = '') -> Setpoint:
-    """The setpoint of a supervisor decision: every control, the predicted temperature of
+    """
+    The setpoint of a supervisor decision: every control, the predicted temperature of
     every zone and the plan.
 
     Parameters
@@ -325,6 +341,7 @@ def decision_setpoint_msg(stamp_ns: int, decision: Decision, step_s: float,
         predicts nothing) [degC].
     zone : str
         ``header.frame_id``.
+
     """
     names, zones = interface.control_names, interface.temperature_names
     controls = np.asarray(decision.controls, dtype=float).reshape(-1)
@@ -348,7 +365,8 @@ def decision_status_msg(stamp_ns: int, decision: Decision, result: MpcResult | N
                         solve_time_s: float, rejected_states: int = 0,
                         rejected_forecasts: int = 0,
                         consecutive_fallbacks: int = 0) -> MpcStatus:
-    """The status of a supervisor decision; never a non-finite number.
+    """
+    The status of a supervisor decision; never a non-finite number.
 
     ``result`` is the step's solve result if there is one (its numbers are
     reported even when it was not used); without one, ``objective`` and
@@ -379,7 +397,8 @@ def _int32(value: int) -> int:
 # -- records of a run ---------------------------------------------------------------------
 def mpc_records_frame(setpoints: Iterable[Setpoint], statuses: Iterable[MpcStatus],
                       epoch_ns: int = 0) -> pd.DataFrame:
-    """Per-step MPC records from setpoint and status messages (the first of each stamp).
+    """
+    Per-step MPC records from setpoint and status messages (the first of each stamp).
 
     Returns
     -------
@@ -390,6 +409,7 @@ def mpc_records_frame(setpoints: Iterable[Setpoint], statuses: Iterable[MpcStatu
         [degC]), ``success``, ``fallback``, ``iterations``, ``solve_time_s``,
         ``objective``, ``max_defect``, ``message``, ``source``,
         ``fallback_reason``.
+
     """
     rows: dict[int, dict] = {}
     for msg in setpoints:

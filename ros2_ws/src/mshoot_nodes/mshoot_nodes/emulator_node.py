@@ -1,4 +1,5 @@
-"""The emulator node: the building, simulated by :class:`mshoot_core.emulation.Emulator`.
+"""
+The emulator node: the building, simulated by :class:`mshoot_core.emulation.Emulator`.
 
 Publishes ``/clock`` (it drives simulated time), ``/zone/state`` (the model's
 states, its outputs after the last step and the controls applied, as named
@@ -185,9 +186,11 @@ def _check_sources(v: dict[str, Any]) -> str | None:
 
 
 def build_emulator(p: dict[str, Any]) -> Emulator:
-    """The core emulator configured by the node's parameter values ``p``: the model's
+    """
+    The core emulator configured by the node's parameter values ``p``: the model's
     controls (:func:`~mshoot_core.models.registry.control_interface`) within the actuator
-    limits, every state starting at ``initial_temperature_c`` (in K)."""
+    limits, every state starting at ``initial_temperature_c`` (in K).
+    """
     scenario = sources.load_scenario(p['scenario'], p['data'], p['hours'])
     model = sources.build_model(p['model'], p['fmu_tolerance'])
     controls = control_interface(model).control_names
@@ -198,7 +201,8 @@ def build_emulator(p: dict[str, Any]) -> Emulator:
 
 
 class EmulatorNode(ManagedNode):
-    """The emulated building (see the module docstring).
+    """
+    The emulated building (see the module docstring).
 
     Attributes
     ----------
@@ -229,6 +233,7 @@ class EmulatorNode(ManagedNode):
         The start gate while it waits.
     diagnostics : DiagnosticsPublisher
         Publishes :meth:`health` on /diagnostics.
+
     """
 
     def __init__(self, **kwargs: Any) -> None:
@@ -610,7 +615,8 @@ class EmulatorNode(ManagedNode):
                           for k, r in enumerate(self.records)])
 
     def applied_frame(self) -> pd.DataFrame:
-        """One row per step: ROS stamp [ns], applied controls [W], start and end states.
+        """
+        One row per step: ROS stamp [ns], applied controls [W], start and end states.
 
         Index ``time_s`` (scenario time [s]); columns ``stamp_ns``, every
         control (``q``, or ``q_0``, ``q_1``, ...), ``<state>_start``,
@@ -631,9 +637,11 @@ class EmulatorNode(ManagedNode):
         return pd.DataFrame(rows).set_index('time_s')
 
     def zone_temperature_columns(self) -> dict[str, str]:
-        """Zone temperature state -> the column of the fine trajectory that holds it in degC:
+        """
+        Zone temperature state -> the column of the fine trajectory that holds it in degC:
         the model's output of the same name (``y_T`` for the R1C1 zone), else the state
-        (``x_T_0``, in K: see :func:`mshoot_nodes.results.zone_temperatures_c`)."""
+        (``x_T_0``, in K: see :func:`mshoot_nodes.results.zone_temperatures_c`).
+        """
         outputs = self.emulator.model.output_names
         return {name: f'y_{name}' if name in outputs else f'x_{name}'
                 for name in self.interface.temperature_names}

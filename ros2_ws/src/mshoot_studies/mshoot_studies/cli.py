@@ -58,13 +58,15 @@ def _verb(argv: Sequence[str]) -> str | None:
 
 
 def build_parser(verbs: Sequence[str] | None = None) -> argparse.ArgumentParser:
-    """``mshoot`` with one subparser per verb of :data:`VERBS`.
+    """
+    ``mshoot`` with one subparser per verb of :data:`VERBS`.
 
     Parameters
     ----------
     verbs : sequence of str, optional
         The verbs whose options are needed (their modules are imported); the
         others are listed with their summary only. Default: all.
+
     """
     parser = argparse.ArgumentParser(
         prog='mshoot', description=__doc__,
@@ -84,7 +86,8 @@ def build_parser(verbs: Sequence[str] | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None, plot_worker: Any = None) -> int:
-    """Parse ``argv`` (default: the process arguments) and run the verb; its exit code.
+    """
+    Parse ``argv`` (default: the process arguments) and run the verb; its exit code.
 
     ``plot_worker``, a started :class:`mshoot_core.plotting.PlotWorker`, is handed to a
     verb of :data:`FIGURE_VERBS` (as ``args.plot_worker``); without it the verb starts its
@@ -99,7 +102,8 @@ def main(argv: Sequence[str] | None = None, plot_worker: Any = None) -> int:
 
 
 def exit_now(code: int) -> None:
-    """End the process with ``code`` once everything it wrote is out, without tearing the
+    """
+    End the process with ``code`` once everything it wrote is out, without tearing the
     interpreter down module by module (a few hundred ms for the thousand modules of a
     run, spent after the last output).
 
@@ -127,8 +131,10 @@ def exit_now(code: int) -> None:
 
 
 def console_main() -> None:
-    """The ``mshoot`` console script: the verb's :data:`VERB_ENVIRONMENT`, :func:`main`, then
-    a fast :func:`exit_now`."""
+    """
+    The ``mshoot`` console script: the verb's :data:`VERB_ENVIRONMENT`, :func:`main`, then
+    a fast :func:`exit_now`.
+    """
     verb = _verb(sys.argv[1:])
     for name, value in VERB_ENVIRONMENT.get(verb, {}).items():
         os.environ.setdefault(name, value)

@@ -1,4 +1,5 @@
-"""A building of Z R1C1 zones, vectorised: the scale test case of the optimiser.
+"""
+A building of Z R1C1 zones, vectorised: the scale test case of the optimiser.
 
 Every zone follows the R1C1 equations of :mod:`mshoot_core.models.r1c1` with
 its own size, solar aperture and occupancy share, under the shared outdoor
@@ -19,7 +20,8 @@ from mshoot_core.models.r1c1 import KELVIN, R1C1Model, R1C1Parameters
 
 
 class MultiZoneModel(Model):
-    """Z independent R1C1 zones in one model.
+    """
+    Z independent R1C1 zones in one model.
 
     Parameters
     ----------
@@ -36,6 +38,7 @@ class MultiZoneModel(Model):
     The controls (:attr:`control_names`) are the heat rates ``q_i``; every state
     is a zone temperature bounded by the comfort band (:attr:`comfort_states`;
     see :func:`mshoot_core.models.registry.control_interface`).
+
     """
 
     def __init__(self, n_zones: int, seed: int = 0,
@@ -132,7 +135,8 @@ class MultiZoneModel(Model):
 
 
 def multizone_mpc_options(model: MultiZoneModel, solver: str = 'ipopt') -> dict:
-    """MPC keyword arguments for a :class:`MultiZoneModel`.
+    """
+    MPC keyword arguments for a :class:`MultiZoneModel`.
 
     One heater per zone (-2000..2000 W), every zone bounded by the comfort
     band, and for IPOPT the large-problem configuration: a single
