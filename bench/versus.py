@@ -59,7 +59,7 @@ HORIZON = 10
 
 
 def data_file() -> pathlib.Path:
-    """The OU44 measurements (``../shared/data/ou44`` from the project root)."""
+    """Return the OU44 measurements (``../shared/data/ou44`` from the project root)."""
     path = (ROOT / '..' / 'shared' / 'data' / 'ou44' / 'measurements.csv').resolve()
     if not path.is_file():
         raise SystemExit(f'benchmark data missing: {path}')
@@ -89,7 +89,7 @@ def ours_command(out: pathlib.Path, *extra: str, python_flags: Sequence[str] = (
 
 
 def casadi_command(out: pathlib.Path, python_flags: Sequence[str] = ()) -> list[str]:
-    """The CasADi script of the same case."""
+    """Return the CasADi script of the same case."""
     return [sys.executable, *python_flags, str(CASADI_SCRIPT), '--data', str(data_file()),
             '--horizon', str(HORIZON), '--out', str(out)]
 
@@ -239,8 +239,10 @@ def instrumented_case(argv: list[str], report: pathlib.Path, profile: bool) -> i
 
 def profile_figures(stats: pstats.Stats, top: int = 12) -> dict:
     """
-    cProfile totals of the solve and the model's batch functions, and the top functions
-    by own time (tottime) [s].
+    Return the solve and batch totals and the top functions of a cProfile run.
+
+    Totals of the solve and the model's batch functions, and the top functions by own time
+    (tottime) [s].
     """
     def label(key: tuple) -> str:
         path, line, name = key
@@ -304,8 +306,10 @@ def interpreter_s(repeats: int) -> float:
 
 def import_packages(stderr: str, floor_s: float = 0.005) -> dict[str, float]:
     """
-    Import time [s] per top-level package from ``-X importtime`` output (own times summed,
-    so packages add up to the whole import time); packages under ``floor_s`` as 'other'.
+    Return the import time [s] per top-level package from ``-X importtime`` output.
+
+    Own times are summed, so packages add up to the whole import time; packages under ``floor_s``
+    count as 'other'.
     """
     per_package: dict[str, float] = {}
     for line in stderr.splitlines():
@@ -439,8 +443,10 @@ class ZoneLoop:
 
     def solve(self, k: int) -> tuple[Any, int, bool, float]:
         """
-        Plan step k from ``self.x``: (applied heat rates [W] (Z,), iterations, success,
-        model or function evaluation time [s]).
+        Plan step k from ``self.x``.
+
+        Return the applied heat rates [W] (Z,), the iterations, success, and the model or function
+        evaluation time [s].
         """
         raise NotImplementedError
 
@@ -501,7 +507,7 @@ class OurZones(ZoneLoop):
             self.model.simulate_intervals = timed
 
     def profile_step(self, k: int) -> list[dict]:
-        """cProfile of one more (warm) step: the top functions by own time."""
+        """Profile one more (warm) step with cProfile: the top functions by own time."""
         from mshoot_core.closed_loop import forecast_window
         profiler = cProfile.Profile()
         profiler.runcall(self.mpc.solve, self.x, self.scenario.index[k],
@@ -511,8 +517,10 @@ class OurZones(ZoneLoop):
 
 def our_ipopt_options(mpc: Any) -> dict:
     """
-    The IPOPT options our scale problem runs with, in CasADi's spelling: the solver's own
-    (``IpoptSolver``: adaptive barrier update) and ``multizone_mpc_options``' (Mehrotra).
+    Return the IPOPT options our scale problem runs with, in CasADi's spelling.
+
+    The solver's own (``IpoptSolver``: adaptive barrier update) and ``multizone_mpc_options``'
+    (Mehrotra).
     """
     return {'ipopt.mu_strategy': 'adaptive',
             **{f'ipopt.{key}': value for key, value in mpc.solver.options.items()}}
@@ -520,8 +528,10 @@ def our_ipopt_options(mpc: Any) -> dict:
 
 class CasadiZones(ZoneLoop):
     """
-    CasADi's formulation of the same zones, scenario, band and initial state: with IPOPT's
-    defaults, or (``tuned``) with our IPOPT options; model time = its function evaluations.
+    CasADi's formulation of the same zones, scenario, band and initial state.
+
+    With IPOPT's defaults, or (``tuned``) with our IPOPT options; model time = its function
+    evaluations.
     """
 
     def __init__(self, n_zones: int, steps: int, tuned: bool) -> None:
@@ -551,9 +561,11 @@ class CasadiZones(ZoneLoop):
 
 def zone_rows(zones: Sequence[int], steps: int) -> list[dict]:
     """
-    One row per Z: build, cold first solve, warm median per step, iterations and model
-    time of ours, CasADi with IPOPT's defaults ('casadi') and with our IPOPT options
-    ('casadi_tuned'); the three loops step in turn, so load on the machine hits them alike.
+    Return one row per Z: ours, CasADi with IPOPT's defaults and with our IPOPT options.
+
+    Each row holds build, cold first solve, warm median per step, iterations and model time of
+    ours, CasADi with IPOPT's defaults ('casadi') and with our IPOPT options ('casadi_tuned'); the
+    three loops step in turn, so load on the machine hits them alike.
     """
     import warnings
 

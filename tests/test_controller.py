@@ -31,8 +31,9 @@ STEP_NS = 3600 * NS
 
 class SlowModel(R1C1Model):
     """
-    The exact R1C1 whose every batched call sleeps ``delay_s`` while ``slow`` is set
-    (a control model that cannot finish a solve within its budget).
+    The exact R1C1 whose every batched call sleeps ``delay_s`` while ``slow`` is set.
+
+    A control model that cannot finish a solve within its budget.
     """
 
     def __init__(self, delay_s: float) -> None:
@@ -302,8 +303,10 @@ def test_core_and_ros_make_the_same_decisions(fault, context):
 
 def test_core_run_whose_model_raises_from_hour_20_completes(tmp_path):
     """
-    72 steps; the control model raises from hour 20 on: the last good plan for
-    max_plan_age_steps steps, then the safe setpoint, all recorded in steps.csv.
+    72 steps, the control model raising from hour 20 on: the fallbacks, recorded in steps.csv.
+
+    The last good plan for max_plan_age_steps steps, then the safe setpoint, all recorded in
+    steps.csv.
     """
     steps = core_decisions('raise', hours=72, fault_steps=(20, 72))
     steps.to_csv(tmp_path / 'steps.csv')

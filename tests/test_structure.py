@@ -190,8 +190,10 @@ def test_model_without_sparsity_is_dense():
 
 def test_model_exchange_and_co_simulation_closed_loops_agree(ou44_csv):
     """
-    The R1C1 FMU as Model Exchange (compiled Runge-Kutta batches with forward
-    sensitivities) and as Co-Simulation (exact steps, finite differences): same KPIs.
+    The R1C1 FMU as Model Exchange and as Co-Simulation: the same KPIs.
+
+    Model Exchange: compiled Runge-Kutta batches with forward sensitivities; Co-Simulation: exact
+    steps, finite differences.
     """
     scenario = reference_scenario('ou44', ou44_csv, hours=24)
     kpis = {}

@@ -71,7 +71,7 @@ class EmulationStopped(RuntimeError):
 def step_row(outcome: StepOutcome, record: StepRecord, state_names: tuple[str, ...],
              control_names: tuple[str, ...]) -> dict:
     """
-    The per-step record of one loop iteration (shared with the ROS nodes' tools).
+    Return the per-step record of one loop iteration (shared with the ROS nodes' tools).
 
     Columns: ``time_s``, the applied controls, ``{state}_start``, ``{state}_end``,
     ``{state}_predicted`` (NaN for the safe setpoint), the solve's
@@ -216,7 +216,7 @@ def run_closed_loop(controller: Controller | MPC, emulator: Emulator, steps: int
 
 
 def _plan_frame(outcome: StepOutcome, mpc: MPC) -> pd.DataFrame:
-    """The plan of a decision (controls and predicted end states by interval start)."""
+    """Return the plan of a decision (controls and predicted end states by interval start)."""
     d = outcome.decision
     if outcome.result is not None and not d.fallback:
         return outcome.result.plan

@@ -194,9 +194,10 @@ class Controller:
 
     def state_range(self) -> tuple[np.ndarray, np.ndarray]:
         """
-        Plausible (lower, upper) values of the states: zone temperatures (the states
-        bounded by a comfort band) within :data:`~mshoot_core.safety.LIMITS`, others
-        unbounded (physical units).
+        Return plausible (lower, upper) values of the states (physical units).
+
+        Zone temperatures (the states bounded by a comfort band) lie within
+        :data:`~mshoot_core.safety.LIMITS`; the other states are unbounded.
         """
         names = self.model.state_names
         low, high = np.full(len(names), -np.inf), np.full(len(names), np.inf)
@@ -268,7 +269,7 @@ class Controller:
 
     def offer_state(self, stamp_ns: int, x: Sequence[float], now_ns: int) -> Rejection | None:
         """
-        A measured state (physical units, e.g. [K]) stamped ``stamp_ns``.
+        Offer a measured state (physical units, e.g. [K]) stamped ``stamp_ns``.
 
         Returns
         -------
@@ -318,8 +319,10 @@ class Controller:
 
     def is_repeat_of_decided_step(self, stamp_ns: int) -> bool:
         """
-        True when a state stamped ``stamp_ns`` was already taken and its step decided:
-        a heartbeat of the same state (the decision may have been lost: send it again).
+        Return True when a state stamped ``stamp_ns`` was already taken and its step decided.
+
+        Such a state is a heartbeat of the same state (the decision may have been lost: send it
+        again).
         """
         return (int(stamp_ns) in self._states and self._last_step_ns == int(stamp_ns)
                 and self._inflight is None)
@@ -416,12 +419,12 @@ class Controller:
     # -- deciding -------------------------------------------------------------------------
     @property
     def busy(self) -> bool:
-        """True while a solve runs."""
+        """Return True while a solve runs."""
         return self._inflight is not None
 
     @property
     def last_step_ns(self) -> int | None:
-        """The newest step decided or being solved [ns] (None before the first)."""
+        """Return the newest step decided or being solved [ns] (None before the first)."""
         return self._last_step_ns
 
     def poll(self, now_ns: int, steady_ns: int | None = None) -> list[StepOutcome]:
@@ -536,7 +539,7 @@ class Controller:
             future.add_done_callback(lambda _: callback())
 
     def _collect(self, outcomes: list[StepOutcome], steady_ns: int) -> None:
-        """The outcome of a finished solve, if there is one."""
+        """Collect the outcome of a finished solve, if there is one."""
         job = self._inflight
         if job is None or not job.future.done():
             return
@@ -579,9 +582,10 @@ class Controller:
 
     def hand_back(self, now_ns: int) -> StepOutcome:
         """
-        The safe setpoint for the current step, when the controller stops controlling
-        (hands the building back to its own control); no further steps are decided until
-        the clock passes this one.
+        Return the safe setpoint for the current step, when the controller stops controlling.
+
+        The controller hands the building back to its own control; no further steps are decided
+        until the clock passes this one.
         """
         step = (int(now_ns) // self.step_ns) * self.step_ns
         self._last_step_ns = max(step, self._last_step_ns or step)

@@ -214,12 +214,12 @@ class Emulator:
 
     @property
     def t_s(self) -> float:
-        """Current time [s]."""
+        """Return the current time [s]."""
         return float(self.scenario.index[self.index])
 
     @property
     def steps_left(self) -> int:
-        """Number of control steps left in the scenario."""
+        """Return the number of control steps left in the scenario."""
         return len(self.scenario) - 1 - self.index
 
     def disturbances(self) -> pd.Series:

@@ -134,7 +134,7 @@ LIMITS = Limits()
 # -- value checks -------------------------------------------------------------------------
 def check_value(name: str, value: Any, low: float = -math.inf,
                 high: float = math.inf) -> Rejection | None:
-    """A finite scalar within [low, high], else the rejection."""
+    """Check a finite scalar within [low, high]; return the rejection, else None."""
     try:
         x = float(value)
     except (TypeError, ValueError):
@@ -162,7 +162,7 @@ def check_series(name: str, values: Sequence[float], low: float = -math.inf,
 
 
 def check_stamp_fields(sec: int, nanosec: int) -> Rejection | None:
-    """A time stamp given as (seconds, nanoseconds): nanoseconds must be below 1e9."""
+    """Check a time stamp given as (seconds, nanoseconds): nanoseconds must be below 1e9."""
     if not 0 <= int(nanosec) < NS_PER_S:
         return Rejection('stamp', f'stamp nanosec = {nanosec} is outside [0, 999999999]')
     if int(sec) < 0:
@@ -507,7 +507,7 @@ class StampGate:
         self.latest_ns: int | None = None
 
     def check(self, stamp_ns: int, now_ns: int) -> Rejection | None:
-        """The rejection of a stamp, or None if it is acceptable (see the class docstring)."""
+        """Return the rejection of a stamp, None if acceptable (see the class docstring)."""
         stamp_ns, now_ns = int(stamp_ns), int(now_ns)
         if self.latest_ns is not None:
             if stamp_ns == self.latest_ns:
@@ -529,8 +529,9 @@ class StampGate:
 
     def accept(self, stamp_ns: int, now_ns: int) -> None:
         """
-        Remember an accepted stamp (only once a clock runs: a stamp that could not be
-        checked against the clock must not lock out the ones that follow).
+        Remember an accepted stamp, only once a clock runs.
+
+        A stamp that could not be checked against the clock must not lock out the ones that follow.
         """
         if int(now_ns) > 0:
             self.latest_ns = max(int(stamp_ns), self.latest_ns or 0)
@@ -690,8 +691,9 @@ class SetpointSupervisor:
 
     def plan_problem(self, controls: Any, states: Any) -> str | None:
         """
-        Why a plan cannot be applied (non-finite, outside the bounds or the state
-        range, wrong shape), or None.
+        Return why a plan cannot be applied, or None.
+
+        The reasons: non-finite, outside the bounds or the state range, wrong shape.
         """
         try:
             u = np.asarray(controls, dtype=float)
@@ -720,7 +722,7 @@ class SetpointSupervisor:
 
     def review(self, t_s: float, result: Any, *, accept_unconverged: bool = True) -> Decision:
         """
-        The setpoint of the step at ``t_s`` given its solve result.
+        Return the setpoint of the step at ``t_s`` given its solve result.
 
         Parameters
         ----------
@@ -755,7 +757,7 @@ class SetpointSupervisor:
 
     def fallback(self, t_s: float, code: str, reason: str) -> Decision:
         """
-        The fallback of the step at ``t_s``: the last good plan's interval, else safe.
+        Return the fallback of the step at ``t_s``: the last good plan's interval, else safe.
 
         Parameters
         ----------
@@ -787,7 +789,7 @@ class SetpointSupervisor:
                          f'{self.safe_controls.tolist()} ({why})')
 
     def safe(self, t_s: float, code: str, reason: str) -> Decision:
-        """The last link of the chain: the safe setpoint, with ``reason`` as given."""
+        """Return the last link of the chain: the safe setpoint, with ``reason`` as given."""
         self.sources['safe'] += 1
         nx = self._plan.states.shape[1] if self._plan is not None else 0
         return Decision(float(t_s), self.safe_controls.copy(), None,
@@ -819,7 +821,7 @@ class InputWait:
     deadline_s: float = 1800.0
 
     def overdue(self, waited_wall_s: float, waited_clock_s: float) -> bool:
-        """True when the step should stop waiting and fall back."""
+        """Return True when the step should stop waiting and fall back."""
         return waited_wall_s >= self.wait_s or (
             self.deadline_s > 0 and waited_clock_s >= self.deadline_s)
 
@@ -878,7 +880,7 @@ class SetpointHold:
         return None if self._latest is None else self._latest[0]
 
     def offer(self, t_s: float, controls: Sequence[float]) -> None:
-        """A validated setpoint for the step starting at ``t_s`` (older ones are ignored)."""
+        """Offer a validated setpoint for the step starting at ``t_s`` (older ones are ignored)."""
         u = np.asarray(controls, dtype=float).reshape(-1)
         if u.shape != self.safe_controls.shape or not np.all(np.isfinite(u)):
             raise ValueError(f'controls must be {self.safe_controls.size} finite values, '
@@ -887,7 +889,7 @@ class SetpointHold:
             self._latest = (float(t_s), u.copy())
 
     def controls_for(self, t_s: float) -> HoldDecision:
-        """The controls of the step starting at ``t_s``."""
+        """Return the controls of the step starting at ``t_s``."""
         if self._latest is not None:
             stamp, u = self._latest
             age = float(t_s) - stamp

@@ -77,7 +77,7 @@ class NlpIndex:
         return slice(start, start + (self.n_intervals * self.n_states if self.soft else 0))
 
     def u(self, z: np.ndarray) -> np.ndarray:
-        """Controls, shape (N, nc) (a view)."""
+        """Return the controls, shape (N, nc) (a view)."""
         return z[self.u_slice].reshape(self.n_intervals, self.n_controls)
 
     def x(self, z: np.ndarray) -> np.ndarray:
@@ -448,6 +448,8 @@ class ShootingProblem:
                                lower: np.ndarray, upper: np.ndarray, solver: Solver,
                                z0: np.ndarray) -> ShootingResult:
         """
+        Solve for the least violation of the bounds, then (two-phase) the least cost within them.
+
         Phase 1: least violation (soft bounds, exact linear penalty); phase 2 (two-phase
         relaxation): least cost within the relaxed bounds.
         """
@@ -632,7 +634,7 @@ class ShootingProblem:
 
     def _naive_nlp(self, nlp: Nlp, idx: NlpIndex, x0: np.ndarray, disturbances: np.ndarray,
                    fast_fun: Callable[[np.ndarray], float]) -> Nlp:
-        """The ancestor's evaluation: serial simulations, no cache, no derivatives."""
+        """Return the ancestor's evaluation: serial simulations, no cache, no derivatives."""
         xs, us = self._x_scaling, self.control_scaling
 
         def simulate(z: np.ndarray) -> np.ndarray:
@@ -782,7 +784,7 @@ class ContinuityStructure:
 
     def matrix(self, dx_du: np.ndarray, dx_dx0: np.ndarray, x_scale: np.ndarray,
                u_scale: np.ndarray) -> sparse.coo_array:
-        """The Jacobian (normalised variables) from the interval sensitivities."""
+        """Return the Jacobian (normalised variables) from the interval sensitivities."""
         return sparse.coo_array((self.values(dx_du, dx_dx0, x_scale, u_scale),
                                  (self.rows, self.cols)), shape=self.shape)
 

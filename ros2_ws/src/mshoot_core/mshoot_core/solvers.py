@@ -129,8 +129,9 @@ class Solver(abc.ABC):
     def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None
               ) -> optimize.OptimizeResult:
         """
-        Solve ``nlp`` from ``z0``; return an OptimizeResult (x, fun, success, status,
-        message, nit, nfev, budget_exceeded).
+        Solve ``nlp`` from ``z0``.
+
+        Return an OptimizeResult (x, fun, success, status, message, nit, nfev, budget_exceeded).
 
         ``deadline`` is a :func:`time.perf_counter` time [s]: the solver stops at
         its first iteration past it (``success=False``, ``budget_exceeded=True``).
@@ -138,7 +139,7 @@ class Solver(abc.ABC):
 
 
 def _deadline_callback(deadline: float | None) -> Callable | None:
-    """A SciPy ``callback(intermediate_result)`` that stops the solve past ``deadline``."""
+    """Return a SciPy ``callback(intermediate_result)`` that stops the solve past ``deadline``."""
     if deadline is None:
         return None
 
@@ -180,8 +181,9 @@ class SlsqpSolver(Solver):
 
 def _scipy_constraint(kind: str, fun: Callable, jac: Callable | None) -> dict:
     """
-    A SciPy (SLSQP) constraint dict with a dense Jacobian; without ``jac`` SciPy
-    estimates it by finite differences.
+    Return a SciPy (SLSQP) constraint dict with a dense Jacobian.
+
+    Without ``jac`` SciPy estimates it by finite differences.
     """
     constraint = {'type': kind, 'fun': fun}
     if isinstance(jac, SparseJacobian):

@@ -43,7 +43,7 @@ def seconds_to_ns(seconds: float) -> int:
 
 
 def stamp_to_ns(stamp: Time) -> int:
-    """A ``builtin_interfaces/Time`` as integer nanoseconds."""
+    """Return a ``builtin_interfaces/Time`` as integer nanoseconds."""
     return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
 
 
@@ -54,12 +54,12 @@ def ns_to_stamp(ns: int) -> Time:
 
 
 def clock_msg(ns: int) -> Clock:
-    """A ``rosgraph_msgs/Clock`` at ``ns``."""
+    """Return a ``rosgraph_msgs/Clock`` at ``ns``."""
     return Clock(clock=ns_to_stamp(ns))
 
 
 def floor_to_step(ns: int, step_ns: int) -> int:
-    """The start of the step holding ``ns`` on the grid of multiples of ``step_ns``."""
+    """Return the start of the step holding ``ns`` on the grid of multiples of ``step_ns``."""
     return (int(ns) // int(step_ns)) * int(step_ns)
 
 
@@ -297,7 +297,7 @@ def setpoint_plan(msg: Setpoint) -> tuple[dict[str, np.ndarray], dict[str, np.nd
 
 def status_msg(stamp_ns: int, result: MpcResult | None, *, fallback: bool = False,
                message: str = '', solve_time_s: float = 0.0) -> MpcStatus:
-    """The status of an MPC step; ``result`` None when no solve produced the setpoint."""
+    """Return the status of an MPC step; ``result`` None when no solve produced the setpoint."""
     msg = MpcStatus()
     msg.header.stamp = ns_to_stamp(stamp_ns)
     msg.fallback = bool(fallback)
@@ -366,7 +366,7 @@ def decision_status_msg(stamp_ns: int, decision: Decision, result: MpcResult | N
                         rejected_forecasts: int = 0,
                         consecutive_fallbacks: int = 0) -> MpcStatus:
     """
-    The status of a supervisor decision; never a non-finite number.
+    Return the status of a supervisor decision; never a non-finite number.
 
     ``result`` is the step's solve result if there is one (its numbers are
     reported even when it was not used); without one, ``objective`` and

@@ -335,7 +335,7 @@ class EmulatorNode(ManagedNode):
 
     # -- health -----------------------------------------------------------------------------
     def health(self) -> Report:
-        """The emulator's status for /diagnostics."""
+        """Return the emulator's status for /diagnostics."""
         sources_count = collections.Counter(self.applied_sources)
         rejected = self.rejections.total()
         values_ = {
@@ -412,7 +412,7 @@ class EmulatorNode(ManagedNode):
 
     # -- start ----------------------------------------------------------------------------
     def _start(self) -> None:
-        """The start gate opened: publish the first step and start the run timer."""
+        """Start once the start gate opened: publish the first step and start the run timer."""
         self.gate = None
         self.started = True
         self._run_started_ns = self._step_started_ns = self._steady_ns()
@@ -608,7 +608,7 @@ class EmulatorNode(ManagedNode):
 
     # -- records --------------------------------------------------------------------------
     def fine_frame(self) -> pd.DataFrame:
-        """The fine-grid trajectory of all steps so far (as the core loop builds it)."""
+        """Return the fine-grid trajectory of all steps so far (as the core loop builds it)."""
         if not self.records:
             return pd.DataFrame()
         return pd.concat([r.fine if k == 0 else r.fine.iloc[1:]

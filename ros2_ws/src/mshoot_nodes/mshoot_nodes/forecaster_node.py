@@ -175,7 +175,7 @@ class ForecasterNode(Node):
                 'set?', throttle_duration_sec=30.0)
 
     def health(self) -> Report:
-        """The forecaster's status for /diagnostics."""
+        """Return the forecaster's status for /diagnostics."""
         p = self.params
         last = self.last_index
         values_ = {'forecasts_published': self.published, 'enabled': p['enabled'],

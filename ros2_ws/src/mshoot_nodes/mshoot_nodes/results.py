@@ -125,7 +125,7 @@ def run_outputs(out: pathlib.Path, applied: pd.DataFrame, fine: pd.DataFrame,
 
 
 def kpi_summary(kpis: dict) -> str:
-    """A few lines with the KPIs an operator looks at first."""
+    """Return a few lines with the KPIs an operator looks at first."""
     missing = kpis.get('mpc_records_missing', 0)
     return (f"energy {kpis['energy_kwh']:.2f} kWh (heating {kpis['heating_kwh']:.2f}, cooling "
             f"{kpis['cooling_kwh']:.2f})\n"

@@ -216,8 +216,9 @@ CASE_SETTINGS = ('horizon_steps', 'cost', 'comfort', 'soft_penalty', 'solver', '
 def option_problems(args: argparse.Namespace,
                     scenario_steps: int | None = None) -> tuple[MpcSettings | None, list[str]]:
     """
-    The controller settings of parsed options, and every problem of the options at once
-    (settings, FMU tolerance, hours, and a horizon longer than the forecasts).
+    Return the controller settings of parsed options, and every problem of the options.
+
+    All problems at once: settings, FMU tolerance, hours, and a horizon longer than the forecasts.
     """
     problems = ModelSettings(fmu_tolerance=args.tolerance).problems()
     for option, name in (('--control', args.control), ('--emulator', args.emulator)):
@@ -243,8 +244,9 @@ def option_problems(args: argparse.Namespace,
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     """
-    The command line of the case: fills ``parser`` (e.g. the ``case`` verb of ``mshoot``),
-    or a new parser when None.
+    Build the command line of the case.
+
+    It fills ``parser`` (e.g. the ``case`` verb of ``mshoot``), or a new parser when None.
     """
     if parser is None:
         parser = argparse.ArgumentParser(

@@ -295,7 +295,7 @@ class ClosedLoop:
 
     @property
     def steps_done(self) -> int:
-        """Steps the emulator has applied."""
+        """Return the steps the emulator has applied."""
         return self.emulator.steps_done if hasattr(self, 'emulator') else 0
 
     def run_steps(self, steps: int, timeout_s: float = 60.0) -> None:
@@ -336,7 +336,7 @@ class ClosedLoop:
         return [item for node in nodes for item in node.history]
 
     def mpc_rejections(self, stream: str | None = None) -> int:
-        """Inputs rejected by every MPC incarnation."""
+        """Return the inputs rejected by every MPC incarnation."""
         nodes = self.retired + ([self.mpc] if self.mpc is not None else [])
         return sum(node.rejections.total(stream) for node in nodes)
 

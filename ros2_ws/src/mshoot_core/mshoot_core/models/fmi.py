@@ -469,7 +469,7 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
 
     @property
     def fmu(self) -> FMU2Model | FMU2Slave:
-        """The fmpy instance (raises if closed)."""
+        """Return the fmpy instance (raises if closed)."""
         if self._fmu is None:
             raise RuntimeError('the FmiModel is closed')
         return self._fmu

@@ -43,22 +43,22 @@ SIZE_P = ctypes.POINTER(ctypes.c_size_t)
 
 
 def size_array(values: Sequence[int]) -> ctypes.Array:
-    """A ``size_t`` array of ``values`` (at least one element)."""
+    """Return a ``size_t`` array of ``values`` (at least one element)."""
     return (ctypes.c_size_t * max(len(values), 1))(*values)
 
 
 def real_array(values: Sequence[float]) -> ctypes.Array:
-    """An ``fmi2Real`` (double) array of ``values``."""
+    """Return an ``fmi2Real`` (double) array of ``values``."""
     return (ctypes.c_double * len(values))(*values)
 
 
 def vr_array(refs: Sequence[int]) -> ctypes.Array:
-    """An ``fmi2ValueReference`` (unsigned int) array of ``refs``."""
+    """Return an ``fmi2ValueReference`` (unsigned int) array of ``refs``."""
     return (ctypes.c_uint * len(refs))(*refs)
 
 
 def double_pointer(array: np.ndarray) -> Any:
-    """A ``double *`` to the data of the contiguous float64 ``array`` (no copy)."""
+    """Return a ``double *`` to the data of the contiguous float64 ``array`` (no copy)."""
     return array.ctypes.data_as(DOUBLE_P)
 
 

@@ -189,7 +189,7 @@ class ModelExchangeIntegration:
 
     def _me_problem(self, dt_s: float,
                     sensitivities: SensitivityRequest | None) -> tuple[MeProblem, list]:
-        """The driver's description of a batch, and the arrays it points to (keep both)."""
+        """Return the driver's description of a batch, and the arrays it points to (keep both)."""
         par_refs, par_values = self._parameter_groups.get('Real', ([], []))
         fmu_outputs = {o.variable.name for o in self.model_description.outputs}
         return me_problem(

@@ -152,7 +152,7 @@ class ForwardSensitivities:
         return None
 
     def _sensitivity_request(self, wrt: Sequence[int]) -> SensitivityRequest:
-        """The input columns ``wrt`` (indices of :attr:`input_names`) with their nominals."""
+        """Return the inputs ``wrt`` (indices of :attr:`input_names`) with their nominals."""
         key = tuple(wrt)
         request = self._sensitivity_requests.get(key)
         if request is None:
@@ -165,7 +165,7 @@ class ForwardSensitivities:
         return request
 
     def _sensitivity_solver(self, wrt: Sequence[int]) -> tuple[_Sensitivities, Any]:
-        """The augmented system and its CVode solver for the input columns ``wrt`` (cached)."""
+        """Return the augmented system and its CVode solver for the inputs ``wrt`` (cached)."""
         key = tuple(wrt)
         if key not in self._sensitivity_solvers:
             from fmpy.sundials import CVodeSolver

@@ -61,7 +61,7 @@ class MultiZoneModel(Model):
         self.comfort_states = self.state_names
 
     def _zone_inputs(self, u: np.ndarray) -> np.ndarray:
-        """Inputs of every zone, shape (B, Z, 5), from the model inputs (B, 4 + Z)."""
+        """Return the inputs of every zone, shape (B, Z, 5), from the model inputs (B, 4 + Z)."""
         batch = u.shape[0]
         zone_u = np.empty((batch, self.n_zones, 5))
         zone_u[:, :, 0] = u[:, [0]] * self.solar_share
@@ -72,7 +72,7 @@ class MultiZoneModel(Model):
         return zone_u
 
     def _coefficients(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """f [W], g [W/K] and capacity C [J/K] per batch row and zone, shapes (B, Z)."""
+        """Return f [W], g [W/K] and capacity C [J/K] per batch row and zone, shapes (B, Z)."""
         f, g = self.zones.affine_coefficients(self._zone_inputs(u))
         return f, g, np.broadcast_to(self.zones.parameters.capacity_j_k, f.shape)
 

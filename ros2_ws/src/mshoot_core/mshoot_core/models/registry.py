@@ -247,7 +247,7 @@ class ModelSettings(SettingsGroup):
         return [problem] if problem else []
 
     def build(self) -> Model:
-        """The model (see :func:`build_model`)."""
+        """Build the model (see :func:`build_model`)."""
         return build_model(self.model, self.fmu_tolerance)
 
 

@@ -353,7 +353,7 @@ class SklearnModel(Model):
 
     @property
     def is_fitted(self) -> bool:
-        """True once :meth:`fit` has succeeded."""
+        """Return True once :meth:`fit` has succeeded."""
         return self._state_regressor is not None
 
     def _require_fitted(self) -> None:
