@@ -67,13 +67,13 @@ def data_file() -> pathlib.Path:
 
 
 def case_arguments(out: pathlib.Path, *extra: str) -> list[str]:
-    """The arguments of our case command (the issue's command line), after ``mshoot case``."""
+    """Return our case command's arguments (the issue's command line), after ``mshoot case``."""
     return ['ou44', '--data', str(data_file()), '--horizon', str(HORIZON), '--control', 'fmu',
             '--out', str(out), *extra]
 
 
 def mshoot_script() -> str:
-    """The ``mshoot`` console script of the workspace (``source env.sh`` puts it on PATH)."""
+    """Return the workspace's ``mshoot`` console script (``source env.sh`` puts it on PATH)."""
     path = shutil.which('mshoot')
     if path is None:
         raise SystemExit('mshoot not on PATH: source env.sh')
@@ -82,8 +82,9 @@ def mshoot_script() -> str:
 
 def ours_command(out: pathlib.Path, *extra: str, python_flags: Sequence[str] = ()) -> list[str]:
     """
-    Our whole command of the reference case, ``mshoot case ou44 ...`` as a user types it
-    (the console script run by the interpreter, so that ``python_flags`` apply).
+    Return our whole command of the reference case, ``mshoot case ou44 ...``.
+
+    As a user types it: the console script run by the interpreter, so that ``python_flags`` apply.
     """
     return [sys.executable, *python_flags, mshoot_script(), 'case', *case_arguments(out, *extra)]
 
@@ -96,9 +97,10 @@ def casadi_command(out: pathlib.Path, python_flags: Sequence[str] = ()) -> list[
 
 def run_timed(command: list[str]) -> tuple[float, str, float, float, float]:
     """
-    Wall time [s] of a subprocess (which must succeed), its stderr, its launch and exit
-    times (epoch [s]), and its CPU time [s] (user + system, with the processes it waited
-    for, e.g. our plot worker).
+    Run a subprocess (which must succeed) and time it.
+
+    Return its wall time [s], its stderr, its launch and exit times (epoch [s]), and its CPU time
+    [s] (user + system, with the processes it waited for, e.g. our plot worker).
     """
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     launched = time.time()
@@ -116,8 +118,9 @@ def run_timed(command: list[str]) -> tuple[float, str, float, float, float]:
 # -- the instrumented run of our command (a subprocess of its own) --------------------------------
 class Timers:
     """
-    Wall-time and CPU-time (the process's) totals [s] and call counts of wrapped
-    functions, by group.
+    Wall-time and CPU-time totals [s] and call counts of wrapped functions, by group.
+
+    The CPU time is the process's.
 
     Nested calls within one group count once (the outermost call), so a batch
     function calling another batch function is not counted twice.
@@ -161,9 +164,10 @@ class Timers:
 
 def timed_drivers(timers: Timers) -> None:
     """
-    Time the compiled batch drivers' C entry points (native integration): each driver's
-    ``_batch`` (the ctypes function of ``mshoot_cs_batch`` / ``mshoot_me_batch``) is wrapped
-    when the driver is bound, so 'native' is the C call alone, without the Python argument
+    Time the compiled batch drivers' C entry points (native integration).
+
+    Each driver's ``_batch`` (the ctypes function of ``mshoot_cs_batch`` / ``mshoot_me_batch``) is
+    wrapped when the driver is bound, so 'native' is the C call alone, without the Python argument
     preparation of ``run``.
     """
     from mshoot_core.models import fmi_drivers
@@ -178,9 +182,11 @@ def timed_drivers(timers: Timers) -> None:
 
 def instrumented_case(argv: list[str], report: pathlib.Path, profile: bool) -> int:
     """
-    Run our case command as ``mshoot case`` runs it (its verb environment, its plot worker
-    started first, ``mshoot_studies.cli.main``, the fast exit) with timers (or with cProfile
-    on inside the solves); write the figures to ``report``.
+    Run our case command as ``mshoot case`` runs it, with timers or cProfile.
+
+    As ``mshoot case`` runs it: its verb environment, its plot worker started first,
+    ``mshoot_studies.cli.main``, the fast exit; with timers (or with cProfile on inside the
+    solves). Write the figures to ``report``.
     """
     script_start_epoch = time.time()
     # as the mshoot command starts: its environment for the verb, its plot worker first

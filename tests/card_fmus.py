@@ -30,7 +30,7 @@ TEST_FMUS = {
 
 
 def build_test_fmu(name: str) -> pathlib.Path:
-    """The test FMU ``name`` (a key of :data:`TEST_FMUS`), built if not built yet."""
+    """Return the test FMU ``name`` (a key of :data:`TEST_FMUS`), built if not built yet."""
     identifier, c_file, template, defines = TEST_FMUS[name]
     sources = [FMU_SOURCES / c_file, FMU_SOURCES / template,
                *(SOURCE_DIR / h for h in FMI2_HEADERS)]

@@ -70,8 +70,9 @@ def spin_for(executor: Any, wall_s: float) -> None:
 @pytest.fixture(scope='session')
 def timed_fmus(tmp_path_factory: pytest.TempPathFactory) -> dict[str, pathlib.Path]:
     """
-    The time-dependent test FMU (tests/fmus/timed_zone.c), built with gcc: ``'state'``
-    declares FMU-state get/set/serialise, ``'nostate'`` does not.
+    Return the time-dependent test FMU (tests/fmus/timed_zone.c), built with gcc.
+
+    ``'state'`` declares FMU-state get/set/serialise, ``'nostate'`` does not.
     """
     from timed_fmu import build_timed_fmu
     out = tmp_path_factory.mktemp('timed_fmu')

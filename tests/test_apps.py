@@ -115,8 +115,9 @@ def test_python_m_modules_keep_working():
 
 def test_mshoot_case_loads_only_what_the_case_uses(tmp_path):
     """
-    ``mshoot case`` imports neither the study (nor its cluster client) nor matplotlib
-    (its plot worker does).
+    ``mshoot case`` imports neither the study (nor its cluster client) nor matplotlib.
+
+    Matplotlib is imported by its plot worker.
     """
     probe = ('import json, sys\n'
              'from mshoot_studies import cli\n'
@@ -136,8 +137,9 @@ def test_mshoot_case_loads_only_what_the_case_uses(tmp_path):
 
 def test_mshoot_command_exits_fast_and_clean(tmp_path):
     """
-    The console script ends without the interpreter's teardown, after what a normal
-    exit does: every file and log line out, no extracted FMU left behind.
+    The console script ends without the interpreter's teardown, after a normal exit's work.
+
+    What a normal exit does is done: every file and log line out, no extracted FMU left behind.
     """
     out, scratch = tmp_path / 'case', tmp_path / 'tmp'
     scratch.mkdir()
@@ -159,8 +161,9 @@ def test_mshoot_command_exits_fast_and_clean(tmp_path):
 @pytest.mark.parametrize('with_thread', [False, True])
 def test_exit_now_does_what_a_normal_exit_does_for_the_outputs(tmp_path, with_thread):
     """
-    Buffered output, atexit handlers (logging's, finalizers) and a running thread: all
-    done before the process ends with the code given.
+    Buffered output, atexit handlers and a running thread: done before the process ends.
+
+    Atexit handlers: logging's, finalizers; the process ends with the code given.
     """
     probe = ('import atexit, logging, sys, threading, time\n'
              'from mshoot_studies.cli import exit_now\n'

@@ -69,7 +69,7 @@ def zone2_fmu():
 
 @pytest.fixture(scope='module')
 def zone_cards(tmp_path_factory, zone_fmu):
-    """The zone as Model Exchange and as Co-Simulation, FMU beside the cards."""
+    """Return the zone as Model Exchange and as Co-Simulation, FMU beside the cards."""
     folder = tmp_path_factory.mktemp('zone')
     me = write_card(folder, 'zone.yaml', ZONE_CARD, zone_fmu)
     cs = write_card(folder, 'zone_cs.yaml', with_changes(ZONE_CARD, fmi_type='co-simulation'))
@@ -184,10 +184,7 @@ def test_case_rejects_a_bad_card_in_one_line(zone_cards, tmp_path, caplog):
 
 
 def test_case_rejects_cards_that_do_not_fit_the_scenario(tmp_path, caplog):
-    """
-    The R2C2 card needs a series Qsun the scenario lacks; its states are not the
-    emulator's.
-    """
+    """The R2C2 card needs a series Qsun the scenario lacks; its states are not the emulator's."""
     r2c2 = write_card(tmp_path, 'r2c2.yaml', R2C2_CARD, fmu_build.ensure_fmu('r2c2'),
                       fmu_name='r2c2.fmu')
     assert case.main(['synthetic', '--hours', '3', '--horizon', '2', '--control', str(r2c2),
@@ -221,8 +218,9 @@ def zone2_card(tmp_path_factory, zone2_fmu):
 
 def test_two_control_card_solves_an_mpc_step(zone2_card):
     """
-    Heating q [W] and a cooler qc [W] that the FMU takes in kW behind its overwrite switch:
-    from 26 degC on a warm day the MPC cools into the band, without heating.
+    Heating q [W] and a cooler qc [W]: from 26 degC on a warm day the MPC cools into the band.
+
+    The FMU takes qc in kW behind its overwrite switch; the MPC cools without heating.
     """
     model = cards.build_model(zone2_card, 'control')
     assert isinstance(model, CardFmiModel)
@@ -256,8 +254,10 @@ def test_two_control_card_solves_an_mpc_step(zone2_card):
 
 def test_two_control_card_runs_the_case(zone2_card, tmp_path, caplog):
     """
-    The case takes the controls from the cards: the MPC plans q and qc within their common
-    range (logged when the ranges differ), the emulator clips to its card's limits.
+    The case takes the controls from the cards.
+
+    The MPC plans q and qc within their common range (logged when the ranges differ), the emulator
+    clips to its card's limits.
     """
     narrow = with_changes(ZONE2_CARD)
     narrow['controls']['qc']['max'] = 1500
@@ -283,7 +283,7 @@ def test_fixed_inputs_of_fmimodel_are_free_inputs(zone2_fmu):
 
 @pytest.mark.parametrize('fmi_type', ['ModelExchange', 'CoSimulation'])
 def test_unit_conversion_at_the_boundary(zone2_card, zone2_fmu, fmi_type):
-    """qc [W] reaches the FMU as Pcool [kW]; parameters reach it too; derivatives scale."""
+    """Control qc [W] reaches the FMU as Pcool [kW]; parameters reach it too; derivatives scale."""
     card = dataclasses.replace(zone2_card, interface=fmi_type)
     model = cards.build_model(card, 'control', tolerance=1e-10)
     raw = FmiModel(zone2_fmu, inputs=['q', 'Pcool', 'solrad', 'Tout', 'occ'],

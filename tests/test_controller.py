@@ -94,8 +94,10 @@ def test_bad_inputs_are_rejected_counted_and_never_solved():
 
 def test_named_inputs_are_checked_against_the_model():
     """
-    Two zones: states by name in any order; unknown, missing or repeated names, a series
-    the model does not know, a bad price: rejected with kind 'names' (or the value's).
+    Two zones: states by name in any order; bad names and values are rejected.
+
+    Unknown, missing or repeated names, a series the model does not know, a bad price: rejected
+    with kind 'names' (or the value's).
     """
     scenario = synthetic_scenario(hours=6)
     controller = controller_for(MultiZoneModel(2), MpcSettings.from_flat(horizon_steps=3),

@@ -387,8 +387,9 @@ def _small_run():
 
 def test_plot_worker_draws_the_figure_of_this_process(tmp_path):
     """
-    The worker process (its own interpreter, matplotlib imported while the run computes)
-    writes the PNG this process would, pixel for pixel.
+    The worker process writes the PNG this process would, pixel for pixel.
+
+    The worker has its own interpreter; matplotlib is imported while the run computes.
     """
     import matplotlib.image
     result, kpis = _small_run()

@@ -144,9 +144,11 @@ def test_bad_configuration_exits_non_zero_with_the_reason(tmp_path, r2c2_fmu):
 
 def test_bringups_exit_2_with_one_line_on_a_bad_configuration(tmp_path):
     """
+    Bad FMUs, models, parameter files and scenarios: the bring-ups exit 2 with one line.
+
     A bad FMU, a missing one, models that do not fit together, a bad parameter file, a bad
-    scenario: the bring-ups say why in one line and exit 2 (no traceback), as the node
-    executables do.
+    scenario: the bring-ups say why in one line and exit 2 (no traceback), as the node executables
+    do.
     """
     bad_fmu = tmp_path / 'zone.fmu'
     bad_fmu.write_text('not a zip archive')

@@ -1,6 +1,7 @@
 """
-FMUs are extracted once into the cache, keyed by their hash, and bad ones leave nothing
-behind; FMI 3.0 FMUs get a plain answer.
+FMUs are extracted once into the cache, keyed by their hash.
+
+Bad ones leave nothing behind; FMI 3.0 FMUs get a plain answer.
 """
 import os
 import pathlib

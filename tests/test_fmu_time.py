@@ -51,10 +51,10 @@ CASES = [pytest.param(fmi, schedule, variant, id=f'{fmi}-{name}-{variant}')
 def test_intervals_at_their_own_time_chain_into_one_simulation(timed_fmus, fmi_type, schedule,
                                                                variant):
     """
-    Intervals from the continuous trajectory's states, each at its own start time, end on
-    that trajectory (ME: compiled driver for the smooth profile, CVode for the time events;
-    with FMU-state snapshots or re-initialisation; CS: the compiled driver); at time 0 they
-    do not.
+    Intervals from the continuous trajectory's states, each at its own start time, end on it.
+
+    ME: compiled driver for the smooth profile, CVode for the time events; with FMU-state snapshots
+    or re-initialisation; CS: the compiled driver. At time 0 they do not.
     """
     udf = hourly_inputs()
     with timed_model(timed_fmus[variant], fmi_type, schedule) as model:
@@ -142,8 +142,10 @@ def test_start_times_are_checked(timed_fmus):
 @pytest.mark.parametrize('fmi_type', ['CoSimulation', 'ModelExchange'])
 def test_mpc_predicts_a_time_dependent_fmu(timed_fmus, fmi_type):
     """
-    The MPC on the time-dependent FMU controlling that FMU: every plan's first interval
-    predicts the emulated state (a perfect model); time-0 intervals miss the gains.
+    The MPC on the time-dependent FMU controlling that FMU predicts the emulated state.
+
+    Every plan's first interval predicts the emulated state (a perfect model); time-0 intervals
+    miss the gains.
     """
     scenario = synthetic_scenario(hours=LOOP_HOURS + 7)
     tolerance = 1e-10 if fmi_type == 'ModelExchange' else 1e-8

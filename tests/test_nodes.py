@@ -215,8 +215,9 @@ ZONES_HOURS = 12
 @pytest.fixture(scope='module')
 def two_zone_run(tmp_path_factory):
     """
-    A lockstep run over ROS of two R1C1 zones (controls q_0, q_1: registry name 'r1c1x2')
-    with a price forecast, and the core-only loop of the same case.
+    Run two R1C1 zones in lockstep over ROS with a price forecast, and the core-only loop.
+
+    Controls q_0, q_1 (registry name 'r1c1x2'); the core-only loop runs the same case.
     """
     bag = tmp_path_factory.mktemp('two_zones') / 'bag'
     ctx = private_context()

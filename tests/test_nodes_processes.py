@@ -190,9 +190,10 @@ def _run_processes(out: pathlib.Path, *options: str) -> dict:
 @pytest.mark.ros
 def test_fmu_with_other_names_runs_over_dds_from_its_card_alone(tmp_path):
     """
-    An R1C1 FMU written with names of its own (state cair.T, no dpos), described by a card,
-    as the MPC's control model and as the emulated building, each its own process over DDS:
-    the KPIs of the built-in FMU.
+    An R1C1 FMU with names of its own, described by a card: the KPIs of the built-in FMU.
+
+    State cair.T, no dpos; as the MPC's control model and as the emulated building, each its own
+    process over DDS.
     """
     from card_fmus import build_test_fmu
     from test_cards import write_card, ZONE_CARD

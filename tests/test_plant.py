@@ -43,8 +43,9 @@ def run_steps(emulator, controls):
 @pytest.mark.parametrize('fmi_type', FMI_TYPES)
 def test_plant_keeps_its_internal_states(fmi_type):
     """
-    Qr (not mapped) keeps counting across steps instead of restarting at 0 every hour;
-    the zone temperature is the exact R1C1's.
+    Qr (not mapped) keeps counting across steps instead of restarting at 0 every hour.
+
+    The zone temperature is the exact R1C1's.
     """
     scenario = synthetic_scenario(hours=7)
     controls = [1000.0, 1000.0, -500.0, 0.0, 2000.0, 250.0]
@@ -65,9 +66,10 @@ def test_plant_keeps_its_internal_states(fmi_type):
 
 def test_case_with_the_fmu_plant_gives_the_exact_emulators_kpis(ou44_csv):
     """
-    The 72 h OU44 case with the R1C1 FMU (Co-Simulation) as the plant: the KPIs of the exact
-    Python emulator (to the rounding the MPC's solves amplify), and Qr meters the heat of the
-    whole run.
+    The 72 h OU44 case with the R1C1 FMU (Co-Simulation) as the plant.
+
+    The KPIs of the exact Python emulator (to the rounding the MPC's solves amplify), and Qr meters
+    the heat of the whole run.
     """
     scenario = reference_scenario('ou44', ou44_csv, 72)
     with r1c1_fmi_model(fmi_type='CoSimulation', tolerance=1e-10) as plant:
@@ -106,8 +108,9 @@ def _restart_models(timed_fmus, kind, fmi_type):
 @pytest.mark.parametrize('kind', ['r1c1', 'state'])
 def test_restart_from_a_saved_plant_state(timed_fmus, kind, fmi_type):
     """
-    A run interrupted after 3 steps resumes from the saved FMU state: the same trajectory,
-    every internal state included (Qr / Eint), as the uninterrupted run.
+    A run interrupted after 3 steps resumes from the saved FMU state.
+
+    The same trajectory, every internal state included (Qr / Eint), as the uninterrupted run.
     """
     scenario = synthetic_scenario(hours=8)
     make = _restart_models(timed_fmus, kind, fmi_type)
@@ -174,7 +177,7 @@ def test_saved_plant_state_must_match(timed_fmus):
                                                 ('ModelExchange', 1)])
 def test_non_finite_intervals_name_the_variable_and_the_fmu_time(timed_fmus, fmi_type,
                                                                  schedule):
-    """NaN from FMU time 10 h on: the batch raises FmuValueError (not a CVode message)."""
+    """Values NaN from FMU time 10 h on: the batch raises FmuValueError (not a CVode message)."""
     x, u = np.full((4, 1), 293.0), np.tile([5.0, 0.0], (4, 1))
     with timed_model(timed_fmus['state'], fmi_type, schedule, nan_after=10 * HOUR) as model:
         ok, _ = model.simulate_intervals(
@@ -198,8 +201,9 @@ def test_non_finite_intervals_name_the_variable_and_the_fmu_time(timed_fmus, fmi
 @pytest.mark.parametrize('fmi_type', FMI_TYPES)
 def test_control_model_nan_is_a_solve_failed_fallback(timed_fmus, fmi_type):
     """
-    Solves whose horizon reaches FMU time 10 h fail with the FmuValueError; the controller
-    falls back ('solve_failed') and the loop goes on.
+    Solves whose horizon reaches FMU time 10 h fail with the FmuValueError.
+
+    The controller falls back ('solve_failed') and the loop goes on.
     """
     scenario = synthetic_scenario(hours=12)
     with timed_model(timed_fmus['state'], fmi_type, 1, nan_after=10 * HOUR) as control, \
@@ -237,9 +241,10 @@ def _r1c1_inputs_emulator(plant, scenario):
 def test_case_command_exits_1_and_writes_the_steps_done(timed_fmus, tmp_path, monkeypatch,
                                                         caplog):
     """
-    `mshoot case` with an emulator that computes NaN after 5.5 h: exit 1 with the message;
-    kpis.json (with the reason under 'stopped'), steps.csv and trajectories.csv up to the
-    last good step.
+    `mshoot case` with an emulator that computes NaN after 5.5 h: exit 1 with the message.
+
+    kpis.json (with the reason under 'stopped'), steps.csv and trajectories.csv up to the last good
+    step.
     """
     monkeypatch.setitem(registry._REGISTERED, 'timed-nan', (
         lambda tolerance: timed_model(timed_fmus['state'], nan_after=5.5 * HOUR), 'test FMU'))
@@ -260,7 +265,7 @@ def test_case_command_exits_1_and_writes_the_steps_done(timed_fmus, tmp_path, mo
 
 def test_case_command_stopped_at_the_first_step_writes_the_reason(timed_fmus, tmp_path,
                                                                   monkeypatch):
-    """NaN from FMU time 0: no step done; kpis.json holds the reason, no stale files stay."""
+    """Values NaN from FMU time 0: no step done; kpis.json holds the reason, no stale files."""
     monkeypatch.setitem(registry._REGISTERED, 'timed-nan-0', (
         lambda tolerance: timed_model(timed_fmus['state'], nan_after=0.0), 'test FMU'))
     out = tmp_path / 'out'

@@ -122,8 +122,9 @@ def test_sparse_jacobian_gives_the_same_matrix_dense_and_sparse():
 
 def test_soft_band_jacobian_is_the_derivative_of_the_band_rows():
     """
-    x - lower + s >= 0 for finite lower bounds, upper - x + s >= 0 for finite upper ones:
-    +-1 on the state, +1 on its slack, one row each, in that order.
+    Soft band rows: +-1 on the state, +1 on its slack, one row each, in that order.
+
+    x - lower + s >= 0 for finite lower bounds, upper - x + s >= 0 for finite upper ones.
     """
     idx = NlpIndex(3, 1, 2, soft=True)
     finite_lo = np.array([True, False, True, True, True, False])

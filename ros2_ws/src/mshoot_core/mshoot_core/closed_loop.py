@@ -106,9 +106,10 @@ def step_row(outcome: StepOutcome, record: StepRecord, state_names: tuple[str, .
 
 def offer_scenario_inputs(controller: Controller, emulator: Emulator, now_ns: int) -> None:
     """
-    Give the controller the emulated state and a perfect forecast (the scenario's next
-    N+1 rows: the series the controller knows) stamped at the emulator's time, as the
-    emulator and forecaster nodes do.
+    Give the controller the emulated state and a perfect forecast, as the nodes do.
+
+    The forecast is the scenario's next N+1 rows (the series the controller knows), stamped at the
+    emulator's time, as the emulator and forecaster nodes do.
     """
     window = forecast_window(emulator.scenario, emulator.index, controller.mpc.horizon_steps)
     known = controller.forecast_known
@@ -126,8 +127,7 @@ def run_closed_loop(controller: Controller | MPC, emulator: Emulator, steps: int
                     progress: Callable[[list[dict], list[pd.DataFrame]], None] | None = None,
                     log_every: int = 12, budget_s: float | None = None) -> ClosedLoopResult:
     """
-    Run the controller against the emulator for ``steps`` control steps (default: to the
-    end).
+    Run the controller against the emulator for ``steps`` control steps (default: to the end).
 
     Every step the controller gets the emulated state and a perfect forecast
     and decides (:meth:`Controller.poll`): its optimum, or a fallback (the last

@@ -186,8 +186,10 @@ class Controller:
     @property
     def interface(self) -> ControlInterface:
         """
-        The controls (the settings' ``control_names``) and the zone temperatures (the
-        MPC's comfort-bounded states) this controller works with.
+        Return the controls and the zone temperatures this controller works with.
+
+        The controls are the settings' ``control_names``, the zone temperatures the MPC's
+        comfort-bounded states.
         """
         return ControlInterface(tuple(self.settings.problem.control_names),
                                 tuple(self.model.state_names), dict(self.mpc.state_bounds))
@@ -301,8 +303,10 @@ class Controller:
                           control_names: Sequence[str] = (),
                           control_values: Sequence[float] = ()) -> Rejection | None:
         """
-        A measured state as named values (any order; states in SI units, e.g. [K]), with
-        the measured outputs and the controls applied over the last step.
+        Offer a measured state as named values, with the measured outputs and applied controls.
+
+        Names in any order, states in SI units (e.g. [K]); the controls are those applied over the
+        last step.
 
         The names are checked (:func:`~mshoot_core.safety.check_zone_state`: exactly the
         model's states; applied controls among the controller's), then the state goes to
@@ -330,16 +334,19 @@ class Controller:
     @property
     def forecast_required(self) -> tuple[str, ...]:
         """
-        Series a forecast must carry: the model's disturbances (but those assumed, see
-        ``assumed_inputs``) and the comfort band.
+        Series a forecast must carry.
+
+        The model's disturbances (but those assumed, see ``assumed_inputs``) and the comfort band.
         """
         return tuple(c for c in self.mpc.forecast_columns if c not in self.assumed_inputs)
 
     @property
     def forecast_known(self) -> tuple[str, ...]:
         """
-        Every series name a forecast may carry: the required ones, the assumed inputs,
-        the comfort band and the energy price (``price`` [currency/kWh]).
+        Every series name a forecast may carry.
+
+        The required ones, the assumed inputs, the comfort band and the energy price (``price``
+        [currency/kWh]).
         """
         names = [*self.forecast_required, *self.assumed_inputs, *COMFORT_SERIES, PRICE_SERIES]
         return tuple(dict.fromkeys(names))
@@ -347,9 +354,10 @@ class Controller:
     def offer_forecast(self, stamp_ns: int, step_s: float,
                        series: Mapping[str, Sequence[float]], now_ns: int) -> Rejection | None:
         """
-        A forecast: samples every ``step_s`` [s] from ``stamp_ns`` on, by name: the
-        model's disturbances (e.g. Tout [degC], solrad [W/m2], occ), comfort_min,
-        comfort_max [degC] and optionally price [currency/kWh]
+        Offer a forecast: samples every ``step_s`` [s] from ``stamp_ns`` on, by name.
+
+        The series are the model's disturbances (e.g. Tout [degC], solrad [W/m2], occ),
+        comfort_min, comfort_max [degC] and optionally price [currency/kWh]
         (:attr:`forecast_required`, :attr:`forecast_known`).
 
         Returns
@@ -606,13 +614,15 @@ class Controller:
 def controller_for(model: Model, settings: MpcSettings | None = None,
                    **kwargs: Any) -> Controller:
     """
-    A controller of ``model`` with its controls and zone temperatures
-    (:func:`~mshoot_core.models.registry.control_interface`): the settings'
-    ``control_names`` and the MPC's comfort-bounded states follow the model.
+    Build a controller of ``model`` with its controls and zone temperatures.
+
+    See :func:`~mshoot_core.models.registry.control_interface`: the settings' ``control_names`` and
+    the MPC's comfort-bounded states follow the model.
 
     Parameters
     ----------
     model : Model
+        The control model.
     settings : MpcSettings, optional
         Every other setting (default: the defaults).
     **kwargs

@@ -241,7 +241,7 @@ class Emulator:
 
     def save_plant_state(self) -> bytes:
         """
-        The plant at the current row, for ``Emulator(..., start_index, plant_state=...)``.
+        Save the plant at the current row, for ``Emulator(..., start_index, plant_state=...)``.
 
         Raises
         ------
@@ -259,7 +259,7 @@ class Emulator:
         return self.model.plant_save()
 
     def _step_inputs(self, u: np.ndarray, row: pd.Series) -> np.ndarray:
-        """The model's inputs over the step: the controls and the scenario row's columns."""
+        """Return the model's inputs over the step: the controls and the scenario row's columns."""
         values = np.empty(len(self.model.input_names))
         for i, name in enumerate(self.model.input_names):
             if name in self.control_names:
@@ -273,7 +273,7 @@ class Emulator:
 
     def _plant_step(self, inputs: np.ndarray,
                     times: np.ndarray) -> tuple[pd.DataFrame, pd.DataFrame]:
-        """The plant over one control step on the fine grid ``times``."""
+        """Simulate the plant over one control step on the fine grid ``times``."""
         model = self.model
         if not self._plant_running:
             x, y = model.plant_start(self.x, self.t_s, inputs)

@@ -278,7 +278,7 @@ def find_driver(name: str) -> pathlib.Path:
 
 
 def file_sha256(path: str | os.PathLike) -> str:
-    """The sha256 of a file's bytes (64 hex digits)."""
+    """Return the sha256 of a file's bytes (64 hex digits)."""
     digest = hashlib.sha256()
     with open(path, 'rb') as stream:
         for block in iter(lambda: stream.read(1 << 20), b''):
@@ -292,7 +292,7 @@ def extracted_dir(fmu_file: str | os.PathLike) -> pathlib.Path:
 
 
 def _safe_members(archive: zipfile.ZipFile, label: str) -> list[str]:
-    """The archive's member names, refusing any that would land outside the target folder."""
+    """Return the archive's member names, refusing any that would land outside the target."""
     names = archive.namelist()
     for name in names:
         parts = name.split('/')

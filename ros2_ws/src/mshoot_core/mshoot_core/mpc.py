@@ -224,8 +224,9 @@ class MPC:
 
     def _forecast_values(self, forecast: pd.DataFrame) -> np.ndarray:
         """
-        The first N+1 rows of :attr:`forecast_columns` as floats, shape (N+1, columns),
-        checked as :meth:`check_forecast` says (one conversion of the frame per solve).
+        Return the first N+1 rows of :attr:`forecast_columns` as floats, shape (N+1, columns).
+
+        Checked as :meth:`check_forecast` says (one conversion of the frame per solve).
         """
         if not isinstance(forecast, pd.DataFrame):
             raise TypeError(f'forecast must be a DataFrame, got {type(forecast).__name__}')

@@ -43,7 +43,7 @@ WORKER_TIMEOUT_S = 120.0
 def closed_loop_series(fine: Any, steps: Any, temperature_column: str = 'y_T',
                        control: str = 'q') -> dict[str, np.ndarray]:
     """
-    The arrays the figure of a run shows, from its records.
+    Return the arrays the figure of a run shows, from its records.
 
     Parameters
     ----------
@@ -52,6 +52,10 @@ def closed_loop_series(fine: Any, steps: Any, temperature_column: str = 'y_T',
         and ``comfort_min``/``comfort_max`` [degC].
     steps : DataFrame
         Per-step records indexed by time [s] with the applied control [W].
+    temperature_column : str
+        Column of ``fine`` holding the zone temperature [degC].
+    control : str
+        Column of ``steps`` holding the heat rate [W].
 
     Returns
     -------
@@ -70,8 +74,10 @@ def closed_loop_series(fine: Any, steps: Any, temperature_column: str = 'y_T',
 
 def _figure() -> tuple[Any, Any, Any]:
     """
-    The figure of a run without its data: two axes (temperature above, heat rate below),
-    labels, grids, fixed margins (no layout pass at draw time).
+    Build the figure of a run without its data.
+
+    Two axes (temperature above, heat rate below), labels, grids, fixed margins (no layout pass at
+    draw time).
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -140,6 +146,10 @@ def plot_closed_loop(fine: Any, steps: Any, path: str | pathlib.Path, title: str
         PNG file to write.
     title : str
         Figure title (e.g. the KPIs).
+    temperature_column : str
+        Column of ``fine`` holding the zone temperature [degC].
+    control : str
+        Column of ``steps`` holding the heat rate [W].
 
     """
     return draw_closed_loop(closed_loop_series(fine, steps, temperature_column, control), path,
@@ -197,7 +207,7 @@ class PlotWorker:
             pass
 
     def wait(self) -> pathlib.Path:
-        """The PNG of the figure sent, once written (drawn here if the worker failed)."""
+        """Return the PNG of the figure sent, once written (drawn here if the worker failed)."""
         if self._request is None:
             raise RuntimeError('no figure sent to the PlotWorker')
         series, path, title = self._request
@@ -248,9 +258,10 @@ class PlotWorker:
 
 def _serve() -> None:
     """
-    The worker: import matplotlib, lay out the figure and draw it once (fonts and text
-    are cached on that first draw), then add the data read from stdin (a pickle) and
-    write the PNG.
+    Run the plot worker: lay out the figure, draw it once, add the data, write the PNG.
+
+    Import matplotlib, lay out the figure and draw it once (fonts and text are cached on that first
+    draw), then add the data read from stdin (a pickle) and write the PNG.
     """
     import matplotlib
     matplotlib.use('Agg')

@@ -174,18 +174,23 @@ def check_names(field: str, names: Sequence[str], *, expected: Sequence[str] | N
                 allowed: Sequence[str] | None = None,
                 limits: Limits = LIMITS) -> Rejection | None:
     """
-    The names of a named vector: distinct non-empty strings, and either exactly
-    ``expected`` (in any order) or a subset of ``allowed``.
+    Check the names of a named vector.
+
+    Distinct non-empty strings, and either exactly ``expected`` (in any order) or a subset of
+    ``allowed``.
 
     Parameters
     ----------
     field : str
         What the names name (for the message), e.g. 'state_names'.
     names : sequence of str
+        The names to check.
     expected : sequence of str, optional
         The names that must all be there, and no others.
     allowed : sequence of str, optional
         The names that may be there.
+    limits : Limits
+        Plausible ranges (``max_names``: at most that many names).
 
     """
     names = list(names)
@@ -219,8 +224,10 @@ def check_named(field: str, names: Sequence[str], values: Sequence[float],
                 ranges: Mapping[str, tuple[float, float]] | None = None,
                 limits: Limits = LIMITS) -> Rejection | None:
     """
-    A named vector: one value per name (:func:`check_names`), each finite within
-    [low, high] (or its own range in ``ranges``).
+    Check a named vector: one value per name, each finite within its range.
+
+    One value per name (:func:`check_names`), each finite within [low, high] (or its own range in
+    ``ranges``).
     """
     if len(values) != len(names):
         return Rejection('length', f'{field}: {len(names)} names but {len(values)} values')
@@ -237,8 +244,9 @@ def check_named(field: str, names: Sequence[str], values: Sequence[float],
 
 def reorder(names: Sequence[str], values: Sequence[float], order: Sequence[str]) -> np.ndarray:
     """
-    The values of a checked named vector in the order ``order`` (every name of ``order``
-    must be in ``names``).
+    Return the values of a checked named vector in the order ``order``.
+
+    Every name of ``order`` must be in ``names``.
     """
     index = {name: k for k, name in enumerate(names)}
     x = np.asarray(values, dtype=float).reshape(-1)
@@ -248,8 +256,10 @@ def reorder(names: Sequence[str], values: Sequence[float], order: Sequence[str])
 def unflatten(field: str, names: Sequence[str], values: Sequence[float], samples: int,
               limits: Limits = LIMITS) -> tuple[dict[str, np.ndarray], Rejection | None]:
     """
-    Named series flattened name-major (series i, sample k at ``values[i * samples + k]``)
-    as a dict, or the rejection (names not distinct, a length that does not match).
+    Split named series flattened name-major into a dict, or return the rejection.
+
+    Series i, sample k at ``values[i * samples + k]``; rejected: names not distinct, a length that
+    does not match.
 
     Returns
     -------
@@ -273,9 +283,10 @@ def named_series(series_names: Sequence[str], series_values: Sequence[float],
                  price_per_kwh: Sequence[float] = (),
                  limits: Limits = LIMITS) -> tuple[dict[str, np.ndarray], Rejection | None]:
     """
-    The series of a forecast by name from its message form: disturbance series flattened
-    name-major with n = ``len(comfort_min_c)`` samples each, the comfort band and the price
-    (none when empty); what :func:`check_forecast` then validates.
+    Return the series of a forecast by name from its message form.
+
+    Disturbance series flattened name-major with n = ``len(comfort_min_c)`` samples each, the
+    comfort band and the price (none when empty); what :func:`check_forecast` then validates.
 
     Returns
     -------
@@ -306,7 +317,7 @@ def check_zone_state(state_names: Sequence[str], state_values: Sequence[float],
                      allowed_controls: Sequence[str] | None = None,
                      limits: Limits = LIMITS) -> Rejection | None:
     """
-    A measured state of a building's zones: named states, outputs and applied controls.
+    Check a measured state of a building's zones: named states, outputs and applied controls.
 
     Parameters
     ----------
@@ -323,6 +334,8 @@ def check_zone_state(state_names: Sequence[str], state_values: Sequence[float],
         The receiver's model states: exactly these names (any order).
     allowed_controls : sequence of str, optional
         The receiver's controls: the applied ones must be among them.
+    limits : Limits
+        Plausible ranges.
 
     """
     return (check_named('state', state_names, state_values, expected=expected_states,
@@ -336,8 +349,10 @@ def check_zone_state(state_names: Sequence[str], state_values: Sequence[float],
 def check_disturbances(names: Sequence[str], values: Sequence[float],
                        limits: Limits = LIMITS) -> Rejection | None:
     """
-    Measured disturbances by name (Tout [degC], solrad [W/m2], occ [persons], dpos [%]
-    within their plausible ranges; other names finite).
+    Check measured disturbances by name.
+
+    Tout [degC], solrad [W/m2], occ [persons], dpos [%] within their plausible ranges; other names
+    finite.
     """
     return check_named('disturbance', names, values, ranges=limits.forecast_ranges,
                        limits=limits)
@@ -348,7 +363,7 @@ def check_forecast(step_s: float, series: Mapping[str, Sequence[float]],
                    required: Sequence[str] = FORECAST_SERIES,
                    known: Sequence[str] | None = None) -> Rejection | None:
     """
-    A forecast of the disturbances, the comfort band and the energy price.
+    Check a forecast of the disturbances, the comfort band and the energy price.
 
     Parameters
     ----------
@@ -416,7 +431,7 @@ def check_setpoint(step_s: float, control_names: Sequence[str],
                    expected_controls: Sequence[str] | None = None,
                    limits: Limits = LIMITS) -> Rejection | None:
     """
-    A supervisory setpoint: named controls, zone temperature setpoints, the plan.
+    Check a supervisory setpoint: named controls, zone temperature setpoints, the plan.
 
     Parameters
     ----------
@@ -437,6 +452,8 @@ def check_setpoint(step_s: float, control_names: Sequence[str],
         The receiver's control step [s].
     expected_controls : sequence of str, optional
         The receiver's controls: exactly these names (any order).
+    limits : Limits
+        Plausible ranges.
 
     """
     rejection = check_value('step_s', step_s, 1e-9, math.inf)

@@ -57,7 +57,9 @@ def finite_difference_jacobians(model: Model, x_start: np.ndarray, u: np.ndarray
     Parameters
     ----------
     model : Model
+        The model whose intervals are perturbed.
     x_start : ndarray, shape (B, nx)
+        Start state of each interval.
     u : ndarray, shape (B, nu)
         Inputs of each interval (all columns).
     dt_s : float

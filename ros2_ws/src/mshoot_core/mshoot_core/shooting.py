@@ -601,8 +601,9 @@ class ShootingProblem:
 
     def _continuity_structure(self, idx: NlpIndex) -> 'ContinuityStructure':
         """
-        The continuity-constraint structure of the layout ``idx`` (built once per layout:
-        the model's pattern is fixed).
+        Return the continuity-constraint structure of the layout ``idx``.
+
+        Built once per layout: the model's pattern is fixed.
         """
         if idx not in self._structures:
             self._structures[idx] = ContinuityStructure(
@@ -776,7 +777,7 @@ class ContinuityStructure:
 
     def values(self, dx_du: np.ndarray, dx_dx0: np.ndarray, x_scale: np.ndarray,
                u_scale: np.ndarray) -> np.ndarray:
-        """The entries at (:attr:`rows`, :attr:`cols`) from the interval sensitivities."""
+        """Return the entries at (:attr:`rows`, :attr:`cols`) from the interval sensitivities."""
         du = dx_du[:, self.u_rows, self.u_cols] * (u_scale[self.u_cols] / x_scale[self.u_rows])
         dx = dx_dx0[1:, self.x_rows, self.x_cols] * (x_scale[self.x_cols]
                                                      / x_scale[self.x_rows])
@@ -792,9 +793,10 @@ class ContinuityStructure:
 def _band_jacobian(idx: NlpIndex, finite_lo: np.ndarray,
                    finite_hi: np.ndarray) -> SparseJacobian:
     """
-    The constant Jacobian of the soft band x_hat - lower + s_hat >= 0 (rows of the
-    finite lower bounds), upper - x_hat + s_hat >= 0 (finite upper bounds): per row the
-    entry of x, then that of s.
+    Return the constant Jacobian of the soft comfort band.
+
+    The band is x_hat - lower + s_hat >= 0 (rows of the finite lower bounds), upper - x_hat + s_hat
+    >= 0 (finite upper bounds): per row the entry of x, then that of s.
     """
     x_cols = idx.x_slice.start + np.arange(idx.n_intervals * idx.n_states)
     s_cols = idx.s_slice.start + np.arange(idx.n_intervals * idx.n_states)

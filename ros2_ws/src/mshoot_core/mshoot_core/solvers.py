@@ -105,7 +105,7 @@ class SparseJacobian:
         return sparse.coo_array((self.values(z), (self.rows, self.cols)), shape=self.shape)
 
     def dense(self, z: Vector) -> Matrix:
-        """The Jacobian at ``z`` as a dense (m, n) array."""
+        """Return the Jacobian at ``z`` as a full array of shape (m, n)."""
         out = np.zeros(self.shape)
         out.reshape(-1)[self._flat] = self.values(z)
         return out
@@ -240,10 +240,11 @@ IPOPT_LARGE_PROBLEM_OPTIONS: dict[str, Any] = {'min_refinement_steps': 0,
 
 class IpoptSolver(Solver):
     """
-    IPOPT through cyipopt (the ``cyipopt-wheels`` package), with sparse Jacobians
-    (the pattern taken once from a :class:`SparseJacobian`), and the exact diagonal
-    objective Hessian where the problem gives it, else a limited-memory
-    approximation; ``options`` are IPOPT's (e.g. :data:`IPOPT_LARGE_PROBLEM_OPTIONS`).
+    IPOPT through cyipopt (the ``cyipopt-wheels`` package), with sparse Jacobians.
+
+    The pattern is taken once from a :class:`SparseJacobian`; the exact diagonal objective Hessian
+    where the problem gives it, else a limited-memory approximation; ``options`` are IPOPT's (e.g.
+    :data:`IPOPT_LARGE_PROBLEM_OPTIONS`).
     """
 
     name = 'ipopt'

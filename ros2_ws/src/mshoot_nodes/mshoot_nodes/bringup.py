@@ -164,8 +164,10 @@ def run_in_process(context: Context, node_params: dict[str, dict[str, Any]], *,
 
 def mismatch(emulator: EmulatorNode, mpc: MpcNode) -> str | None:
     """
-    Why the MPC's model cannot control the emulated building (other states or controls:
-    every state and setpoint would be rejected), or None (also before a configure).
+    Say why the MPC's model cannot control the emulated building, or return None.
+
+    Other states or controls: every state and setpoint would be rejected. None also before a
+    configure.
     """
     if emulator.emulator is None or mpc.controller is None:
         return None
@@ -236,8 +238,9 @@ def node_params_from_args(args: argparse.Namespace) -> dict[str, dict[str, Any]]
 
 def core_only(emulator: EmulatorNode, mpc: MpcNode) -> tuple[float, float]:
     """
-    Run the core-only loop with the same parameters: (its wall time [s], max |dx| over
-    every state [K]).
+    Run the core-only loop with the same parameters.
+
+    Return its wall time [s] and max |dx| over every state [K].
 
     The models are built afresh, the scenario is the emulator node's own.
     """

@@ -65,7 +65,7 @@ def floor_to_step(ns: int, step_ns: int) -> int:
 
 # -- named vectors ------------------------------------------------------------------------
 def named(names: Sequence[str], values: Sequence[float]) -> dict[str, float]:
-    """A named vector of a message (``*_names``, ``*_values``) as a dict."""
+    """Return a named vector of a message (``*_names``, ``*_values``) as a dict."""
     return {str(name): float(value) for name, value in zip(names, values)}
 
 
@@ -78,8 +78,9 @@ def flatten(series: Mapping[str, Sequence[float]]) -> tuple[list[str], list[floa
 
 def unflatten_series(names: Sequence[str], values: Sequence[float]) -> dict[str, np.ndarray]:
     """
-    Named series flattened name-major back to a dict (ValueError on a length that does
-    not split evenly).
+    Split named series flattened name-major back into a dict.
+
+    ValueError on a length that does not split evenly.
     """
     if not names:
         if len(values):
@@ -97,7 +98,7 @@ def zone_state_msg(stamp_ns: int, states: Mapping[str, float],
                    outputs: Mapping[str, float] | None = None,
                    controls: Mapping[str, float] | None = None, zone: str = '') -> ZoneState:
     """
-    The state of a building's zones at ``stamp_ns`` as named vectors.
+    Build the state of a building's zones at ``stamp_ns`` as named vectors.
 
     Parameters
     ----------
@@ -124,7 +125,7 @@ def zone_state_msg(stamp_ns: int, states: Mapping[str, float],
 
 
 def zone_state_states(msg: ZoneState) -> dict[str, float]:
-    """The states of a zone state message by name (SI units)."""
+    """Return the states of a zone state message by name (SI units)."""
     return named(msg.state_names, msg.state_values)
 
 
@@ -141,7 +142,7 @@ def disturbances_msg(stamp_ns: int, values: Mapping[str, float],
 
 
 def disturbances_to_series(msg: Disturbances) -> pd.Series:
-    """A Disturbances message as a Series indexed by the disturbance names."""
+    """Return a Disturbances message as a Series indexed by the disturbance names."""
     return pd.Series(named(msg.names, msg.values), dtype=float)
 
 
@@ -149,7 +150,7 @@ def disturbances_to_series(msg: Disturbances) -> pd.Series:
 def forecast_msg(stamp_ns: int, step_s: float, window: pd.DataFrame,
                  series: Sequence[str] = FORECAST_DISTURBANCES, zone: str = '') -> Forecast:
     """
-    A forecast message from a window of scenario rows.
+    Build a forecast message from a window of scenario rows.
 
     Parameters
     ----------
@@ -180,15 +181,16 @@ def forecast_msg(stamp_ns: int, step_s: float, window: pd.DataFrame,
 
 
 def forecast_length(msg: Forecast) -> int:
-    """Number of samples of a forecast (that of its comfort band)."""
+    """Return the number of samples of a forecast (that of its comfort band)."""
     return len(msg.comfort_min_c)
 
 
 def forecast_series(msg: Forecast) -> tuple[dict[str, np.ndarray], Rejection | None]:
     """
-    The series of a forecast by name: its disturbances, ``comfort_min``,
-    ``comfort_max`` and ``price`` (when given), checked for their names and lengths only
-    (:func:`mshoot_core.safety.named_series`); what
+    Return the series of a forecast by name.
+
+    Its disturbances, ``comfort_min``, ``comfort_max`` and ``price`` (when given), checked for
+    their names and lengths only (:func:`mshoot_core.safety.named_series`); what
     :func:`mshoot_core.safety.check_forecast` validates.
 
     Returns
@@ -204,11 +206,12 @@ def forecast_series(msg: Forecast) -> tuple[dict[str, np.ndarray], Rejection | N
 
 def forecast_to_frame(msg: Forecast, assumed: Mapping[str, float] | None = None) -> pd.DataFrame:
     """
-    A forecast message as a DataFrame of its series (ValueError if malformed).
+    Return a forecast message as a DataFrame of its series (ValueError if malformed).
 
     Parameters
     ----------
     msg : Forecast
+        The forecast message.
     assumed : mapping, optional
         Series the message does not carry, held constant (e.g. ``{'dpos': 0.0}``).
 
@@ -243,7 +246,7 @@ def setpoint_msg(stamp_ns: int, step_s: float, controls: Mapping[str, float],
                  plan_temperatures_c: Mapping[str, Sequence[float]] | None = None,
                  zone: str = '') -> Setpoint:
     """
-    A setpoint: named controls, zone temperature setpoints and the plan behind them.
+    Build a setpoint: named controls, zone temperature setpoints and the plan behind them.
 
     Parameters
     ----------
@@ -278,14 +281,15 @@ def setpoint_msg(stamp_ns: int, step_s: float, controls: Mapping[str, float],
 
 
 def setpoint_controls(msg: Setpoint) -> dict[str, float]:
-    """The controls of a setpoint by name."""
+    """Return the controls of a setpoint by name."""
     return named(msg.control_names, msg.control_values)
 
 
 def setpoint_plan(msg: Setpoint) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """
-    The plan of a (checked) setpoint: (controls by name, predicted zone temperatures
-    [degC] by name), each over the plan's intervals.
+    Return the plan of a (checked) setpoint.
+
+    (controls by name, predicted zone temperatures [degC] by name), each over the plan's intervals.
     """
     m = len(msg.plan_controls) // max(len(msg.control_names), 1)
     controls = np.asarray(msg.plan_controls, dtype=float).reshape(len(msg.control_names), m)
@@ -321,8 +325,9 @@ def decision_setpoint_msg(stamp_ns: int, decision: Decision, step_s: float,
                           interface: ControlInterface, safe_temperature_c: float,
                           zone: str = '') -> Setpoint:
     """
-    The setpoint of a supervisor decision: every control, the predicted temperature of
-    every zone and the plan.
+    Build the setpoint of a supervisor decision.
+
+    Every control, the predicted temperature of every zone and the plan.
 
     Parameters
     ----------

@@ -187,9 +187,10 @@ def _check_sources(v: dict[str, Any]) -> str | None:
 
 def build_emulator(p: dict[str, Any]) -> Emulator:
     """
-    The core emulator configured by the node's parameter values ``p``: the model's
-    controls (:func:`~mshoot_core.models.registry.control_interface`) within the actuator
-    limits, every state starting at ``initial_temperature_c`` (in K).
+    Build the core emulator configured by the node's parameter values ``p``.
+
+    The model's controls (:func:`~mshoot_core.models.registry.control_interface`) within the
+    actuator limits, every state starting at ``initial_temperature_c`` (in K).
     """
     scenario = sources.load_scenario(p['scenario'], p['data'], p['hours'])
     model = sources.build_model(p['model'], p['fmu_tolerance'])
@@ -393,7 +394,7 @@ class EmulatorNode(ManagedNode):
         return self._steady.now().nanoseconds
 
     def _safe_controls(self) -> tuple[float, ...]:
-        """The safe default of every control of the model (one before the first configure)."""
+        """Return the safe default of every model control (one before the first configure)."""
         count = len(self.emulator.control_names) if self.emulator is not None else 1
         return (float(self.params['safe_heat_rate_w']),) * count
 
@@ -638,9 +639,10 @@ class EmulatorNode(ManagedNode):
 
     def zone_temperature_columns(self) -> dict[str, str]:
         """
-        Zone temperature state -> the column of the fine trajectory that holds it in degC:
-        the model's output of the same name (``y_T`` for the R1C1 zone), else the state
-        (``x_T_0``, in K: see :func:`mshoot_nodes.results.zone_temperatures_c`).
+        Return the column of the fine trajectory holding each zone temperature state in degC.
+
+        The model's output of the same name (``y_T`` for the R1C1 zone), else the state (``x_T_0``,
+        in K: see :func:`mshoot_nodes.results.zone_temperatures_c`).
         """
         outputs = self.emulator.model.output_names
         return {name: f'y_{name}' if name in outputs else f'x_{name}'

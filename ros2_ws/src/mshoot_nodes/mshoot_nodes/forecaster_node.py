@@ -197,8 +197,9 @@ class ForecasterNode(Node):
 
     def prices(self, times_s: np.ndarray) -> np.ndarray:
         """
-        The energy price [currency/kWh] at scenario times [s] (``price_per_kwh``: flat, or
-        by hour of the day from the scenario's start time).
+        Return the energy price [currency/kWh] at scenario times [s].
+
+        ``price_per_kwh``: flat, or by hour of the day from the scenario's start time.
         """
         prices = np.asarray(self.params['price_per_kwh'], dtype=float)
         if prices.size == 1:

@@ -22,8 +22,9 @@ from rclpy.parameter import Parameter
 
 class ParameterRejected(InvalidParameterValueException):
     """
-    Start-up values rejected by a node's checks; ``reason`` says why (in one sentence,
-    without rclpy's list of every value given).
+    Start-up values rejected by a node's checks.
+
+    ``reason`` says why (in one sentence, without rclpy's list of every value given).
     """
 
     def __init__(self, names: str, given: Any, reason: str) -> None:

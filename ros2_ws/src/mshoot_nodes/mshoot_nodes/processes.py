@@ -104,8 +104,9 @@ def last_error(log: pathlib.Path) -> str:
 def wait_for_emulator(procs: dict[str, subprocess.Popen],
                       timeout_s: float) -> tuple[str, int] | None:
     """
-    Wait until the emulator exits, or another node exits at start-up with a configuration
-    error; (name, exit code) of the process that ended, None after ``timeout_s``.
+    Wait until the emulator exits, or another node exits at start-up with a configuration error.
+
+    Return (name, exit code) of the process that ended, None after ``timeout_s``.
     """
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:

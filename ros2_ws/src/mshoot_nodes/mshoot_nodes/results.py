@@ -67,7 +67,7 @@ def steps_frame(applied: pd.DataFrame, mpc_records: pd.DataFrame) -> pd.DataFram
 def zone_temperature_columns(fine: pd.DataFrame,
                              zones: Mapping[str, str] | None = None) -> list[str]:
     """
-    The columns of ``fine`` holding the zone temperatures [degC].
+    Return the columns of ``fine`` holding the zone temperatures [degC].
 
     Parameters
     ----------
@@ -94,8 +94,9 @@ def run_kpis(steps: pd.DataFrame, fine: pd.DataFrame, step_s: float, wall_s: flo
              controls: Sequence[str] = ('q',), temperature_columns: Sequence[str] = ('y_T',),
              **extra: object) -> dict:
     """
-    KPIs of a ROS run: :func:`closed_loop_kpis` (summed over the controls and zones) plus
-    ``extra`` and ``fallbacks``.
+    Return the KPIs of a ROS run.
+
+    :func:`closed_loop_kpis` (summed over the controls and zones) plus ``extra`` and ``fallbacks``.
     """
     kpis = closed_loop_kpis(steps, fine, step_s, wall_s, list(controls),
                             list(temperature_columns))

@@ -27,17 +27,19 @@ _CLEAR = (InvalidParameterValueException, ValueError, FileNotFoundError)
 
 class StartupError(Exception):
     """
-    A node could not be built from its configuration (bad parameters, model, scenario):
-    the message is one line naming the node and the reason; bring-ups exit with
+    A node could not be built from its configuration (bad parameters, model, scenario).
+
+    The message is one line naming the node and the reason; bring-ups exit with
     :data:`EXIT_CONFIG`.
     """
 
 
 def startup_reason(exc: BaseException) -> str:
     """
-    One line on why a node could not start: the message of a clear configuration error
-    as it is, else the exception's type and message (never a traceback); the lines of a
-    message of several lines are joined with '; '.
+    Say in one line why a node could not start.
+
+    The message of a clear configuration error as it is, else the exception's type and message
+    (never a traceback); the lines of a message of several lines are joined with '; '.
     """
     text = str(exc) if isinstance(exc, _CLEAR) else f'{type(exc).__name__}: {exc}'
     if getattr(exc, 'reason', None):  # params.ParameterRejected: not every value given

@@ -27,8 +27,9 @@ COLUMNS = (('section', 'section'), ('name', 'name'), ('variable', 'model variabl
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     """
-    The command line of the card tools: fills ``parser`` (the ``card`` verb of ``mshoot``),
-    or a new parser when None.
+    Build the command line of the card tools.
+
+    Fills ``parser`` (the ``card`` verb of ``mshoot``), or a new parser when None.
     """
     if parser is None:
         parser = argparse.ArgumentParser(prog='python -m mshoot_studies.card',
@@ -62,8 +63,9 @@ def run(args: argparse.Namespace) -> int:
 
 def check(path: pathlib.Path, out: TextIO, err: TextIO) -> int:
     """
-    Validate the card at ``path``; print its mapping to ``out`` (0) or every problem to
-    ``err`` (2).
+    Validate the card at ``path``.
+
+    Print its mapping to ``out`` (0) or every problem to ``err`` (2).
     """
     try:
         card = cards.load_card(path)

@@ -1,7 +1,7 @@
-"""
+r"""
 The reference case (OU44 classroom, SPEC section 3) as a command.
 
-    mshoot case ou44 --data PATH --horizon 10 --control fmu --tolerance 1e-6 \\
+    mshoot case ou44 --data PATH --horizon 10 --control fmu --tolerance 1e-6 \
         --cost quadratic --out out/case
 
 runs the 72 h MPC emulation (hourly control, R1C1 emulator, perfect
@@ -68,6 +68,10 @@ def control_model(kind: str, tolerance: float = CONTROL_TOLERANCE,
         'python', 'fmu', 'fmu-cs', a path to an .fmu or a model card), or a
         scikit-learn model trained as in Setup 2 ('svr' is Setup 2 itself,
         'linear', 'ridge', 'knn', 'random_forest', 'mlp'; needs ``data``).
+    tolerance : float
+        Relative tolerance of an FMU control model's integrator.
+    data : path-like, optional
+        The OU44 measurements the data-driven models train on.
     report : dict, optional
         Filled with the training/validation report of data-driven models.
     scenario_start : str, optional
@@ -94,8 +98,10 @@ def control_model(kind: str, tolerance: float = CONTROL_TOLERANCE,
 def card_model(path: str | pathlib.Path, role: str, tolerance: float,
                scenario_start: str | None = None) -> Model:
     """
-    The model of a card for ``role`` ('control' or 'emulator'), its FMU time origin
-    taken from the scenario's start (:func:`mshoot_core.models.card.time_origin_seconds`).
+    Build the model of a card for ``role`` ('control' or 'emulator').
+
+    Its FMU time origin is taken from the scenario's start
+    (:func:`mshoot_core.models.card.time_origin_seconds`).
 
     Raises
     ------
@@ -110,8 +116,9 @@ def card_model(path: str | pathlib.Path, role: str, tolerance: float,
 
 def emulator_model(kind: str, scenario_start: str | None = None) -> Model:
     """
-    The emulated building of the case: a registry model or a card, at
-    :data:`~mshoot_core.models.registry.EMULATOR_TOLERANCE` (unless the card sets one).
+    Build the emulated building of the case: a registry model or a card.
+
+    At :data:`~mshoot_core.models.registry.EMULATOR_TOLERANCE` (unless the card sets one).
     """
     if is_card_path(kind):
         return card_model(kind, 'emulator', EMULATOR_TOLERANCE, scenario_start)
@@ -120,8 +127,10 @@ def emulator_model(kind: str, scenario_start: str | None = None) -> Model:
 
 def model_choice(value: str) -> str:
     """
-    argparse type of ``--control``/``--emulator``: a known name or a path to a card (.yaml)
-    or an .fmu file (checked with the other options, every problem at once).
+    Parse ``--control``/``--emulator``: a known name or a path to a card or an FMU.
+
+    An argparse type: a known name or a path to a card (.yaml) or an .fmu file (checked with the
+    other options, every problem at once).
     """
     if value in (*CONTROL_MODELS, *model_names()) or value.endswith('.fmu') \
             or is_card_path(value):
@@ -151,6 +160,8 @@ def run_case(scenario: pd.DataFrame, control: Model, emulator_model: Model,
         ``options`` (flat names such as ``cost='energy'``, ``solver='ipopt'``,
         ``comfort='soft'``, ``mode='naive'``; ``horizon`` is short for
         ``horizon_steps``).
+    horizon : int, optional
+        MPC horizon in control steps (``horizon_steps``).
     initial_c : float
         Initial zone temperature [degC].
     steps, log_every, progress, budget_s :
@@ -193,8 +204,9 @@ def run_case(scenario: pd.DataFrame, control: Model, emulator_model: Model,
 
 def _case_kpis(result: ClosedLoopResult, settings: MpcSettings) -> dict:
     """
-    The KPIs of a run and the settings that made it (the energy KPIs count the control
-    ``q``, or the first control when there is no ``q``).
+    Return the KPIs of a run and the settings that made it.
+
+    The energy KPIs count the control ``q``, or the first control when there is no ``q``.
     """
     p, c = settings.problem, settings.comfort
     energy_control = 'q' if 'q' in p.control_names else p.control_names[0]
@@ -286,8 +298,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """
-    Run the case as parsed by :func:`build_parser`; 0, 2 on bad input, 1 if the emulated
-    building failed (partial outputs written); the reason is logged.
+    Run the case as parsed by :func:`build_parser`.
+
+    Return 0, 2 on bad input, 1 if the emulated building failed (partial outputs written); the
+    reason is logged.
     """
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format='%(asctime)s %(levelname)s %(name)s: %(message)s')
@@ -366,8 +380,9 @@ def card_setup(args: argparse.Namespace, settings: MpcSettings, control: Model,
                emulator: Model, scenario: pd.DataFrame
                ) -> tuple[MpcSettings, np.ndarray | None, list | None, list[str]]:
     """
-    What the cards of ``--control``/``--emulator`` change in the case, and every problem
-    of the pair with the scenario.
+    Apply the cards of ``--control``/``--emulator`` to the case; list every problem.
+
+    What the cards change in the case, and every problem of the pair with the scenario.
 
     The control card gives the MPC's controls (``control_names``) and, where it
     bounds them, the heat-rate range (one range for every control: where the
@@ -435,7 +450,7 @@ def card_setup(args: argparse.Namespace, settings: MpcSettings, control: Model,
 
 def _write_stopped(out: pathlib.Path, result: ClosedLoopResult | None, kpis: dict,
                    title: str) -> None:
-    """The files of a stopped run: those of its steps done, or ``kpis.json`` alone."""
+    """Return the files of a stopped run: those of its steps done, or ``kpis.json`` alone."""
     if result is not None:
         write_outputs(out, result, kpis, title)
         return

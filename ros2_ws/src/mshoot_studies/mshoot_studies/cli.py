@@ -52,7 +52,7 @@ FIGURE_VERBS = frozenset({'case'})
 
 
 def _verb(argv: Sequence[str]) -> str | None:
-    """The verb of a command line (its first word that is not an option), if it is one."""
+    """Return the verb of a command line (its first word that is not an option), if it is one."""
     word = next((word for word in argv if not word.startswith('-')), None)
     return word if word in VERBS else None
 
@@ -103,9 +103,10 @@ def main(argv: Sequence[str] | None = None, plot_worker: Any = None) -> int:
 
 def exit_now(code: int) -> None:
     """
-    End the process with ``code`` once everything it wrote is out, without tearing the
-    interpreter down module by module (a few hundred ms for the thousand modules of a
-    run, spent after the last output).
+    End the process with ``code`` once everything it wrote is out.
+
+    Without tearing the interpreter down module by module (a few hundred ms for the thousand
+    modules of a run, spent after the last output).
 
     What a normal exit does for the files and logs is done first: the ``atexit``
     handlers (``logging.shutdown`` flushes and closes the log handlers, weakref
@@ -132,8 +133,9 @@ def exit_now(code: int) -> None:
 
 def console_main() -> None:
     """
-    The ``mshoot`` console script: the verb's :data:`VERB_ENVIRONMENT`, :func:`main`, then
-    a fast :func:`exit_now`.
+    Run the ``mshoot`` console script.
+
+    The verb's :data:`VERB_ENVIRONMENT`, :func:`main`, then a fast :func:`exit_now`.
     """
     verb = _verb(sys.argv[1:])
     for name, value in VERB_ENVIRONMENT.get(verb, {}).items():

@@ -57,7 +57,7 @@ def malformed_zone_state(defect: str, now_ns: int, latest_ns: int, step_ns: int,
                          rng: np.random.Generator, states: Sequence[str] = ('T',),
                          controls: Sequence[str] = ('q',)) -> ZoneState:
     """
-    A zone state the MPC must reject for ``defect`` (:data:`STATE_DEFECTS`).
+    Build a zone state the MPC must reject for ``defect`` (:data:`STATE_DEFECTS`).
 
     ``now_ns`` is the receiver's clock, ``latest_ns`` the newest state it
     accepted (> 0), ``step_ns`` the control step; ``states`` and ``controls``
@@ -104,8 +104,9 @@ def malformed_zone_state(defect: str, now_ns: int, latest_ns: int, step_ns: int,
 def malformed_forecast(defect: str, now_ns: int, latest_ns: int, step_ns: int,
                        rng: np.random.Generator, samples: int = 11) -> Forecast:
     """
-    A forecast the MPC must reject for ``defect`` (:data:`FORECAST_DEFECTS`) (the MPC's
-    model needs Tout, solrad and occ, and may assume dpos).
+    Build a forecast the MPC must reject for ``defect`` (:data:`FORECAST_DEFECTS`).
+
+    The MPC's model needs Tout, solrad and occ, and may assume dpos.
     """
     import pandas as pd
     n = max(int(samples), 1)
@@ -157,7 +158,7 @@ def malformed_setpoint(defect: str, now_ns: int, latest_ns: int, step_ns: int,
                        rng: np.random.Generator, controls: Sequence[str] = ('q',),
                        temperatures: Sequence[str] = ('T',)) -> Setpoint:
     """
-    A setpoint the emulator must reject for ``defect`` (:data:`SETPOINT_DEFECTS`).
+    Build a setpoint the emulator must reject for ``defect`` (:data:`SETPOINT_DEFECTS`).
 
     ``now_ns`` is the emulator's current step, ``latest_ns`` the newest
     setpoint it accepted (or the step before ``now_ns``); ``controls`` and

@@ -277,7 +277,9 @@ class Model(abc.ABC):
         Parameters
         ----------
         x_start : ndarray, shape (B, nx)
+            Start state of each interval.
         u : ndarray, shape (B, nu)
+            Inputs of each interval, columns in :attr:`input_names` order.
         dt_s : float
             Interval length [s].
         wrt_inputs : sequence of int

@@ -232,7 +232,7 @@ class ModelCard:
 
     @property
     def input_names(self) -> tuple[str, ...]:
-        """Controls, then disturbances (the input order of the card's FMU models)."""
+        """Return the controls, then the disturbances (the input order of the FMU models)."""
         return tuple(self.controls) + tuple(self.disturbances)
 
     @property
@@ -250,8 +250,10 @@ class ModelCard:
 
     def initial_state(self, zone_temperature_k: float) -> np.ndarray:
         """
-        A start state [canonical units]: ``T`` from ``zone_temperature_k`` [K], the
-        other states from the card's ``start``, else the model's start value.
+        Return a start state [canonical units].
+
+        ``T`` from ``zone_temperature_k`` [K], the other states from the card's ``start``, else the
+        model's start value.
 
         Raises
         ------
@@ -301,8 +303,10 @@ def conversion(canonical_unit: str, model_unit: str) -> tuple[float, float]:
 
 def canonical_unit(section: str, name: str, unit: str) -> tuple[str, str | None]:
     """
-    The canonical unit of ``name`` in ``section`` whose model unit is ``unit``, and the
-    problem when it cannot convert (None if it can).
+    Return the canonical unit of ``name`` in ``section`` and the problem, if any.
+
+    The canonical unit of ``name`` in ``section`` whose model unit is ``unit``, and the problem
+    when it cannot convert (None if it can).
     """
     known = UNITS.get(unit)
     need = NAME_QUANTITY.get(name)
@@ -417,7 +421,7 @@ def _python_catalogue() -> _Catalogue:
 
 
 def _listing(variables: Sequence[ModelVariable], wanted: str = '') -> str:
-    """The valid names with causality and unit (close matches of ``wanted`` first)."""
+    """Return the valid names with causality and unit (close matches of ``wanted`` first)."""
     names = [v.name for v in variables]
     if not names:
         return 'none'
@@ -463,7 +467,7 @@ def _read_yaml(path: pathlib.Path) -> Any:
 
 
 def schema() -> dict:
-    """The JSON Schema of a card (:data:`SCHEMA_PATH`)."""
+    """Return the JSON Schema of a card (:data:`SCHEMA_PATH`)."""
     return json.loads(SCHEMA_PATH.read_text(encoding='utf-8'))
 
 
@@ -519,8 +523,9 @@ ENTRY_KEYS = {'controls': ('variable', 'unit', 'min', 'max', 'activate'),
 def _variable_section(document: dict, section: str,
                       schema_problems: Sequence[str]) -> dict[str, dict]:
     """
-    The entries of a section to check against the model, without the keys the schema
-    refused (unknown keys, wrong types: reported already).
+    Return the entries of a section to check against the model.
+
+    Without the keys the schema refused (unknown keys, wrong types: reported already).
     """
     raw = document.get(section)
     if not isinstance(raw, dict):
@@ -609,7 +614,7 @@ def _time_origin_problem(value: str) -> str | None:
 def _catalogue(path: pathlib.Path, document: dict, fmi_type: Any,
                problems: list[str]) -> tuple[_Catalogue | None, pathlib.Path | None,
                                              str | None]:
-    """The model's variables, its FMU (absolute) and the FMI interface used."""
+    """Return the model's variables, its FMU (absolute) and the FMI interface used."""
     builtin, fmu_name = document.get('builtin'), document.get('fmu')
     if (builtin is None) == (fmu_name is None) or fmi_type not in ('auto', *FMI_TYPES):
         return None, None, None
@@ -658,7 +663,7 @@ def _catalogue(path: pathlib.Path, document: dict, fmi_type: Any,
 
 def _check_variables(catalogue: _Catalogue, sections: dict[str, dict[str, dict]],
                      problems: list[str]) -> dict[str, dict[str, CardVariable]]:
-    """The card's variables resolved against the model; problems appended."""
+    """Resolve the card's variables against the model; problems appended."""
     kinds = {'controls': (catalogue.inputs, 'a Real input'),
              'disturbances': (catalogue.inputs, 'a Real input'),
              'states': (catalogue.states, f'one of the {catalogue.state_kind}'),
@@ -805,6 +810,8 @@ def time_origin_seconds(card: ModelCard, scenario_start: str | datetime.datetime
 
     Parameters
     ----------
+    card : ModelCard
+        The card (its ``time_origin``).
     scenario_start : str or datetime or None
         The scenario's first row (``scenario.attrs['start']``, ISO 8601).
 
@@ -831,7 +838,7 @@ def time_origin_seconds(card: ModelCard, scenario_start: str | datetime.datetime
 
 
 def role_tolerance(role: str) -> float:
-    """The default integrator tolerance of a role (see :mod:`mshoot_core.models.registry`)."""
+    """Return a role's default integrator tolerance (see :mod:`mshoot_core.models.registry`)."""
     if role not in ROLES:
         raise ValueError(f'role must be one of {list(ROLES)}, got {role!r}')
     return CONTROL_TOLERANCE if role == 'control' else EMULATOR_TOLERANCE
@@ -840,7 +847,7 @@ def role_tolerance(role: str) -> float:
 def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
                 time_origin_s: float = 0.0, tolerance: float | None = None) -> Model:
     """
-    The model a card describes, speaking its canonical names and units.
+    Build the model a card describes, speaking its canonical names and units.
 
     Parameters
     ----------
@@ -937,10 +944,11 @@ class _Conversions:
 
 class CardFmiModel(FmiModel):
     """
-    An :class:`~mshoot_core.models.fmi.FmiModel` whose units differ from the canonical
-    ones: values are converted at the boundary of every public method (inputs and states
-    in, states and outputs out, derivatives scaled), so the applications see canonical
-    units while the FMU sees its own.
+    An :class:`~mshoot_core.models.fmi.FmiModel` whose units differ from the canonical ones.
+
+    Values are converted at the boundary of every public method (inputs and states in, states and
+    outputs out, derivatives scaled), so the applications see canonical units while the FMU sees
+    its own.
 
     Parameters
     ----------
@@ -1050,8 +1058,10 @@ class CardFmiModel(FmiModel):
 # -- what a card maps (the card check) --------------------------------------------------------
 def describe(card: ModelCard) -> list[dict[str, str]]:
     """
-    One row per mapped variable: section, canonical name, model variable, causality,
-    model unit, canonical unit and the conversion (``model = a * canonical + b``).
+    Describe the mapping of a card: one row per mapped variable.
+
+    Columns: section, canonical name, model variable, causality, model unit, canonical unit and the
+    conversion (``model = a * canonical + b``).
     """
     rows = []
     for section in SECTIONS:

@@ -357,8 +357,9 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
     def _set_parameters_plan(self, parameters: dict[str, Any],
                              fixed_inputs: dict[str, Any]) -> None:
         """
-        Validate ``parameters`` and ``fixed_inputs``; group them by FMI type for one set
-        call each (both are set after every reset, before initialisation).
+        Validate ``parameters`` and ``fixed_inputs``; group them by FMI type.
+
+        One set call each; both are set after every reset, before initialisation.
         """
         settable = [v.name for v in self.model_description.modelVariables
                     if v.causality != 'input' and v.variability != 'constant'
@@ -554,8 +555,9 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
 
     def _fmu_start_times(self, t_start_s: np.ndarray | None, batch: int) -> np.ndarray | None:
         """
-        FMU start times of a batch's intervals (caller's times minus the origin), or None
-        (every interval at FMU time 0).
+        Return the FMU start times of a batch's intervals, or None.
+
+        The caller's times minus the origin; None means every interval at FMU time 0.
         """
         times = interval_start_times(t_start_s, batch)
         if times is None or not self.time_origin_s:
@@ -658,7 +660,9 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         Parameters
         ----------
         x_start : ndarray, shape (B, nx)
+            Start state of each interval.
         u : ndarray, shape (B, nu)
+            Inputs of each interval, columns in :attr:`input_names` order.
         dt_s : float
             Interval length [s].
         t_start_s : ndarray, shape (B,), optional

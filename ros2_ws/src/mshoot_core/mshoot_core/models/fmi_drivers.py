@@ -64,18 +64,21 @@ def double_pointer(array: np.ndarray) -> Any:
 
 def address(array: np.ndarray | None) -> int | None:
     """
-    The data address of a C-contiguous float64 ``array`` (kept alive by the caller, e.g.
-    from :func:`~mshoot_core.models.base.interval_start_times`) for a ``const double *``
-    argument, or None (NULL).
+    Return the data address of a C-contiguous float64 ``array``, or None (NULL).
+
+    For a ``const double *`` argument; the caller keeps ``array`` alive (e.g. from
+    :func:`~mshoot_core.models.base.interval_start_times`).
     """
     return None if array is None else array.__array_interface__['data'][0]
 
 
 def _address(array: np.ndarray) -> int:
     """
-    The address of the data of the contiguous ``array`` (no copy), for an argument the
-    driver declares as ``void *``: half the cost of a typed pointer (:func:`double_pointer`),
-    and nothing to keep alive beyond ``array`` itself, which the caller holds for the call.
+    Return the address of the data of the contiguous ``array`` (no copy).
+
+    For an argument the driver declares as ``void *``: half the cost of a typed pointer
+    (:func:`double_pointer`), and nothing to keep alive beyond ``array`` itself, which the caller
+    holds for the call.
     """
     return array.ctypes.data
 

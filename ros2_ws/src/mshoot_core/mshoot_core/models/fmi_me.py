@@ -282,9 +282,10 @@ class ModelExchangeIntegration:
     def _non_finite_interval(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                              t_start: np.ndarray | None, gave_up: DriverGaveUp) -> None:
         """
-        Integrate the interval the driver gave up on with CVode: raise its FmuValueError
-        if the FMU computes non-finite values there, else return (any other failure is
-        left to the CVode run of the whole batch).
+        Integrate the interval the driver gave up on with CVode.
+
+        Raise its FmuValueError if the FMU computes non-finite values there, else return (any other
+        failure is left to the CVode run of the whole batch).
         """
         b = gave_up.interval
         if not 0 <= b < x_start.shape[0]:

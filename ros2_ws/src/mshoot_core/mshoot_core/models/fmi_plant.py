@@ -57,7 +57,7 @@ class FmuPlant:
     # -- the run -------------------------------------------------------------------------------
     @property
     def plant_time_s(self) -> float | None:
-        """Current time of the plant run in the caller's time base [s], or None."""
+        """Return the current time of the plant run in the caller's time base [s], or None."""
         if self._plant is None:
             return None
         return self._plant.time + self.time_origin_s
@@ -151,7 +151,7 @@ class FmuPlant:
         return x, y
 
     def plant_read(self) -> tuple[np.ndarray, np.ndarray]:
-        """The plant's current (states, outputs)."""
+        """Return the plant's current (states, outputs)."""
         self._require_plant()
         return self._read()
 
@@ -168,7 +168,7 @@ class FmuPlant:
 
     def plant_save(self) -> bytes:
         """
-        The whole plant (FMU state, time, inputs) as bytes for :meth:`plant_restore`.
+        Return the whole plant (FMU state, time, inputs) as bytes for :meth:`plant_restore`.
 
         Raises
         ------

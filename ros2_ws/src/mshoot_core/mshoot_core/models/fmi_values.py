@@ -114,8 +114,10 @@ class NonFiniteChecks:
 
     def _diagnose(self, error: Exception, where: str = '') -> None:
         """
-        After an integrator failed: raise :class:`FmuValueError` if the FMU now holds a
-        non-finite state, derivative or output; else return (the caller re-raises).
+        Raise :class:`FmuValueError` if the FMU holds non-finite values after a failure.
+
+        After an integrator failed: raise :class:`FmuValueError` if the FMU now holds a non-finite
+        state, derivative or output; else return (the caller re-raises).
         """
         fmu = self._fmu
         time = getattr(self, '_fmu_time', None)
@@ -153,5 +155,5 @@ class NonFiniteChecks:
 
 
 def fmu_name(model: object) -> str:
-    """The FMU's file name of an FMU model."""
+    """Return the FMU's file name of an FMU model."""
     return model.fmu_path.name

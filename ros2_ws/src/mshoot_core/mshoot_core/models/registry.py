@@ -92,8 +92,9 @@ def is_card_path(name: str) -> bool:
 
 def check_model(name: str) -> str | None:
     """
-    Why ``name`` does not name a model, or None (a model card is loaded and checked
-    against its model: every problem of the card in one line).
+    Say why ``name`` does not name a model, or return None.
+
+    A model card is loaded and checked against its model: every problem of the card in one line.
     """
     if name in BUILTIN or name in MULTIZONE or name in _REGISTERED:
         return None
@@ -113,7 +114,7 @@ def check_model(name: str) -> str | None:
 def build_model(name: str, tolerance: float = CONTROL_TOLERANCE,
                 role: str = 'control') -> Model:
     """
-    The model named ``name`` (see the module docstring).
+    Build the model named ``name`` (see the module docstring).
 
     Parameters
     ----------
@@ -182,13 +183,14 @@ class ControlInterface:
 
     @property
     def temperature_names(self) -> tuple[str, ...]:
-        """The zone temperature states (those bounded by the comfort band)."""
+        """Return the zone temperature states (those bounded by the comfort band)."""
         return tuple(self.state_bounds)
 
     def temperatures_c(self, x: np.ndarray) -> np.ndarray:
         """
-        Zone temperatures [degC] of states ``x`` (..., nx), shape (..., nz) in the order
-        of :attr:`temperature_names`.
+        Return the zone temperatures [degC] of states ``x``.
+
+        ``x`` has shape (..., nx), the result (..., nz) in the order of :attr:`temperature_names`.
         """
         x = np.asarray(x, dtype=float)
         columns = [self.state_names.index(s) for s in self.state_bounds]
@@ -198,7 +200,7 @@ class ControlInterface:
 
 def control_interface(model: Model) -> ControlInterface:
     """
-    The controls and zone temperatures of ``model`` (see the module docstring).
+    Return the controls and zone temperatures of ``model`` (see the module docstring).
 
     Raises
     ------
