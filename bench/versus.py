@@ -767,7 +767,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.repeats < 1 or args.zone_steps < 2 or min(args.zones) < 1:
         parser.error('--repeats >= 1, --zone-steps >= 2 and --zones >= 1 expected')
     try:
-        import casadi  # noqa: F401
+        import casadi
     except ImportError:
         parser.exit(2, 'bench/versus.py needs casadi: make bench-setup\n')
     sys.path.insert(0, str(BENCH))
@@ -783,7 +783,6 @@ def main(argv: list[str] | None = None) -> int:
     logger.info('Z-zone problem (%d steps each) ...', args.zone_steps)
     zones = zone_rows(args.zones, args.zone_steps)
     report(whole, zones, parts)
-    import casadi
     cached = importlib.util.find_spec(CASE_MODULE).cached
     byte_compiled = bool(cached) and pathlib.Path(cached).is_file()
     logger.info('%s byte-compiled (__pycache__): %s; PYTHONDONTWRITEBYTECODE=%s', CASE_MODULE,

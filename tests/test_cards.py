@@ -276,7 +276,7 @@ def test_two_control_card_runs_the_case(zone2_card, tmp_path, caplog):
 
 def test_fixed_inputs_of_fmimodel_are_free_inputs(zone2_fmu):
     with pytest.raises(ValueError, match=r"invalid fixed_inputs \['q'\]; expected inputs not "
-                                         r"mapped as model inputs"):
+                                         r'mapped as model inputs'):
         FmiModel(zone2_fmu, inputs=['q'], states={'T': 'cair.T'}, outputs=['T'],
                  fixed_inputs={'q': 1.0})
 
@@ -385,15 +385,15 @@ def test_bad_card_lists_every_problem_at_once(zone_cards, tmp_path):
         "missing required key 'outputs'",
         "controls.q: unknown key 'mni'; allowed: activate, max, min, unit, variable",
         "controls.q: 'heat' is not a Real input of zone.fmu (Model Exchange); valid: solrad "
-        "(input, W/m2), Tout (input, degC), occ (input, 1), q (input, W)",
+        '(input, W/m2), Tout (input, degC), occ (input, 1), q (input, W)',
         "controls.fan: unit 'furlong' differs from the unit 'W' zone.fmu (Model Exchange) "
         "declares for 'q'",
         "disturbances.Tout: unit 'W' differs from the unit 'degC' zone.fmu (Model Exchange) "
         "declares for 'Tout'",
         "disturbances.solrad: unit 'kW' differs from the unit 'W/m2'",
         "states.T: 'cair.t' is not one of the continuous states of zone.fmu (Model Exchange); "
-        "valid: cair.T (local, state, K), Qr (output, state, J)",
-        "parameters.nope: not a settable parameter of zone.fmu (Model Exchange); valid: ",
+        'valid: cair.T (local, state, K), Qr (output, state, J)',
+        'parameters.nope: not a settable parameter of zone.fmu (Model Exchange); valid: ',
     ]
     for text in expected:
         assert sum(text in p for p in problems) == 1, (text, problems)
@@ -480,7 +480,7 @@ def test_overwrite_switch_must_be_a_free_input(zone2_card):
     problems = caught.value.problems
     for text in ("controls.q.activate: 'Pcool' is mapped as a control or disturbance",
                  "controls.qc.activate: 'Pcool_on' is not an input of zone2.fmu (Model "
-                 "Exchange); valid: Pcool (input, kW), Pcool_activate (input), solrad",
+                 'Exchange); valid: Pcool (input, kW), Pcool_activate (input), solrad',
                  "disturbances.solrad: unknown key 'activate'"):
         assert sum(text in p for p in problems) == 1, (text, problems)
 

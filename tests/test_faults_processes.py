@@ -161,7 +161,7 @@ def test_bringups_exit_2_with_one_line_on_a_bad_configuration(tmp_path):
     common = ['--hours', '2', '--no-bag', '--out', str(tmp_path / 'out')]
     cases = {  # command, what the error line must say
         'bad_fmu': (bringup + common + ['--emulator-model', str(bad_fmu)],
-                    f"emulator: cannot start: {bad_fmu} is not an FMU: not a ZIP archive"),
+                    f'emulator: cannot start: {bad_fmu} is not an FMU: not a ZIP archive'),
         'missing_fmu': (bringup + common + ['--control-model', str(tmp_path / 'none.fmu')],
                         f"mpc: cannot start: FMU file '{tmp_path / 'none.fmu'}' not found"),
         'mismatch': (bringup + common + ['--control-model', 'r1c1x2', '--emulator-model',
@@ -176,7 +176,7 @@ def test_bringups_exit_2_with_one_line_on_a_bad_configuration(tmp_path):
         'processes': (executable('bringup_processes', 'processes')
                       + ['--scenario', str(bad_csv), '--hours', '2', '--out',
                          str(tmp_path / 'processes')],
-                      "cannot start: " + str(bad_csv) + ": missing columns ['Tout', 'occ', "
+                      'cannot start: ' + str(bad_csv) + ": missing columns ['Tout', 'occ', "
                       "'dpos']"),
     }
     procs = {name: subprocess.Popen(command, env=env, stdout=subprocess.PIPE,

@@ -7,8 +7,8 @@ ignore list. The only addition is what google import order cannot guess: the app
 (``application-import-names``), which forms the last import group. For a package that is the
 package itself; for tests/ and bench/ the local modules they import through ``sys.path``
 (conftest, card_fmus, timed_fmu, bench's common and casadi_ref). Everything else, the
-workspace's other packages included, is third party, sorted by module name. ``tools/ament_layout.py`` applies the
-mechanical part (docstring layout, import groups).
+workspace's other packages included, is third party, sorted by module name.
+``tools/ament_layout.py`` applies the mechanical part (docstring layout, import groups).
 
 Both linters run as subprocesses from the folder they check, as ``colcon test`` runs them from
 the package, so that their module-level state (flake8's worker pool, pep257's ``sys.argv``)

@@ -5,7 +5,7 @@ from mshoot_core.kpis import closed_loop_kpis
 from mshoot_core.models import R1C1Model
 from mshoot_core.models.base import Model
 from mshoot_core.models.fmi import r1c1_fmi_model
-from mshoot_core.models.multizone import MultiZoneModel, multizone_mpc_options
+from mshoot_core.models.multizone import multizone_mpc_options, MultiZoneModel
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import reference_scenario, synthetic_scenario
 from mshoot_core.sensitivities import column_groups, finite_difference_jacobians

@@ -572,7 +572,7 @@ class Controller:
                            'not used, warm start kept', step_s, result.solve_time_s)
             return
         if getattr(result, 'budget_exceeded', False) or (budget > 0 and
-                                                          result.solve_time_s > budget):
+                                                         result.solve_time_s > budget):
             outcomes.append(self._fallback(job.step_ns, 'budget', f'time budget exceeded '
                                            f'({budget:g} s): solver stopped after '
                                            f'{result.nit} iterations', result.solve_time_s,
@@ -641,4 +641,3 @@ def _ns(seconds: float) -> int:
 def _trim(items: dict[int, Any], keep: int = KEEP_INPUTS) -> None:
     for stamp in sorted(items)[:-keep]:
         del items[stamp]
-

@@ -303,7 +303,7 @@ class ShootingProblem:
         return Scaling(np.where(bounded, lo, 0.0), np.where(bounded, hi - lo, 1.0))
 
     def reachable_envelope(self, x0: np.ndarray, disturbances: np.ndarray) -> tuple[np.ndarray,
-                                                                                   np.ndarray]:
+                                                                                    np.ndarray]:
         """
         Element-wise min and max of the state trajectories under the extreme controls.
 
@@ -545,7 +545,6 @@ class ShootingProblem:
         ub = np.full(idx.size, np.inf)
         lb[idx.u_slice] = np.tile(u_lo, n)
         ub[idx.u_slice] = np.tile(u_hi, n)
-        ineq_fun = ineq_jac = None
         if idx.soft:
             lb[idx.s_slice] = 0.0
             finite_lo = np.isfinite(lower_hat).reshape(-1)
@@ -559,6 +558,7 @@ class ShootingProblem:
 
             ineq_jac = _band_jacobian(idx, finite_lo, finite_hi)
         else:
+            ineq_fun = ineq_jac = None
             lb[idx.x_slice] = lower_hat.reshape(-1)
             ub[idx.x_slice] = upper_hat.reshape(-1)
 
@@ -672,7 +672,7 @@ class ShootingProblem:
 
     def _cost_functions(self, evaluate: Callable[[np.ndarray], IntervalJacobians],
                         idx: NlpIndex) -> tuple[Callable[[np.ndarray], float],
-                                   Callable[[np.ndarray], np.ndarray]]:
+                                                Callable[[np.ndarray], np.ndarray]]:
         if self.cost == 'quadratic':
             def cost(z: np.ndarray) -> float:
                 return float(np.sum(idx.u(z) ** 2))

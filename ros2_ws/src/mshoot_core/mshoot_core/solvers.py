@@ -201,6 +201,7 @@ class TrustConstrSolver(Solver):
     def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None
               ) -> optimize.OptimizeResult:
         n_eq = nlp.eq_fun(z0).size
+
         def sparse_jac(jac: Callable | None) -> Callable | str:
             return '2-point' if jac is None else (lambda z: sparse.csr_array(jac(z)))
         constraints = [optimize.NonlinearConstraint(
@@ -292,6 +293,7 @@ class IpoptSolver(Solver):
         diag = np.arange(n)
 
         class _Problem:
+
             def objective(self, z):
                 counter['nfev'] += 1
                 return nlp.fun(z)
@@ -350,7 +352,7 @@ class IpoptSolver(Solver):
 
 
 SOLVERS: dict[str, type[Solver]] = {cls.name: cls for cls in (SlsqpSolver, TrustConstrSolver,
-                                                               IpoptSolver)}
+                                                              IpoptSolver)}
 
 
 def make_solver(name: str | Solver, **options) -> Solver:

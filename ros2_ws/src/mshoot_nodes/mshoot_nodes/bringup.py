@@ -318,11 +318,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     p_emu, p_mpc = emulator.params, mpc.params
     records = mpc_records_frame([s for s, _ in mpc.history], [s for _, s in mpc.history],
                                 emulator.epoch_ns)
-    extra: dict[str, Any] = dict(
-        scenario=p_emu['scenario'], control=p_mpc['model'], emulator=p_emu['model'],
-        tolerance=p_mpc['fmu_tolerance'], horizon_h=p_mpc['horizon_steps'] * p_mpc['step_s']
-        / 3600.0, cost=p_mpc['cost'], solver=p_mpc['solver'], comfort=p_mpc['comfort'],
-        setup_s=0.0, transport='ros2 in-process', mode=p_emu['mode'])
+    extra: dict[str, Any] = {
+        'scenario': p_emu['scenario'], 'control': p_mpc['model'], 'emulator': p_emu['model'],
+        'tolerance': p_mpc['fmu_tolerance'],
+        'horizon_h': p_mpc['horizon_steps'] * p_mpc['step_s'] / 3600.0, 'cost': p_mpc['cost'],
+        'solver': p_mpc['solver'], 'comfort': p_mpc['comfort'], 'setup_s': 0.0,
+        'transport': 'ros2 in-process', 'mode': p_emu['mode']}
     hours = len(emulator.records)
     if p_emu['scenario'] == 'ou44' and hours == 72 and p_mpc['horizon_steps'] in PUBLISHED:
         extra['published'] = PUBLISHED[p_mpc['horizon_steps']]

@@ -164,9 +164,9 @@ class MpcNode(ManagedNode):
             f"model {p['model'] if self._given_model is None else type(self.model).__name__}, "
             f"horizon {p['horizon_steps']} x {p['step_s']:.0f} s, cost {p['cost']}, comfort "
             f"{p['comfort']}, solver {p['solver']}, controls "
-            f"{list(self.controller.interface.control_names)} within "
+            f'{list(self.controller.interface.control_names)} within '
             f"[{p['heat_rate_min_w']:.0f}, {p['heat_rate_max_w']:.0f}] W, zone temperatures "
-            f"{list(self.controller.interface.temperature_names)}, time budget "
+            f'{list(self.controller.interface.temperature_names)}, time budget '
             f"{p['time_budget_s'] or 'none'}, "
             f"safe setpoint {p['safe_heat_rate_w']:.0f} W / {p['safe_temperature_c']:.1f} degC")
 

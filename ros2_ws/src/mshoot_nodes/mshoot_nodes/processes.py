@@ -136,10 +136,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         'mpc': [f'model:={args.control_model}'] if args.control_model else [],
         'emulator': scenario + ([f'model:={args.emulator_model}'] if args.emulator_model
                                 else []) + [f'output_dir:={emulator_dir}', 'exit_when_done:=true',
-                                f'ready_endpoints:={run_requirements("mshoot")!r}',
-                                f'ready_timeout_s:={args.ready_timeout}',
-                                # the gate is the recorder's; a little slack for the others
-                                'start_delay_s:=0.5'],
+                                            f'ready_endpoints:={run_requirements("mshoot")!r}',
+                                            f'ready_timeout_s:={args.ready_timeout}',
+                                            # the recorder's is the gate; slack for the others
+                                            'start_delay_s:=0.5'],
     }
     print(f'[processes] ROS_DOMAIN_ID={domain}, logs in {logs}', flush=True)
     started = time.perf_counter()

@@ -35,9 +35,9 @@ from mshoot_core.kpis import closed_loop_kpis
 from mshoot_core.models import card as cards
 from mshoot_core.models.base import Model
 from mshoot_core.models.r1c1 import KELVIN
-from mshoot_core.models.registry import (BUILTIN, build_model, check_model, CONTROL_TOLERANCE,
-                                         EMULATOR_TOLERANCE, is_card_path, MODEL_PARAMETERS,
-                                         model_names, ModelSettings)
+from mshoot_core.models.registry import (build_model, BUILTIN, check_model, CONTROL_TOLERANCE,
+                                         EMULATOR_TOLERANCE, is_card_path, model_names,
+                                         MODEL_PARAMETERS, ModelSettings)
 from mshoot_core.outputs import write_outputs
 from mshoot_core.plotting import PlotWorker
 from mshoot_core.scenario import DEFAULT_DATA, PUBLISHED, reference_scenario
@@ -280,7 +280,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                              f'{EMULATOR_TOLERANCE:g} unless the card sets one)')
     parser.add_argument('--tolerance', type=float, default=CONTROL_TOLERANCE,
                         help='relative tolerance of the control FMU integrator, in [1e-14, '
-                             f'1e-2] (default {CONTROL_TOLERANCE:g}; a card\'s own tolerance '
+                             f"1e-2] (default {CONTROL_TOLERANCE:g}; a card's own tolerance "
                              'wins)')
     add_arguments(parser, CASE_SETTINGS)
     parser.add_argument('--hours', type=int, default=72,

@@ -31,7 +31,7 @@ VERBS: dict[str, tuple[str, str]] = {
                                     'the synthetic scenario): KPIs, trajectories, plot'),
     'study': ('mshoot_studies.study', 'the reference study: every table and figure, runs on '
                                       'local worker processes or a Dask cluster'),
-    'card': ('mshoot_studies.card', "model cards: check a card against its model and print "
+    'card': ('mshoot_studies.card', 'model cards: check a card against its model and print '
                                     "what it maps, list an FMU's variables"),
 }
 

@@ -155,7 +155,7 @@ class FaultyModel(Model):
 
     def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                            t_start_s: np.ndarray | None = None) -> tuple[np.ndarray,
-                                                                        np.ndarray]:
+                                                                         np.ndarray]:
         self._maybe_raise()
         times = self._times(t_start_s)
         return self.inner.simulate_intervals(x_start, u, dt_s, **times)

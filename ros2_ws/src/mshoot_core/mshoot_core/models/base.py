@@ -140,7 +140,7 @@ class Model(abc.ABC):
 
     @abc.abstractmethod
     def simulate(self, udf: pd.DataFrame, x0: Sequence[float]) -> tuple[pd.DataFrame,
-                                                                       pd.DataFrame]:
+                                                                        pd.DataFrame]:
         """
         Simulate from ``x0`` over the time index of ``udf``.
 
@@ -164,8 +164,8 @@ class Model(abc.ABC):
 
     # -- helpers shared by all models -------------------------------------------------------
     def check_inputs(self, udf: pd.DataFrame, x0: Sequence[float]) -> tuple[np.ndarray,
-                                                                             np.ndarray,
-                                                                             np.ndarray]:
+                                                                            np.ndarray,
+                                                                            np.ndarray]:
         """
         Validate ``udf`` and ``x0``; return times [s], inputs (T, nu) and x0 (nx,).
 
@@ -180,8 +180,8 @@ class Model(abc.ABC):
             raise TypeError(f'udf must be a pandas DataFrame, got {type(udf).__name__}')
         missing = [n for n in self.input_names if n not in udf.columns]
         if missing:
-            raise ValueError(f'udf lacks input columns {missing}; expected {list(self.input_names)}'
-                             f', got {list(udf.columns)}')
+            raise ValueError(f'udf lacks input columns {missing}; expected '
+                             f'{list(self.input_names)}, got {list(udf.columns)}')
         t = np.asarray(udf.index, dtype=float)
         if t.size < 2 or np.any(np.diff(t) <= 0):
             raise ValueError('udf index must be at least two strictly increasing times [s]')
@@ -222,7 +222,7 @@ class Model(abc.ABC):
 
     def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                            t_start_s: np.ndarray | None = None) -> tuple[np.ndarray,
-                                                                        np.ndarray]:
+                                                                         np.ndarray]:
         """
         Simulate B independent intervals of length ``dt_s`` (the batch path).
 

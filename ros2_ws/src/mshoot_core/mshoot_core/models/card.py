@@ -159,8 +159,8 @@ class CardVariable:
 
     variable: str
     unit: str = ''
-    min: float | None = None
-    max: float | None = None
+    min: float | None = None  # noqa: A003 (the card's key)
+    max: float | None = None  # noqa: A003 (the card's key)
     activate: str | None = None
     start: float | None = None
     canonical_unit: str = ''
@@ -335,7 +335,7 @@ class ModelVariable:
 
     name: str
     causality: str
-    type: str = 'Real'
+    type: str = 'Real'  # noqa: A003 (the FMI attribute)
     unit: str = ''
     start: float | None = None
     variability: str = ''
@@ -487,7 +487,7 @@ def schema_problems(document: Any) -> list[str]:
             both = isinstance(document, dict) and 'fmu' in document and 'builtin' in document
             problems.append(f"give {'only ' if both else ''}one of 'fmu' (path of an FMU, "
                             f"relative to the card) or 'builtin' (one of "
-                            f"{list(BUILTIN_SOURCES)})" + (', not both' if both else ''))
+                            f'{list(BUILTIN_SOURCES)})' + (', not both' if both else ''))
         elif kind == 'additionalProperties':
             allowed = sorted(error.schema.get('properties', {}))
             extra = sorted(set(error.instance) - set(allowed))
@@ -633,7 +633,7 @@ def _catalogue(path: pathlib.Path, document: dict, fmi_type: Any,
     elif isinstance(fmu_name, str):
         fmu = (path.parent / pathlib.Path(fmu_name).expanduser()).resolve()
         if not fmu.exists():
-            problems.append(f'fmu: file not found: {fmu} (the path is relative to the card\'s '
+            problems.append(f"fmu: file not found: {fmu} (the path is relative to the card's "
                             f'folder {path.parent.resolve()})')
             return None, None, None
     else:

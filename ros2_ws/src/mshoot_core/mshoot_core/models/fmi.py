@@ -653,7 +653,7 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
 
     def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                            t_start_s: np.ndarray | None = None) -> tuple[np.ndarray,
-                                                                        np.ndarray]:
+                                                                         np.ndarray]:
         """
         Simulate B independent intervals of ``dt_s`` [s] on the one instance.
 

@@ -77,7 +77,7 @@ class MultiZoneModel(Model):
         return f, g, np.broadcast_to(self.zones.parameters.capacity_j_k, f.shape)
 
     def simulate(self, udf: pd.DataFrame, x0: Sequence[float]) -> tuple[pd.DataFrame,
-                                                                       pd.DataFrame]:
+                                                                        pd.DataFrame]:
         t, u, x0_arr = self.check_inputs(udf, x0)
         states = np.empty((t.size, self.n_zones))
         states[0] = x0_arr
@@ -90,7 +90,7 @@ class MultiZoneModel(Model):
 
     def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                            t_start_s: np.ndarray | None = None) -> tuple[np.ndarray,
-                                                                        np.ndarray]:
+                                                                         np.ndarray]:
         """Exact end values of B intervals (``t_start_s`` ignored: time-invariant)."""
         x_start = np.atleast_2d(np.asarray(x_start, dtype=float))
         f, g, cap = self._coefficients(np.atleast_2d(np.asarray(u, dtype=float)))

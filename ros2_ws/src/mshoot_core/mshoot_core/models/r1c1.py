@@ -136,7 +136,7 @@ class R1C1Model(Model):
 
     def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                            t_start_s: np.ndarray | None = None) -> tuple[np.ndarray,
-                                                                        np.ndarray]:
+                                                                         np.ndarray]:
         """Exact end values of B intervals (``t_start_s`` ignored: time-invariant)."""
         x_start = np.atleast_2d(np.asarray(x_start, dtype=float))
         u = np.atleast_2d(np.asarray(u, dtype=float))

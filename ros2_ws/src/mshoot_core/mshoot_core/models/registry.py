@@ -41,7 +41,7 @@ from typing import Callable
 import numpy as np
 
 from mshoot_core.models.base import Model
-from mshoot_core.settings import SettingsGroup, fields_of, setting, SettingField
+from mshoot_core.settings import fields_of, setting, SettingField, SettingsGroup
 
 logger = logging.getLogger(__name__)
 
@@ -238,7 +238,7 @@ class ModelSettings(SettingsGroup):
 
     model: str = setting('python', "zone model: 'python' (exact R1C1), 'fmu' (the R1C1 FMU, "
                          "Model Exchange), 'fmu-cs' (Co-Simulation), 'r1c1x2' (two R1C1 "
-                         "zones, controls q_0, q_1), a path to an .fmu with the R1C1 zone "
+                         'zones, controls q_0, q_1), a path to an .fmu with the R1C1 zone '
                          'interface, or a path to a model card (.yaml)', apply='fixed')
     fmu_tolerance: float = setting(CONTROL_TOLERANCE, 'relative tolerance of the FMU '
                                    'integrator [-]', low=1e-14, high=1e-2, apply='fixed',

@@ -596,7 +596,7 @@ class SklearnModel(Model):
 
     def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                            t_start_s: np.ndarray | None = None) -> tuple[np.ndarray,
-                                                                        np.ndarray]:
+                                                                         np.ndarray]:
         """
         Simulate B independent intervals, one ``predict`` per learned step for the batch.
 
