@@ -1,4 +1,5 @@
-"""CasADi/IPOPT multiple-shooting reference of mshoot's benchmark cases (a benchmark only).
+"""
+CasADi/IPOPT multiple-shooting reference of mshoot's benchmark cases (a benchmark only).
 
     python bench/casadi_ref.py [--data PATH] [--horizon 10] [--hours 72] [--substeps 4] \
         [--out out/bench/casadi_case]
@@ -37,14 +38,13 @@ import time
 from typing import Any, Sequence
 
 import casadi as ca
-import numpy as np
-import pandas as pd
-
 from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis
 from mshoot_core.models.r1c1 import (AIR_HEAT_PER_M3H, KELVIN, OCC_HEAT_SPAN_K, OCC_HEAT_W,
                                      OCC_HEAT_ZERO_K, R1C1Model, R1C1Parameters)
 from mshoot_core.scenario import DEFAULT_DATA, DISTURBANCE_COLUMNS, reference_scenario
+import numpy as np
+import pandas as pd
 
 logger = logging.getLogger('bench.casadi')
 
@@ -59,7 +59,8 @@ IPOPT_OPTIONS = {'ipopt.print_level': 0, 'ipopt.sb': 'yes', 'print_time': False}
 
 @dataclasses.dataclass(frozen=True)
 class ZoneParameters:
-    """Per-zone R1C1 coefficients, arrays of shape (Z,).
+    """
+    Per-zone R1C1 coefficients, arrays of shape (Z,).
 
     Attributes
     ----------
@@ -73,6 +74,7 @@ class ZoneParameters:
         occheff times the zone's occupancy share [-].
     max_vent_m3h, vent_supply_c : float
         maxVent [m3/h] and Tve [degC] (ventilation is off in the reference cases).
+
     """
 
     capacity_j_k: np.ndarray
@@ -111,7 +113,8 @@ class ZoneParameters:
 
 def zone_derivative(params: ZoneParameters, temperature_c: ca.SX, heat_w: ca.SX,
                     disturbances: ca.SX) -> ca.SX:
-    """dT/dt [K/s] of every zone (SPEC section 3), states in degC.
+    """
+    dT/dt [K/s] of every zone (SPEC section 3), states in degC.
 
     ``disturbances`` = (solrad [W/m2], Tout [degC], occ [persons], dpos [%]).
     """
@@ -144,7 +147,8 @@ def rk4_interval(params: ZoneParameters, step_s: float, substeps: int) -> ca.Fun
 
 
 class CasadiMpc:
-    """Multiple-shooting MPC of Z R1C1 zones in CasADi, solved with IPOPT.
+    """
+    Multiple-shooting MPC of Z R1C1 zones in CasADi, solved with IPOPT.
 
     Decision variables, each (Z, N): u = q/q_max, the interval end
     temperatures X [degC] and the band's slack S [K] >= 0. Parameters: the
@@ -159,6 +163,7 @@ class CasadiMpc:
         RK4 steps per interval.
     ipopt_options : dict, optional
         IPOPT options beyond :data:`IPOPT_OPTIONS` (CasADi's spelling, ``'ipopt.NAME'``).
+
     """
 
     def __init__(self, params: ZoneParameters, horizon: int, step_s: float = 3600.0,
@@ -195,7 +200,8 @@ class CasadiMpc:
 
     def solve(self, start_c: np.ndarray, disturbances: np.ndarray, lower_c: np.ndarray,
               upper_c: np.ndarray) -> dict:
-        """One MPC step.
+        """
+        One MPC step.
 
         Parameters
         ----------
@@ -210,6 +216,7 @@ class CasadiMpc:
         -------
         dict with ``q`` (N, Z) [W], ``T`` (N, Z) [degC], ``slack`` (N, Z) [K],
         ``objective``, ``success``, ``iterations`` and IPOPT's ``stats``.
+
         """
         size = self.n_zones * self.horizon
         start_c = np.asarray(start_c, dtype=float).reshape(-1)
@@ -247,7 +254,7 @@ def function_time_s(stats: dict) -> float:
 
 def run_case(data: pathlib.Path | None, horizon: int, hours: int, substeps: int,
              initial_c: float = 20.0) -> tuple[dict, pd.DataFrame, dict]:
-    """The closed loop of the reference case; returns (kpis, steps, phase times [s])."""
+    """Run the closed loop of the reference case; return (kpis, steps, phase times [s])."""
     timing = {}
     started, cpu = time.perf_counter(), time.process_time()
     scenario = reference_scenario('ou44', data, hours)

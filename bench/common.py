@@ -7,8 +7,6 @@ import pathlib
 import platform
 import time
 
-import numpy as np
-
 from mshoot_core.closed_loop import run_closed_loop
 from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis
@@ -16,13 +14,14 @@ from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import DEFAULT_DATA, reference_scenario
 from mshoot_studies.case import control_model
+import numpy as np
 
 logger = logging.getLogger('bench')
 OUT = pathlib.Path(__file__).resolve().parents[1] / 'out' / 'bench'
 
 
 def data_path() -> pathlib.Path:
-    """The OU44 measurements beside the project (the benchmarks need them)."""
+    """Return the OU44 measurements beside the project (the benchmarks need them)."""
     path = DEFAULT_DATA.resolve()
     if not path.is_file():
         raise SystemExit(f'benchmark data missing: {path}')
@@ -31,7 +30,8 @@ def data_path() -> pathlib.Path:
 
 def timed_run(control: str, horizon: int, *, mode: str = 'fast', steps: int | None = None,
               tolerance: float = 1e-6, models: dict | None = None, **mpc_options) -> dict:
-    """Run the reference case with a control model; return timing and KPI figures.
+    """
+    Run the reference case with a control model; return timing and KPI figures.
 
     ``models`` caches built control models by (control, tolerance), so the
     training of data-driven models and the FMU load are not timed as MPC work.

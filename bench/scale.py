@@ -1,4 +1,5 @@
-"""Scale: Z zones in one MPC problem, time per MPC step against zones and horizon.
+"""
+Scale: Z zones in one MPC problem, time per MPC step against zones and horizon.
 
     python bench/scale.py [--zones 1 10 50 100] [--horizons 6 10 12 24] [--steps 3]
 
@@ -15,14 +16,14 @@ import sys
 import time
 import warnings
 
+from mshoot_core.closed_loop import forecast_window
+from mshoot_core.models.multizone import multizone_mpc_options, MultiZoneModel
+from mshoot_core.mpc import MPC
+from mshoot_core.scenario import synthetic_scenario
 import numpy as np
 import pandas as pd
 
 from common import logger, print_table, setup_logging, write_json
-from mshoot_core.closed_loop import forecast_window
-from mshoot_core.models.multizone import MultiZoneModel, multizone_mpc_options
-from mshoot_core.mpc import MPC
-from mshoot_core.scenario import synthetic_scenario
 
 
 #: Initial temperature of every zone [degC].
@@ -31,7 +32,8 @@ INITIAL_C = 20.5
 
 def zone_case(n_zones: int, horizon: int, solver: str, steps: int) -> tuple[
         MultiZoneModel, MPC, pd.DataFrame, np.ndarray]:
-    """The scale problem: Z independent R1C1 zones on the built-in scenario.
+    """
+    Return the scale problem: Z independent R1C1 zones on the built-in scenario.
 
     Returns the model, the configured MPC, a scenario long enough for
     ``steps`` steps at ``horizon`` and the initial state [K] (``bench/versus.py``

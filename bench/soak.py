@@ -1,4 +1,5 @@
-"""Soak: many simulated days over ROS 2 with faults injected at random (seeded).
+"""
+Soak: many simulated days over ROS 2 with faults injected at random (seeded).
 
     python bench/soak.py --days 30 --seed 1 [--out out/soak] [--fault-scale 1.0]
 
@@ -43,12 +44,6 @@ from typing import Any
 from mshoot_core.models.r1c1 import R1C1Model
 from mshoot_core.solvers import make_solver
 from mshoot_msgs.msg import Forecast, Setpoint, ZoneState
-import numpy as np
-import rclpy
-from rclpy.parameter import Parameter
-from rclpy.serialization import deserialize_message
-
-from common import logger, setup_logging, write_json
 from mshoot_nodes import contract, sources
 from mshoot_nodes.bags import read_bag
 from mshoot_nodes.contract import message_class
@@ -57,6 +52,12 @@ from mshoot_testing.faults import FaultyModel, FaultySolver
 from mshoot_testing.harness import (ClosedLoop, FORECAST_DEFECTS, MALFORMED, malformed_forecast,
                                     malformed_setpoint, malformed_zone_state, SETPOINT_DEFECTS,
                                     STATE_DEFECTS)
+import numpy as np
+import rclpy
+from rclpy.parameter import Parameter
+from rclpy.serialization import deserialize_message
+
+from common import logger, setup_logging, write_json
 
 STEP_NS = 3600 * NS_PER_S
 #: Probability per control step of each fault (scaled by --fault-scale).

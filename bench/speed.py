@@ -1,4 +1,5 @@
-"""Speed: the 72 h reference case, fast path vs the ancestor's naive algorithm, side by side.
+"""
+Speed: the 72 h reference case, fast path vs the ancestor's naive algorithm, side by side.
 
     python bench/speed.py [--naive-steps 3] [--controls fmu fmu-cs python svr] [--horizons 2 10]
 
@@ -34,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
                         choices=CONTROLS)
     parser.add_argument('--horizons', nargs='+', type=int, default=[2, 10])
     parser.add_argument('--naive-skip', nargs='+', default=['fmu:10'], metavar='CONTROL:H',
-                        help="runs without the naive baseline (default fmu:10, which takes "
+                        help='runs without the naive baseline (default fmu:10, which takes '
                              "~35 min a step); 'none' skips nothing")
     parser.add_argument('--json', default='speed', metavar='NAME',
                         help='write the figures to out/bench/NAME.json (default speed)')
@@ -71,7 +72,8 @@ def main(argv: list[str] | None = None) -> int:
                         '%.3f s/step: %.0fx', control, horizon, fast['wall_s'],
                         fast['step_median_s'], naive['step_median_s'], ratio)
     print_table(rows, [('control', 'control', 's'), ('horizon_h', 'H [h]', 'd'),
-                       ('wall_s', 'fast 72h [s]', '.2f'), ('step_median_s', 'fast/step [s]', '.4f'),
+                       ('wall_s', 'fast 72h [s]', '.2f'),
+                       ('step_median_s', 'fast/step [s]', '.4f'),
                        ('iterations', 'fast iters', 'd'),
                        ('model_evaluations', 'fast evals', 'd'),
                        ('naive_step_median_s', 'naive/step [s]', '.3f'),
@@ -92,7 +94,7 @@ def naive_skips(parser: argparse.ArgumentParser, items: list[str]) -> set[tuple[
     for item in items:
         control, _, horizon = item.partition(':')
         if control not in CONTROLS or not horizon.isdigit():
-            parser.error(f"--naive-skip: {item!r} is not CONTROL:H with CONTROL one of "
+            parser.error(f'--naive-skip: {item!r} is not CONTROL:H with CONTROL one of '
                          f"{', '.join(CONTROLS)} and H whole hours (or 'none')")
         pairs.add((control, int(horizon)))
     return pairs

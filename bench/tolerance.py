@@ -1,5 +1,7 @@
-"""Tolerance: the 72 h case with the R1C1 FMU (Model Exchange) at integrator tolerances
-1e-4 ... 1e-11: energy and discomfort per tolerance and their spread.
+"""
+Tolerance: the 72 h case with the R1C1 FMU (Model Exchange) at integrator tolerances.
+
+Tolerances 1e-4 ... 1e-11: energy and discomfort per tolerance and their spread.
 
     python bench/tolerance.py [--horizon 10] [--tolerances 1e-4 1e-6 1e-7 1e-9 1e-11]
 
@@ -40,7 +42,8 @@ def main(argv: list[str] | None = None) -> int:
                     row['energy_kwh'], row['discomfort_kh'], row['discomfort_kh_hourly'],
                     row['wall_s'])
     print_table(rows, [('tolerance', 'tolerance', '.0e'), ('energy_kwh', 'kWh', '.3f'),
-                       ('discomfort_kh', 'Kh', '.3f'), ('discomfort_kh_hourly', 'Kh hourly', '.3f'),
+                       ('discomfort_kh', 'Kh', '.3f'),
+                       ('discomfort_kh_hourly', 'Kh hourly', '.3f'),
                        ('wall_s', 'wall [s]', '.1f'), ('solver_failures', 'failures', 'd')])
     spreads = {key: spread([r[key] for r in rows])
                for key in ('energy_kwh', 'discomfort_kh', 'discomfort_kh_hourly')}

@@ -1,4 +1,5 @@
-"""Versus: mshoot next to a CasADi/IPOPT multiple-shooting implementation of the same cases.
+"""
+Versus: mshoot next to a CasADi/IPOPT multiple-shooting implementation of the same cases.
 
     python bench/versus.py [--repeats 3] [--zones 10 50 100] [--zone-steps 6]
 
@@ -58,7 +59,7 @@ HORIZON = 10
 
 
 def data_file() -> pathlib.Path:
-    """The OU44 measurements (``../shared/data/ou44`` from the project root)."""
+    """Return the OU44 measurements (``../shared/data/ou44`` from the project root)."""
     path = (ROOT / '..' / 'shared' / 'data' / 'ou44' / 'measurements.csv').resolve()
     if not path.is_file():
         raise SystemExit(f'benchmark data missing: {path}')
@@ -66,13 +67,13 @@ def data_file() -> pathlib.Path:
 
 
 def case_arguments(out: pathlib.Path, *extra: str) -> list[str]:
-    """The arguments of our case command (the issue's command line), after ``mshoot case``."""
+    """Return our case command's arguments (the issue's command line), after ``mshoot case``."""
     return ['ou44', '--data', str(data_file()), '--horizon', str(HORIZON), '--control', 'fmu',
             '--out', str(out), *extra]
 
 
 def mshoot_script() -> str:
-    """The ``mshoot`` console script of the workspace (``source env.sh`` puts it on PATH)."""
+    """Return the workspace's ``mshoot`` console script (``source env.sh`` puts it on PATH)."""
     path = shutil.which('mshoot')
     if path is None:
         raise SystemExit('mshoot not on PATH: source env.sh')
@@ -80,21 +81,27 @@ def mshoot_script() -> str:
 
 
 def ours_command(out: pathlib.Path, *extra: str, python_flags: Sequence[str] = ()) -> list[str]:
-    """Our whole command of the reference case, ``mshoot case ou44 ...`` as a user types it
-    (the console script run by the interpreter, so that ``python_flags`` apply)."""
+    """
+    Return our whole command of the reference case, ``mshoot case ou44 ...``.
+
+    As a user types it: the console script run by the interpreter, so that ``python_flags`` apply.
+    """
     return [sys.executable, *python_flags, mshoot_script(), 'case', *case_arguments(out, *extra)]
 
 
 def casadi_command(out: pathlib.Path, python_flags: Sequence[str] = ()) -> list[str]:
-    """The CasADi script of the same case."""
+    """Return the CasADi script of the same case."""
     return [sys.executable, *python_flags, str(CASADI_SCRIPT), '--data', str(data_file()),
             '--horizon', str(HORIZON), '--out', str(out)]
 
 
 def run_timed(command: list[str]) -> tuple[float, str, float, float, float]:
-    """Wall time [s] of a subprocess (which must succeed), its stderr, its launch and exit
-    times (epoch [s]), and its CPU time [s] (user + system, with the processes it waited
-    for, e.g. our plot worker)."""
+    """
+    Run a subprocess (which must succeed) and time it.
+
+    Return its wall time [s], its stderr, its launch and exit times (epoch [s]), and its CPU time
+    [s] (user + system, with the processes it waited for, e.g. our plot worker).
+    """
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     launched = time.time()
     started = time.perf_counter()
@@ -110,8 +117,10 @@ def run_timed(command: list[str]) -> tuple[float, str, float, float, float]:
 
 # -- the instrumented run of our command (a subprocess of its own) --------------------------------
 class Timers:
-    """Wall-time and CPU-time (the process's) totals [s] and call counts of wrapped
-    functions, by group.
+    """
+    Wall-time and CPU-time totals [s] and call counts of wrapped functions, by group.
+
+    The CPU time is the process's.
 
     Nested calls within one group count once (the outermost call), so a batch
     function calling another batch function is not counted twice.
@@ -154,10 +163,13 @@ class Timers:
 
 
 def timed_drivers(timers: Timers) -> None:
-    """Time the compiled batch drivers' C entry points (native integration): each driver's
-    ``_batch`` (the ctypes function of ``mshoot_cs_batch`` / ``mshoot_me_batch``) is wrapped
-    when the driver is bound, so 'native' is the C call alone, without the Python argument
-    preparation of ``run``."""
+    """
+    Time the compiled batch drivers' C entry points (native integration).
+
+    Each driver's ``_batch`` (the ctypes function of ``mshoot_cs_batch`` / ``mshoot_me_batch``) is
+    wrapped when the driver is bound, so 'native' is the C call alone, without the Python argument
+    preparation of ``run``.
+    """
     from mshoot_core.models import fmi_drivers
     for cls in (fmi_drivers.CsBatchDriver, fmi_drivers.MeBatchDriver):
         init = cls.__init__
@@ -169,9 +181,13 @@ def timed_drivers(timers: Timers) -> None:
 
 
 def instrumented_case(argv: list[str], report: pathlib.Path, profile: bool) -> int:
-    """Run our case command as ``mshoot case`` runs it (its verb environment, its plot worker
-    started first, ``mshoot_studies.cli.main``, the fast exit) with timers (or with cProfile
-    on inside the solves); write the figures to ``report``."""
+    """
+    Run our case command as ``mshoot case`` runs it, with timers or cProfile.
+
+    As ``mshoot case`` runs it: its verb environment, its plot worker started first,
+    ``mshoot_studies.cli.main``, the fast exit; with timers (or with cProfile on inside the
+    solves). Write the figures to ``report``.
+    """
     script_start_epoch = time.time()
     # as the mshoot command starts: its environment for the verb, its plot worker first
     cli = importlib.import_module('mshoot_studies.cli')
@@ -228,8 +244,12 @@ def instrumented_case(argv: list[str], report: pathlib.Path, profile: bool) -> i
 
 
 def profile_figures(stats: pstats.Stats, top: int = 12) -> dict:
-    """cProfile totals of the solve and the model's batch functions, and the top functions
-    by own time (tottime) [s]."""
+    """
+    Return the solve and batch totals and the top functions of a cProfile run.
+
+    Totals of the solve and the model's batch functions, and the top functions by own time
+    (tottime) [s].
+    """
     def label(key: tuple) -> str:
         path, line, name = key
         return f'{pathlib.Path(path).name}:{line}({name})' if line else name
@@ -291,8 +311,12 @@ def interpreter_s(repeats: int) -> float:
 
 
 def import_packages(stderr: str, floor_s: float = 0.005) -> dict[str, float]:
-    """Import time [s] per top-level package from ``-X importtime`` output (own times summed,
-    so packages add up to the whole import time); packages under ``floor_s`` as 'other'."""
+    """
+    Return the import time [s] per top-level package from ``-X importtime`` output.
+
+    Own times are summed, so packages add up to the whole import time; packages under ``floor_s``
+    count as 'other'.
+    """
     per_package: dict[str, float] = {}
     for line in stderr.splitlines():
         if not line.startswith('import time:') or 'self [us]' in line:
@@ -308,7 +332,8 @@ def import_packages(stderr: str, floor_s: float = 0.005) -> dict[str, float]:
 
 
 def breakdown(repeats: int, tmp: pathlib.Path) -> dict:
-    """Where the time of both whole commands goes (medians of ``repeats`` runs) [s].
+    """
+    Where the time of both whole commands goes (medians of ``repeats`` runs) [s].
 
     interpreter: a bare ``python -c pass`` (start and exit); imports: ours, the import of
     :data:`CASE_MODULE` timed inside the run; CasADi's, from launch to its ``main`` less the
@@ -403,7 +428,8 @@ def zone_figures(controls_w: list, states_k: list, scenario: Any, kelvin: float)
 
 
 class ZoneLoop:
-    """A closed loop on the scale problem, one MPC step at a time, with its records.
+    """
+    A closed loop on the scale problem, one MPC step at a time, with its records.
 
     Subclasses set ``build_s`` and ``variables`` and implement :meth:`solve`; the plant is
     the exact multi-zone model (``MultiZoneModel.simulate_intervals``), as in ``scale.py``.
@@ -422,8 +448,12 @@ class ZoneLoop:
         self.states_k: list = []
 
     def solve(self, k: int) -> tuple[Any, int, bool, float]:
-        """Plan step k from ``self.x``: (applied heat rates [W] (Z,), iterations, success,
-        model or function evaluation time [s])."""
+        """
+        Plan step k from ``self.x``.
+
+        Return the applied heat rates [W] (Z,), the iterations, success, and the model or function
+        evaluation time [s].
+        """
         raise NotImplementedError
 
     def step(self, k: int) -> None:
@@ -483,7 +513,7 @@ class OurZones(ZoneLoop):
             self.model.simulate_intervals = timed
 
     def profile_step(self, k: int) -> list[dict]:
-        """cProfile of one more (warm) step: the top functions by own time."""
+        """Profile one more (warm) step with cProfile: the top functions by own time."""
         from mshoot_core.closed_loop import forecast_window
         profiler = cProfile.Profile()
         profiler.runcall(self.mpc.solve, self.x, self.scenario.index[k],
@@ -492,15 +522,23 @@ class OurZones(ZoneLoop):
 
 
 def our_ipopt_options(mpc: Any) -> dict:
-    """The IPOPT options our scale problem runs with, in CasADi's spelling: the solver's own
-    (``IpoptSolver``: adaptive barrier update) and ``multizone_mpc_options``' (Mehrotra)."""
+    """
+    Return the IPOPT options our scale problem runs with, in CasADi's spelling.
+
+    The solver's own (``IpoptSolver``: adaptive barrier update) and ``multizone_mpc_options``'
+    (Mehrotra).
+    """
     return {'ipopt.mu_strategy': 'adaptive',
             **{f'ipopt.{key}': value for key, value in mpc.solver.options.items()}}
 
 
 class CasadiZones(ZoneLoop):
-    """CasADi's formulation of the same zones, scenario, band and initial state: with IPOPT's
-    defaults, or (``tuned``) with our IPOPT options; model time = its function evaluations."""
+    """
+    CasADi's formulation of the same zones, scenario, band and initial state.
+
+    With IPOPT's defaults, or (``tuned``) with our IPOPT options; model time = its function
+    evaluations.
+    """
 
     def __init__(self, n_zones: int, steps: int, tuned: bool) -> None:
         from casadi_ref import CasadiMpc, ZoneParameters
@@ -528,9 +566,13 @@ class CasadiZones(ZoneLoop):
 
 
 def zone_rows(zones: Sequence[int], steps: int) -> list[dict]:
-    """One row per Z: build, cold first solve, warm median per step, iterations and model
-    time of ours, CasADi with IPOPT's defaults ('casadi') and with our IPOPT options
-    ('casadi_tuned'); the three loops step in turn, so load on the machine hits them alike."""
+    """
+    Return one row per Z: ours, CasADi with IPOPT's defaults and with our IPOPT options.
+
+    Each row holds build, cold first solve, warm median per step, iterations and model time of
+    ours, CasADi with IPOPT's defaults ('casadi') and with our IPOPT options ('casadi_tuned'); the
+    three loops step in turn, so load on the machine hits them alike.
+    """
     import warnings
 
     import numpy as np
@@ -725,7 +767,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.repeats < 1 or args.zone_steps < 2 or min(args.zones) < 1:
         parser.error('--repeats >= 1, --zone-steps >= 2 and --zones >= 1 expected')
     try:
-        import casadi  # noqa: F401
+        import casadi
     except ImportError:
         parser.exit(2, 'bench/versus.py needs casadi: make bench-setup\n')
     sys.path.insert(0, str(BENCH))
@@ -741,7 +783,6 @@ def main(argv: list[str] | None = None) -> int:
     logger.info('Z-zone problem (%d steps each) ...', args.zone_steps)
     zones = zone_rows(args.zones, args.zone_steps)
     report(whole, zones, parts)
-    import casadi
     cached = importlib.util.find_spec(CASE_MODULE).cached
     byte_compiled = bool(cached) and pathlib.Path(cached).is_file()
     logger.info('%s byte-compiled (__pycache__): %s; PYTHONDONTWRITEBYTECODE=%s', CASE_MODULE,

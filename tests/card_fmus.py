@@ -1,4 +1,5 @@
-"""Test FMUs of the model-card tests, built from ``tests/fmus/`` with gcc (not by the runtime).
+"""
+Test FMUs of the model-card tests, built from ``tests/fmus/`` with gcc (not by the runtime).
 
 - ``zone``: an R1C1 zone with names of its own (state ``cair.T``, inputs ``solrad, Tout, occ,
   q``, no ``dpos``; outputs ``T, Qr``), Model Exchange and Co-Simulation;
@@ -30,7 +31,7 @@ TEST_FMUS = {
 
 
 def build_test_fmu(name: str) -> pathlib.Path:
-    """The test FMU ``name`` (a key of :data:`TEST_FMUS`), built if not built yet."""
+    """Return the test FMU ``name`` (a key of :data:`TEST_FMUS`), built if not built yet."""
     identifier, c_file, template, defines = TEST_FMUS[name]
     sources = [FMU_SOURCES / c_file, FMU_SOURCES / template,
                *(SOURCE_DIR / h for h in FMI2_HEADERS)]

@@ -1,4 +1,5 @@
-"""Shared fixtures and helpers: paths, the OU44 data, private rclpy contexts, guarded spins.
+"""
+Shared fixtures and helpers: paths, the OU44 data, private rclpy contexts, guarded spins.
 
 Wall-clock limits here are deadlock guards (a hung test fails instead of hanging CI), set far
 above what any run needs on a loaded 2-core machine; they never judge speed.
@@ -27,8 +28,12 @@ def ou44_csv() -> pathlib.Path:
 
 
 def private_context() -> Any:
-    """An initialised rclpy context of this test alone: discovery off (in-process pub/sub
-    still works, other processes on the machine cannot interfere), a domain from the pid."""
+    """
+    Return an initialised rclpy context of this test alone, with discovery off.
+
+    In-process pub/sub still works, other processes on the machine cannot interfere; the domain
+    comes from the pid.
+    """
     import rclpy
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'OFF'
     ctx = rclpy.Context()
@@ -38,7 +43,7 @@ def private_context() -> Any:
 
 @pytest.fixture
 def context() -> Any:
-    """A private rclpy context (:func:`private_context`), shut down after the test."""
+    """Yield a private rclpy context, shut down after the test (see :func:`private_context`)."""
     import rclpy
     ctx = private_context()
     yield ctx
@@ -64,8 +69,11 @@ def spin_for(executor: Any, wall_s: float) -> None:
 
 @pytest.fixture(scope='session')
 def timed_fmus(tmp_path_factory: pytest.TempPathFactory) -> dict[str, pathlib.Path]:
-    """The time-dependent test FMU (tests/fmus/timed_zone.c), built with gcc: ``'state'``
-    declares FMU-state get/set/serialise, ``'nostate'`` does not."""
+    """
+    Return the time-dependent test FMU (tests/fmus/timed_zone.c), built with gcc.
+
+    ``'state'`` declares FMU-state get/set/serialise, ``'nostate'`` does not.
+    """
     from timed_fmu import build_timed_fmu
     out = tmp_path_factory.mktemp('timed_fmu')
     return {'state': build_timed_fmu(out, True), 'nostate': build_timed_fmu(out, False)}

@@ -6,15 +6,15 @@ import shutil
 import subprocess
 import sys
 
+from mshoot_core.models.r1c1 import R1C1Model
+from mshoot_core.scenario import PUBLISHED, reference_scenario
+from mshoot_studies import case, cli, study
+from mshoot_studies.setup2 import SETUP2_SPLIT, SETUP2_START, train_setup2
 import numpy as np
 import pandas as pd
 import pytest
 
 from conftest import ROOT
-from mshoot_core.models.r1c1 import R1C1Model
-from mshoot_core.scenario import PUBLISHED, reference_scenario
-from mshoot_studies import case, cli, study
-from mshoot_studies.setup2 import SETUP2_SPLIT, SETUP2_START, train_setup2
 
 KPI_KEYS = ('energy_kwh', 'heating_kwh', 'cooling_kwh', 'discomfort_kh', 'discomfort_kh_hourly',
             'steps', 'horizon_h', 'wall_s', 'solve_s_median', 'solver_failures')
@@ -114,8 +114,11 @@ def test_python_m_modules_keep_working():
 
 
 def test_mshoot_case_loads_only_what_the_case_uses(tmp_path):
-    """``mshoot case`` imports neither the study (nor its cluster client) nor matplotlib
-    (its plot worker does)."""
+    """
+    ``mshoot case`` imports neither the study (nor its cluster client) nor matplotlib.
+
+    Matplotlib is imported by its plot worker.
+    """
     probe = ('import json, sys\n'
              'from mshoot_studies import cli\n'
              'code = cli.main(sys.argv[1:])\n'
@@ -133,8 +136,11 @@ def test_mshoot_case_loads_only_what_the_case_uses(tmp_path):
 
 
 def test_mshoot_command_exits_fast_and_clean(tmp_path):
-    """The console script ends without the interpreter's teardown, after what a normal
-    exit does: every file and log line out, no extracted FMU left behind."""
+    """
+    The console script ends without the interpreter's teardown, after a normal exit's work.
+
+    What a normal exit does is done: every file and log line out, no extracted FMU left behind.
+    """
     out, scratch = tmp_path / 'case', tmp_path / 'tmp'
     scratch.mkdir()
     done = subprocess.run(
@@ -154,8 +160,11 @@ def test_mshoot_command_exits_fast_and_clean(tmp_path):
 
 @pytest.mark.parametrize('with_thread', [False, True])
 def test_exit_now_does_what_a_normal_exit_does_for_the_outputs(tmp_path, with_thread):
-    """Buffered output, atexit handlers (logging's, finalizers) and a running thread: all
-    done before the process ends with the code given."""
+    """
+    Buffered output, atexit handlers and a running thread: done before the process ends.
+
+    Atexit handlers: logging's, finalizers; the process ends with the code given.
+    """
     probe = ('import atexit, logging, sys, threading, time\n'
              'from mshoot_studies.cli import exit_now\n'
              f'logging.basicConfig(filename={str(tmp_path / "log.txt")!r}, level=logging.INFO)\n'

@@ -2,13 +2,6 @@
 import sqlite3
 
 from mshoot_msgs.msg import ZoneState
-import pytest
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from std_msgs.msg import String
-
 from mshoot_nodes import contract
 from mshoot_nodes.bags import (bag_metadata, qos_from_rosbags, qos_to_rosbags, read_bag,
                                read_messages, typestore)
@@ -16,6 +9,12 @@ from mshoot_nodes.bringup import run_in_process
 from mshoot_nodes.conversions import stamp_to_ns, zone_state_msg
 from mshoot_nodes.recorder_node import RecorderNode
 from mshoot_nodes.replayer_node import ReplayerNode
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import String
 
 from conftest import spin_until
 

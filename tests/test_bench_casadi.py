@@ -1,4 +1,5 @@
-"""The CasADi reference of bench/versus.py solves our problem (skipped without casadi).
+"""
+The CasADi reference of bench/versus.py solves our problem (skipped without casadi).
 
 casadi is a benchmark-only dependency (``make bench-setup``): these tests run where it is
 installed and are skipped elsewhere.
@@ -6,14 +7,13 @@ installed and are skipped elsewhere.
 import pathlib
 import sys
 
-import numpy as np
-import pytest
-
 from mshoot_core.closed_loop import forecast_window
 from mshoot_core.models import R1C1Model
 from mshoot_core.models.multizone import MultiZoneModel
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import DISTURBANCE_COLUMNS, synthetic_scenario
+import numpy as np
+import pytest
 
 ca = pytest.importorskip('casadi')
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / 'bench'))
@@ -23,8 +23,12 @@ KELVIN = 273.15
 
 
 def random_intervals(rng: np.random.Generator, batch: int, zones: int) -> tuple:
-    """Start temperatures [degC] (B, Z), heat rates [W] (B, Z), disturbances (B, 4), with the
-    ventilation on in some rows (the max(Tout, Tve) branch)."""
+    """
+    Return random intervals for B rows and Z zones.
+
+    Start temperatures [degC] (B, Z), heat rates [W] (B, Z), disturbances (B, 4), with the
+    ventilation on in some rows (the max(Tout, Tve) branch).
+    """
     start = rng.uniform(12.0, 30.0, (batch, zones))
     heat = rng.uniform(-2000.0, 2000.0, (batch, zones))
     disturbances = np.column_stack([rng.uniform(0.0, 700.0, batch),

@@ -1,4 +1,5 @@
-"""Model cards: a model described once (YAML) for the Python API, the registry and the case.
+"""
+Model cards: a model described once (YAML) for the Python API, the registry and the case.
 
 The FMUs are built by the tests (tests/card_fmus.py from tests/fmus/, the R2C2 through
 fmu_build): an R1C1 zone with names of its own (state ``cair.T``, no ``dpos``), the same zone
@@ -12,12 +13,6 @@ import shutil
 import subprocess
 import zipfile
 
-import numpy as np
-import pandas as pd
-import pytest
-import yaml
-
-from card_fmus import build_test_fmu
 from mshoot_core import fmu_build
 from mshoot_core.models import card as cards, registry
 from mshoot_core.models.card import CardError, CardFmiModel, load_card
@@ -26,6 +21,12 @@ from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import reference_scenario
 from mshoot_studies import card as card_cli, case
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from card_fmus import build_test_fmu
 
 HOUR = 3600.0
 ZONE_CARD = {
@@ -68,7 +69,7 @@ def zone2_fmu():
 
 @pytest.fixture(scope='module')
 def zone_cards(tmp_path_factory, zone_fmu):
-    """The zone as Model Exchange and as Co-Simulation, FMU beside the cards."""
+    """Return the zone as Model Exchange and as Co-Simulation, FMU beside the cards."""
     folder = tmp_path_factory.mktemp('zone')
     me = write_card(folder, 'zone.yaml', ZONE_CARD, zone_fmu)
     cs = write_card(folder, 'zone_cs.yaml', with_changes(ZONE_CARD, fmi_type='co-simulation'))
@@ -136,7 +137,8 @@ def _assert_same_kpis(got: dict, want: dict, rel: float) -> None:
     (('me', 'cs'), 24, 1e-6, 1e-6), (('cs', 'me'), 12, 1e-5, 1e-3)])
 def test_fmu_with_other_names_runs_the_case_like_the_builtin_fmu(zone_cards, tmp_path, pair,
                                                                  hours, rel, atol_k):
-    """Control model and emulator from cards alone; the same KPIs as the built-in FMU.
+    """
+    Control model and emulator from cards alone; the same KPIs as the built-in FMU.
 
     With Model Exchange control models (forward sensitivities) the runs agree to rounding;
     with Co-Simulation control models the optimiser works on finite differences of two FMUs
@@ -182,8 +184,7 @@ def test_case_rejects_a_bad_card_in_one_line(zone_cards, tmp_path, caplog):
 
 
 def test_case_rejects_cards_that_do_not_fit_the_scenario(tmp_path, caplog):
-    """The R2C2 card needs a series Qsun the scenario lacks; its states are not the
-    emulator's."""
+    """The R2C2 card needs a series Qsun the scenario lacks; its states are not the emulator's."""
     r2c2 = write_card(tmp_path, 'r2c2.yaml', R2C2_CARD, fmu_build.ensure_fmu('r2c2'),
                       fmu_name='r2c2.fmu')
     assert case.main(['synthetic', '--hours', '3', '--horizon', '2', '--control', str(r2c2),
@@ -216,8 +217,11 @@ def zone2_card(tmp_path_factory, zone2_fmu):
 
 
 def test_two_control_card_solves_an_mpc_step(zone2_card):
-    """Heating q [W] and a cooler qc [W] that the FMU takes in kW behind its overwrite switch:
-    from 26 degC on a warm day the MPC cools into the band, without heating."""
+    """
+    Heating q [W] and a cooler qc [W]: from 26 degC on a warm day the MPC cools into the band.
+
+    The FMU takes qc in kW behind its overwrite switch; the MPC cools without heating.
+    """
     model = cards.build_model(zone2_card, 'control')
     assert isinstance(model, CardFmiModel)
     assert model.input_names == ('q', 'qc', 'solrad', 'Tout', 'occ')
@@ -249,8 +253,12 @@ def test_two_control_card_solves_an_mpc_step(zone2_card):
 
 
 def test_two_control_card_runs_the_case(zone2_card, tmp_path, caplog):
-    """The case takes the controls from the cards: the MPC plans q and qc within their common
-    range (logged when the ranges differ), the emulator clips to its card's limits."""
+    """
+    The case takes the controls from the cards.
+
+    The MPC plans q and qc within their common range (logged when the ranges differ), the emulator
+    clips to its card's limits.
+    """
     narrow = with_changes(ZONE2_CARD)
     narrow['controls']['qc']['max'] = 1500
     control = write_card(zone2_card.path.parent, 'narrow.yaml', narrow)
@@ -268,14 +276,14 @@ def test_two_control_card_runs_the_case(zone2_card, tmp_path, caplog):
 
 def test_fixed_inputs_of_fmimodel_are_free_inputs(zone2_fmu):
     with pytest.raises(ValueError, match=r"invalid fixed_inputs \['q'\]; expected inputs not "
-                                         r"mapped as model inputs"):
+                                         r'mapped as model inputs'):
         FmiModel(zone2_fmu, inputs=['q'], states={'T': 'cair.T'}, outputs=['T'],
                  fixed_inputs={'q': 1.0})
 
 
 @pytest.mark.parametrize('fmi_type', ['ModelExchange', 'CoSimulation'])
 def test_unit_conversion_at_the_boundary(zone2_card, zone2_fmu, fmi_type):
-    """qc [W] reaches the FMU as Pcool [kW]; parameters reach it too; derivatives scale."""
+    """Control qc [W] reaches the FMU as Pcool [kW]; parameters reach it too; derivatives scale."""
     card = dataclasses.replace(zone2_card, interface=fmi_type)
     model = cards.build_model(card, 'control', tolerance=1e-10)
     raw = FmiModel(zone2_fmu, inputs=['q', 'Pcool', 'solrad', 'Tout', 'occ'],
@@ -377,15 +385,15 @@ def test_bad_card_lists_every_problem_at_once(zone_cards, tmp_path):
         "missing required key 'outputs'",
         "controls.q: unknown key 'mni'; allowed: activate, max, min, unit, variable",
         "controls.q: 'heat' is not a Real input of zone.fmu (Model Exchange); valid: solrad "
-        "(input, W/m2), Tout (input, degC), occ (input, 1), q (input, W)",
+        '(input, W/m2), Tout (input, degC), occ (input, 1), q (input, W)',
         "controls.fan: unit 'furlong' differs from the unit 'W' zone.fmu (Model Exchange) "
         "declares for 'q'",
         "disturbances.Tout: unit 'W' differs from the unit 'degC' zone.fmu (Model Exchange) "
         "declares for 'Tout'",
         "disturbances.solrad: unit 'kW' differs from the unit 'W/m2'",
         "states.T: 'cair.t' is not one of the continuous states of zone.fmu (Model Exchange); "
-        "valid: cair.T (local, state, K), Qr (output, state, J)",
-        "parameters.nope: not a settable parameter of zone.fmu (Model Exchange); valid: ",
+        'valid: cair.T (local, state, K), Qr (output, state, J)',
+        'parameters.nope: not a settable parameter of zone.fmu (Model Exchange); valid: ',
     ]
     for text in expected:
         assert sum(text in p for p in problems) == 1, (text, problems)
@@ -472,7 +480,7 @@ def test_overwrite_switch_must_be_a_free_input(zone2_card):
     problems = caught.value.problems
     for text in ("controls.q.activate: 'Pcool' is mapped as a control or disturbance",
                  "controls.qc.activate: 'Pcool_on' is not an input of zone2.fmu (Model "
-                 "Exchange); valid: Pcool (input, kW), Pcool_activate (input), solrad",
+                 'Exchange); valid: Pcool (input, kW), Pcool_activate (input), solrad',
                  "disturbances.solrad: unknown key 'activate'"):
         assert sum(text in p for p in problems) == 1, (text, problems)
 

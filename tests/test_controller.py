@@ -1,4 +1,5 @@
-"""The controller in core: every per-step decision, the same offline and over ROS.
+"""
+The controller in core: every per-step decision, the same offline and over ROS.
 
 Plain tests of :class:`mshoot_core.controller.Controller` (input validation and
 gating, waiting, the fallback chain, the time budget that stops the solver
@@ -13,13 +14,13 @@ import time
 from mshoot_core.closed_loop import forecast_window, run_closed_loop
 from mshoot_core.controller import Controller, controller_for
 from mshoot_core.emulation import Emulator
-from mshoot_testing.faults import FaultyModel, FaultySolver
 from mshoot_core.models.multizone import MultiZoneModel
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import reference_scenario, synthetic_scenario
 from mshoot_core.settings import MpcSettings
 from mshoot_core.solvers import make_solver
+from mshoot_testing.faults import FaultyModel, FaultySolver
 import numpy as np
 import pandas as pd
 import pytest
@@ -29,8 +30,11 @@ STEP_NS = 3600 * NS
 
 
 class SlowModel(R1C1Model):
-    """The exact R1C1 whose every batched call sleeps ``delay_s`` while ``slow`` is set
-    (a control model that cannot finish a solve within its budget)."""
+    """
+    The exact R1C1 whose every batched call sleeps ``delay_s`` while ``slow`` is set.
+
+    A control model that cannot finish a solve within its budget.
+    """
 
     def __init__(self, delay_s: float) -> None:
         super().__init__()
@@ -89,8 +93,12 @@ def test_bad_inputs_are_rejected_counted_and_never_solved():
 
 
 def test_named_inputs_are_checked_against_the_model():
-    """Two zones: states by name in any order; unknown, missing or repeated names, a series
-    the model does not know, a bad price: rejected with kind 'names' (or the value's)."""
+    """
+    Two zones: states by name in any order; bad names and values are rejected.
+
+    Unknown, missing or repeated names, a series the model does not know, a bad price: rejected
+    with kind 'names' (or the value's).
+    """
     scenario = synthetic_scenario(hours=6)
     controller = controller_for(MultiZoneModel(2), MpcSettings.from_flat(horizon_steps=3),
                                 assumed_inputs={'dpos': 0.0})
@@ -320,8 +328,12 @@ def test_model_raising_from_hour_20_same_decisions_over_ros(context):
 
 
 def test_core_run_whose_model_raises_from_hour_20_completes(tmp_path):
-    """72 steps; the control model raises from hour 20 on: the last good plan for
-    max_plan_age_steps steps, then the safe setpoint, all recorded in steps.csv."""
+    """
+    72 steps, the control model raising from hour 20 on: the fallbacks, recorded in steps.csv.
+
+    The last good plan for max_plan_age_steps steps, then the safe setpoint, all recorded in
+    steps.csv.
+    """
     steps = core_decisions('raise', hours=72, fault_steps=(20, 72))
     steps.to_csv(tmp_path / 'steps.csv')
     read = pd.read_csv(tmp_path / 'steps.csv', index_col='time_s', keep_default_na=False)

@@ -1,23 +1,22 @@
 """mshoot_core: R1C1 analytics, multiple shooting, MPC loop, KPIs, scenarios and outputs."""
 import json
 
-import numpy as np
-import pandas as pd
-import pytest
-from scipy import optimize
-
+from mshoot_core import plotting
 from mshoot_core.closed_loop import forecast_window, run_closed_loop
 from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis, discomfort_kh, energy_kwh
 from mshoot_core.models import Model, R1C1Model, R1C1Parameters
 from mshoot_core.mpc import MPC
-from mshoot_core import plotting
 from mshoot_core.outputs import write_outputs
 from mshoot_core.plotting import PlotWorker
 from mshoot_core.scenario import synthetic_scenario
 from mshoot_core.settings import ComfortSettings, MpcSettings, ProblemSettings, SettingsError
 from mshoot_core.shooting import NlpIndex, ShootingProblem
-from mshoot_core.solvers import SlsqpSolver, make_solver
+from mshoot_core.solvers import make_solver, SlsqpSolver
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import optimize
 
 KELVIN = 273.15
 
@@ -89,6 +88,7 @@ def test_analytic_jacobians_match_finite_differences():
     analytic = problem.evaluate_intervals(x, controls, dist)
 
     class Opaque(R1C1Model):
+
         def interval_jacobians(self, *args, **kwargs):
             return None
     problem.model = Opaque()
@@ -119,7 +119,7 @@ class LinearScalar(Model):
 
 
 def test_unconstrained_quadratic_matches_least_squares():
-    """min sum (x_k - r)^2 + rho sum u_k^2 for linear dynamics has a closed-form optimum."""
+    """The problem min sum (x_k - r)^2 + rho sum u_k^2 for linear dynamics has a closed form."""
     a, b, r, rho, x0, n = 0.9, 0.5, 1.0, 0.1, 0.0, 6
     model = LinearScalar(a, b)
 
@@ -240,7 +240,7 @@ def test_bad_settings_are_reported_all_at_once():
         MPC(R1C1Model(), heat_rate_min_w=10.0, heat_rate_max_w=-10.0, horizon_steps=0,
             cost='cubic', soft_penalty=-1.0)
     problems = ' | '.join(info.value.problems)
-    for expected in ('horizon_steps must be in [1, 1000], got 0', "cost must be one of",
+    for expected in ('horizon_steps must be in [1, 1000], got 0', 'cost must be one of',
                      'soft_penalty must be in'):
         assert expected in problems
     assert len(info.value.problems) == 3  # the bounds rule waits until every field is valid
@@ -356,7 +356,7 @@ def test_solve_runs_with_one_blas_thread_and_restores_the_pools(monkeypatch):
     s = synthetic_scenario(hours=4)
     MPC(R1C1Model(), horizon_steps=3).solve([294.0], 0.0, forecast_window(s, 0, 3))
     MPC(R1C1Model(), horizon_steps=3, blas_threads=0).solve([294.0], 0.0,
-                                                               forecast_window(s, 0, 3))
+                                                            forecast_window(s, 0, 3))
     assert seen[0] == {1} and seen[1] == set(before)
     assert [p['num_threads'] for p in threadpool_info() if p['user_api'] == 'blas'] == before
     with pytest.raises(ValueError, match='blas_threads'):
@@ -386,8 +386,11 @@ def _small_run():
 
 
 def test_plot_worker_draws_the_figure_of_this_process(tmp_path):
-    """The worker process (its own interpreter, matplotlib imported while the run computes)
-    writes the PNG this process would, pixel for pixel."""
+    """
+    The worker process writes the PNG this process would, pixel for pixel.
+
+    The worker has its own interpreter; matplotlib is imported while the run computes.
+    """
     import matplotlib.image
     result, kpis = _small_run()
     with PlotWorker() as plotter:

@@ -1,5 +1,7 @@
-"""Fault injection in one process: every step gets a sane setpoint, with the fallback and
-the reason in /mpc/status.
+"""
+Fault injection in one process: every step gets a sane setpoint.
+
+The fallback and the reason are in /mpc/status.
 
 Faults go in at the real seams (:mod:`mshoot_testing.faults`: a solver that fails or
 overruns, a model that raises), through the forecaster's ``enabled`` parameter
@@ -17,17 +19,16 @@ from mshoot_core.safety import SetpointSupervisor
 from mshoot_core.scenario import synthetic_scenario
 from mshoot_core.solvers import make_solver
 from mshoot_msgs.msg import Setpoint
-import numpy as np
-import pytest
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.parameter import Parameter
-
 from mshoot_nodes import contract
 from mshoot_nodes.conversions import NS_PER_S, setpoint_msg, setpoint_plan, stamp_to_ns
 from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_testing.faults import FaultyModel, FaultySolver
 from mshoot_testing.harness import ClosedLoop
+import numpy as np
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
 
 pytestmark = pytest.mark.ros
 EPOCH_NS = 1522886400 * NS_PER_S  # the synthetic scenario's start

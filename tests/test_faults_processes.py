@@ -1,5 +1,7 @@
-"""Processes: an MPC killed mid-run and restarted picks up within one step; bad
-configuration ends a node at start-up with a clear line and a non-zero exit code.
+"""
+Processes: an MPC killed mid-run and restarted picks up within one step.
+
+Bad configuration ends a node at start-up with a clear line and a non-zero exit code.
 
 The emulator and the forecaster run in this process (lockstep), the MPC as its own
 process (``lib/mshoot_nodes/mpc``, what ``ros2 run`` runs), over DDS on this host.
@@ -12,16 +14,15 @@ import time
 
 from mshoot_core import fmu_build
 from mshoot_msgs.msg import MpcStatus
-import pytest
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.parameter import Parameter
-
 from mshoot_nodes import contract
 from mshoot_nodes.conversions import NS_PER_S, stamp_to_ns
 from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_nodes.forecaster_node import ForecasterNode
 from mshoot_nodes.processes import executable
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
 
 pytestmark = pytest.mark.ros
 EPOCH_NS = 1522886400 * NS_PER_S
@@ -142,9 +143,13 @@ def test_bad_configuration_exits_non_zero_with_the_reason(tmp_path, r2c2_fmu):
 
 
 def test_bringups_exit_2_with_one_line_on_a_bad_configuration(tmp_path):
-    """A bad FMU, a missing one, models that do not fit together, a bad parameter file, a bad
-    scenario: the bring-ups say why in one line and exit 2 (no traceback), as the node
-    executables do."""
+    """
+    Bad FMUs, models, parameter files and scenarios: the bring-ups exit 2 with one line.
+
+    A bad FMU, a missing one, models that do not fit together, a bad parameter file, a bad
+    scenario: the bring-ups say why in one line and exit 2 (no traceback), as the node executables
+    do.
+    """
     bad_fmu = tmp_path / 'zone.fmu'
     bad_fmu.write_text('not a zip archive')
     bad_csv = tmp_path / 'bad.csv'
@@ -156,7 +161,7 @@ def test_bringups_exit_2_with_one_line_on_a_bad_configuration(tmp_path):
     common = ['--hours', '2', '--no-bag', '--out', str(tmp_path / 'out')]
     cases = {  # command, what the error line must say
         'bad_fmu': (bringup + common + ['--emulator-model', str(bad_fmu)],
-                    f"emulator: cannot start: {bad_fmu} is not an FMU: not a ZIP archive"),
+                    f'emulator: cannot start: {bad_fmu} is not an FMU: not a ZIP archive'),
         'missing_fmu': (bringup + common + ['--control-model', str(tmp_path / 'none.fmu')],
                         f"mpc: cannot start: FMU file '{tmp_path / 'none.fmu'}' not found"),
         'mismatch': (bringup + common + ['--control-model', 'r1c1x2', '--emulator-model',
@@ -171,7 +176,7 @@ def test_bringups_exit_2_with_one_line_on_a_bad_configuration(tmp_path):
         'processes': (executable('bringup_processes', 'processes')
                       + ['--scenario', str(bad_csv), '--hours', '2', '--out',
                          str(tmp_path / 'processes')],
-                      "cannot start: " + str(bad_csv) + ": missing columns ['Tout', 'occ', "
+                      'cannot start: ' + str(bad_csv) + ": missing columns ['Tout', 'occ', "
                       "'dpos']"),
     }
     procs = {name: subprocess.Popen(command, env=env, stdout=subprocess.PIPE,

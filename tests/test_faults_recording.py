@@ -1,5 +1,8 @@
-"""Recording survives SIGINT, SIGTERM and crashes: the bag is valid and holds everything
-received before the signal; a bag cut short is read up to its last complete chunk.
+"""
+Recording survives SIGINT, SIGTERM and crashes.
+
+The bag is valid and holds everything received before the signal; a bag cut short is read up to its
+last complete chunk.
 
 Four recorder processes (``lib/mshoot_nodes/recorder``, what ``ros2 run`` runs) record
 the same topic from this process over DDS on this host; once every message is
@@ -14,18 +17,17 @@ import subprocess
 import time
 
 from mshoot_msgs.msg import ZoneState
+from mshoot_nodes import bags, contract
+from mshoot_nodes.bags import (IncompleteBagError, read_bag, read_messages, recover_bag,
+                               salvage_bag)
+from mshoot_nodes.conversions import NS_PER_S, stamp_to_ns, zone_state_msg
+from mshoot_nodes.processes import executable
 import pytest
 import rclpy
 from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosbags.rosbag2 import Writer
-
-from mshoot_nodes import bags, contract
-from mshoot_nodes.bags import (IncompleteBagError, read_bag, read_messages, recover_bag,
-                               salvage_bag)
-from mshoot_nodes.conversions import NS_PER_S, stamp_to_ns, zone_state_msg
-from mshoot_nodes.processes import executable
 
 pytestmark = pytest.mark.ros
 MESSAGES = 40

@@ -1,4 +1,5 @@
-"""The R1C1 FMU (C source, builder) and the FMI model interface (FmiModel via fmpy).
+"""
+The R1C1 FMU (C source, builder) and the FMI model interface (FmiModel via fmpy).
 
 References are analytic: the R1C1 closed-form response written out here from
 the equations of SPEC section 3, and the exact discretisation (matrix
@@ -10,15 +11,14 @@ import zipfile
 import fmpy
 from fmpy.fmi2 import FMU2Model, FMU2Slave
 from fmpy.validation import validate_fmu
-import numpy as np
-import pandas as pd
-import pytest
-import scipy.linalg
-
 from mshoot_core import fmu_build, fmu_cache
 from mshoot_core.models import fmi_me
 from mshoot_core.models.fmi import FmiModel, r1c1_fmi_model, R1C1_VARIABLES
 from mshoot_core.models.r1c1 import R1C1Model, R1C1Parameters
+import numpy as np
+import pandas as pd
+import pytest
+import scipy.linalg
 
 # fmpy's schema validation imports lark, which warns about deprecated stdlib modules.
 pytestmark = pytest.mark.filterwarnings('ignore::DeprecationWarning:lark.utils')
@@ -531,7 +531,7 @@ def test_batched_model_exchange_sensitivities_match_cvode(which):
 
 
 def test_event_indicators_keep_model_exchange_on_cvode(monkeypatch):
-    """FMUs with event indicators never reach the explicit driver (dispatch decision)."""
+    """Event indicators keep Model Exchange off the explicit driver (dispatch decision)."""
     x, u = _me_batch_cases('r1c1', 3, seed=23)
     with _me_model('r1c1') as model, r1c1_fmi_model(fmi_type='CoSimulation') as cs:
         assert model.me_batch_plan() is None

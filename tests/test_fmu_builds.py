@@ -1,4 +1,5 @@
-"""FMU builds: made at setup time (``fmu_build``), only found at run time (``fmu_cache``).
+"""
+FMU builds: made at setup time (``fmu_build``), only found at run time (``fmu_cache``).
 
 The R1C1 FMU and the batch drivers are compiled by ``make setup`` into the
 cache; the runtime never compiles, and a missing build is a clear error that
@@ -12,10 +13,9 @@ import subprocess
 from mshoot_core import fmu_build, fmu_cache
 from mshoot_core.fmu_cache import NotBuiltError
 from mshoot_core.models.fmi import FmiModel, r1c1_fmi_model
+from mshoot_nodes.processes import executable
 import numpy as np
 import pytest
-
-from mshoot_nodes.processes import executable
 
 
 @pytest.fixture(scope='module')

@@ -1,15 +1,17 @@
-"""FMUs are extracted once into the cache, keyed by their hash, and bad ones leave nothing
-behind; FMI 3.0 FMUs get a plain answer."""
+"""
+FMUs are extracted once into the cache, keyed by their hash.
+
+Bad ones leave nothing behind; FMI 3.0 FMUs get a plain answer.
+"""
 import os
 import pathlib
 import tempfile
 import threading
 import zipfile
 
-import pytest
-
 from mshoot_core import fmu_cache
 from mshoot_core.models.fmi import FmiModel, r1c1_fmi_model
+import pytest
 
 FMI3_DESCRIPTION = """<?xml version="1.0" encoding="UTF-8"?>
 <fmiModelDescription fmiVersion="3.0" modelName="Zone3" instantiationToken="{8c4e810f-3df3}">

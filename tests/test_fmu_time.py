@@ -1,4 +1,5 @@
-"""Absolute time: control-model intervals simulated at their own FMU time.
+"""
+Absolute time: control-model intervals simulated at their own FMU time.
 
 The test FMU (``tests/fmus/timed_zone.c``) has internal gains on a schedule of
 FMU time (8-17 h with time events, or a smooth daily profile without events),
@@ -6,10 +7,6 @@ so an interval's end state depends on when it runs. The references are one
 continuous simulation of the same FMU (``simulate``, which has always run on
 the index times) and the closed loop against the FMU itself as the building.
 """
-import numpy as np
-import pandas as pd
-import pytest
-
 from mshoot_core.closed_loop import run_closed_loop
 from mshoot_core.controller import Controller
 from mshoot_core.emulation import Emulator
@@ -19,6 +16,10 @@ from mshoot_core.models.r1c1 import R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import synthetic_scenario
 from mshoot_core.solvers import make_solver
+import numpy as np
+import pandas as pd
+import pytest
+
 from timed_fmu import VARIABLES
 
 HOUR = 3600.0
@@ -49,10 +50,12 @@ CASES = [pytest.param(fmi, schedule, variant, id=f'{fmi}-{name}-{variant}')
 @pytest.mark.parametrize('fmi_type, schedule, variant', CASES)
 def test_intervals_at_their_own_time_chain_into_one_simulation(timed_fmus, fmi_type, schedule,
                                                                variant):
-    """Intervals from the continuous trajectory's states, each at its own start time, end on
-    that trajectory (ME: compiled driver for the smooth profile, CVode for the time events;
-    with FMU-state snapshots or re-initialisation; CS: the compiled driver); at time 0 they
-    do not."""
+    """
+    Intervals from the continuous trajectory's states, each at its own start time, end on it.
+
+    ME: compiled driver for the smooth profile, CVode for the time events; with FMU-state snapshots
+    or re-initialisation; CS: the compiled driver. At time 0 they do not.
+    """
     udf = hourly_inputs()
     with timed_model(timed_fmus[variant], fmi_type, schedule) as model:
         ydf, xdf = model.simulate(udf, [293.15])
@@ -138,8 +141,12 @@ def test_start_times_are_checked(timed_fmus):
 
 @pytest.mark.parametrize('fmi_type', ['CoSimulation', 'ModelExchange'])
 def test_mpc_predicts_a_time_dependent_fmu(timed_fmus, fmi_type):
-    """The MPC on the time-dependent FMU controlling that FMU: every plan's first interval
-    predicts the emulated state (a perfect model); time-0 intervals miss the gains."""
+    """
+    The MPC on the time-dependent FMU controlling that FMU predicts the emulated state.
+
+    Every plan's first interval predicts the emulated state (a perfect model); time-0 intervals
+    miss the gains.
+    """
     scenario = synthetic_scenario(hours=LOOP_HOURS + 7)
     tolerance = 1e-10 if fmi_type == 'ModelExchange' else 1e-8
     with timed_model(timed_fmus['state'], fmi_type, 0, tolerance) as control, \

@@ -1,4 +1,5 @@
-"""Lifecycle nodes, /diagnostics and the readiness check, in one process.
+"""
+Lifecycle nodes, /diagnostics and the readiness check, in one process.
 
 Real rclpy nodes in a private Context (``ROS_AUTOMATIC_DISCOVERY_RANGE=OFF``), one
 SingleThreadedExecutor, lifecycle transitions through the real ``~/change_state`` and
@@ -11,14 +12,6 @@ from diagnostic_msgs.msg import DiagnosticArray
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 from mshoot_msgs.msg import MpcStatus, Setpoint, ZoneState
-import numpy as np
-import pytest
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.parameter import Parameter
-from rosgraph_msgs.msg import Clock
-from std_msgs.msg import String
-
 from mshoot_nodes import contract
 from mshoot_nodes.conversions import ns_to_stamp, setpoint_msg, stamp_to_ns
 from mshoot_nodes.diagnostics import (DiagnosticsPublisher, format_value, Level, Report,
@@ -29,6 +22,13 @@ from mshoot_nodes.readiness import (parse_requirement, parse_requirements, Readi
                                     Requirement, run_requirements)
 from mshoot_nodes.recorder_node import RecorderNode
 from mshoot_testing.harness import ClosedLoop, malformed_setpoint
+import numpy as np
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import String
 
 pytestmark = pytest.mark.ros
 GUARD_S = 30.0

@@ -1,4 +1,5 @@
-"""ROS 2 nodes in one process: the closed loop over topics equals the core-only loop.
+"""
+ROS 2 nodes in one process: the closed loop over topics equals the core-only loop.
 
 One 24 h lockstep run (emulator, forecaster, MPC and bag recorder in one
 SingleThreadedExecutor, a private rclpy Context) is shared by the tests of this
@@ -16,13 +17,6 @@ from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import synthetic_scenario
 from mshoot_msgs.msg import Setpoint
-import numpy as np
-import pytest
-import rclpy
-from rclpy.exceptions import InvalidParameterValueException
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.parameter import Parameter
-
 from mshoot_nodes import contract
 from mshoot_nodes.bags import read_bag, read_messages
 from mshoot_nodes.bringup import run_in_process
@@ -32,6 +26,12 @@ from mshoot_nodes.forecaster_node import ForecasterNode
 from mshoot_nodes.mpc_node import MpcNode
 from mshoot_nodes.recorder_node import RecorderNode
 from mshoot_nodes.replayer_node import ReplayerNode
+import numpy as np
+import pytest
+import rclpy
+from rclpy.exceptions import InvalidParameterValueException
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
 
 from conftest import private_context, spin_until
 
@@ -40,10 +40,9 @@ HOURS = 24
 EPOCH_NS = 1522886400 * NS_PER_S  # 2018-04-05T00:00Z, the synthetic scenario's start
 
 
-
 @pytest.fixture(scope='module')
 def ros_run(tmp_path_factory):
-    """A 24 h lockstep run over ROS with a bag, and the core-only loop of the same case."""
+    """Run 24 h in lockstep over ROS with a bag, and the core-only loop of the same case."""
     bag = tmp_path_factory.mktemp('ros_run') / 'bag'
     ctx = private_context()
     try:
@@ -215,8 +214,11 @@ ZONES_HOURS = 12
 
 @pytest.fixture(scope='module')
 def two_zone_run(tmp_path_factory):
-    """A lockstep run over ROS of two R1C1 zones (controls q_0, q_1: registry name 'r1c1x2')
-    with a price forecast, and the core-only loop of the same case."""
+    """
+    Run two R1C1 zones in lockstep over ROS with a price forecast, and the core-only loop.
+
+    Controls q_0, q_1 (registry name 'r1c1x2'); the core-only loop runs the same case.
+    """
     bag = tmp_path_factory.mktemp('two_zones') / 'bag'
     ctx = private_context()
     try:
@@ -340,8 +342,11 @@ def test_invalid_parameters_are_rejected_with_a_reason(context, tmp_path):
 
 
 def test_mpc_yaml_documents_every_parameter_with_valid_values():
-    """config/mpc.yaml names every parameter of the node (the settings table included), and
-    its values make valid settings."""
+    """
+    Every parameter of the node is in config/mpc.yaml, and its values make valid settings.
+
+    The settings table is included.
+    """
     import yaml
     from mshoot_nodes.config import config_dir
     from mshoot_nodes.mpc_node import DEFAULTS, PARAMS, settings_from

@@ -7,13 +7,12 @@ from mshoot_core.models.registry import control_interface
 from mshoot_core.safety import check_setpoint, Decision, reorder
 from mshoot_core.scenario import reference_scenario, synthetic_scenario
 from mshoot_core.settings import MpcSettings
-import numpy as np
-import pandas as pd
-import pytest
-
 from mshoot_nodes import conversions as cv
 from mshoot_nodes import sources
 from mshoot_nodes.forecaster_node import forecast_errors
+import numpy as np
+import pandas as pd
+import pytest
 
 
 def test_stamps_are_exact_integer_nanoseconds():

@@ -1,7 +1,10 @@
-"""Separate processes over DDS on this host: the four-process bring-up completes a 24 h run
-with every setpoint in the bag; a node executable started alone is a lifecycle node (its
-``~/get_state`` and ``~/change_state`` services) reporting on ``/diagnostics``; the start
-gate ends a run without peers with an error naming the missing endpoints.
+"""
+Separate processes over DDS on this host.
+
+The four-process bring-up completes a 24 h run with every setpoint in the bag; a node executable
+started alone is a lifecycle node (its ``~/get_state`` and ``~/change_state`` services) reporting
+on ``/diagnostics``; the start gate ends a run without peers with an error naming the missing
+endpoints.
 """
 import json
 import os
@@ -18,16 +21,15 @@ from mshoot_core.models.fmi import r1c1_fmi_model
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import synthetic_scenario
+from mshoot_nodes import contract
+from mshoot_nodes.bags import read_bag
+from mshoot_nodes.diagnostics import status_values
+from mshoot_nodes.processes import executable
 import numpy as np
 import pandas as pd
 import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
-
-from mshoot_nodes import contract
-from mshoot_nodes.bags import read_bag
-from mshoot_nodes.diagnostics import status_values
-from mshoot_nodes.processes import executable
 
 HOURS = 24
 
@@ -70,7 +72,7 @@ def test_separate_processes_complete_a_24_h_run(tmp_path):
 
 @pytest.fixture
 def graph(monkeypatch):
-    """A private domain over DDS on this host: (environment for processes, context)."""
+    """Yield a private domain over DDS on this host: (environment for processes, context)."""
     domain = 120 + (os.getpid() + 11) % 90
     monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED='1')
@@ -127,7 +129,7 @@ def test_executable_alone_is_a_lifecycle_node_on_diagnostics(exe, graph, tmp_pat
     name = f'mshoot{namespace}/{exe}'
 
     def latest(state, timeout_s=30.0):
-        """The node's newest status once it reports ``state`` (seconds: a 1 Hz timer)."""
+        """Return the node's newest status once it reports ``state`` (seconds: a 1 Hz timer)."""
         deadline = time.monotonic() + timeout_s
         while True:
             mine = [s for s in statuses if s.name == name]
@@ -187,9 +189,12 @@ def _run_processes(out: pathlib.Path, *options: str) -> dict:
 
 @pytest.mark.ros
 def test_fmu_with_other_names_runs_over_dds_from_its_card_alone(tmp_path):
-    """An R1C1 FMU written with names of its own (state cair.T, no dpos), described by a card,
-    as the MPC's control model and as the emulated building, each its own process over DDS:
-    the KPIs of the built-in FMU."""
+    """
+    An R1C1 FMU with names of its own, described by a card: the KPIs of the built-in FMU.
+
+    State cair.T, no dpos; as the MPC's control model and as the emulated building, each its own
+    process over DDS.
+    """
     from card_fmus import build_test_fmu
     from test_cards import write_card, ZONE_CARD
     card = write_card(tmp_path / 'card', 'zone.yaml', ZONE_CARD, build_test_fmu('zone'))

@@ -1,4 +1,5 @@
-"""The emulated building as a plant, restarts, and FMUs that compute NaN.
+"""
+The emulated building as a plant, restarts, and FMUs that compute NaN.
 
 The built-in R1C1 FMU's output ``Qr`` (the integral of q, a state the model
 does not map) shows whether the plant keeps its internal states; the
@@ -6,10 +7,6 @@ time-dependent test FMU (``tests/fmus/timed_zone.c``, parameter ``nan_after``)
 computes NaN from a given FMU time on.
 """
 import json
-
-import numpy as np
-import pandas as pd
-import pytest
 
 from mshoot_core.closed_loop import EmulationStopped, run_closed_loop
 from mshoot_core.controller import Controller
@@ -21,6 +18,10 @@ from mshoot_core.models.r1c1 import R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import reference_scenario, synthetic_scenario
 from mshoot_studies import case
+import numpy as np
+import pandas as pd
+import pytest
+
 from timed_fmu import VARIABLES
 
 HOUR = 3600.0
@@ -41,8 +42,11 @@ def run_steps(emulator, controls):
 # -- one instance for the whole run ------------------------------------------------------------
 @pytest.mark.parametrize('fmi_type', FMI_TYPES)
 def test_plant_keeps_its_internal_states(fmi_type):
-    """Qr (not mapped) keeps counting across steps instead of restarting at 0 every hour;
-    the zone temperature is the exact R1C1's."""
+    """
+    Qr (not mapped) keeps counting across steps instead of restarting at 0 every hour.
+
+    The zone temperature is the exact R1C1's.
+    """
     scenario = synthetic_scenario(hours=7)
     controls = [1000.0, 1000.0, -500.0, 0.0, 2000.0, 250.0]
     with r1c1_fmi_model(fmi_type=fmi_type, tolerance=1e-10) as model:
@@ -61,9 +65,12 @@ def test_plant_keeps_its_internal_states(fmi_type):
 
 
 def test_case_with_the_fmu_plant_gives_the_exact_emulators_kpis(ou44_csv):
-    """The 72 h OU44 case with the R1C1 FMU (Co-Simulation) as the plant: the KPIs of the exact
-    Python emulator (to the rounding the MPC's solves amplify), and Qr meters the heat of the
-    whole run."""
+    """
+    The 72 h OU44 case with the R1C1 FMU (Co-Simulation) as the plant.
+
+    The KPIs of the exact Python emulator (to the rounding the MPC's solves amplify), and Qr meters
+    the heat of the whole run.
+    """
     scenario = reference_scenario('ou44', ou44_csv, 72)
     with r1c1_fmi_model(fmi_type='CoSimulation', tolerance=1e-10) as plant:
         result, kpis = case.run_case(scenario, R1C1Model(), plant, horizon=10, log_every=0)
@@ -100,8 +107,11 @@ def _restart_models(timed_fmus, kind, fmi_type):
 @pytest.mark.parametrize('fmi_type', FMI_TYPES)
 @pytest.mark.parametrize('kind', ['r1c1', 'state'])
 def test_restart_from_a_saved_plant_state(timed_fmus, kind, fmi_type):
-    """A run interrupted after 3 steps resumes from the saved FMU state: the same trajectory,
-    every internal state included (Qr / Eint), as the uninterrupted run."""
+    """
+    A run interrupted after 3 steps resumes from the saved FMU state.
+
+    The same trajectory, every internal state included (Qr / Eint), as the uninterrupted run.
+    """
     scenario = synthetic_scenario(hours=8)
     make = _restart_models(timed_fmus, kind, fmi_type)
     with make() as model:
@@ -167,7 +177,7 @@ def test_saved_plant_state_must_match(timed_fmus):
                                                 ('ModelExchange', 1)])
 def test_non_finite_intervals_name_the_variable_and_the_fmu_time(timed_fmus, fmi_type,
                                                                  schedule):
-    """NaN from FMU time 10 h on: the batch raises FmuValueError (not a CVode message)."""
+    """Values NaN from FMU time 10 h on: the batch raises FmuValueError (not a CVode message)."""
     x, u = np.full((4, 1), 293.0), np.tile([5.0, 0.0], (4, 1))
     with timed_model(timed_fmus['state'], fmi_type, schedule, nan_after=10 * HOUR) as model:
         ok, _ = model.simulate_intervals(
@@ -190,8 +200,11 @@ def test_non_finite_intervals_name_the_variable_and_the_fmu_time(timed_fmus, fmi
 
 @pytest.mark.parametrize('fmi_type', FMI_TYPES)
 def test_control_model_nan_is_a_solve_failed_fallback(timed_fmus, fmi_type):
-    """Solves whose horizon reaches FMU time 10 h fail with the FmuValueError; the controller
-    falls back ('solve_failed') and the loop goes on."""
+    """
+    Solves whose horizon reaches FMU time 10 h fail with the FmuValueError.
+
+    The controller falls back ('solve_failed') and the loop goes on.
+    """
     scenario = synthetic_scenario(hours=12)
     with timed_model(timed_fmus['state'], fmi_type, 1, nan_after=10 * HOUR) as control, \
             timed_model(timed_fmus['state'], 'CoSimulation', 1) as plant:
@@ -227,9 +240,12 @@ def _r1c1_inputs_emulator(plant, scenario):
 
 def test_case_command_exits_1_and_writes_the_steps_done(timed_fmus, tmp_path, monkeypatch,
                                                         caplog):
-    """`mshoot case` with an emulator that computes NaN after 5.5 h: exit 1 with the message;
-    kpis.json (with the reason under 'stopped'), steps.csv and trajectories.csv up to the
-    last good step."""
+    """
+    `mshoot case` with an emulator that computes NaN after 5.5 h: exit 1 with the message.
+
+    kpis.json (with the reason under 'stopped'), steps.csv and trajectories.csv up to the last good
+    step.
+    """
     monkeypatch.setitem(registry._REGISTERED, 'timed-nan', (
         lambda tolerance: timed_model(timed_fmus['state'], nan_after=5.5 * HOUR), 'test FMU'))
     args = case.build_parser().parse_args(['synthetic', '--hours', '12', '--horizon', '3',
@@ -249,7 +265,7 @@ def test_case_command_exits_1_and_writes_the_steps_done(timed_fmus, tmp_path, mo
 
 def test_case_command_stopped_at_the_first_step_writes_the_reason(timed_fmus, tmp_path,
                                                                   monkeypatch):
-    """NaN from FMU time 0: no step done; kpis.json holds the reason, no stale files stay."""
+    """Values NaN from FMU time 0: no step done; kpis.json holds the reason, no stale files."""
     monkeypatch.setitem(registry._REGISTERED, 'timed-nan-0', (
         lambda tolerance: timed_model(timed_fmus['state'], nan_after=0.0), 'test FMU'))
     out = tmp_path / 'out'

@@ -1,5 +1,8 @@
-"""Property-based tests (hypothesis): malformed input never crashes a node, never reaches
-the optimiser or the building, is always counted, and nothing non-finite is published.
+"""
+Property-based tests (hypothesis): malformed input never crashes a node.
+
+Malformed input never reaches the optimiser or the building, is always counted, and nothing
+non-finite is published.
 
 The core rules (:mod:`mshoot_core.safety`) are checked on arbitrary values; the MPC
 and the emulator nodes get batches of malformed messages (one defect each, from
@@ -16,14 +19,6 @@ from mshoot_core.safety import (check_forecast, check_names, check_setpoint, che
                                 FORECAST_SERIES, Limits, SetpointHold, SetpointSupervisor,
                                 SOURCES, StampGate)
 from mshoot_msgs.msg import Disturbances, Forecast, MpcStatus, Setpoint, ZoneState
-import numpy as np
-import pandas as pd
-import pytest
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.parameter import Parameter
-from rosgraph_msgs.msg import Clock
-
 from mshoot_nodes import contract
 from mshoot_nodes.conversions import (clock_msg, forecast_msg, NS_PER_S, setpoint_msg,
                                       zone_state_msg)
@@ -31,6 +26,13 @@ from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_nodes.mpc_node import MpcNode
 from mshoot_testing.harness import (FORECAST_DEFECTS, malformed_forecast, malformed_setpoint,
                                     malformed_zone_state, SETPOINT_DEFECTS, STATE_DEFECTS)
+import numpy as np
+import pandas as pd
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock
 
 from conftest import private_context
 
@@ -48,6 +50,7 @@ floats = st.floats(allow_nan=True, allow_infinity=True, width=64)
 
 # -- the core rules on arbitrary values ---------------------------------------------------
 class _Result:
+
     def __init__(self, controls, states, success):
         self.controls, self.states, self.success, self.message = controls, states, success, ''
 
@@ -247,7 +250,7 @@ def _valid_window(rng, rows):
 
 @pytest.fixture(scope='module')
 def mpc_rig():
-    """An MPC node on simulated time and a probe that drives its clock and inputs."""
+    """Yield an MPC node on simulated time and a probe that drives its clock and inputs."""
     context = private_context()
     mpc = MpcNode(context=context, parameter_overrides=[
         Parameter('use_sim_time', value=True), Parameter('model', value='python'),
@@ -329,7 +332,7 @@ def test_mpc_rejects_and_counts_every_malformed_input(mpc_rig, states, forecasts
 
 @pytest.fixture(scope='module')
 def emulator_rig():
-    """A lockstep emulator (python R1C1) and a probe that sends it setpoints."""
+    """Yield a lockstep emulator (python R1C1) and a probe that sends it setpoints."""
     context = private_context()
     emulator = EmulatorNode(context=context, parameter_overrides=[
         Parameter('hours', value=2000), Parameter('model', value='python'),

@@ -1,6 +1,12 @@
 """Data-driven zone models: training, batch/sequential agreement, errors."""
 import logging
 
+from mshoot_core.models.r1c1 import KELVIN, R1C1Model
+from mshoot_core.models.sklearn_model import (AnalyticOutput, ESTIMATOR_FACTORIES,
+                                              evaluate, input_integral, make_estimator,
+                                              make_excitation_data, make_zone_model,
+                                              SklearnModel, state_output)
+from mshoot_core.scenario import synthetic_scenario
 import numpy as np
 import pandas as pd
 import pytest
@@ -8,13 +14,6 @@ from sklearn.exceptions import NotFittedError
 from sklearn.linear_model import LinearRegression
 from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import PolynomialFeatures
-
-from mshoot_core.models.r1c1 import KELVIN, R1C1Model
-from mshoot_core.models.sklearn_model import (AnalyticOutput, ESTIMATOR_FACTORIES,
-                                              evaluate, input_integral, make_estimator,
-                                              make_excitation_data, make_zone_model,
-                                              SklearnModel, state_output)
-from mshoot_core.scenario import synthetic_scenario
 
 TRAIN_DAYS = 5
 #: Free-run validation RMSE bounds [K] on the synthetic R1C1 data (about 2-7x what each gets).

@@ -1,19 +1,18 @@
 """Speed paths: naive vs fast agreement, grouped finite differences, sparse solvers, zones."""
-import numpy as np
-import pytest
-
 from mshoot_core.closed_loop import forecast_window, run_closed_loop
 from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis
 from mshoot_core.models import R1C1Model
 from mshoot_core.models.base import Model
 from mshoot_core.models.fmi import r1c1_fmi_model
-from mshoot_core.models.multizone import MultiZoneModel, multizone_mpc_options
+from mshoot_core.models.multizone import multizone_mpc_options, MultiZoneModel
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import reference_scenario, synthetic_scenario
 from mshoot_core.sensitivities import column_groups, finite_difference_jacobians
 from mshoot_core.shooting import _band_jacobian, ContinuityStructure, NlpIndex
 from mshoot_core.solvers import SparseJacobian
+import numpy as np
+import pytest
 
 
 @pytest.mark.parametrize('horizon', [2, 4, 10])
@@ -122,8 +121,11 @@ def test_sparse_jacobian_gives_the_same_matrix_dense_and_sparse():
 
 
 def test_soft_band_jacobian_is_the_derivative_of_the_band_rows():
-    """x - lower + s >= 0 for finite lower bounds, upper - x + s >= 0 for finite upper ones:
-    +-1 on the state, +1 on its slack, one row each, in that order."""
+    """
+    Soft band rows: +-1 on the state, +1 on its slack, one row each, in that order.
+
+    x - lower + s >= 0 for finite lower bounds, upper - x + s >= 0 for finite upper ones.
+    """
     idx = NlpIndex(3, 1, 2, soft=True)
     finite_lo = np.array([True, False, True, True, True, False])
     finite_hi = np.array([True, True, False, True, False, True])
@@ -188,8 +190,12 @@ def test_model_without_sparsity_is_dense():
 
 
 def test_model_exchange_and_co_simulation_closed_loops_agree(ou44_csv):
-    """The R1C1 FMU as Model Exchange (compiled Runge-Kutta batches with forward
-    sensitivities) and as Co-Simulation (exact steps, finite differences): same KPIs."""
+    """
+    The R1C1 FMU as Model Exchange and as Co-Simulation: the same KPIs.
+
+    Model Exchange: compiled Runge-Kutta batches with forward sensitivities; Co-Simulation: exact
+    steps, finite differences.
+    """
     scenario = reference_scenario('ou44', ou44_csv, hours=24)
     kpis = {}
     for fmi_type in ('ModelExchange', 'CoSimulation'):

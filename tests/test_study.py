@@ -1,4 +1,5 @@
-"""The reference study (mshoot_studies.study): every part on a shortened period.
+"""
+The reference study (mshoot_studies.study): every part on a shortened period.
 
 KPIs are checked against an independent re-computation (the R1C1 closed-form
 solution written out here from SPEC section 3, a trapezoidal discomfort
@@ -9,11 +10,10 @@ import math
 import pathlib
 
 import matplotlib.image
-import numpy as np
-import pytest
-
 from mshoot_studies import study
 from mshoot_studies.sweeps import RunSpec, SweepRunner
+import numpy as np
+import pytest
 
 PNG_MAGIC = b'\x89PNG\r\n\x1a\n'
 KELVIN = 273.15

@@ -1,13 +1,15 @@
-"""Sweeps (mshoot_studies.sweeps): the same runs in process, in the local pool and on Dask;
-deadlines that stop a run in the middle of a step while the sweep goes on."""
+"""
+Sweeps (mshoot_studies.sweeps): the same runs in process, in the local pool and on Dask.
+
+Deadlines stop a run in the middle of a step while the sweep goes on.
+"""
 import math
 import time
 
-import numpy as np
-import pytest
-
 from mshoot_studies.sweeps import (Deadline, execute, RunSpec, RunStopped, StoppableModel,
                                    SweepRunner)
+import numpy as np
+import pytest
 
 #: Short runs that differ in what the workers must build or receive: the exact model, the
 #: FMU (control and emulator) at a tolerance, a trained scikit-learn model, another cost.
@@ -23,7 +25,7 @@ DETERMINISTIC = ('energy_kwh', 'heating_kwh', 'cooling_kwh', 'discomfort_kh',
 
 @pytest.fixture(scope='module')
 def in_process(ou44_csv):
-    """The reference: every run of SPECS in this process."""
+    """Return the reference: every run of SPECS in this process."""
     runner = SweepRunner(ou44_csv, jobs=0)
     return dict(zip(SPECS, runner.run(SPECS)))
 

@@ -97,8 +97,12 @@ FORBIDDEN_IN_CORE = re.compile(r'^(rclpy|rcl\w*|rosbags|rosbag2\w*|rosidl\w*|ame
 
 
 def imported_modules(source: str) -> list[tuple[int, str]]:
-    """Every module a Python source imports, in every form: ``import a.b``, ``from a import
-    b``, and ``importlib.import_module('a')`` / ``__import__('a')`` with a literal name."""
+    """
+    Return every module a Python source imports, in every form.
+
+    The forms: ``import a.b``, ``from a import b``, and ``importlib.import_module('a')`` /
+    ``__import__('a')`` with a literal name.
+    """
     found = []
     for node in ast.walk(ast.parse(source)):
         if isinstance(node, ast.Import):
@@ -155,8 +159,11 @@ def _python_sources(package: str) -> list[pathlib.Path]:
 
 
 def test_applications_live_outside_the_library():
-    """mshoot_core holds models, shooting, MPC, emulation and KPIs; the case, the study, its
-    sweeps and Setup 2 are applications in mshoot_studies."""
+    """
+    The core holds models, shooting, MPC, emulation and KPIs; applications are elsewhere.
+
+    The case, the study, its sweeps and Setup 2 are applications in mshoot_studies.
+    """
     applications = {'case', 'study', 'study_plots', 'study_runs', 'sweeps', 'setup2', 'cli'}
     core_modules = {p.stem for p in _python_sources('mshoot_core')}
     assert not core_modules & applications, sorted(core_modules & applications)

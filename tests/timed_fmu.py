@@ -1,4 +1,5 @@
-"""Build the time-dependent test FMU (``tests/fmus/timed_zone.c``) with gcc, for the tests.
+"""
+Build the time-dependent test FMU (``tests/fmus/timed_zone.c``) with gcc, for the tests.
 
 Two variants from the same C file: with and without FMU-state support declared
 in the modelDescription (``canGetAndSetFMUstate``), so both ways an interval

@@ -1,4 +1,5 @@
-"""Rewrite the build-machine paths hard-coded in the ROS 2 Jazzy message wheels.
+"""
+Rewrite the build-machine paths hard-coded in the ROS 2 Jazzy message wheels.
 
 The PyPI wheels export CMake targets whose include directories point at
 ``/opt/python/cp311-cp311/...`` (the manylinux build image). Building a custom

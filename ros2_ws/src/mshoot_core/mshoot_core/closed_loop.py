@@ -21,7 +21,8 @@ logger = logging.getLogger(__name__)
 
 @dataclasses.dataclass
 class ClosedLoopResult:
-    """Records of a closed-loop run.
+    """
+    Records of a closed-loop run.
 
     Attributes
     ----------
@@ -35,6 +36,7 @@ class ClosedLoopResult:
         The plan of every step.
     wall_s : float
         Wall time of the whole loop [s].
+
     """
 
     steps: pd.DataFrame
@@ -44,7 +46,8 @@ class ClosedLoopResult:
 
 
 class EmulationStopped(RuntimeError):
-    """The emulated building failed (non-finite values): the run stopped early.
+    """
+    The emulated building failed (non-finite values): the run stopped early.
 
     Attributes
     ----------
@@ -54,6 +57,7 @@ class EmulationStopped(RuntimeError):
         Index of the failing step in the run (0-based).
     t_s : float
         Start time of the failing step [s].
+
     """
 
     def __init__(self, message: str, result: ClosedLoopResult | None, step: int,
@@ -66,7 +70,8 @@ class EmulationStopped(RuntimeError):
 
 def step_row(outcome: StepOutcome, record: StepRecord, state_names: tuple[str, ...],
              control_names: tuple[str, ...]) -> dict:
-    """The per-step record of one loop iteration (shared with the ROS nodes' tools).
+    """
+    Return the per-step record of one loop iteration (shared with the ROS nodes' tools).
 
     Columns: ``time_s``, the applied controls, ``{state}_start``, ``{state}_end``,
     ``{state}_predicted`` (NaN for the safe setpoint), the solve's
@@ -100,9 +105,12 @@ def step_row(outcome: StepOutcome, record: StepRecord, state_names: tuple[str, .
 
 
 def offer_scenario_inputs(controller: Controller, emulator: Emulator, now_ns: int) -> None:
-    """Give the controller the emulated state and a perfect forecast (the scenario's next
-    N+1 rows: the series the controller knows) stamped at the emulator's time, as the
-    emulator and forecaster nodes do."""
+    """
+    Give the controller the emulated state and a perfect forecast, as the nodes do.
+
+    The forecast is the scenario's next N+1 rows (the series the controller knows), stamped at the
+    emulator's time, as the emulator and forecaster nodes do.
+    """
     window = forecast_window(emulator.scenario, emulator.index, controller.mpc.horizon_steps)
     known = controller.forecast_known
     values = window.to_numpy(dtype=float)
@@ -118,8 +126,8 @@ def offer_scenario_inputs(controller: Controller, emulator: Emulator, now_ns: in
 def run_closed_loop(controller: Controller | MPC, emulator: Emulator, steps: int | None = None,
                     progress: Callable[[list[dict], list[pd.DataFrame]], None] | None = None,
                     log_every: int = 12, budget_s: float | None = None) -> ClosedLoopResult:
-    """Run the controller against the emulator for ``steps`` control steps (default: to the
-    end).
+    """
+    Run the controller against the emulator for ``steps`` control steps (default: to the end).
 
     Every step the controller gets the emulated state and a perfect forecast
     and decides (:meth:`Controller.poll`): its optimum, or a fallback (the last
@@ -152,6 +160,7 @@ def run_closed_loop(controller: Controller | MPC, emulator: Emulator, steps: int
         If the emulator produced non-finite values (a
         :class:`~mshoot_core.models.base.ModelValueError`, chained): carries
         the records of the steps done before (``result``).
+
     """
     if isinstance(controller, MPC):
         controller = Controller(mpc=controller)
@@ -207,7 +216,7 @@ def run_closed_loop(controller: Controller | MPC, emulator: Emulator, steps: int
 
 
 def _plan_frame(outcome: StepOutcome, mpc: MPC) -> pd.DataFrame:
-    """The plan of a decision (controls and predicted end states by interval start)."""
+    """Return the plan of a decision (controls and predicted end states by interval start)."""
     d = outcome.decision
     if outcome.result is not None and not d.fallback:
         return outcome.result.plan

@@ -1,4 +1,5 @@
-"""The emulated building: advances a model one control step at a time.
+"""
+The emulated building: advances a model one control step at a time.
 
 Both the offline MPC loop and the ROS emulator node drive an :class:`Emulator`,
 so a ROS run and a core-only run of the same scenario produce the same
@@ -41,7 +42,8 @@ logger = logging.getLogger(__name__)
 
 @dataclasses.dataclass(frozen=True)
 class Warmup:
-    """A replay from the scenario start that brings a restarted emulator to its start row.
+    """
+    A replay from the scenario start that brings a restarted emulator to its start row.
 
     Attributes
     ----------
@@ -49,6 +51,7 @@ class Warmup:
         The state at the first scenario row (the interrupted run's initial state).
     controls : array, shape (start_index, nc)
         The controls applied at steps 0 .. start_index - 1 (e.g. from ``steps.csv``).
+
     """
 
     x0: Sequence[float]
@@ -63,7 +66,8 @@ def is_plant(model: Model) -> bool:
 
 @dataclasses.dataclass
 class StepRecord:
-    """What the emulator did over one control step.
+    """
+    What the emulator did over one control step.
 
     Attributes
     ----------
@@ -76,6 +80,7 @@ class StepRecord:
     fine : DataFrame
         States and outputs on the fine grid over [t_start, t_start + step], with
         the comfort band; index time [s].
+
     """
 
     t_start_s: float
@@ -86,7 +91,8 @@ class StepRecord:
 
 
 class Emulator:
-    """Steps a model through a scenario with controls given step by step.
+    """
+    Steps a model through a scenario with controls given step by step.
 
     Parameters
     ----------
@@ -119,6 +125,7 @@ class Emulator:
     ValueError
         On bad arguments, a ``plant_state`` of another model or time, or one
         for a model that cannot restore it.
+
     """
 
     def __init__(self, model: Model, scenario: pd.DataFrame, x0: Sequence[float], *,
@@ -207,12 +214,12 @@ class Emulator:
 
     @property
     def t_s(self) -> float:
-        """Current time [s]."""
+        """Return the current time [s]."""
         return float(self.scenario.index[self.index])
 
     @property
     def steps_left(self) -> int:
-        """Number of control steps left in the scenario."""
+        """Return the number of control steps left in the scenario."""
         return len(self.scenario) - 1 - self.index
 
     def disturbances(self) -> pd.Series:
@@ -233,7 +240,8 @@ class Emulator:
         return clipped
 
     def save_plant_state(self) -> bytes:
-        """The plant at the current row, for ``Emulator(..., start_index, plant_state=...)``.
+        """
+        Save the plant at the current row, for ``Emulator(..., start_index, plant_state=...)``.
 
         Raises
         ------
@@ -241,6 +249,7 @@ class Emulator:
             If the model has no plant or cannot save its state.
         RuntimeError
             Before the first step (nothing to save yet: restart from x0).
+
         """
         if not self.plant or not callable(getattr(self.model, 'plant_save', None)):
             raise ValueError(f'{type(self.model).__name__} has no plant state to save: restart '
@@ -250,7 +259,7 @@ class Emulator:
         return self.model.plant_save()
 
     def _step_inputs(self, u: np.ndarray, row: pd.Series) -> np.ndarray:
-        """The model's inputs over the step: the controls and the scenario row's columns."""
+        """Return the model's inputs over the step: the controls and the scenario row's columns."""
         values = np.empty(len(self.model.input_names))
         for i, name in enumerate(self.model.input_names):
             if name in self.control_names:
@@ -264,7 +273,7 @@ class Emulator:
 
     def _plant_step(self, inputs: np.ndarray,
                     times: np.ndarray) -> tuple[pd.DataFrame, pd.DataFrame]:
-        """The plant over one control step on the fine grid ``times``."""
+        """Simulate the plant over one control step on the fine grid ``times``."""
         model = self.model
         if not self._plant_running:
             x, y = model.plant_start(self.x, self.t_s, inputs)
@@ -293,7 +302,8 @@ class Emulator:
                                       variable=str(name), time_s=time)
 
     def advance(self, controls: Sequence[float]) -> StepRecord:
-        """Apply ``controls`` over the current step and move to the next one.
+        """
+        Apply ``controls`` over the current step and move to the next one.
 
         Raises
         ------
@@ -301,6 +311,7 @@ class Emulator:
             If the model produced a non-finite state or output (an FMU's
             :class:`~mshoot_core.models.fmi_values.FmuValueError` names the FMU
             time): the step is not taken, the emulation cannot go on.
+
         """
         if self.steps_left <= 0:
             raise RuntimeError('the scenario is over: no step left to emulate')

@@ -1,4 +1,5 @@
-"""Build the project's FMI 2.0 FMUs and batch drivers from the C sources in ``fmu_src/``.
+"""
+Build the project's FMI 2.0 FMUs and batch drivers from the C sources in ``fmu_src/``.
 
 Two models ship as C sources:
 
@@ -56,12 +57,14 @@ def _guid(name: str) -> str:
 
 
 def find_compiler() -> str:
-    """Return the C compiler to use (``$CC`` or ``gcc``).
+    """
+    Return the C compiler to use (``$CC`` or ``gcc``).
 
     Raises
     ------
     RuntimeError
         If the compiler is not on PATH.
+
     """
     compiler = os.environ.get('CC') or 'gcc'
     found = shutil.which(compiler)
@@ -74,7 +77,8 @@ def find_compiler() -> str:
 
 
 def build_fmu(name: str, out_dir: str | os.PathLike) -> pathlib.Path:
-    """Compile the FMU ``name`` and write ``out_dir/<modelIdentifier>.fmu``.
+    """
+    Compile the FMU ``name`` and write ``out_dir/<modelIdentifier>.fmu``.
 
     The archive holds ``modelDescription.xml``,
     ``binaries/<platform>/<modelIdentifier>.so`` and ``sources/`` (the C file
@@ -99,6 +103,7 @@ def build_fmu(name: str, out_dir: str | os.PathLike) -> pathlib.Path:
         For an unknown model name.
     RuntimeError
         If the compiler is missing or the compilation fails.
+
     """
     source = model_source(name)
     compiler = find_compiler()
@@ -137,7 +142,8 @@ def build_fmu(name: str, out_dir: str | os.PathLike) -> pathlib.Path:
 
 
 def ensure_fmu(name: str) -> pathlib.Path:
-    """Return the FMU ``name`` from the cache, building it first if it is not there.
+    """
+    Return the FMU ``name`` from the cache, building it first if it is not there.
 
     For setup and tests; the runtime uses :func:`mshoot_core.fmu_cache.find_fmu`,
     which never builds.
@@ -158,6 +164,7 @@ def ensure_fmu(name: str) -> pathlib.Path:
         For an unknown model name.
     RuntimeError
         If the compiler is missing or the compilation fails.
+
     """
     path = cached_fmu_file(name)
     if not path.is_file():
@@ -167,7 +174,8 @@ def ensure_fmu(name: str) -> pathlib.Path:
 
 
 def build_driver(name: str, target: str | os.PathLike) -> pathlib.Path:
-    """Compile the batch driver ``name`` (``'cs'`` or ``'me'``) into the file ``target``.
+    """
+    Compile the batch driver ``name`` (``'cs'`` or ``'me'``) into the file ``target``.
 
     The library appears atomically (compiled to a temporary name, then renamed).
 
@@ -177,6 +185,7 @@ def build_driver(name: str, target: str | os.PathLike) -> pathlib.Path:
         For an unknown driver name.
     RuntimeError
         If the compiler is missing or the compilation fails.
+
     """
     source = driver_source(name)
     compiler = find_compiler()
@@ -201,7 +210,8 @@ def build_driver(name: str, target: str | os.PathLike) -> pathlib.Path:
 
 
 def ensure_driver(name: str) -> pathlib.Path:
-    """Return the batch driver ``name`` from the cache, building it first if it is not there.
+    """
+    Return the batch driver ``name`` from the cache, building it first if it is not there.
 
     For setup and tests; the runtime uses
     :func:`mshoot_core.fmu_cache.find_driver`, which never builds.
@@ -212,6 +222,7 @@ def ensure_driver(name: str) -> pathlib.Path:
         For an unknown driver name.
     RuntimeError
         If the compiler is missing or the compilation fails.
+
     """
     path = cached_driver_file(name)
     if not path.is_file():
@@ -220,7 +231,8 @@ def ensure_driver(name: str) -> pathlib.Path:
 
 
 def ensure_cache(models: list[str] | tuple[str, ...] = ('r1c1',)) -> list[pathlib.Path]:
-    """Build what the runtime needs into the cache: the FMUs ``models`` and every driver.
+    """
+    Build what the runtime needs into the cache: the FMUs ``models`` and every driver.
 
     What is already built for the current sources is kept. Returns the paths
     (FMUs first, then the drivers).
@@ -231,6 +243,7 @@ def ensure_cache(models: list[str] | tuple[str, ...] = ('r1c1',)) -> list[pathli
         For an unknown model name.
     RuntimeError
         If the compiler is missing or a compilation fails.
+
     """
     return [*(ensure_fmu(name) for name in models), *(ensure_driver(name) for name in DRIVERS)]
 

@@ -1,4 +1,5 @@
-"""Where the project's built FMUs and batch drivers live, and how the runtime finds them.
+"""
+Where the project's built FMUs and batch drivers live, and how the runtime finds them.
 
 ``make setup`` (``python -m mshoot_core.fmu_build --cache``, see
 :mod:`mshoot_core.fmu_build`) compiles the C sources in ``fmu_src/`` into the
@@ -55,7 +56,8 @@ STAGING_PREFIX = '.staging-'
 
 @dataclasses.dataclass(frozen=True)
 class FmuSource:
-    """One FMU's sources in :data:`SOURCE_DIR`.
+    """
+    One FMU's sources in :data:`SOURCE_DIR`.
 
     Attributes
     ----------
@@ -66,6 +68,7 @@ class FmuSource:
     description_template : str
         The modelDescription.xml template (``@GUID@`` and ``@DATETIME@`` are
         filled in by the builder).
+
     """
 
     model_identifier: str
@@ -80,7 +83,8 @@ class FmuSource:
 
 @dataclasses.dataclass(frozen=True)
 class DriverSource:
-    """One batch driver's source in :data:`SOURCE_DIR`.
+    """
+    One batch driver's source in :data:`SOURCE_DIR`.
 
     Attributes
     ----------
@@ -90,6 +94,7 @@ class DriverSource:
         The single C source file.
     description : str
         What the driver is, for messages.
+
     """
 
     library: str
@@ -119,12 +124,14 @@ class NotBuiltError(FileNotFoundError):
 
 
 def model_source(name: str) -> FmuSource:
-    """Return the sources of the FMU ``name`` (a key of :data:`MODELS`).
+    """
+    Return the sources of the FMU ``name`` (a key of :data:`MODELS`).
 
     Raises
     ------
     ValueError
         For an unknown name.
+
     """
     if name not in MODELS:
         raise ValueError(f'unknown FMU {name!r}: expected one of {sorted(MODELS)}')
@@ -132,12 +139,14 @@ def model_source(name: str) -> FmuSource:
 
 
 def driver_source(name: str) -> DriverSource:
-    """Return the source of the batch driver ``name`` (a key of :data:`DRIVERS`).
+    """
+    Return the source of the batch driver ``name`` (a key of :data:`DRIVERS`).
 
     Raises
     ------
     ValueError
         For an unknown name.
+
     """
     if name not in DRIVERS:
         raise ValueError(f'unknown batch driver {name!r}: expected one of {sorted(DRIVERS)}')
@@ -145,12 +154,14 @@ def driver_source(name: str) -> DriverSource:
 
 
 def platform() -> tuple[str, str]:
-    """Return the FMI 2.0 binaries folder and the shared-library suffix of this host.
+    """
+    Return the FMI 2.0 binaries folder and the shared-library suffix of this host.
 
     Raises
     ------
     RuntimeError
         On a 32-bit Python or a platform other than Linux and macOS.
+
     """
     if struct.calcsize('P') != 8:
         raise RuntimeError('the mshoot FMUs need a 64-bit Python/host')
@@ -171,7 +182,8 @@ def _hash(files: list[pathlib.Path]) -> str:
 
 
 def source_hash(name: str) -> str:
-    """Hash of everything the build of the FMU ``name`` depends on (16 hex digits).
+    """
+    Hash of everything the build of the FMU ``name`` depends on (16 hex digits).
 
     Covers the model's C file and template, the FMI headers and the builder
     (its compiler flags).
@@ -205,7 +217,7 @@ def cached_driver_file(name: str) -> pathlib.Path:
 
 
 def _missing(what: str, path: pathlib.Path, command: str) -> NotBuiltError:
-    """The error for a missing build, with the command that builds it."""
+    """Return the error for a missing build, with the command that builds it."""
     others = sorted(str(p) for p in path.parent.parent.glob(f'*/{path.name}'))
     stale = (f'; the cache holds it only for other sources ({", ".join(others)}): the '
              f'sources changed since the last build') if others else ''
@@ -216,7 +228,8 @@ def _missing(what: str, path: pathlib.Path, command: str) -> NotBuiltError:
 
 
 def find_fmu(name: str) -> pathlib.Path:
-    """Return the built FMU ``name`` from the cache; never builds.
+    """
+    Return the built FMU ``name`` from the cache; never builds.
 
     Parameters
     ----------
@@ -235,6 +248,7 @@ def find_fmu(name: str) -> pathlib.Path:
         where it was expected and which command builds it).
     ValueError
         For an unknown name.
+
     """
     path = cached_fmu_file(name)
     if not path.is_file():
@@ -244,7 +258,8 @@ def find_fmu(name: str) -> pathlib.Path:
 
 
 def find_driver(name: str) -> pathlib.Path:
-    """Return the built batch driver ``name`` (``'cs'`` or ``'me'``) from the cache; never builds.
+    """
+    Return the built batch driver ``name`` (``'cs'`` or ``'me'``) from the cache; never builds.
 
     Raises
     ------
@@ -252,6 +267,7 @@ def find_driver(name: str) -> pathlib.Path:
         If the driver is not built for the current sources.
     ValueError
         For an unknown name.
+
     """
     path = cached_driver_file(name)
     if not path.is_file():
@@ -262,7 +278,7 @@ def find_driver(name: str) -> pathlib.Path:
 
 
 def file_sha256(path: str | os.PathLike) -> str:
-    """The sha256 of a file's bytes (64 hex digits)."""
+    """Return the sha256 of a file's bytes (64 hex digits)."""
     digest = hashlib.sha256()
     with open(path, 'rb') as stream:
         for block in iter(lambda: stream.read(1 << 20), b''):
@@ -276,7 +292,7 @@ def extracted_dir(fmu_file: str | os.PathLike) -> pathlib.Path:
 
 
 def _safe_members(archive: zipfile.ZipFile, label: str) -> list[str]:
-    """The archive's member names, refusing any that would land outside the target folder."""
+    """Return the archive's member names, refusing any that would land outside the target."""
     names = archive.namelist()
     for name in names:
         parts = name.split('/')
@@ -288,7 +304,8 @@ def _safe_members(archive: zipfile.ZipFile, label: str) -> list[str]:
 
 def extract_fmu(fmu_file: str | os.PathLike,
                 check: Callable[[pathlib.Path], None] | None = None) -> pathlib.Path:
-    """Extract ``fmu_file`` into the cache once; return its folder.
+    """
+    Extract ``fmu_file`` into the cache once; return its folder.
 
     The folder is ``<cache>/extracted/<sha256>``; an existing one is reused
     as is. A new extraction goes to a staging folder beside it, is checked
@@ -310,6 +327,7 @@ def extract_fmu(fmu_file: str | os.PathLike,
     ValueError
         If the file is not a ZIP archive or holds illegal paths (and whatever
         ``check`` raises).
+
     """
     path = pathlib.Path(fmu_file)
     if not path.is_file():

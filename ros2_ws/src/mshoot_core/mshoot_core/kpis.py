@@ -18,7 +18,8 @@ def comfort_violation(temperature_c: np.ndarray, comfort_min: np.ndarray,
 
 
 def energy_kwh(heat_rate_w: np.ndarray, step_s: float) -> dict[str, float]:
-    """Energy of a piecewise-constant heat rate: total sum |q| dt, heating and cooling apart.
+    """
+    Energy of a piecewise-constant heat rate: total sum |q| dt, heating and cooling apart.
 
     Parameters
     ----------
@@ -30,6 +31,7 @@ def energy_kwh(heat_rate_w: np.ndarray, step_s: float) -> dict[str, float]:
     Returns
     -------
     dict with 'energy_kwh', 'heating_kwh', 'cooling_kwh' [kWh] (all >= 0).
+
     """
     q = np.asarray(heat_rate_w, dtype=float)
     return {'energy_kwh': float(np.sum(np.abs(q)) * step_s / JOULES_PER_KWH),
@@ -39,7 +41,8 @@ def energy_kwh(heat_rate_w: np.ndarray, step_s: float) -> dict[str, float]:
 
 def discomfort_kh(fine: pd.DataFrame, temperature_column: str = 'y_T',
                   sample_every_s: float = 3600.0) -> dict[str, float]:
-    """Thermal discomfort [K h] of a trajectory on a fine grid.
+    """
+    Thermal discomfort [K h] of a trajectory on a fine grid.
 
     Parameters
     ----------
@@ -57,6 +60,7 @@ def discomfort_kh(fine: pd.DataFrame, temperature_column: str = 'y_T',
     fine grid, BOPTEST-style) and 'discomfort_kh_hourly' (sum over the samples
     at multiples of ``sample_every_s``, each weighted by that spacing, as the
     original reported it).
+
     """
     t = np.asarray(fine.index, dtype=float)
     dist = comfort_violation(fine[temperature_column].to_numpy(), fine['comfort_min'].to_numpy(),
@@ -70,7 +74,8 @@ def discomfort_kh(fine: pd.DataFrame, temperature_column: str = 'y_T',
 def closed_loop_kpis(steps: pd.DataFrame, fine: pd.DataFrame, step_s: float,
                      wall_s: float, control: str | Sequence[str] = 'q',
                      temperature_column: str | Sequence[str] = 'y_T') -> dict[str, float]:
-    """All KPIs of a closed-loop run (the keys of ``kpis.json``).
+    """
+    All KPIs of a closed-loop run (the keys of ``kpis.json``).
 
     Parameters
     ----------
@@ -88,6 +93,7 @@ def closed_loop_kpis(steps: pd.DataFrame, fine: pd.DataFrame, step_s: float,
     temperature_column : str or sequence of str
         Column(s) of the zone temperatures [degC] in ``fine``; with several the
         discomfort of every zone is summed.
+
     """
     controls = [control] if isinstance(control, str) else list(control)
     columns = ([temperature_column] if isinstance(temperature_column, str)

@@ -1,4 +1,5 @@
-"""The MPC controller: a configured multiple-shooting problem solved every control step.
+"""
+The MPC controller: a configured multiple-shooting problem solved every control step.
 
 ``MPC.make_step(x0, t, forecast) -> u0`` is the loop interface; ``MPC.solve``
 returns the full :class:`MpcResult`. Between steps the previous plan, shifted
@@ -15,7 +16,6 @@ import numpy as np
 import pandas as pd
 
 from mshoot_core.models.base import Model
-from mshoot_core.scenario import COMFORT_COLUMNS
 from mshoot_core.settings import BY_NAME, MpcSettings
 from mshoot_core.shooting import CostFunction, Scaling, ShootingProblem, ShootingResult
 from mshoot_core.solvers import make_solver, Solver
@@ -30,13 +30,14 @@ ZONE_STATE_BOUNDS = {'T': ('comfort_min', 'comfort_max', KELVIN)}
 
 @functools.lru_cache(maxsize=1)
 def _threadpools() -> Any:
-    """The process's BLAS/OpenMP thread pools (threadpoolctl), inspected once."""
+    """Return the process's BLAS/OpenMP thread pools (threadpoolctl), inspected once."""
     from threadpoolctl import ThreadpoolController
     return ThreadpoolController()
 
 
 def blas_threads(limit: int | None) -> contextlib.AbstractContextManager:
-    """Limit the BLAS thread pools to ``limit`` threads inside the ``with`` block.
+    """
+    Limit the BLAS thread pools to ``limit`` threads inside the ``with`` block.
 
     MPC problems are small (tens to a few thousand variables): a multi-threaded
     BLAS only adds synchronisation, and on a loaded machine its spinning
@@ -49,13 +50,17 @@ def blas_threads(limit: int | None) -> contextlib.AbstractContextManager:
 
 
 class MpcResult(ShootingResult):
-    """One MPC step: a :class:`ShootingResult` plus ``t_s`` (start time [s]),
-    ``fallback_used`` (bool), and ``plan`` (DataFrame of controls and predicted states
-    indexed by the interval start times [s])."""
+    """
+    One MPC step: a :class:`ShootingResult` plus the step's time, fallback and plan.
+
+    The extra fields are ``t_s`` (start time [s]), ``fallback_used`` (bool), and ``plan``
+    (DataFrame of controls and predicted states indexed by the interval start times [s]).
+    """
 
 
 class MPC:
-    """Model predictive control with multiple shooting.
+    """
+    Model predictive control with multiple shooting.
 
     Parameters
     ----------
@@ -81,6 +86,7 @@ class MPC:
         ``horizon_steps=6, cost='energy'``; ``control_names``,
         ``solver_extra``) applied over ``settings``; validated with every
         problem at once (:class:`~mshoot_core.settings.SettingsError`).
+
     """
 
     def __init__(self, model: Model, settings: MpcSettings | None = None, *,
@@ -143,14 +149,18 @@ class MPC:
         return cols
 
     def set_solver(self, solver: Solver) -> None:
-        """Use a configured solver instance from now on (e.g. a custom or instrumented
-        one); a later :meth:`update` of the solver settings does not replace it."""
+        """
+        Use a configured solver instance from now on (e.g. a custom or instrumented one).
+
+        A later :meth:`update` of the solver settings does not replace it.
+        """
         if not isinstance(solver, Solver):
             raise TypeError(f'solver must be a Solver, got {type(solver).__name__}')
         self.solver = self._solver_instance = solver
 
     def update(self, settings: MpcSettings) -> str:
-        """Apply new settings; say what it took.
+        """
+        Apply new settings; say what it took.
 
         Returns
         -------
@@ -164,6 +174,7 @@ class MPC:
         ValueError
             If a setting that is fixed once running (``step_s``, ``mode``,
             ``blas_threads``) or the controls change.
+
         """
         changed = self.settings.changed(settings)
         fixed = sorted(n for n in changed if n in ('control_names',) or (
@@ -212,8 +223,11 @@ class MPC:
         self._forecast_values(forecast)
 
     def _forecast_values(self, forecast: pd.DataFrame) -> np.ndarray:
-        """The first N+1 rows of :attr:`forecast_columns` as floats, shape (N+1, columns),
-        checked as :meth:`check_forecast` says (one conversion of the frame per solve)."""
+        """
+        Return the first N+1 rows of :attr:`forecast_columns` as floats, shape (N+1, columns).
+
+        Checked as :meth:`check_forecast` says (one conversion of the frame per solve).
+        """
         if not isinstance(forecast, pd.DataFrame):
             raise TypeError(f'forecast must be a DataFrame, got {type(forecast).__name__}')
         columns = self.forecast_columns
@@ -239,7 +253,8 @@ class MPC:
 
     def solve(self, x0: Sequence[float], t_s: float, forecast: pd.DataFrame,
               deadline: float | None = None) -> MpcResult:
-        """Optimise the horizon starting at ``t_s`` from state ``x0``.
+        """
+        Optimise the horizon starting at ``t_s`` from state ``x0``.
 
         Parameters
         ----------
@@ -254,6 +269,7 @@ class MPC:
         deadline : float, optional
             :func:`time.perf_counter` time [s] at which the solver stops
             (``budget_exceeded`` in the result).
+
         """
         values = self._forecast_values(forecast)
         n = self.horizon_steps
@@ -289,7 +305,7 @@ class MPC:
         return self.solve(x0, t_s, forecast).controls[0].copy()
 
     def _shifted(self, z: np.ndarray) -> np.ndarray:
-        """The plan shifted by one interval, the last interval repeated."""
+        """Return the plan shifted by one interval, the last interval repeated."""
         idx = self.problem.index
         shifted = z.copy()
         for view in (idx.u, idx.x, idx.s):

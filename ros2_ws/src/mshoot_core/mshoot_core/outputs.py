@@ -1,4 +1,5 @@
-"""The files of a closed-loop run: KPIs, per-step records, trajectories and a plot.
+"""
+The files of a closed-loop run: KPIs, per-step records, trajectories and a plot.
 
 One writer for every way a run is made (the core loop, the ROS nodes, the
 applications), so their output folders read alike.
@@ -18,7 +19,8 @@ if TYPE_CHECKING:  # matplotlib only where plots are made
 def write_outputs(out: pathlib.Path, result: ClosedLoopResult, kpis: dict,
                   title: str, plotter: PlotWorker | None = None, *, control: str = 'q',
                   temperature_column: str = 'y_T') -> None:
-    """Write ``kpis.json``, ``trajectories.csv``, ``steps.csv`` and ``plot.png`` to ``out``.
+    """
+    Write ``kpis.json``, ``trajectories.csv``, ``steps.csv`` and ``plot.png`` to ``out``.
 
     Parameters
     ----------
@@ -40,6 +42,7 @@ def write_outputs(out: pathlib.Path, result: ClosedLoopResult, kpis: dict,
     control, temperature_column : str
         The heat rate column of ``steps`` [W] and the zone temperature column of
         ``fine`` [degC] plotted (a multi-zone run: those of its first zone).
+
     """
     out.mkdir(parents=True, exist_ok=True)
     subtitle = (f"{kpis['energy_kwh']:.1f} kWh, {kpis['discomfort_kh']:.1f} Kh "

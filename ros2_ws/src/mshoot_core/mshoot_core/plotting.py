@@ -1,4 +1,5 @@
-"""Figures of closed-loop runs (matplotlib, headless), drawn here or in a worker process.
+"""
+Figures of closed-loop runs (matplotlib, headless), drawn here or in a worker process.
 
 :func:`plot_closed_loop` draws the figure of a run in this process.
 :class:`PlotWorker` draws it in a process of its own, started when a run
@@ -41,7 +42,8 @@ WORKER_TIMEOUT_S = 120.0
 
 def closed_loop_series(fine: Any, steps: Any, temperature_column: str = 'y_T',
                        control: str = 'q') -> dict[str, np.ndarray]:
-    """The arrays the figure of a run shows, from its records.
+    """
+    Return the arrays the figure of a run shows, from its records.
 
     Parameters
     ----------
@@ -50,12 +52,17 @@ def closed_loop_series(fine: Any, steps: Any, temperature_column: str = 'y_T',
         and ``comfort_min``/``comfort_max`` [degC].
     steps : DataFrame
         Per-step records indexed by time [s] with the applied control [W].
+    temperature_column : str
+        Column of ``fine`` holding the zone temperature [degC].
+    control : str
+        Column of ``steps`` holding the heat rate [W].
 
     Returns
     -------
     dict of ndarray
         ``hours`` [h], ``comfort_min``, ``comfort_max``, ``temperature`` [degC]
         on the fine grid; ``step_hours`` [h] and ``q_kw`` [kW] per step.
+
     """
     return {'hours': fine.index.to_numpy(dtype=float) / 3600.0,
             'comfort_min': fine['comfort_min'].to_numpy(dtype=float),
@@ -66,8 +73,12 @@ def closed_loop_series(fine: Any, steps: Any, temperature_column: str = 'y_T',
 
 
 def _figure() -> tuple[Any, Any, Any]:
-    """The figure of a run without its data: two axes (temperature above, heat rate below),
-    labels, grids, fixed margins (no layout pass at draw time)."""
+    """
+    Build the figure of a run without its data.
+
+    Two axes (temperature above, heat rate below), labels, grids, fixed margins (no layout pass at
+    draw time).
+    """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     fig = Figure(figsize=(10, 6))
@@ -103,7 +114,8 @@ def _finish(figure: tuple[Any, Any, Any], series: dict[str, np.ndarray],
 
 def draw_closed_loop(series: dict[str, np.ndarray], path: str | pathlib.Path,
                      title: str = '') -> pathlib.Path:
-    """Draw the zone temperature with its comfort band and the heat rate to a PNG.
+    """
+    Draw the zone temperature with its comfort band and the heat rate to a PNG.
 
     Parameters
     ----------
@@ -113,13 +125,15 @@ def draw_closed_loop(series: dict[str, np.ndarray], path: str | pathlib.Path,
         PNG file to write (its folder is created).
     title : str
         Figure title (e.g. the KPIs).
+
     """
     return _finish(_figure(), series, path, title)
 
 
 def plot_closed_loop(fine: Any, steps: Any, path: str | pathlib.Path, title: str = '',
                      temperature_column: str = 'y_T', control: str = 'q') -> pathlib.Path:
-    """Plot the zone temperature with its comfort band and the heat rate (in this process).
+    """
+    Plot the zone temperature with its comfort band and the heat rate (in this process).
 
     Parameters
     ----------
@@ -132,13 +146,19 @@ def plot_closed_loop(fine: Any, steps: Any, path: str | pathlib.Path, title: str
         PNG file to write.
     title : str
         Figure title (e.g. the KPIs).
+    temperature_column : str
+        Column of ``fine`` holding the zone temperature [degC].
+    control : str
+        Column of ``steps`` holding the heat rate [W].
+
     """
     return draw_closed_loop(closed_loop_series(fine, steps, temperature_column, control), path,
                             title)
 
 
 class PlotWorker:
-    """A process that imports matplotlib now and draws one closed-loop figure later.
+    """
+    A process that imports matplotlib now and draws one closed-loop figure later.
 
     Start it when a run begins; :meth:`send` gives it the figure's data (and
     returns at once), :meth:`wait` waits for the PNG; :meth:`plot` does both.
@@ -187,7 +207,7 @@ class PlotWorker:
             pass
 
     def wait(self) -> pathlib.Path:
-        """The PNG of the figure sent, once written (drawn here if the worker failed)."""
+        """Return the PNG of the figure sent, once written (drawn here if the worker failed)."""
         if self._request is None:
             raise RuntimeError('no figure sent to the PlotWorker')
         series, path, title = self._request
@@ -237,9 +257,12 @@ class PlotWorker:
 
 
 def _serve() -> None:
-    """The worker: import matplotlib, lay out the figure and draw it once (fonts and text
-    are cached on that first draw), then add the data read from stdin (a pickle) and
-    write the PNG."""
+    """
+    Run the plot worker: lay out the figure, draw it once, add the data, write the PNG.
+
+    Import matplotlib, lay out the figure and draw it once (fonts and text are cached on that first
+    draw), then add the data read from stdin (a pickle) and write the PNG.
+    """
     import matplotlib
     matplotlib.use('Agg')
     figure = _figure()

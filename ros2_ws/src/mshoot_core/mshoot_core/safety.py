@@ -1,4 +1,5 @@
-"""Safety rules of the supervisory loop: input validation and the fallback chains.
+"""
+Safety rules of the supervisory loop: input validation and the fallback chains.
 
 A supervisory controller that stops publishing, or publishes NaN, is worse
 than none. This module holds the decisions; the ROS nodes only convert
@@ -56,7 +57,8 @@ PRICE_SERIES = 'price'
 
 @dataclasses.dataclass(frozen=True)
 class Rejection:
-    """Why an input was refused.
+    """
+    Why an input was refused.
 
     Attributes
     ----------
@@ -64,6 +66,7 @@ class Rejection:
         One of :data:`REJECTION_KINDS`.
     reason : str
         One sentence naming the bad value and what was expected.
+
     """
 
     kind: str
@@ -72,7 +75,8 @@ class Rejection:
 
 @dataclasses.dataclass(frozen=True)
 class Limits:
-    """Plausible ranges of the inputs (inclusive); values outside are rejected.
+    """
+    Plausible ranges of the inputs (inclusive); values outside are rejected.
 
     Attributes
     ----------
@@ -100,6 +104,7 @@ class Limits:
 
     Series of other names (a model's own disturbances) are only required to be
     finite.
+
     """
 
     zone_temperature_c: tuple[float, float] = (-50.0, 80.0)
@@ -129,7 +134,7 @@ LIMITS = Limits()
 # -- value checks -------------------------------------------------------------------------
 def check_value(name: str, value: Any, low: float = -math.inf,
                 high: float = math.inf) -> Rejection | None:
-    """A finite scalar within [low, high], else the rejection."""
+    """Check a finite scalar within [low, high]; return the rejection, else None."""
     try:
         x = float(value)
     except (TypeError, ValueError):
@@ -157,7 +162,7 @@ def check_series(name: str, values: Sequence[float], low: float = -math.inf,
 
 
 def check_stamp_fields(sec: int, nanosec: int) -> Rejection | None:
-    """A time stamp given as (seconds, nanoseconds): nanoseconds must be below 1e9."""
+    """Check a time stamp given as (seconds, nanoseconds): nanoseconds must be below 1e9."""
     if not 0 <= int(nanosec) < NS_PER_S:
         return Rejection('stamp', f'stamp nanosec = {nanosec} is outside [0, 999999999]')
     if int(sec) < 0:
@@ -168,18 +173,25 @@ def check_stamp_fields(sec: int, nanosec: int) -> Rejection | None:
 def check_names(field: str, names: Sequence[str], *, expected: Sequence[str] | None = None,
                 allowed: Sequence[str] | None = None,
                 limits: Limits = LIMITS) -> Rejection | None:
-    """The names of a named vector: distinct non-empty strings, and either exactly
-    ``expected`` (in any order) or a subset of ``allowed``.
+    """
+    Check the names of a named vector.
+
+    Distinct non-empty strings, and either exactly ``expected`` (in any order) or a subset of
+    ``allowed``.
 
     Parameters
     ----------
     field : str
         What the names name (for the message), e.g. 'state_names'.
     names : sequence of str
+        The names to check.
     expected : sequence of str, optional
         The names that must all be there, and no others.
     allowed : sequence of str, optional
         The names that may be there.
+    limits : Limits
+        Plausible ranges (``max_names``: at most that many names).
+
     """
     names = list(names)
     if len(names) > limits.max_names:
@@ -211,8 +223,12 @@ def check_named(field: str, names: Sequence[str], values: Sequence[float],
                 expected: Sequence[str] | None = None, allowed: Sequence[str] | None = None,
                 ranges: Mapping[str, tuple[float, float]] | None = None,
                 limits: Limits = LIMITS) -> Rejection | None:
-    """A named vector: one value per name (:func:`check_names`), each finite within
-    [low, high] (or its own range in ``ranges``)."""
+    """
+    Check a named vector: one value per name, each finite within its range.
+
+    One value per name (:func:`check_names`), each finite within [low, high] (or its own range in
+    ``ranges``).
+    """
     if len(values) != len(names):
         return Rejection('length', f'{field}: {len(names)} names but {len(values)} values')
     rejection = check_names(field, names, expected=expected, allowed=allowed, limits=limits)
@@ -227,8 +243,11 @@ def check_named(field: str, names: Sequence[str], values: Sequence[float],
 
 
 def reorder(names: Sequence[str], values: Sequence[float], order: Sequence[str]) -> np.ndarray:
-    """The values of a checked named vector in the order ``order`` (every name of ``order``
-    must be in ``names``)."""
+    """
+    Return the values of a checked named vector in the order ``order``.
+
+    Every name of ``order`` must be in ``names``.
+    """
     index = {name: k for k, name in enumerate(names)}
     x = np.asarray(values, dtype=float).reshape(-1)
     return np.array([x[index[name]] for name in order], dtype=float)
@@ -236,13 +255,17 @@ def reorder(names: Sequence[str], values: Sequence[float], order: Sequence[str])
 
 def unflatten(field: str, names: Sequence[str], values: Sequence[float], samples: int,
               limits: Limits = LIMITS) -> tuple[dict[str, np.ndarray], Rejection | None]:
-    """Named series flattened name-major (series i, sample k at ``values[i * samples + k]``)
-    as a dict, or the rejection (names not distinct, a length that does not match).
+    """
+    Split named series flattened name-major into a dict, or return the rejection.
+
+    Series i, sample k at ``values[i * samples + k]``; rejected: names not distinct, a length that
+    does not match.
 
     Returns
     -------
     (series, rejection)
         ``series`` is empty when ``rejection`` is not None.
+
     """
     rejection = check_names(field, names, limits=limits)
     if rejection:
@@ -259,15 +282,18 @@ def named_series(series_names: Sequence[str], series_values: Sequence[float],
                  comfort_min_c: Sequence[float], comfort_max_c: Sequence[float],
                  price_per_kwh: Sequence[float] = (),
                  limits: Limits = LIMITS) -> tuple[dict[str, np.ndarray], Rejection | None]:
-    """The series of a forecast by name from its message form: disturbance series flattened
-    name-major with n = ``len(comfort_min_c)`` samples each, the comfort band and the price
-    (none when empty); what :func:`check_forecast` then validates.
+    """
+    Return the series of a forecast by name from its message form.
+
+    Disturbance series flattened name-major with n = ``len(comfort_min_c)`` samples each, the
+    comfort band and the price (none when empty); what :func:`check_forecast` then validates.
 
     Returns
     -------
     (series, rejection)
         ``rejection`` when the names repeat, clash with the comfort band or the price, or
         the flattened values do not hold n samples per name (then ``series`` is empty).
+
     """
     series, rejection = unflatten('forecast series_names', series_names, series_values,
                                   len(comfort_min_c), limits)
@@ -290,7 +316,8 @@ def check_zone_state(state_names: Sequence[str], state_values: Sequence[float],
                      *, expected_states: Sequence[str] | None = None,
                      allowed_controls: Sequence[str] | None = None,
                      limits: Limits = LIMITS) -> Rejection | None:
-    """A measured state of a building's zones: named states, outputs and applied controls.
+    """
+    Check a measured state of a building's zones: named states, outputs and applied controls.
 
     Parameters
     ----------
@@ -307,6 +334,9 @@ def check_zone_state(state_names: Sequence[str], state_values: Sequence[float],
         The receiver's model states: exactly these names (any order).
     allowed_controls : sequence of str, optional
         The receiver's controls: the applied ones must be among them.
+    limits : Limits
+        Plausible ranges.
+
     """
     return (check_named('state', state_names, state_values, expected=expected_states,
                         limits=limits)
@@ -318,8 +348,12 @@ def check_zone_state(state_names: Sequence[str], state_values: Sequence[float],
 
 def check_disturbances(names: Sequence[str], values: Sequence[float],
                        limits: Limits = LIMITS) -> Rejection | None:
-    """Measured disturbances by name (Tout [degC], solrad [W/m2], occ [persons], dpos [%]
-    within their plausible ranges; other names finite)."""
+    """
+    Check measured disturbances by name.
+
+    Tout [degC], solrad [W/m2], occ [persons], dpos [%] within their plausible ranges; other names
+    finite.
+    """
     return check_named('disturbance', names, values, ranges=limits.forecast_ranges,
                        limits=limits)
 
@@ -328,7 +362,8 @@ def check_forecast(step_s: float, series: Mapping[str, Sequence[float]],
                    expected_step_s: float | None = None, limits: Limits = LIMITS, *,
                    required: Sequence[str] = FORECAST_SERIES,
                    known: Sequence[str] | None = None) -> Rejection | None:
-    """A forecast of the disturbances, the comfort band and the energy price.
+    """
+    Check a forecast of the disturbances, the comfort band and the energy price.
 
     Parameters
     ----------
@@ -349,6 +384,7 @@ def check_forecast(step_s: float, series: Mapping[str, Sequence[float]],
     known : sequence of str, optional
         Every series name the receiver understands (besides ``required``);
         another name is rejected (kind 'names'). None: any name.
+
     """
     rejection = check_value('step_s', step_s, 1e-9, math.inf)
     if rejection:
@@ -394,7 +430,8 @@ def check_setpoint(step_s: float, control_names: Sequence[str],
                    expected_step_s: float | None = None,
                    expected_controls: Sequence[str] | None = None,
                    limits: Limits = LIMITS) -> Rejection | None:
-    """A supervisory setpoint: named controls, zone temperature setpoints, the plan.
+    """
+    Check a supervisory setpoint: named controls, zone temperature setpoints, the plan.
 
     Parameters
     ----------
@@ -415,6 +452,9 @@ def check_setpoint(step_s: float, control_names: Sequence[str],
         The receiver's control step [s].
     expected_controls : sequence of str, optional
         The receiver's controls: exactly these names (any order).
+    limits : Limits
+        Plausible ranges.
+
     """
     rejection = check_value('step_s', step_s, 1e-9, math.inf)
     if rejection:
@@ -449,7 +489,8 @@ def check_setpoint(step_s: float, control_names: Sequence[str],
 
 # -- time stamps --------------------------------------------------------------------------
 class StampGate:
-    """Refuses stamps that go backwards, lie in the future or are too old to be used.
+    """
+    Refuses stamps that go backwards, lie in the future or are too old to be used.
 
     One gate per input stream. The rules, in order, for a stamp ``t`` when the
     receiver's clock reads ``now`` (0: no clock yet, e.g. simulated time before
@@ -470,6 +511,7 @@ class StampGate:
     max_future_ns : int
         Largest lead over the clock [ns] (data and clock topics are not
         ordered, so a stamp one step ahead is normal in simulated time).
+
     """
 
     def __init__(self, step_ns: int, max_age_ns: int = 0, max_future_ns: int = 0) -> None:
@@ -482,7 +524,7 @@ class StampGate:
         self.latest_ns: int | None = None
 
     def check(self, stamp_ns: int, now_ns: int) -> Rejection | None:
-        """The rejection of a stamp, or None if it is acceptable (see the class docstring)."""
+        """Return the rejection of a stamp, None if acceptable (see the class docstring)."""
         stamp_ns, now_ns = int(stamp_ns), int(now_ns)
         if self.latest_ns is not None:
             if stamp_ns == self.latest_ns:
@@ -503,8 +545,11 @@ class StampGate:
         return None
 
     def accept(self, stamp_ns: int, now_ns: int) -> None:
-        """Remember an accepted stamp (only once a clock runs: a stamp that could not be
-        checked against the clock must not lock out the ones that follow)."""
+        """
+        Remember an accepted stamp, only once a clock runs.
+
+        A stamp that could not be checked against the clock must not lock out the ones that follow.
+        """
         if int(now_ns) > 0:
             self.latest_ns = max(int(stamp_ns), self.latest_ns or 0)
 
@@ -518,12 +563,14 @@ def _s(ns: int) -> str:
 
 
 class RejectionCounter:
-    """Counts rejections per input stream and kind.
+    """
+    Counts rejections per input stream and kind.
 
     Attributes
     ----------
     counts : Counter
         (stream, kind) -> number of rejections.
+
     """
 
     def __init__(self) -> None:
@@ -550,7 +597,8 @@ class RejectionCounter:
 # -- the MPC fallback chain ---------------------------------------------------------------
 @dataclasses.dataclass(frozen=True)
 class Decision:
-    """The setpoint of one control step and where it comes from.
+    """
+    The setpoint of one control step and where it comes from.
 
     Attributes
     ----------
@@ -573,6 +621,7 @@ class Decision:
         '' or one of :data:`FALLBACK_CODES`: why the solve result was not used.
     reason : str
         '' or one sentence saying why, and what was used instead.
+
     """
 
     t_s: float
@@ -594,7 +643,8 @@ class _GoodPlan:
 
 
 class SetpointSupervisor:
-    """The MPC's fallback chain: the optimum, else the last good plan, else the safe setpoint.
+    """
+    The MPC's fallback chain: the optimum, else the last good plan, else the safe setpoint.
 
     Parameters
     ----------
@@ -614,6 +664,7 @@ class SetpointSupervisor:
         Relative slack on the control bounds before a plan is refused (a
         solver's bound satisfaction is only up to its tolerance; within it the
         controls are clipped).
+
     """
 
     def __init__(self, control_bounds: Sequence[tuple[float, float]], step_s: float,
@@ -656,8 +707,11 @@ class SetpointSupervisor:
         self.consecutive_fallbacks = 0
 
     def plan_problem(self, controls: Any, states: Any) -> str | None:
-        """Why a plan cannot be applied (non-finite, outside the bounds or the state
-        range, wrong shape), or None."""
+        """
+        Return why a plan cannot be applied, or None.
+
+        The reasons: non-finite, outside the bounds or the state range, wrong shape.
+        """
         try:
             u = np.asarray(controls, dtype=float)
             x = np.asarray(states, dtype=float)
@@ -684,7 +738,8 @@ class SetpointSupervisor:
         return None
 
     def review(self, t_s: float, result: Any, *, accept_unconverged: bool = True) -> Decision:
-        """The setpoint of the step at ``t_s`` given its solve result.
+        """
+        Return the setpoint of the step at ``t_s`` given its solve result.
 
         Parameters
         ----------
@@ -696,6 +751,7 @@ class SetpointSupervisor:
         accept_unconverged : bool
             Use the best plan of a solver that did not converge (the offline
             loop does) if it is sane; else fall back.
+
         """
         try:
             controls = np.asarray(result.controls, dtype=float)
@@ -717,7 +773,8 @@ class SetpointSupervisor:
                         states.copy(), 'optimum', False)
 
     def fallback(self, t_s: float, code: str, reason: str) -> Decision:
-        """The fallback of the step at ``t_s``: the last good plan's interval, else safe.
+        """
+        Return the fallback of the step at ``t_s``: the last good plan's interval, else safe.
 
         Parameters
         ----------
@@ -727,6 +784,7 @@ class SetpointSupervisor:
             One of :data:`FALLBACK_CODES`.
         reason : str
             Why the step's own solve cannot be used.
+
         """
         if code not in FALLBACK_CODES:
             raise ValueError(f'code must be one of {list(FALLBACK_CODES)}, got {code!r}')
@@ -748,7 +806,7 @@ class SetpointSupervisor:
                          f'{self.safe_controls.tolist()} ({why})')
 
     def safe(self, t_s: float, code: str, reason: str) -> Decision:
-        """The last link of the chain: the safe setpoint, with ``reason`` as given."""
+        """Return the last link of the chain: the safe setpoint, with ``reason`` as given."""
         self.sources['safe'] += 1
         nx = self._plan.states.shape[1] if self._plan is not None else 0
         return Decision(float(t_s), self.safe_controls.copy(), None,
@@ -759,7 +817,8 @@ class SetpointSupervisor:
 # -- waiting for inputs -------------------------------------------------------------------
 @dataclasses.dataclass(frozen=True)
 class InputWait:
-    """How long a due control step waits for a missing or stale input.
+    """
+    How long a due control step waits for a missing or stale input.
 
     The wait is measured from the moment the controller found the step due
     (a controller started in the middle of a step waits too), on two clocks:
@@ -772,13 +831,14 @@ class InputWait:
     deadline_s : float
         Time on the controller's own clock [s] (simulated time running freely,
         or real time) after which the step gets a fallback; 0 disables it.
+
     """
 
     wait_s: float = 5.0
     deadline_s: float = 1800.0
 
     def overdue(self, waited_wall_s: float, waited_clock_s: float) -> bool:
-        """True when the step should stop waiting and fall back."""
+        """Return True when the step should stop waiting and fall back."""
         return waited_wall_s >= self.wait_s or (
             self.deadline_s > 0 and waited_clock_s >= self.deadline_s)
 
@@ -786,7 +846,8 @@ class InputWait:
 # -- the emulator's hold policy -----------------------------------------------------------
 @dataclasses.dataclass(frozen=True)
 class HoldDecision:
-    """Controls the building applies over a step.
+    """
+    Controls the building applies over a step.
 
     Attributes
     ----------
@@ -799,6 +860,7 @@ class HoldDecision:
         NaN for 'safe').
     reason : str
         '' for 'setpoint', else one sentence.
+
     """
 
     controls: np.ndarray
@@ -808,7 +870,8 @@ class HoldDecision:
 
 
 class SetpointHold:
-    """What a building applies when the supervisory setpoint of a step is missing.
+    """
+    What a building applies when the supervisory setpoint of a step is missing.
 
     Parameters
     ----------
@@ -816,6 +879,7 @@ class SetpointHold:
         The safe default controls.
     hold_s : float
         How long after its step's start a setpoint may still be applied [s].
+
     """
 
     def __init__(self, safe_controls: Sequence[float], hold_s: float) -> None:
@@ -833,7 +897,7 @@ class SetpointHold:
         return None if self._latest is None else self._latest[0]
 
     def offer(self, t_s: float, controls: Sequence[float]) -> None:
-        """A validated setpoint for the step starting at ``t_s`` (older ones are ignored)."""
+        """Offer a validated setpoint for the step starting at ``t_s`` (older ones are ignored)."""
         u = np.asarray(controls, dtype=float).reshape(-1)
         if u.shape != self.safe_controls.shape or not np.all(np.isfinite(u)):
             raise ValueError(f'controls must be {self.safe_controls.size} finite values, '
@@ -842,7 +906,7 @@ class SetpointHold:
             self._latest = (float(t_s), u.copy())
 
     def controls_for(self, t_s: float) -> HoldDecision:
-        """The controls of the step starting at ``t_s``."""
+        """Return the controls of the step starting at ``t_s``."""
         if self._latest is not None:
             stamp, u = self._latest
             age = float(t_s) - stamp

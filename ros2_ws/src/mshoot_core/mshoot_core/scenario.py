@@ -1,4 +1,5 @@
-"""Scenarios: disturbance time series and the comfort band, indexed by time [s].
+"""
+Scenarios: disturbance time series and the comfort band, indexed by time [s].
 
 A scenario is a DataFrame indexed by seconds since its start (hourly rows by
 default) with the columns of :data:`SCENARIO_COLUMNS`:
@@ -39,9 +40,10 @@ PUBLISHED = {2: {'energy_kwh': 40.9, 'discomfort_kh_hourly': 17.9, 'wall_s': 116
 
 def comfort_band(hours_of_day: np.ndarray, occupied: tuple[float, float] = (21.0, 22.0),
                  unoccupied: tuple[float, float] = (19.0, 24.0),
-                 occupied_hours: tuple[float, float] = (8.0, 17.0)) -> tuple[np.ndarray,
-                                                                              np.ndarray]:
-    """Comfort band of the reference case at the given hours of day.
+                 occupied_hours: tuple[float, float] = (8.0, 17.0)
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Comfort band of the reference case at the given hours of day.
 
     Parameters
     ----------
@@ -55,6 +57,7 @@ def comfort_band(hours_of_day: np.ndarray, occupied: tuple[float, float] = (21.0
     Returns
     -------
     (comfort_min, comfort_max) : ndarrays [degC]
+
     """
     hours = np.asarray(hours_of_day, dtype=float)
     occ = (hours >= occupied_hours[0]) & (hours < occupied_hours[1])
@@ -64,7 +67,8 @@ def comfort_band(hours_of_day: np.ndarray, occupied: tuple[float, float] = (21.0
 
 def load_ou44(path: str | pathlib.Path, start: str = '2018-04-05 00:00',
               end: str = '2018-04-08 00:00', step_s: float = 3600.0) -> pd.DataFrame:
-    """Load the OU44 measurements, resampled to ``step_s`` means, as a scenario.
+    """
+    Load the OU44 measurements, resampled to ``step_s`` means, as a scenario.
 
     Parameters
     ----------
@@ -85,6 +89,7 @@ def load_ou44(path: str | pathlib.Path, start: str = '2018-04-05 00:00',
     ------
     FileNotFoundError, ValueError
         If the file is missing, lacks columns, or does not cover the range.
+
     """
     path = pathlib.Path(path)
     if not path.is_file():
@@ -118,7 +123,8 @@ def load_ou44(path: str | pathlib.Path, start: str = '2018-04-05 00:00',
 
 
 def synthetic_scenario(hours: int = 73, seed: int = 0, step_s: float = 3600.0) -> pd.DataFrame:
-    """A built-in scenario that needs no files: three spring days in a classroom.
+    """
+    Return a built-in scenario that needs no files: three spring days in a classroom.
 
     Outdoor temperature follows a daily sine (mean 7 degC, amplitude 4 K,
     minimum at 04:00), solar radiation a clipped half-sine (peak 450 W/m2 at
@@ -134,6 +140,7 @@ def synthetic_scenario(hours: int = 73, seed: int = 0, step_s: float = 3600.0) -
         Seed of the day-to-day noise.
     step_s : float
         Row spacing [s].
+
     """
     if hours < 2:
         raise ValueError(f'hours must be >= 2, got {hours}')
@@ -172,7 +179,8 @@ def validate_scenario(scenario: pd.DataFrame) -> None:
 
 def reference_scenario(name: str, data: str | pathlib.Path | None = None,
                        hours: int = 72) -> pd.DataFrame:
-    """The scenario of the MPC case: ``hours`` control steps (``hours + 1`` rows).
+    """
+    Return the scenario of the MPC case: ``hours`` control steps (``hours + 1`` rows).
 
     Parameters
     ----------
@@ -189,6 +197,7 @@ def reference_scenario(name: str, data: str | pathlib.Path | None = None,
     ------
     FileNotFoundError, ValueError
         Missing data, or data that does not cover ``hours``.
+
     """
     if hours < 1:
         raise ValueError(f'hours must be >= 1, got {hours}')
@@ -202,7 +211,8 @@ def reference_scenario(name: str, data: str | pathlib.Path | None = None,
 
 
 def forecast_window(scenario: pd.DataFrame, index: int, horizon_steps: int) -> pd.DataFrame:
-    """Rows ``index .. index + horizon_steps`` of ``scenario`` (N+1 rows).
+    """
+    Rows ``index .. index + horizon_steps`` of ``scenario`` (N+1 rows).
 
     Past the end of the scenario the last row is repeated (a persistence
     forecast), so the controller can plan the final hours of a run.

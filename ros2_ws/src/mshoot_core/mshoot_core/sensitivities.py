@@ -1,4 +1,5 @@
-"""Finite-difference interval sensitivities, batched and column-grouped.
+"""
+Finite-difference interval sensitivities, batched and column-grouped.
 
 Interval k depends only on its own start state and inputs, so its Jacobian
 is a small (nx + ny) x (nx + nc) block. All intervals and all perturbations go
@@ -15,7 +16,8 @@ from mshoot_core.models.base import IntervalJacobians, Model
 
 
 def column_groups(pattern: np.ndarray) -> list[list[int]]:
-    """Greedy grouping of columns that share no non-zero row.
+    """
+    Greedy grouping of columns that share no non-zero row.
 
     Parameters
     ----------
@@ -25,6 +27,7 @@ def column_groups(pattern: np.ndarray) -> list[list[int]]:
     Returns
     -------
     list of lists of column indices; every column appears in exactly one group.
+
     """
     pattern = np.asarray(pattern, dtype=bool)
     groups: list[list[int]] = []
@@ -48,12 +51,15 @@ def finite_difference_jacobians(model: Model, x_start: np.ndarray, u: np.ndarray
                                 pattern: np.ndarray | None = None,
                                 t_start_s: np.ndarray | None = None
                                 ) -> tuple[IntervalJacobians, int]:
-    """Forward-difference end values and sensitivities of B intervals in one batch.
+    """
+    Forward-difference end values and sensitivities of B intervals in one batch.
 
     Parameters
     ----------
     model : Model
+        The model whose intervals are perturbed.
     x_start : ndarray, shape (B, nx)
+        Start state of each interval.
     u : ndarray, shape (B, nu)
         Inputs of each interval (all columns).
     dt_s : float
@@ -75,6 +81,7 @@ def finite_difference_jacobians(model: Model, x_start: np.ndarray, u: np.ndarray
     Returns
     -------
     (IntervalJacobians, number of interval simulations spent)
+
     """
     batch, nx = x_start.shape
     nc = len(wrt_inputs)

@@ -1,4 +1,5 @@
-"""Settings of the controller as data: frozen, validated dataclasses described once.
+"""
+Settings of the controller as data: frozen, validated dataclasses described once.
 
 Every setting of the MPC and of its supervisor is a field of one of the
 groups below, with its default, a description with its unit, its range or
@@ -43,7 +44,8 @@ class SettingsError(ValueError):
 def setting(default: Any, description: str, *, low: float | None = None,
             high: float | None = None, choices: tuple[str, ...] = (), apply: str = 'rebuild',
             cli: str | None = None, also: tuple[str, ...] = ()) -> Any:
-    """A dataclass field described for the CLI and the node parameters.
+    """
+    Return a dataclass field described for the CLI and the node parameters.
 
     Parameters
     ----------
@@ -61,6 +63,7 @@ def setting(default: Any, description: str, *, low: float | None = None,
         Command-line option (default ``--name-with-dashes``).
     also : tuple of str
         Other groups a change also reconfigures (from :data:`APPLY`).
+
     """
     return dataclasses.field(default=default, metadata={
         'description': description, 'low': low, 'high': high, 'choices': tuple(choices),
@@ -84,7 +87,7 @@ class SettingField:
 
     @property
     def read_only(self) -> bool:
-        """True when the setting cannot change once a controller runs."""
+        """Return True when the setting cannot change once a controller runs."""
         return self.apply == 'fixed'
 
     @property
@@ -121,8 +124,11 @@ def _g(bound: float | None) -> str:
 
 
 class SettingsGroup:
-    """Shared behaviour of the settings groups (field checks; cross-field rules in
-    :meth:`rules`)."""
+    """
+    Shared behaviour of the settings groups.
+
+    Field checks here; cross-field rules in :meth:`rules`.
+    """
 
     def problems(self) -> list[str]:
         """Every problem of this group (empty when valid)."""
@@ -134,7 +140,7 @@ class SettingsGroup:
         return out if out else self.rules()
 
     def rules(self) -> list[str]:
-        """Cross-field rules (checked once every field is valid)."""
+        """Return the cross-field problems (checked once every field is valid)."""
         return []
 
 
@@ -155,7 +161,7 @@ class ProblemSettings(SettingsGroup):
                               "violation, then least cost) or 'exact-penalty' (one solve)",
                               choices=('two-phase', 'exact-penalty'))
     mode: str = setting('fast', "'fast': batched structured sensitivities; 'naive': the "
-                        "original MShoot algorithm (slow, for comparison)",
+                        'original MShoot algorithm (slow, for comparison)',
                         choices=('fast', 'naive'), apply='fixed')
     blas_threads: int = setting(1, 'BLAS threads during a solve (0: the library default) [-]',
                                 low=0, high=256, apply='fixed')
@@ -185,9 +191,9 @@ class ComfortSettings(SettingsGroup):
     comfort: str = setting('hard', "'hard': the band as bounds, relaxed where unreachable; "
                            "'soft': slack with penalty", choices=('hard', 'soft'),
                            apply='comfort')
-    soft_penalty: float = setting(1e3, "weight of the quadratic penalty on normalised slack "
+    soft_penalty: float = setting(1e3, 'weight of the quadratic penalty on normalised slack '
                                   "(comfort 'soft') [-]", low=1e-9, high=1e12, apply='comfort')
-    soft_penalty_linear: float = setting(0.0, "weight of the linear penalty on normalised "
+    soft_penalty_linear: float = setting(0.0, 'weight of the linear penalty on normalised '
                                          "slack (comfort 'soft') [-]", low=0.0, high=1e12)
 
     @property
@@ -274,7 +280,7 @@ GROUPS: dict[str, type] = {'problem': ProblemSettings, 'comfort': ComfortSetting
 
 
 def fields_of(group: type) -> tuple[SettingField, ...]:
-    """The described settings of one group (fields without a description are left out)."""
+    """Return the described settings of one group (fields without a description are left out)."""
     out = []
     for f in dataclasses.fields(group):
         if 'description' not in f.metadata:
@@ -288,12 +294,14 @@ def fields_of(group: type) -> tuple[SettingField, ...]:
 
 @dataclasses.dataclass(frozen=True)
 class MpcSettings:
-    """Every setting of the controller; validated on construction.
+    """
+    Every setting of the controller; validated on construction.
 
     Raises
     ------
     SettingsError
         With every problem of every group.
+
     """
 
     problem: ProblemSettings = dataclasses.field(default_factory=ProblemSettings)
@@ -321,12 +329,16 @@ class MpcSettings:
 
     @classmethod
     def from_flat(cls, values: Mapping[str, Any] | None = None, /, **more: Any) -> MpcSettings:
-        """Settings from flat names (those of :data:`PARAMETERS`, plus ``control_names``
-        and ``solver_extra``); unknown names are problems too."""
+        """
+        Build settings from flat names; unknown names are problems too.
+
+        The flat names are those of :data:`PARAMETERS`, plus ``control_names`` and
+        ``solver_extra``.
+        """
         return cls().replace(values, **more)
 
     def replace(self, values: Mapping[str, Any] | None = None, /, **more: Any) -> MpcSettings:
-        """A copy with the flat-named settings changed, validated (every problem at once)."""
+        """Return a copy with flat-named settings changed, validated (every problem at once)."""
         changes = {**(values or {}), **more}
         by_group: dict[str, dict[str, Any]] = {name: {} for name in GROUPS}
         unknown = []
@@ -382,7 +394,8 @@ assert len(BY_NAME) == len(PARAMETERS), 'flat setting names must be unique'
 # -- the command line ---------------------------------------------------------------------
 def add_arguments(parser: argparse.ArgumentParser, names: Iterable[str],
                   defaults: Mapping[str, Any] | None = None) -> None:
-    """Add the settings ``names`` as options of ``parser`` (help from their descriptions).
+    """
+    Add the settings ``names`` as options of ``parser`` (help from their descriptions).
 
     Options are parsed as strings of the setting's type; validation is left to
     :meth:`MpcSettings.replace`, so every problem is reported at once.
@@ -402,8 +415,12 @@ def add_arguments(parser: argparse.ArgumentParser, names: Iterable[str],
 
 
 def option_wording(problem: str, fields: Iterable[SettingField] = ()) -> str:
-    """A settings problem in command-line words: ``horizon_steps must ...`` becomes
-    ``--horizon must ...`` (the described settings, plus ``fields``)."""
+    """
+    Word a settings problem in command-line terms.
+
+    ``horizon_steps must ...`` becomes ``--horizon must ...`` (the described settings, plus
+    ``fields``).
+    """
     for f in (*PARAMETERS, *fields):
         if problem.startswith(f.name + ' '):
             return (f.cli or '--' + f.name.replace('_', '-')) + problem[len(f.name):]
@@ -420,5 +437,5 @@ def _parse_bool(text: str) -> bool:
 
 def from_arguments(args: argparse.Namespace, names: Iterable[str],
                    base: MpcSettings | None = None) -> MpcSettings:
-    """Settings from parsed options (see :func:`add_arguments`)."""
+    """Build settings from parsed options (see :func:`add_arguments`)."""
     return (base or MpcSettings()).replace({name: getattr(args, name) for name in names})

@@ -1,4 +1,5 @@
-"""Multiple shooting: the horizon as N intervals, each simulated from its own start state.
+"""
+Multiple shooting: the horizon as N intervals, each simulated from its own start state.
 
 Decision variables (normalised, see :class:`NlpIndex`):
 
@@ -45,7 +46,8 @@ CostFunction = Callable[[np.ndarray, np.ndarray, np.ndarray], float]
 
 @dataclasses.dataclass(frozen=True)
 class NlpIndex:
-    """Named views into the NLP vector (no stride arithmetic elsewhere).
+    """
+    Named views into the NLP vector (no stride arithmetic elsewhere).
 
     Layout: ``[u (N, nc) | x (N, nx) | s (N, nx) if soft]``, row-major.
     """
@@ -75,7 +77,7 @@ class NlpIndex:
         return slice(start, start + (self.n_intervals * self.n_states if self.soft else 0))
 
     def u(self, z: np.ndarray) -> np.ndarray:
-        """Controls, shape (N, nc) (a view)."""
+        """Return the controls, shape (N, nc) (a view)."""
         return z[self.u_slice].reshape(self.n_intervals, self.n_controls)
 
     def x(self, z: np.ndarray) -> np.ndarray:
@@ -115,7 +117,8 @@ class Scaling:
 
 
 class ShootingResult(optimize.OptimizeResult):
-    """Result of one multiple-shooting solve (extends :class:`scipy.optimize.OptimizeResult`).
+    """
+    Result of one multiple-shooting solve (extends :class:`scipy.optimize.OptimizeResult`).
 
     Keys beyond SciPy's (success, status, message, fun, nit, nfev, x):
     ``controls`` (N, nc) physical plan; ``states`` (N+1, nx) predicted states
@@ -129,7 +132,8 @@ class ShootingResult(optimize.OptimizeResult):
 
 
 class ShootingProblem:
-    """A multiple-shooting optimal control problem over one horizon.
+    """
+    A multiple-shooting optimal control problem over one horizon.
 
     Parameters
     ----------
@@ -174,6 +178,7 @@ class ShootingProblem:
     fd_step : float, optional
         Finite-difference step on normalised variables (default from the
         model's ``tolerance`` attribute: max(1e-7, sqrt(tolerance))).
+
     """
 
     def __init__(self, model: Model, problem: ProblemSettings | None = None,
@@ -257,7 +262,8 @@ class ShootingProblem:
     def evaluate_intervals(self, x_start: np.ndarray, controls: np.ndarray,
                            disturbances: np.ndarray, sensitivities: bool = True,
                            t_start_s: np.ndarray | None = None) -> IntervalJacobians:
-        """End states, outputs and sensitivities of all intervals in one batch.
+        """
+        End states, outputs and sensitivities of all intervals in one batch.
 
         Uses the model's analytic ``interval_jacobians`` where it has them,
         otherwise forward finite differences on normalised variables, all
@@ -297,8 +303,9 @@ class ShootingProblem:
         return Scaling(np.where(bounded, lo, 0.0), np.where(bounded, hi - lo, 1.0))
 
     def reachable_envelope(self, x0: np.ndarray, disturbances: np.ndarray) -> tuple[np.ndarray,
-                                                                                   np.ndarray]:
-        """Element-wise min and max of the state trajectories under the extreme controls.
+                                                                                    np.ndarray]:
+        """
+        Element-wise min and max of the state trajectories under the extreme controls.
 
         Simulates the horizon with every control at its lower bound and at its
         upper bound (both trajectories side by side: one batch of two intervals
@@ -323,7 +330,8 @@ class ShootingProblem:
     def relax_bounds(self, x0: np.ndarray, disturbances: np.ndarray, lower: np.ndarray,
                      upper: np.ndarray, margin: float = 1e-4) -> tuple[np.ndarray, np.ndarray,
                                                                        bool]:
-        """Relax state bounds that no control can reach from ``x0``.
+        """
+        Relax state bounds that no control can reach from ``x0``.
 
         Where even the extreme controls cannot bring a state inside its bounds
         (too little capacity, or an initial state outside the band), the bound
@@ -336,6 +344,7 @@ class ShootingProblem:
         lower, upper : ndarray, shape (N, nx)
         relaxed : bool
             Whether any bound moved.
+
         """
         env_low, env_high = self.reachable_envelope(x0, disturbances)
         pad = margin * self._state_scaling_for(lower, upper).scale
@@ -348,7 +357,8 @@ class ShootingProblem:
               upper: np.ndarray, solver: Solver, z0: np.ndarray | None = None,
               relax: bool = True, deadline: float | None = None,
               t0_s: float | None = None) -> ShootingResult:
-        """Optimise the horizon from ``x0``.
+        """
+        Optimise the horizon from ``x0``.
 
         With hard bounds, where the band cannot be reached from ``x0`` (the
         extreme controls cannot bring the state inside, or the hard problem
@@ -390,6 +400,7 @@ class ShootingProblem:
         ModelValueError
             If the model produces non-finite values (e.g. an FMU's NaN): the
             solve is over, the caller falls back.
+
         """
         started = time.perf_counter()
         self.model_evaluations = 0
@@ -436,8 +447,12 @@ class ShootingProblem:
     def _solve_least_violation(self, x0: np.ndarray, disturbances: np.ndarray,
                                lower: np.ndarray, upper: np.ndarray, solver: Solver,
                                z0: np.ndarray) -> ShootingResult:
-        """Phase 1: least violation (soft bounds, exact linear penalty); phase 2 (two-phase
-        relaxation): least cost within the relaxed bounds."""
+        """
+        Solve for the least violation of the bounds, then (two-phase) the least cost within them.
+
+        Phase 1: least violation (soft bounds, exact linear penalty); phase 2 (two-phase
+        relaxation): least cost within the relaxed bounds.
+        """
         soft = NlpIndex(self.n_intervals, self.index.n_controls, self.index.n_states, True)
         phase1 = self._solve_nlp(x0, disturbances, lower, upper, solver,
                                  soft.pack(self.index.u(z0), self.index.x(z0)), soft,
@@ -530,7 +545,6 @@ class ShootingProblem:
         ub = np.full(idx.size, np.inf)
         lb[idx.u_slice] = np.tile(u_lo, n)
         ub[idx.u_slice] = np.tile(u_hi, n)
-        ineq_fun = ineq_jac = None
         if idx.soft:
             lb[idx.s_slice] = 0.0
             finite_lo = np.isfinite(lower_hat).reshape(-1)
@@ -544,6 +558,7 @@ class ShootingProblem:
 
             ineq_jac = _band_jacobian(idx, finite_lo, finite_hi)
         else:
+            ineq_fun = ineq_jac = None
             lb[idx.x_slice] = lower_hat.reshape(-1)
             ub[idx.x_slice] = upper_hat.reshape(-1)
 
@@ -585,8 +600,11 @@ class ShootingProblem:
         return result
 
     def _continuity_structure(self, idx: NlpIndex) -> 'ContinuityStructure':
-        """The continuity-constraint structure of the layout ``idx`` (built once per layout:
-        the model's pattern is fixed)."""
+        """
+        Return the continuity-constraint structure of the layout ``idx``.
+
+        Built once per layout: the model's pattern is fixed.
+        """
         if idx not in self._structures:
             self._structures[idx] = ContinuityStructure(
                 idx, self.model.jacobian_sparsity(self.control_cols))
@@ -594,7 +612,8 @@ class ShootingProblem:
 
     def simulate_serially(self, x_start: np.ndarray, controls: np.ndarray,
                           disturbances: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Interval end states and outputs, one ``simulate`` call (DataFrames) per interval.
+        """
+        Interval end states and outputs, one ``simulate`` call (DataFrames) per interval.
 
         Models that can simulate the way the ancestor did (an FMU loaded from its
         file for every simulation: ``simulate_fresh``) do so here.
@@ -616,7 +635,7 @@ class ShootingProblem:
 
     def _naive_nlp(self, nlp: Nlp, idx: NlpIndex, x0: np.ndarray, disturbances: np.ndarray,
                    fast_fun: Callable[[np.ndarray], float]) -> Nlp:
-        """The ancestor's evaluation: serial simulations, no cache, no derivatives."""
+        """Return the ancestor's evaluation: serial simulations, no cache, no derivatives."""
         xs, us = self._x_scaling, self.control_scaling
 
         def simulate(z: np.ndarray) -> np.ndarray:
@@ -653,7 +672,7 @@ class ShootingProblem:
 
     def _cost_functions(self, evaluate: Callable[[np.ndarray], IntervalJacobians],
                         idx: NlpIndex) -> tuple[Callable[[np.ndarray], float],
-                                   Callable[[np.ndarray], np.ndarray]]:
+                                                Callable[[np.ndarray], np.ndarray]]:
         if self.cost == 'quadratic':
             def cost(z: np.ndarray) -> float:
                 return float(np.sum(idx.u(z) ** 2))
@@ -721,7 +740,8 @@ class ShootingProblem:
 
 
 class ContinuityStructure:
-    """Sparse structure and values of the continuity-constraint Jacobian.
+    """
+    Sparse structure and values of the continuity-constraint Jacobian.
 
     Row block k (the nx continuity equations of interval k) has the entries
     d x_hat_end_k / d u_hat_k (the model's declared pattern), -I on x_hat_k,
@@ -734,6 +754,7 @@ class ContinuityStructure:
     idx : NlpIndex
     pattern : ndarray of bool, shape (nx + ny, nx + nc), or None
         The model's interval Jacobian structure (None: dense blocks).
+
     """
 
     def __init__(self, idx: NlpIndex, pattern: np.ndarray | None) -> None:
@@ -756,7 +777,7 @@ class ContinuityStructure:
 
     def values(self, dx_du: np.ndarray, dx_dx0: np.ndarray, x_scale: np.ndarray,
                u_scale: np.ndarray) -> np.ndarray:
-        """The entries at (:attr:`rows`, :attr:`cols`) from the interval sensitivities."""
+        """Return the entries at (:attr:`rows`, :attr:`cols`) from the interval sensitivities."""
         du = dx_du[:, self.u_rows, self.u_cols] * (u_scale[self.u_cols] / x_scale[self.u_rows])
         dx = dx_dx0[1:, self.x_rows, self.x_cols] * (x_scale[self.x_cols]
                                                      / x_scale[self.x_rows])
@@ -764,16 +785,19 @@ class ContinuityStructure:
 
     def matrix(self, dx_du: np.ndarray, dx_dx0: np.ndarray, x_scale: np.ndarray,
                u_scale: np.ndarray) -> sparse.coo_array:
-        """The Jacobian (normalised variables) from the interval sensitivities."""
+        """Return the Jacobian (normalised variables) from the interval sensitivities."""
         return sparse.coo_array((self.values(dx_du, dx_dx0, x_scale, u_scale),
                                  (self.rows, self.cols)), shape=self.shape)
 
 
 def _band_jacobian(idx: NlpIndex, finite_lo: np.ndarray,
                    finite_hi: np.ndarray) -> SparseJacobian:
-    """The constant Jacobian of the soft band x_hat - lower + s_hat >= 0 (rows of the
-    finite lower bounds), upper - x_hat + s_hat >= 0 (finite upper bounds): per row the
-    entry of x, then that of s."""
+    """
+    Return the constant Jacobian of the soft comfort band.
+
+    The band is x_hat - lower + s_hat >= 0 (rows of the finite lower bounds), upper - x_hat + s_hat
+    >= 0 (finite upper bounds): per row the entry of x, then that of s.
+    """
     x_cols = idx.x_slice.start + np.arange(idx.n_intervals * idx.n_states)
     s_cols = idx.s_slice.start + np.arange(idx.n_intervals * idx.n_states)
     parts = [(x_cols[finite_lo], s_cols[finite_lo], 1.0),

@@ -1,4 +1,5 @@
-"""NLP solvers behind one interface: SciPy SLSQP, SciPy trust-constr, IPOPT (cyipopt).
+"""
+NLP solvers behind one interface: SciPy SLSQP, SciPy trust-constr, IPOPT (cyipopt).
 
 A :class:`Nlp` is the smooth problem
 
@@ -33,7 +34,8 @@ Matrix = np.ndarray
 
 @dataclasses.dataclass
 class Nlp:
-    """A smooth nonlinear program in the variables z (length n).
+    """
+    A smooth nonlinear program in the variables z (length n).
 
     Attributes
     ----------
@@ -54,6 +56,7 @@ class Nlp:
         Lagrangian, which is exact when the constraints are affine (e.g. the
         R1C1 zones: interval end states are affine in start state and heat
         rate) and a Gauss-Newton-like approximation otherwise.
+
     """
 
     fun: Callable[[Vector], float]
@@ -68,7 +71,8 @@ class Nlp:
 
 
 class SparseJacobian:
-    """A constraint Jacobian with a fixed sparsity pattern, usable as ``Nlp.eq_jac``.
+    """
+    A constraint Jacobian with a fixed sparsity pattern, usable as ``Nlp.eq_jac``.
 
     Calling it returns the ``scipy.sparse.coo_array`` as any Jacobian callable
     of an :class:`Nlp` does; solvers that know it take the pattern once and only
@@ -83,6 +87,7 @@ class SparseJacobian:
         (m, n).
     values : callable
         ``values(z) -> (nnz,)`` the entries at z.
+
     """
 
     def __init__(self, rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int],
@@ -100,7 +105,7 @@ class SparseJacobian:
         return sparse.coo_array((self.values(z), (self.rows, self.cols)), shape=self.shape)
 
     def dense(self, z: Vector) -> Matrix:
-        """The Jacobian at ``z`` as a dense (m, n) array."""
+        """Return the Jacobian at ``z`` as a full array of shape (m, n)."""
         out = np.zeros(self.shape)
         out.reshape(-1)[self._flat] = self.values(z)
         return out
@@ -123,8 +128,10 @@ class Solver(abc.ABC):
     @abc.abstractmethod
     def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None
               ) -> optimize.OptimizeResult:
-        """Solve ``nlp`` from ``z0``; return an OptimizeResult (x, fun, success, status,
-        message, nit, nfev, budget_exceeded).
+        """
+        Solve ``nlp`` from ``z0``.
+
+        Return an OptimizeResult (x, fun, success, status, message, nit, nfev, budget_exceeded).
 
         ``deadline`` is a :func:`time.perf_counter` time [s]: the solver stops at
         its first iteration past it (``success=False``, ``budget_exceeded=True``).
@@ -132,7 +139,7 @@ class Solver(abc.ABC):
 
 
 def _deadline_callback(deadline: float | None) -> Callable | None:
-    """A SciPy ``callback(intermediate_result)`` that stops the solve past ``deadline``."""
+    """Return a SciPy ``callback(intermediate_result)`` that stops the solve past ``deadline``."""
     if deadline is None:
         return None
 
@@ -173,8 +180,11 @@ class SlsqpSolver(Solver):
 
 
 def _scipy_constraint(kind: str, fun: Callable, jac: Callable | None) -> dict:
-    """A SciPy (SLSQP) constraint dict with a dense Jacobian; without ``jac`` SciPy
-    estimates it by finite differences."""
+    """
+    Return a SciPy (SLSQP) constraint dict with a dense Jacobian.
+
+    Without ``jac`` SciPy estimates it by finite differences.
+    """
     constraint = {'type': kind, 'fun': fun}
     if isinstance(jac, SparseJacobian):
         constraint['jac'] = jac.dense
@@ -191,6 +201,7 @@ class TrustConstrSolver(Solver):
     def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None
               ) -> optimize.OptimizeResult:
         n_eq = nlp.eq_fun(z0).size
+
         def sparse_jac(jac: Callable | None) -> Callable | str:
             return '2-point' if jac is None else (lambda z: sparse.csr_array(jac(z)))
         constraints = [optimize.NonlinearConstraint(
@@ -229,10 +240,13 @@ IPOPT_LARGE_PROBLEM_OPTIONS: dict[str, Any] = {'min_refinement_steps': 0,
 
 
 class IpoptSolver(Solver):
-    """IPOPT through cyipopt (the ``cyipopt-wheels`` package), with sparse Jacobians
-    (the pattern taken once from a :class:`SparseJacobian`), and the exact diagonal
-    objective Hessian where the problem gives it, else a limited-memory
-    approximation; ``options`` are IPOPT's (e.g. :data:`IPOPT_LARGE_PROBLEM_OPTIONS`)."""
+    """
+    IPOPT through cyipopt (the ``cyipopt-wheels`` package), with sparse Jacobians.
+
+    The pattern is taken once from a :class:`SparseJacobian`; the exact diagonal objective Hessian
+    where the problem gives it, else a limited-memory approximation; ``options`` are IPOPT's (e.g.
+    :data:`IPOPT_LARGE_PROBLEM_OPTIONS`).
+    """
 
     name = 'ipopt'
 
@@ -279,6 +293,7 @@ class IpoptSolver(Solver):
         diag = np.arange(n)
 
         class _Problem:
+
             def objective(self, z):
                 counter['nfev'] += 1
                 return nlp.fun(z)
@@ -337,7 +352,7 @@ class IpoptSolver(Solver):
 
 
 SOLVERS: dict[str, type[Solver]] = {cls.name: cls for cls in (SlsqpSolver, TrustConstrSolver,
-                                                               IpoptSolver)}
+                                                              IpoptSolver)}
 
 
 def make_solver(name: str | Solver, **options) -> Solver:

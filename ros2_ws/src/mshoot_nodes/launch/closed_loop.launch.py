@@ -1,4 +1,5 @@
-"""Launch the closed loop on a ROS 2 install: emulator, forecaster, MPC (and a bag).
+"""
+Launch the closed loop on a ROS 2 install: emulator, forecaster, MPC (and a bag).
 
     ros2 launch mshoot_nodes closed_loop.launch.py
     ros2 launch mshoot_nodes closed_loop.launch.py scenario:=ou44 \

@@ -1,4 +1,5 @@
-"""rosbag2 bags without the rosbag2 binaries, through the pure-Python ``rosbags`` library.
+"""
+rosbag2 bags without the rosbag2 binaries, through the pure-Python ``rosbags`` library.
 
 - :func:`typestore`: the Jazzy message types plus every custom type found as
   ``share/<package>/msg/<Name>.msg`` in the ament index (``mshoot_msgs``), so
@@ -63,7 +64,7 @@ def _msg_files(package: str) -> list[pathlib.Path]:
 
 @functools.lru_cache(maxsize=None)
 def typestore(packages: tuple[str, ...] = ('mshoot_msgs',)) -> Typestore:
-    """The ROS 2 Jazzy typestore with the installed ``.msg`` files of ``packages`` added."""
+    """Return the ROS 2 Jazzy typestore with the installed ``.msg`` files of ``packages`` added."""
     store = _get_typestore(Stores.ROS2_JAZZY)
     types = {}
     for package in packages:
@@ -74,12 +75,14 @@ def typestore(packages: tuple[str, ...] = ('mshoot_msgs',)) -> Typestore:
 
 
 def ensure_type(store: Typestore, type_name: str) -> None:
-    """Register ``type_name``'s package in ``store`` if it is not known yet.
+    """
+    Register ``type_name``'s package in ``store`` if it is not known yet.
 
     Raises
     ------
     ValueError
         If no ``.msg`` file of that type is installed.
+
     """
     if type_name in store.types:
         return
@@ -108,7 +111,7 @@ def _time_from_rosbags(value: QosTime) -> Duration:
 
 
 def qos_to_rosbags(qos: QoSProfile) -> Qos:
-    """An rclpy QoS profile as a rosbags ``Qos`` (for the bag metadata)."""
+    """Return an rclpy QoS profile as a rosbags ``Qos`` (for the bag metadata)."""
     return Qos(history=QosHistory(int(qos.history)), depth=int(qos.depth),
                reliability=QosReliability(int(qos.reliability)),
                durability=QosDurability(int(qos.durability)),
@@ -119,8 +122,12 @@ def qos_to_rosbags(qos: QoSProfile) -> Qos:
 
 
 def qos_from_rosbags(qos: Qos, min_depth: int = 10) -> QoSProfile:
-    """A QoS profile to re-publish a recorded topic with (its offered reliability and
-    durability; keep-last with at least ``min_depth`` unless transient local)."""
+    """
+    Return a QoS profile to re-publish a recorded topic with.
+
+    Its offered reliability and durability; keep-last with at least ``min_depth`` unless transient
+    local.
+    """
     durability = (DurabilityPolicy(qos.durability.value) if qos.durability.value in (1, 2)
                   else DurabilityPolicy.VOLATILE)
     reliability = (ReliabilityPolicy(qos.reliability.value) if qos.reliability.value in (1, 2)
@@ -149,7 +156,8 @@ class BagMessage:
 
 @dataclasses.dataclass
 class BagContents:
-    """A bag read into memory.
+    """
+    A bag read into memory.
 
     Attributes
     ----------
@@ -161,6 +169,7 @@ class BagContents:
         Topic -> number of messages (from the metadata).
     storage : str
         'mcap' or 'sqlite3'.
+
     """
 
     messages: list[BagMessage]
@@ -174,8 +183,11 @@ class IncompleteBagError(ValueError):
 
 
 def check_complete(path: str | pathlib.Path) -> None:
-    """Raise :class:`IncompleteBagError` (saying how to recover) if ``path`` lacks its
-    ``metadata.yaml``; FileNotFoundError if it is not a directory."""
+    """
+    Raise :class:`IncompleteBagError` (saying how to recover) if ``path`` lacks its metadata.
+
+    The metadata is ``metadata.yaml``; FileNotFoundError if ``path`` is not a directory.
+    """
     path = pathlib.Path(path)
     if not path.is_dir():
         raise FileNotFoundError(f'no bag directory at {path}')
@@ -188,7 +200,8 @@ def check_complete(path: str | pathlib.Path) -> None:
 
 
 def read_bag(path: str | pathlib.Path, topics: Iterable[str] | None = None) -> BagContents:
-    """Read a rosbag2 bag (mcap or sqlite3) into memory.
+    """
+    Read a rosbag2 bag (mcap or sqlite3) into memory.
 
     Parameters
     ----------
@@ -201,6 +214,7 @@ def read_bag(path: str | pathlib.Path, topics: Iterable[str] | None = None) -> B
     ------
     IncompleteBagError
         A bag cut short by a crash (the message says how to recover it).
+
     """
     check_complete(path)
     wanted = None if topics is None else set(topics)
@@ -218,13 +232,13 @@ def read_bag(path: str | pathlib.Path, topics: Iterable[str] | None = None) -> B
 
 
 def bag_metadata(path: str | pathlib.Path) -> dict:
-    """The ``rosbag2_bagfile_information`` of a bag's ``metadata.yaml``."""
+    """Return the ``rosbag2_bagfile_information`` of a bag's ``metadata.yaml``."""
     text = (pathlib.Path(path) / 'metadata.yaml').read_text()
     return dict(yaml.safe_load(text)['rosbag2_bagfile_information'])
 
 
 def read_messages(path: str | pathlib.Path, topic: str) -> list:
-    """The messages of one topic of a bag, deserialised with rclpy (receive-time order)."""
+    """Return the messages of one topic of a bag, deserialised with rclpy (receive-time order)."""
     contents = read_bag(path, [topic])
     if topic not in contents.topics:
         return []
@@ -234,7 +248,8 @@ def read_messages(path: str | pathlib.Path, topic: str) -> list:
 
 # -- crash safety -------------------------------------------------------------------------
 def flush_writer(writer: Writer) -> None:
-    """Put everything written so far on disk, so a crash loses nothing before this call.
+    """
+    Put everything written so far on disk, so a crash loses nothing before this call.
 
     mcap: closes the pending chunk (the unit a reader can recover) and flushes
     the file; sqlite3: commits the open transaction. Uses the storage objects of
@@ -255,7 +270,8 @@ def flush_writer(writer: Writer) -> None:
 
 @dataclasses.dataclass
 class Salvage:
-    """What a bag cut short still holds.
+    """
+    What a bag cut short still holds.
 
     Attributes
     ----------
@@ -271,6 +287,7 @@ class Salvage:
         mcap: chunks read completely (0 for sqlite3).
     lost_bytes : int
         Bytes after the last complete record (a partial chunk) [B].
+
     """
 
     storage: str
@@ -285,6 +302,7 @@ _MCAP_MAGIC = b'\x89MCAP0\r\n'
 
 
 class _Cursor:
+
     def __init__(self, data: bytes | memoryview) -> None:
         self.data, self.pos = memoryview(data), 0
 
@@ -421,7 +439,8 @@ def _salvage_sqlite3(file: pathlib.Path) -> Salvage:
 
 
 def salvage_bag(path: str | pathlib.Path) -> Salvage:
-    """Read what a bag cut short holds, without its metadata.yaml.
+    """
+    Read what a bag cut short holds, without its metadata.yaml.
 
     Parameters
     ----------
@@ -434,6 +453,7 @@ def salvage_bag(path: str | pathlib.Path) -> Salvage:
         No data file in ``path``.
     ValueError
         A data file that is not a bag.
+
     """
     path = pathlib.Path(path)
     files = sorted(path.glob('*.mcap')) + sorted(path.glob('*.db3'))
@@ -444,7 +464,8 @@ def salvage_bag(path: str | pathlib.Path) -> Salvage:
 
 
 def recover_bag(path: str | pathlib.Path) -> Salvage:
-    """Rewrite a bag cut short as a valid bag, in place; return what was recovered.
+    """
+    Rewrite a bag cut short as a valid bag, in place; return what was recovered.
 
     The readable messages (up to the last complete mcap chunk, or the last
     sqlite3 commit) go into a fresh bag of the same storage with metadata;
@@ -454,6 +475,7 @@ def recover_bag(path: str | pathlib.Path) -> Salvage:
     ------
     ValueError
         The bag is complete (it has a metadata.yaml): nothing to recover.
+
     """
     path = pathlib.Path(path)
     if (path / 'metadata.yaml').is_file():

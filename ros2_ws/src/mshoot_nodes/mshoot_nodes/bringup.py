@@ -1,4 +1,5 @@
-"""Bring-up in one process: emulator, forecaster, MPC and the bag recorder in one executor.
+"""
+Bring-up in one process: emulator, forecaster, MPC and the bag recorder in one executor.
 
     bringup --scenario synthetic --hours 72 --out out/demo        # the demo (make demo)
     bringup --scenario ou44 --data ../shared/data/ou44/measurements.csv
@@ -69,7 +70,8 @@ def run_in_process(context: Context, node_params: dict[str, dict[str, Any]], *,
                    record: bool = True, timeout_s: float = 600.0,
                    progress: Callable[[EmulatorNode], None] | None = None,
                    stop: Callable[[], bool] | None = None) -> RosRun:
-    """Run the closed loop over ROS in one executor until the emulator's scenario ends.
+    """
+    Run the closed loop over ROS in one executor until the emulator's scenario ends.
 
     Parameters
     ----------
@@ -102,6 +104,7 @@ def run_in_process(context: Context, node_params: dict[str, dict[str, Any]], *,
     StartupError
         A node could not be built from its parameters (a bad value, model file
         or scenario): one line naming the node and the reason.
+
     """
     nodes: list[Any] = []
     node_params = {name: dict(values) for name, values in node_params.items()}
@@ -160,8 +163,12 @@ def run_in_process(context: Context, node_params: dict[str, dict[str, Any]], *,
 
 
 def mismatch(emulator: EmulatorNode, mpc: MpcNode) -> str | None:
-    """Why the MPC's model cannot control the emulated building (other states or controls:
-    every state and setpoint would be rejected), or None (also before a configure)."""
+    """
+    Say why the MPC's model cannot control the emulated building, or return None.
+
+    Other states or controls: every state and setpoint would be rejected. None also before a
+    configure.
+    """
     if emulator.emulator is None or mpc.controller is None:
         return None
     building = (tuple(emulator.emulator.model.state_names), emulator.emulator.control_names)
@@ -230,8 +237,10 @@ def node_params_from_args(args: argparse.Namespace) -> dict[str, dict[str, Any]]
 
 
 def core_only(emulator: EmulatorNode, mpc: MpcNode) -> tuple[float, float]:
-    """Run the core-only loop with the same parameters: (its wall time [s], max |dx| over
-    every state [K]).
+    """
+    Run the core-only loop with the same parameters.
+
+    Return its wall time [s] and max |dx| over every state [K].
 
     The models are built afresh, the scenario is the emulator node's own.
     """
@@ -309,11 +318,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     p_emu, p_mpc = emulator.params, mpc.params
     records = mpc_records_frame([s for s, _ in mpc.history], [s for _, s in mpc.history],
                                 emulator.epoch_ns)
-    extra: dict[str, Any] = dict(
-        scenario=p_emu['scenario'], control=p_mpc['model'], emulator=p_emu['model'],
-        tolerance=p_mpc['fmu_tolerance'], horizon_h=p_mpc['horizon_steps'] * p_mpc['step_s']
-        / 3600.0, cost=p_mpc['cost'], solver=p_mpc['solver'], comfort=p_mpc['comfort'],
-        setup_s=0.0, transport='ros2 in-process', mode=p_emu['mode'])
+    extra: dict[str, Any] = {
+        'scenario': p_emu['scenario'], 'control': p_mpc['model'], 'emulator': p_emu['model'],
+        'tolerance': p_mpc['fmu_tolerance'],
+        'horizon_h': p_mpc['horizon_steps'] * p_mpc['step_s'] / 3600.0, 'cost': p_mpc['cost'],
+        'solver': p_mpc['solver'], 'comfort': p_mpc['comfort'], 'setup_s': 0.0,
+        'transport': 'ros2 in-process', 'mode': p_emu['mode']}
     hours = len(emulator.records)
     if p_emu['scenario'] == 'ou44' and hours == 72 and p_mpc['horizon_steps'] in PUBLISHED:
         extra['published'] = PUBLISHED[p_mpc['horizon_steps']]

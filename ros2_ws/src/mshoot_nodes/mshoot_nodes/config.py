@@ -1,4 +1,5 @@
-"""Where the YAML parameter files of a run are (the package's ``config/`` folder).
+"""
+Where the YAML parameter files of a run are (the package's ``config/`` folder).
 
 Kept apart from the nodes so that light tools (the process bring-up) find the
 files without importing numpy, pandas and scipy.
@@ -15,7 +16,7 @@ CONFIG_FILES = ('emulator.yaml', 'forecaster.yaml', 'mpc.yaml', 'recorder.yaml')
 
 
 def config_dir() -> pathlib.Path:
-    """The installed ``share/mshoot_nodes/config`` (else the source tree's ``config/``)."""
+    """Return the installed ``share/mshoot_nodes/config`` (else the source tree's ``config/``)."""
     try:
         installed = pathlib.Path(get_package_share_directory('mshoot_nodes')) / 'config'
         if (installed / CONFIG_FILES[0]).is_file():
@@ -26,7 +27,7 @@ def config_dir() -> pathlib.Path:
 
 
 def default_params_files(scenario: str | None = None) -> list[pathlib.Path]:
-    """The config files of a run, plus ``<scenario>.yaml`` when it exists (e.g. ou44.yaml)."""
+    """Return the config files of a run, plus ``<scenario>.yaml`` if it exists (e.g. ou44.yaml)."""
     folder = config_dir()
     files = [folder / name for name in CONFIG_FILES]
     if scenario and (folder / f'{scenario}.yaml').is_file():

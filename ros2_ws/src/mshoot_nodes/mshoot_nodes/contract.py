@@ -1,4 +1,5 @@
-"""The topic contract of mshoot: default topic names, message types and QoS profiles.
+"""
+The topic contract of mshoot: default topic names, message types and QoS profiles.
 
 | topic                | type                      | publisher  | QoS                            |
 |----------------------|---------------------------|------------|--------------------------------|
@@ -73,7 +74,8 @@ TOPIC_QOS: dict[str, QoSProfile] = {
 
 
 def message_class(type_name: str) -> type:
-    """The Python class of a ROS 2 message type.
+    """
+    Return the Python class of a ROS 2 message type.
 
     Parameters
     ----------
@@ -84,6 +86,7 @@ def message_class(type_name: str) -> type:
     ------
     ValueError
         If the name is malformed or the package is not installed.
+
     """
     parts = type_name.split('/')
     if len(parts) == 2:

@@ -1,4 +1,5 @@
-"""Messages <-> numpy arrays and pandas DataFrames, and ROS time <-> seconds.
+"""
+Messages <-> numpy arrays and pandas DataFrames, and ROS time <-> seconds.
 
 The nodes stay thin by converting at their edges only: everything inside is
 :mod:`mshoot_core` data (states in K as arrays, forecasts and scenarios as
@@ -42,7 +43,7 @@ def seconds_to_ns(seconds: float) -> int:
 
 
 def stamp_to_ns(stamp: Time) -> int:
-    """A ``builtin_interfaces/Time`` as integer nanoseconds."""
+    """Return a ``builtin_interfaces/Time`` as integer nanoseconds."""
     return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
 
 
@@ -53,18 +54,18 @@ def ns_to_stamp(ns: int) -> Time:
 
 
 def clock_msg(ns: int) -> Clock:
-    """A ``rosgraph_msgs/Clock`` at ``ns``."""
+    """Return a ``rosgraph_msgs/Clock`` at ``ns``."""
     return Clock(clock=ns_to_stamp(ns))
 
 
 def floor_to_step(ns: int, step_ns: int) -> int:
-    """The start of the step holding ``ns`` on the grid of multiples of ``step_ns``."""
+    """Return the start of the step holding ``ns`` on the grid of multiples of ``step_ns``."""
     return (int(ns) // int(step_ns)) * int(step_ns)
 
 
 # -- named vectors ------------------------------------------------------------------------
 def named(names: Sequence[str], values: Sequence[float]) -> dict[str, float]:
-    """A named vector of a message (``*_names``, ``*_values``) as a dict."""
+    """Return a named vector of a message (``*_names``, ``*_values``) as a dict."""
     return {str(name): float(value) for name, value in zip(names, values)}
 
 
@@ -76,8 +77,11 @@ def flatten(series: Mapping[str, Sequence[float]]) -> tuple[list[str], list[floa
 
 
 def unflatten_series(names: Sequence[str], values: Sequence[float]) -> dict[str, np.ndarray]:
-    """Named series flattened name-major back to a dict (ValueError on a length that does
-    not split evenly)."""
+    """
+    Split named series flattened name-major back into a dict.
+
+    ValueError on a length that does not split evenly.
+    """
     if not names:
         if len(values):
             raise ValueError(f'{len(values)} values for no names')
@@ -93,7 +97,8 @@ def unflatten_series(names: Sequence[str], values: Sequence[float]) -> dict[str,
 def zone_state_msg(stamp_ns: int, states: Mapping[str, float],
                    outputs: Mapping[str, float] | None = None,
                    controls: Mapping[str, float] | None = None, zone: str = '') -> ZoneState:
-    """The state of a building's zones at ``stamp_ns`` as named vectors.
+    """
+    Build the state of a building's zones at ``stamp_ns`` as named vectors.
 
     Parameters
     ----------
@@ -107,6 +112,7 @@ def zone_state_msg(stamp_ns: int, states: Mapping[str, float],
         Controls applied over the last step by name (heat rates [W]).
     zone : str
         Building or zone name (``header.frame_id``).
+
     """
     msg = ZoneState()
     msg.header.stamp = ns_to_stamp(stamp_ns)
@@ -119,7 +125,7 @@ def zone_state_msg(stamp_ns: int, states: Mapping[str, float],
 
 
 def zone_state_states(msg: ZoneState) -> dict[str, float]:
-    """The states of a zone state message by name (SI units)."""
+    """Return the states of a zone state message by name (SI units)."""
     return named(msg.state_names, msg.state_values)
 
 
@@ -136,14 +142,15 @@ def disturbances_msg(stamp_ns: int, values: Mapping[str, float],
 
 
 def disturbances_to_series(msg: Disturbances) -> pd.Series:
-    """A Disturbances message as a Series indexed by the disturbance names."""
+    """Return a Disturbances message as a Series indexed by the disturbance names."""
     return pd.Series(named(msg.names, msg.values), dtype=float)
 
 
 # -- forecast -----------------------------------------------------------------------------
 def forecast_msg(stamp_ns: int, step_s: float, window: pd.DataFrame,
                  series: Sequence[str] = FORECAST_DISTURBANCES, zone: str = '') -> Forecast:
-    """A forecast message from a window of scenario rows.
+    """
+    Build a forecast message from a window of scenario rows.
 
     Parameters
     ----------
@@ -159,6 +166,7 @@ def forecast_msg(stamp_ns: int, step_s: float, window: pd.DataFrame,
         The disturbance columns to send (default: Tout, solrad, occ).
     zone : str
         ``header.frame_id``.
+
     """
     msg = Forecast()
     msg.header.stamp = ns_to_stamp(stamp_ns)
@@ -173,14 +181,16 @@ def forecast_msg(stamp_ns: int, step_s: float, window: pd.DataFrame,
 
 
 def forecast_length(msg: Forecast) -> int:
-    """Number of samples of a forecast (that of its comfort band)."""
+    """Return the number of samples of a forecast (that of its comfort band)."""
     return len(msg.comfort_min_c)
 
 
 def forecast_series(msg: Forecast) -> tuple[dict[str, np.ndarray], Rejection | None]:
-    """The series of a forecast by name: its disturbances, ``comfort_min``,
-    ``comfort_max`` and ``price`` (when given), checked for their names and lengths only
-    (:func:`mshoot_core.safety.named_series`); what
+    """
+    Return the series of a forecast by name.
+
+    Its disturbances, ``comfort_min``, ``comfort_max`` and ``price`` (when given), checked for
+    their names and lengths only (:func:`mshoot_core.safety.named_series`); what
     :func:`mshoot_core.safety.check_forecast` validates.
 
     Returns
@@ -188,17 +198,20 @@ def forecast_series(msg: Forecast) -> tuple[dict[str, np.ndarray], Rejection | N
     (series, rejection)
         ``rejection`` when the names repeat or clash, or the flattened values do not
         hold one series of n samples per name (then ``series`` is empty).
+
     """
     return named_series(list(msg.series_names), msg.series_values, msg.comfort_min_c,
                         msg.comfort_max_c, msg.price_per_kwh)
 
 
 def forecast_to_frame(msg: Forecast, assumed: Mapping[str, float] | None = None) -> pd.DataFrame:
-    """A forecast message as a DataFrame of its series (ValueError if malformed).
+    """
+    Return a forecast message as a DataFrame of its series (ValueError if malformed).
 
     Parameters
     ----------
     msg : Forecast
+        The forecast message.
     assumed : mapping, optional
         Series the message does not carry, held constant (e.g. ``{'dpos': 0.0}``).
 
@@ -208,6 +221,7 @@ def forecast_to_frame(msg: Forecast, assumed: Mapping[str, float] | None = None)
         One column per series (disturbances, comfort_min, comfort_max, price
         when given, then the assumed ones); index the sample start times [s]
         (ROS time).
+
     """
     series, rejection = forecast_series(msg)
     if rejection:
@@ -231,7 +245,8 @@ def setpoint_msg(stamp_ns: int, step_s: float, controls: Mapping[str, float],
                  plan_controls: Mapping[str, Sequence[float]] | None = None,
                  plan_temperatures_c: Mapping[str, Sequence[float]] | None = None,
                  zone: str = '') -> Setpoint:
-    """A setpoint: named controls, zone temperature setpoints and the plan behind them.
+    """
+    Build a setpoint: named controls, zone temperature setpoints and the plan behind them.
 
     Parameters
     ----------
@@ -249,6 +264,7 @@ def setpoint_msg(stamp_ns: int, step_s: float, controls: Mapping[str, float],
         (``temperatures_c``). None: no plan.
     zone : str
         ``header.frame_id``.
+
     """
     msg = Setpoint()
     msg.header.stamp = ns_to_stamp(stamp_ns)
@@ -265,13 +281,16 @@ def setpoint_msg(stamp_ns: int, step_s: float, controls: Mapping[str, float],
 
 
 def setpoint_controls(msg: Setpoint) -> dict[str, float]:
-    """The controls of a setpoint by name."""
+    """Return the controls of a setpoint by name."""
     return named(msg.control_names, msg.control_values)
 
 
 def setpoint_plan(msg: Setpoint) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """The plan of a (checked) setpoint: (controls by name, predicted zone temperatures
-    [degC] by name), each over the plan's intervals."""
+    """
+    Return the plan of a (checked) setpoint.
+
+    (controls by name, predicted zone temperatures [degC] by name), each over the plan's intervals.
+    """
     m = len(msg.plan_controls) // max(len(msg.control_names), 1)
     controls = np.asarray(msg.plan_controls, dtype=float).reshape(len(msg.control_names), m)
     temperatures = np.asarray(msg.plan_temperatures_c, dtype=float).reshape(
@@ -282,7 +301,7 @@ def setpoint_plan(msg: Setpoint) -> tuple[dict[str, np.ndarray], dict[str, np.nd
 
 def status_msg(stamp_ns: int, result: MpcResult | None, *, fallback: bool = False,
                message: str = '', solve_time_s: float = 0.0) -> MpcStatus:
-    """The status of an MPC step; ``result`` None when no solve produced the setpoint."""
+    """Return the status of an MPC step; ``result`` None when no solve produced the setpoint."""
     msg = MpcStatus()
     msg.header.stamp = ns_to_stamp(stamp_ns)
     msg.fallback = bool(fallback)
@@ -305,8 +324,10 @@ def status_msg(stamp_ns: int, result: MpcResult | None, *, fallback: bool = Fals
 def decision_setpoint_msg(stamp_ns: int, decision: Decision, step_s: float,
                           interface: ControlInterface, safe_temperature_c: float,
                           zone: str = '') -> Setpoint:
-    """The setpoint of a supervisor decision: every control, the predicted temperature of
-    every zone and the plan.
+    """
+    Build the setpoint of a supervisor decision.
+
+    Every control, the predicted temperature of every zone and the plan.
 
     Parameters
     ----------
@@ -325,6 +346,7 @@ def decision_setpoint_msg(stamp_ns: int, decision: Decision, step_s: float,
         predicts nothing) [degC].
     zone : str
         ``header.frame_id``.
+
     """
     names, zones = interface.control_names, interface.temperature_names
     controls = np.asarray(decision.controls, dtype=float).reshape(-1)
@@ -348,7 +370,8 @@ def decision_status_msg(stamp_ns: int, decision: Decision, result: MpcResult | N
                         solve_time_s: float, rejected_states: int = 0,
                         rejected_forecasts: int = 0,
                         consecutive_fallbacks: int = 0) -> MpcStatus:
-    """The status of a supervisor decision; never a non-finite number.
+    """
+    Return the status of a supervisor decision; never a non-finite number.
 
     ``result`` is the step's solve result if there is one (its numbers are
     reported even when it was not used); without one, ``objective`` and
@@ -379,7 +402,8 @@ def _int32(value: int) -> int:
 # -- records of a run ---------------------------------------------------------------------
 def mpc_records_frame(setpoints: Iterable[Setpoint], statuses: Iterable[MpcStatus],
                       epoch_ns: int = 0) -> pd.DataFrame:
-    """Per-step MPC records from setpoint and status messages (the first of each stamp).
+    """
+    Per-step MPC records from setpoint and status messages (the first of each stamp).
 
     Returns
     -------
@@ -390,6 +414,7 @@ def mpc_records_frame(setpoints: Iterable[Setpoint], statuses: Iterable[MpcStatu
         [degC]), ``success``, ``fallback``, ``iterations``, ``solve_time_s``,
         ``objective``, ``max_defect``, ``message``, ``source``,
         ``fallback_reason``.
+
     """
     rows: dict[int, dict] = {}
     for msg in setpoints:

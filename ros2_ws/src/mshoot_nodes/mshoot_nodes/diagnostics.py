@@ -1,4 +1,5 @@
-"""Health on ``/diagnostics``: one ``diagnostic_msgs/DiagnosticStatus`` per node.
+"""
+Health on ``/diagnostics``: one ``diagnostic_msgs/DiagnosticStatus`` per node.
 
 Every mshoot node publishes a ``DiagnosticArray`` holding one status named
 ``mshoot/<node>`` (``mshoot/emulator``, ``mshoot/mpc``, with the namespace when
@@ -49,13 +50,14 @@ class Level(enum.IntEnum):
     STALE = 3
 
     def to_msg(self) -> bytes:
-        """The ``byte`` field value of DiagnosticStatus.level."""
+        """Return the ``byte`` field value of DiagnosticStatus.level."""
         return bytes([int(self)])
 
 
 @dataclasses.dataclass
 class Report:
-    """A node's health at one moment.
+    """
+    A node's health at one moment.
 
     Attributes
     ----------
@@ -66,6 +68,7 @@ class Report:
     values : dict
         Key values (str -> anything printable; floats are written with 6
         significant digits, bools as 'true'/'false').
+
     """
 
     level: Level
@@ -74,7 +77,7 @@ class Report:
 
 
 def format_value(value: Any) -> str:
-    """A key value as text."""
+    """Return a key value as text."""
     if isinstance(value, bool):
         return 'true' if value else 'false'
     if isinstance(value, float):
@@ -87,12 +90,13 @@ def format_value(value: Any) -> str:
 
 
 def status_values(status: DiagnosticStatus) -> dict[str, str]:
-    """The key values of a status as a dict."""
+    """Return the key values of a status as a dict."""
     return {kv.key: kv.value for kv in status.values}
 
 
 class DiagnosticsPublisher:
-    """Publishes a node's :class:`Report` on ``/diagnostics``, periodically and on demand.
+    """
+    Publishes a node's :class:`Report` on ``/diagnostics``, periodically and on demand.
 
     Parameters
     ----------
@@ -116,6 +120,7 @@ class DiagnosticsPublisher:
         The status name.
     published : int
         Arrays published so far.
+
     """
 
     def __init__(self, node: Node, report: Callable[[], Report], *, period_s: float = 1.0,
@@ -133,7 +138,7 @@ class DiagnosticsPublisher:
                        if period_s > 0 else None)
 
     def status(self) -> DiagnosticStatus:
-        """The node's status now."""
+        """Return the node's status now."""
         try:
             report = self.report()
             level, message, values = Level(report.level), report.message, dict(report.values)

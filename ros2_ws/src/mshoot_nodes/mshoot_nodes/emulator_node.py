@@ -1,4 +1,5 @@
-"""The emulator node: the building, simulated by :class:`mshoot_core.emulation.Emulator`.
+"""
+The emulator node: the building, simulated by :class:`mshoot_core.emulation.Emulator`.
 
 Publishes ``/clock`` (it drives simulated time), ``/zone/state`` (the model's
 states, its outputs after the last step and the controls applied, as named
@@ -190,9 +191,12 @@ def _check_sources(v: dict[str, Any]) -> str | None:
 
 
 def build_emulator(p: dict[str, Any]) -> Emulator:
-    """The core emulator configured by the node's parameter values ``p``: the model's
-    controls (:func:`~mshoot_core.models.registry.control_interface`) within the actuator
-    limits, every state starting at ``initial_temperature_c`` (in K)."""
+    """
+    Build the core emulator configured by the node's parameter values ``p``.
+
+    The model's controls (:func:`~mshoot_core.models.registry.control_interface`) within the
+    actuator limits, every state starting at ``initial_temperature_c`` (in K).
+    """
     scenario = sources.load_scenario(p['scenario'], p['data'], p['hours'])
     model = sources.build_model(p['model'], p['fmu_tolerance'], role='emulator')
     controls = control_interface(model).control_names
@@ -210,7 +214,8 @@ def build_emulator(p: dict[str, Any]) -> Emulator:
 
 
 class EmulatorNode(ManagedNode):
-    """The emulated building (see the module docstring).
+    """
+    The emulated building (see the module docstring).
 
     Attributes
     ----------
@@ -241,6 +246,7 @@ class EmulatorNode(ManagedNode):
         The start gate while it waits.
     diagnostics : DiagnosticsPublisher
         Publishes :meth:`health` on /diagnostics.
+
     """
 
     def __init__(self, **kwargs: Any) -> None:
@@ -343,7 +349,7 @@ class EmulatorNode(ManagedNode):
 
     # -- health -----------------------------------------------------------------------------
     def health(self) -> Report:
-        """The emulator's status for /diagnostics."""
+        """Return the emulator's status for /diagnostics."""
         sources_count = collections.Counter(self.applied_sources)
         rejected = self.rejections.total()
         values_ = {
@@ -401,7 +407,7 @@ class EmulatorNode(ManagedNode):
         return self._steady.now().nanoseconds
 
     def _safe_controls(self) -> tuple[float, ...]:
-        """The safe default of every control of the model (one before the first configure)."""
+        """Return the safe default of every model control (one before the first configure)."""
         count = len(self.emulator.control_names) if self.emulator is not None else 1
         return (float(self.params['safe_heat_rate_w']),) * count
 
@@ -420,7 +426,7 @@ class EmulatorNode(ManagedNode):
 
     # -- start ----------------------------------------------------------------------------
     def _start(self) -> None:
-        """The start gate opened: publish the first step and start the run timer."""
+        """Start once the start gate opened: publish the first step and start the run timer."""
         self.gate = None
         self.started = True
         self._run_started_ns = self._step_started_ns = self._steady_ns()
@@ -634,14 +640,15 @@ class EmulatorNode(ManagedNode):
 
     # -- records --------------------------------------------------------------------------
     def fine_frame(self) -> pd.DataFrame:
-        """The fine-grid trajectory of all steps so far (as the core loop builds it)."""
+        """Return the fine-grid trajectory of all steps so far (as the core loop builds it)."""
         if not self.records:
             return pd.DataFrame()
         return pd.concat([r.fine if k == 0 else r.fine.iloc[1:]
                           for k, r in enumerate(self.records)])
 
     def applied_frame(self) -> pd.DataFrame:
-        """One row per step: ROS stamp [ns], applied controls [W], start and end states.
+        """
+        One row per step: ROS stamp [ns], applied controls [W], start and end states.
 
         Index ``time_s`` (scenario time [s]); columns ``stamp_ns``, every
         control (``q``, or ``q_0``, ``q_1``, ...), ``<state>_start``,
@@ -662,9 +669,12 @@ class EmulatorNode(ManagedNode):
         return pd.DataFrame(rows).set_index('time_s')
 
     def zone_temperature_columns(self) -> dict[str, str]:
-        """Zone temperature state -> the column of the fine trajectory that holds it in degC:
-        the model's output of the same name (``y_T`` for the R1C1 zone), else the state
-        (``x_T_0``, in K: see :func:`mshoot_nodes.results.zone_temperatures_c`)."""
+        """
+        Return the column of the fine trajectory holding each zone temperature state in degC.
+
+        The model's output of the same name (``y_T`` for the R1C1 zone), else the state (``x_T_0``,
+        in K: see :func:`mshoot_nodes.results.zone_temperatures_c`).
+        """
         outputs = self.emulator.model.output_names
         return {name: f'y_{name}' if name in outputs else f'x_{name}'
                 for name in self.interface.temperature_names}

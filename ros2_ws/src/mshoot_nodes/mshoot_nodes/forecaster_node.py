@@ -1,4 +1,5 @@
-"""The forecaster node: disturbance, comfort-band and price forecasts over the MPC horizon.
+"""
+The forecaster node: disturbance, comfort-band and price forecasts over the MPC horizon.
 
 On every control step of simulated time (a sim-time timer) it publishes on
 ``/forecast`` (latched: reliable, transient local, depth 1) the scenario rows
@@ -88,7 +89,8 @@ def _check_sources(v: dict[str, Any]) -> str | None:
 
 def forecast_errors(step_index: int, samples: int, tout_std: float, solrad_std: float,
                     seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Random-walk forecast errors of one step: zero at lead 0, then cumulative.
+    """
+    Random-walk forecast errors of one step: zero at lead 0, then cumulative.
 
     Parameters
     ----------
@@ -105,6 +107,7 @@ def forecast_errors(step_index: int, samples: int, tout_std: float, solrad_std: 
     Returns
     -------
     (tout_error, solrad_error) : ndarrays, shape (samples,)
+
     """
     rng = np.random.default_rng([int(seed), int(step_index)])
     steps = rng.standard_normal((2, samples))
@@ -172,7 +175,7 @@ class ForecasterNode(Node):
                 'set?', throttle_duration_sec=30.0)
 
     def health(self) -> Report:
-        """The forecaster's status for /diagnostics."""
+        """Return the forecaster's status for /diagnostics."""
         p = self.params
         last = self.last_index
         values_ = {'forecasts_published': self.published, 'enabled': p['enabled'],
@@ -193,8 +196,11 @@ class ForecasterNode(Node):
                       values_)
 
     def prices(self, times_s: np.ndarray) -> np.ndarray:
-        """The energy price [currency/kWh] at scenario times [s] (``price_per_kwh``: flat, or
-        by hour of the day from the scenario's start time)."""
+        """
+        Return the energy price [currency/kWh] at scenario times [s].
+
+        ``price_per_kwh``: flat, or by hour of the day from the scenario's start time.
+        """
         prices = np.asarray(self.params['price_per_kwh'], dtype=float)
         if prices.size == 1:
             return np.full(len(times_s), prices[0])

@@ -1,4 +1,5 @@
-"""Managed (lifecycle) nodes: the ROS 2 state machine, hooks that raise, and autostart.
+"""
+Managed (lifecycle) nodes: the ROS 2 state machine, hooks that raise, and autostart.
 
 A :class:`ManagedNode` is an :class:`rclpy.lifecycle.LifecycleNode` (services
 ``~/change_state``, ``~/get_state``, ... as ``ros2 lifecycle`` and lifecycle
@@ -87,7 +88,8 @@ ERROR = TransitionCallbackReturn.ERROR
 
 
 class ManagedNode(LifecycleNode):
-    """A lifecycle node with hooks that raise, owned entities and autostart.
+    """
+    A lifecycle node with hooks that raise, owned entities and autostart.
 
     Parameters
     ----------
@@ -109,6 +111,7 @@ class ManagedNode(LifecycleNode):
     diagnostics : DiagnosticsPublisher or None
         When set (see :mod:`mshoot_nodes.diagnostics`), it is published at once
         after every transition.
+
     """
 
     def __init__(self, node_name: str, *, autostart: bool = True, **kwargs: Any) -> None:
@@ -130,7 +133,8 @@ class ManagedNode(LifecycleNode):
             service.callback = self._guarded_change_state(service.callback)
 
     def _guarded_change_state(self, handler: ServiceHandler) -> ServiceHandler:
-        """Answer a transition the current state does not have with success=False.
+        """
+        Answer a transition the current state does not have with success=False.
 
         rclpy 7.1.6 raises RCLError out of the service callback instead, which ends
         the executor's spin: one bad request from a lifecycle manager would stop
@@ -168,18 +172,19 @@ class ManagedNode(LifecycleNode):
 
     @property
     def is_active(self) -> bool:
-        """True in the active state."""
+        """Return True in the active state."""
         if self._reporting_state:
             return self._reporting_state == ACTIVE
         return self._state_machine.current_state[0] == StateMsg.PRIMARY_STATE_ACTIVE
 
     @property
     def is_configured(self) -> bool:
-        """True after a successful configure and until cleanup."""
+        """Return True after a successful configure and until cleanup."""
         return self._configured
 
     def autostart(self) -> None:
-        """Configure and activate now if the ``autostart`` parameter is true.
+        """
+        Configure and activate now if the ``autostart`` parameter is true.
 
         Call it as the last line of the node class's ``__init__``.
 
@@ -187,6 +192,7 @@ class ManagedNode(LifecycleNode):
         ------
         Exception
             The error of the failed transition (the node is destroyed first).
+
         """
         if not self.get_parameter(AUTOSTART).value:
             self.get_logger().info('autostart is false: unconfigured, waiting for '
@@ -329,8 +335,11 @@ class ManagedNode(LifecycleNode):
         return result
 
     def destroy_node(self) -> None:
-        """Free what the configuration holds (``cleanup()``, no ``deactivate()``), then
-        destroy the node."""
+        """
+        Free what the configuration holds, then destroy the node.
+
+        Freeing is ``cleanup()``, with no ``deactivate()``.
+        """
         if getattr(self, '_owned', None) is not None and hasattr(self, '_state_machine'):
             if self.is_active:
                 LifecycleNodeMixin.on_deactivate(self, LifecycleState(
@@ -342,7 +351,8 @@ class ManagedNode(LifecycleNode):
 
 
 def release_state_machine(node: Any) -> None:
-    """Destroy a lifecycle node's state machine after ``Node.destroy_node``.
+    """
+    Destroy a lifecycle node's state machine after ``Node.destroy_node``.
 
     rclpy's LifecycleNode leaves it to the garbage collector, and until then the
     rcl node stays alive (its ``/rosout`` publisher too): a node of the same name

@@ -1,4 +1,5 @@
-"""Forward the Python ``logging`` records of mshoot_core to a node's ROS logger.
+"""
+Forward the Python ``logging`` records of mshoot_core to a node's ROS logger.
 
 mshoot_core logs with :mod:`logging` (it never imports ROS). In a node
 process those records should reach the operator the same way as the node's
@@ -34,7 +35,8 @@ class RosLogHandler(logging.Handler):
 
 
 def bridge_core_logging(ros_logger: RcutilsLogger, level: int = logging.WARNING) -> RosLogHandler:
-    """Route ``mshoot_core`` log records at ``level`` and above to ``ros_logger``.
+    """
+    Route ``mshoot_core`` log records at ``level`` and above to ``ros_logger``.
 
     Returns the handler (remove it with ``logging.getLogger('mshoot_core').removeHandler``).
     """

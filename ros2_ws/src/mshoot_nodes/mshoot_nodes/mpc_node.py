@@ -1,4 +1,5 @@
-"""The MPC node: every control step, publish the setpoint the core controller decides.
+"""
+The MPC node: every control step, publish the setpoint the core controller decides.
 
 Inputs: ``/zone/state`` (the measured zones, a building's or the emulator's:
 the model's states by name) and ``/forecast`` (the model's disturbances by
@@ -73,13 +74,16 @@ DEFAULTS = {spec.name: spec.default for spec in PARAMS}
 
 
 def settings_from(p: dict[str, Any]) -> MpcSettings:
-    """The controller settings of the node's parameter values ``p``."""
+    """Return the controller settings of the node's parameter values ``p``."""
     return MpcSettings.from_flat({name: p[name] for name in SETTING_NAMES})
 
 
 def _check(proposed: dict[str, Any]) -> str | None:
-    """Every problem of the proposed parameter values at once, or None (parameters not
-    declared yet count with their defaults)."""
+    """
+    Return every problem of the proposed parameter values at once, or None.
+
+    Parameters not declared yet count with their defaults.
+    """
     v = {**DEFAULTS, **proposed}
     problems = ModelSettings(v['model'], v['fmu_tolerance']).problems()
     try:
@@ -90,7 +94,8 @@ def _check(proposed: dict[str, Any]) -> str | None:
 
 
 class MpcNode(ManagedNode):
-    """Supervisory MPC over topics (see the module docstring); a lifecycle node.
+    """
+    Supervisory MPC over topics (see the module docstring); a lifecycle node.
 
     Configure builds the model, the controller and the publishers; activate
     subscribes and starts the step timers; deactivate publishes the safe
@@ -116,6 +121,7 @@ class MpcNode(ManagedNode):
         Everything published, in order (the last ``history_length``).
     diagnostics : DiagnosticsPublisher
         Publishes :meth:`health` on /diagnostics.
+
     """
 
     def __init__(self, model: Model | None = None, **kwargs: Any) -> None:
@@ -158,9 +164,9 @@ class MpcNode(ManagedNode):
             f"model {p['model'] if self._given_model is None else type(self.model).__name__}, "
             f"horizon {p['horizon_steps']} x {p['step_s']:.0f} s, cost {p['cost']}, comfort "
             f"{p['comfort']}, solver {p['solver']}, controls "
-            f"{list(self.controller.interface.control_names)} within "
+            f'{list(self.controller.interface.control_names)} within '
             f"[{p['heat_rate_min_w']:.0f}, {p['heat_rate_max_w']:.0f}] W, zone temperatures "
-            f"{list(self.controller.interface.temperature_names)}, time budget "
+            f'{list(self.controller.interface.temperature_names)}, time budget '
             f"{p['time_budget_s'] or 'none'}, "
             f"safe setpoint {p['safe_heat_rate_w']:.0f} W / {p['safe_temperature_c']:.1f} degC")
 
@@ -195,7 +201,7 @@ class MpcNode(ManagedNode):
 
     @property
     def mpc(self) -> Any:
-        """The controller's MPC (None while unconfigured)."""
+        """Return the controller's MPC (None while unconfigured)."""
         return None if self.controller is None else self.controller.mpc
 
     @property
@@ -205,7 +211,7 @@ class MpcNode(ManagedNode):
 
     # -- health ---------------------------------------------------------------------------
     def health(self) -> Report:
-        """The MPC's status for /diagnostics."""
+        """Return the MPC's status for /diagnostics."""
         c = self.controller
         if c is None:
             return Report(Level.OK, 'unconfigured', {'model': self.params['model']})

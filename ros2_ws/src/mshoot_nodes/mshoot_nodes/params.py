@@ -1,4 +1,5 @@
-"""Parameter declaration and validation helpers shared by the nodes.
+"""
+Parameter declaration and validation helpers shared by the nodes.
 
 Every node declares its parameters from a table of :class:`ParamSpec`: the
 default, a description, an optional numeric range, the allowed string
@@ -20,8 +21,11 @@ from rclpy.parameter import Parameter
 
 
 class ParameterRejected(InvalidParameterValueException):
-    """Start-up values rejected by a node's checks; ``reason`` says why (in one sentence,
-    without rclpy's list of every value given)."""
+    """
+    Start-up values rejected by a node's checks.
+
+    ``reason`` says why (in one sentence, without rclpy's list of every value given).
+    """
 
     def __init__(self, names: str, given: Any, reason: str) -> None:
         super().__init__(names, given, reason)
@@ -30,7 +34,8 @@ class ParameterRejected(InvalidParameterValueException):
 
 @dataclasses.dataclass(frozen=True)
 class ParamSpec:
-    """One declared parameter.
+    """
+    One declared parameter.
 
     Attributes
     ----------
@@ -46,6 +51,7 @@ class ParamSpec:
         Allowed values of a string parameter (checked in the on-set callback).
     read_only : bool
         Set only at start-up (overrides, YAML), never at run time.
+
     """
 
     name: str
@@ -57,7 +63,7 @@ class ParamSpec:
     read_only: bool = False
 
     def descriptor(self) -> ParameterDescriptor:
-        """The rclpy descriptor of this parameter."""
+        """Return the rclpy descriptor of this parameter."""
         constraints = ''
         if self.choices:
             constraints = 'one of: ' + ', '.join(repr(c) for c in self.choices)
@@ -76,12 +82,14 @@ class ParamSpec:
                     to_value=float(self.high if self.high is not None else 1e300), step=0.0)]
         return descriptor
 
-
     @classmethod
     def from_setting(cls, field: Any, default: Any = None) -> ParamSpec:
-        """The parameter of a described core setting
-        (:class:`mshoot_core.settings.SettingField`): same name, default, description,
-        range and choices; read-only when fixed once running."""
+        """
+        Return the parameter of a described core setting.
+
+        The setting is a :class:`mshoot_core.settings.SettingField`: same name, default,
+        description, range and choices; read-only when fixed once running.
+        """
         return cls(field.name, field.default if default is None else default,
                    field.description, low=field.low, high=field.high, choices=field.choices,
                    read_only=field.read_only)
@@ -91,7 +99,8 @@ Check = Callable[[dict[str, Any]], str | None]
 
 
 def declare(node: Node, specs: Sequence[ParamSpec], checks: Iterable[Check] = ()) -> None:
-    """Register the validating on-set callback, then declare ``specs`` on ``node``.
+    """
+    Register the validating on-set callback, then declare ``specs`` on ``node``.
 
     Parameters
     ----------
@@ -112,6 +121,7 @@ def declare(node: Node, specs: Sequence[ParamSpec], checks: Iterable[Check] = ()
         If an override names a parameter the node does not have (a typo in a
         YAML file would otherwise be ignored silently); the message lists the
         valid names.
+
     """
     by_name = {spec.name: spec for spec in specs}
     checks = list(checks)
@@ -165,7 +175,7 @@ def declare(node: Node, specs: Sequence[ParamSpec], checks: Iterable[Check] = ()
 
 
 def values(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
-    """Current values of ``specs`` on ``node`` (string arrays as lists)."""
+    """Return the current values of ``specs`` on ``node`` (string arrays as lists)."""
     out = {}
     for spec in specs:
         value = node.get_parameter(spec.name).value
@@ -174,7 +184,7 @@ def values(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
 
 
 def ordered(low: str, high: str, strict: bool = True) -> Check:
-    """A rule: parameter ``low`` < ``high`` (or <= when not strict)."""
+    """Return a rule: parameter ``low`` < ``high`` (or <= when not strict)."""
     def check(values: dict[str, Any]) -> str | None:
         if low in values and high in values:
             bad = values[low] >= values[high] if strict else values[low] > values[high]

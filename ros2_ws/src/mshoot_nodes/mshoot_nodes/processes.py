@@ -1,4 +1,5 @@
-"""Bring-up as separate processes: emulator, forecaster, MPC and recorder, one process each.
+"""
+Bring-up as separate processes: emulator, forecaster, MPC and recorder, one process each.
 
     bringup_processes --hours 24 --out out/processes
 
@@ -94,7 +95,7 @@ def _stop(procs: dict[str, subprocess.Popen], grace_s: float = 10.0) -> None:
 
 
 def last_error(log: pathlib.Path) -> str:
-    """The last ERROR or FATAL line of a node's log ('' when there is none)."""
+    """Return the last ERROR or FATAL line of a node's log ('' when there is none)."""
     lines = log.read_text(errors='replace').splitlines() if log.exists() else []
     errors = [line for line in lines if '[ERROR]' in line or '[FATAL]' in line]
     return errors[-1] if errors else ''
@@ -102,8 +103,11 @@ def last_error(log: pathlib.Path) -> str:
 
 def wait_for_emulator(procs: dict[str, subprocess.Popen],
                       timeout_s: float) -> tuple[str, int] | None:
-    """Wait until the emulator exits, or another node exits at start-up with a configuration
-    error; (name, exit code) of the process that ended, None after ``timeout_s``."""
+    """
+    Wait until the emulator exits, or another node exits at start-up with a configuration error.
+
+    Return (name, exit code) of the process that ended, None after ``timeout_s``.
+    """
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         for name, proc in procs.items():
@@ -132,10 +136,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         'mpc': [f'model:={args.control_model}'] if args.control_model else [],
         'emulator': scenario + ([f'model:={args.emulator_model}'] if args.emulator_model
                                 else []) + [f'output_dir:={emulator_dir}', 'exit_when_done:=true',
-                                f'ready_endpoints:={run_requirements("mshoot")!r}',
-                                f'ready_timeout_s:={args.ready_timeout}',
-                                # the gate is the recorder's; a little slack for the others
-                                'start_delay_s:=0.5'],
+                                            f'ready_endpoints:={run_requirements("mshoot")!r}',
+                                            f'ready_timeout_s:={args.ready_timeout}',
+                                            # the recorder's is the gate; slack for the others
+                                            'start_delay_s:=0.5'],
     }
     print(f'[processes] ROS_DOMAIN_ID={domain}, logs in {logs}', flush=True)
     started = time.perf_counter()

@@ -1,4 +1,5 @@
-"""Readiness from the ROS graph: start a run once the endpoints it needs are there.
+"""
+Readiness from the ROS graph: start a run once the endpoints it needs are there.
 
 The emulator drives simulated time, so it is the one that waits: in its start
 gate it polls the ROS graph until every requirement holds (at least so many
@@ -58,12 +59,14 @@ class Requirement:
 
 
 def parse_requirement(text: str) -> Requirement:
-    """A requirement from its text (see the module docstring).
+    """
+    Parse a requirement from its text (see the module docstring).
 
     Raises
     ------
     ValueError
         If ``text`` is not ``TOPIC`` followed by one or two conditions.
+
     """
     parts = str(text).split()
     if len(parts) < 2:
@@ -84,12 +87,12 @@ def parse_requirement(text: str) -> Requirement:
 
 
 def parse_requirements(texts: Iterable[str]) -> list[Requirement]:
-    """Requirements from texts; blank ones are skipped (``['']``: wait for nothing)."""
+    """Parse requirements from texts; blank ones are skipped (``['']``: wait for nothing)."""
     return [parse_requirement(text) for text in texts if str(text).strip()]
 
 
 def check_requirements(texts: Iterable[str]) -> str | None:
-    """A parameter check: the reason the texts do not parse, else None."""
+    """Check requirement texts for a parameter: the reason they do not parse, else None."""
     try:
         parse_requirements(texts)
     except ValueError as exc:
@@ -98,7 +101,8 @@ def check_requirements(texts: Iterable[str]) -> str | None:
 
 
 def unmet(node: Node, requirements: Sequence[Requirement]) -> list[str]:
-    """The requirements the graph does not meet now, as the node sees it.
+    """
+    Return the requirements the graph does not meet now, as the node sees it.
 
     Topic names are resolved with the node's remappings. Returns one text per
     unmet condition, e.g. ``'/mpc/setpoint: 0 of 1 publishers'``.
@@ -117,7 +121,8 @@ def unmet(node: Node, requirements: Sequence[Requirement]) -> list[str]:
 
 
 def run_requirements(recorder: str = 'none') -> list[str]:
-    """What the emulator of a closed-loop run waits for, by recorder.
+    """
+    Return what the emulator of a closed-loop run waits for, by recorder.
 
     Parameters
     ----------
@@ -132,6 +137,7 @@ def run_requirements(recorder: str = 'none') -> list[str]:
         Requirements for the emulator's ``ready_endpoints`` parameter: the MPC
         (subscribes to the state, publishes setpoints) and the forecaster (publishes
         forecasts), and the recorder's endpoints.
+
     """
     if recorder not in RECORDERS:
         raise ValueError(f'recorder must be one of {list(RECORDERS)}, got {recorder!r}')
@@ -150,7 +156,8 @@ def run_requirements(recorder: str = 'none') -> list[str]:
 
 
 class ReadinessGate:
-    """Polls the graph on a steady timer until the requirements hold, or times out.
+    """
+    Polls the graph on a steady timer until the requirements hold, or times out.
 
     Parameters
     ----------
@@ -179,6 +186,7 @@ class ReadinessGate:
         The unmet requirements at the last poll.
     ready : bool
         True once on_ready was called.
+
     """
 
     def __init__(self, node: Node, requirements: Sequence[Requirement], *,

@@ -1,4 +1,5 @@
-"""The bag recorder node: writes rosbag2 bags (mcap or sqlite3) from raw serialized messages.
+r"""
+The bag recorder node: writes rosbag2 bags (mcap or sqlite3) from raw serialized messages.
 
 It subscribes with ``raw=True`` (no deserialisation: the CDR bytes go to the
 bag as they came), registers the message definitions of the custom types from
@@ -29,7 +30,7 @@ Health on ``/diagnostics`` (``mshoot/recorder``): messages written per topic.
 
 On a full ROS 2 install the equivalent is::
 
-    ros2 bag record -s mcap /clock /zone/state /zone/disturbances /forecast \\
+    ros2 bag record -s mcap /clock /zone/state /zone/disturbances /forecast \
         /mpc/setpoint /mpc/status
 """
 from __future__ import annotations
@@ -96,7 +97,8 @@ def _check(v: dict[str, Any]) -> str | None:
 
 
 class RecorderNode(Node):
-    """Records topics into a rosbag2 bag (see the module docstring).
+    """
+    Records topics into a rosbag2 bag (see the module docstring).
 
     Attributes
     ----------
@@ -106,6 +108,7 @@ class RecorderNode(Node):
         Topics whose subscription has matched a publisher.
     ready : bool
         True once ``~/ready`` is published.
+
     """
 
     def __init__(self, **kwargs: Any) -> None:
@@ -168,8 +171,11 @@ class RecorderNode(Node):
             self._discovery_timer.cancel()
 
     def _check_matches(self) -> None:
-        """Note each subscription's first matched publisher; publish ``~/ready`` once the
-        ready topics have all matched (polled on a steady timer)."""
+        """
+        Note each subscription's first matched publisher; publish ``~/ready`` once all matched.
+
+        The ready topics are polled on a steady timer.
+        """
         for topic, subscription in self._recorded.items():
             if topic in self.matched:
                 continue
@@ -186,7 +192,7 @@ class RecorderNode(Node):
             self._match_timer.cancel()
 
     def health(self) -> Report:
-        """The recorder's status for /diagnostics."""
+        """Return the recorder's status for /diagnostics."""
         values_: dict[str, Any] = {'bag': str(self.path), 'storage': self.params['storage'],
                                    'messages_total': self.total, 'ready': self.ready}
         values_.update({f'messages {topic}': count for topic, count in self.counts.items()})
@@ -243,7 +249,8 @@ class RecorderNode(Node):
 
     def drain(self, executor: SingleThreadedExecutor, quiet_s: float = 0.1,
               limit_s: float = 2.0) -> int:
-        """Take the messages already received (waiting in the subscriptions) before closing.
+        """
+        Take the messages already received (waiting in the subscriptions) before closing.
 
         Spins until nothing new arrived for ``quiet_s`` (at most ``limit_s``) of
         wall time; returns the number written meanwhile.
@@ -273,7 +280,8 @@ class RecorderNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    """``ros2 run mshoot_nodes recorder --ros-args -p bag_path:=out/bag``; Ctrl-C ends it.
+    """
+    ``ros2 run mshoot_nodes recorder --ros-args -p bag_path:=out/bag``; Ctrl-C ends it.
 
     SIGINT and SIGTERM only request the stop (no exception in the middle of a
     write, and the context stays valid): what was received is written, then the

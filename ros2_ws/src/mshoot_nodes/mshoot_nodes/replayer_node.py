@@ -1,4 +1,5 @@
-"""The bag replayer node: republishes a rosbag2 bag with its timing, scaled by ``rate``.
+"""
+The bag replayer node: republishes a rosbag2 bag with its timing, scaled by ``rate``.
 
 Messages go out as the raw CDR bytes they were recorded as (``publish(bytes)``),
 on publishers with the recorded type and offered QoS (so ``/forecast`` stays
@@ -49,7 +50,8 @@ def _names(value: list[str]) -> set[str]:
 
 
 class ReplayerNode(Node):
-    """Plays a bag (see the module docstring).
+    """
+    Plays a bag (see the module docstring).
 
     Attributes
     ----------
@@ -57,6 +59,7 @@ class ReplayerNode(Node):
         Messages published so far.
     done : bool
         True after the last message.
+
     """
 
     def __init__(self, **kwargs: Any) -> None:
@@ -103,7 +106,7 @@ class ReplayerNode(Node):
                 self._rate = float(param.value)
 
     def health(self) -> Report:
-        """The replayer's status for /diagnostics."""
+        """Return the replayer's status for /diagnostics."""
         values_ = {'bag': self.params['bag_path'], 'published': self.published,
                    'messages': len(self.messages), 'rate': self._rate,
                    'topics': len(self._topic_publishers)}
@@ -113,7 +116,8 @@ class ReplayerNode(Node):
                       'messages', values_)
 
     def publish_until(self, bag_offset_ns: int) -> int:
-        """Publish every message recorded at most ``bag_offset_ns`` after the first one.
+        """
+        Publish every message recorded at most ``bag_offset_ns`` after the first one.
 
         Returns the number published by this call.
         """

@@ -1,4 +1,5 @@
-"""The outputs of a ROS run: per-step records, KPIs, plot, as the case command writes them.
+"""
+The outputs of a ROS run: per-step records, KPIs, plot, as the case command writes them.
 
 A ROS run is recorded in two places: the emulator knows what it applied and
 the fine trajectory (:meth:`EmulatorNode.applied_frame`, ``fine_frame``, or
@@ -29,7 +30,8 @@ SINGLE_ZONE = {'T': 'y_T'}
 
 
 def steps_frame(applied: pd.DataFrame, mpc_records: pd.DataFrame) -> pd.DataFrame:
-    """One row per control step: what the emulator applied and what the MPC reported.
+    """
+    One row per control step: what the emulator applied and what the MPC reported.
 
     Parameters
     ----------
@@ -47,6 +49,7 @@ def steps_frame(applied: pd.DataFrame, mpc_records: pd.DataFrame) -> pd.DataFram
         for every ``<zone>_predicted_c`` (``T_predicted``); steps without an
         MPC record (should not happen in lockstep) get ``success`` False and
         ``solve_time_s`` 0.
+
     """
     named = [c for c in mpc_records.columns if c.endswith(('_setpoint', '_predicted_c'))]
     steps = applied.drop(columns=['stamp_ns'], errors='ignore').join(
@@ -63,7 +66,8 @@ def steps_frame(applied: pd.DataFrame, mpc_records: pd.DataFrame) -> pd.DataFram
 
 def zone_temperature_columns(fine: pd.DataFrame,
                              zones: Mapping[str, str] | None = None) -> list[str]:
-    """The columns of ``fine`` holding the zone temperatures [degC].
+    """
+    Return the columns of ``fine`` holding the zone temperatures [degC].
 
     Parameters
     ----------
@@ -75,6 +79,7 @@ def zone_temperature_columns(fine: pd.DataFrame,
         the state ``x_...`` [K]), as the emulator reports it
         (:meth:`EmulatorNode.zone_temperature_columns`, ``run.json``); default
         the single R1C1 zone (``y_T``).
+
     """
     columns = []
     for zone, column in (zones or SINGLE_ZONE).items():
@@ -88,8 +93,11 @@ def zone_temperature_columns(fine: pd.DataFrame,
 def run_kpis(steps: pd.DataFrame, fine: pd.DataFrame, step_s: float, wall_s: float,
              controls: Sequence[str] = ('q',), temperature_columns: Sequence[str] = ('y_T',),
              **extra: object) -> dict:
-    """KPIs of a ROS run: :func:`closed_loop_kpis` (summed over the controls and zones) plus
-    ``extra`` and ``fallbacks``."""
+    """
+    Return the KPIs of a ROS run.
+
+    :func:`closed_loop_kpis` (summed over the controls and zones) plus ``extra`` and ``fallbacks``.
+    """
     kpis = closed_loop_kpis(steps, fine, step_s, wall_s, list(controls),
                             list(temperature_columns))
     kpis['fallbacks'] = int(np.sum(steps['fallback'].to_numpy(dtype=bool)))
@@ -102,7 +110,8 @@ def run_outputs(out: pathlib.Path, applied: pd.DataFrame, fine: pd.DataFrame,
                 mpc_records: pd.DataFrame, step_s: float, wall_s: float, title: str,
                 controls: Sequence[str] = ('q',), zones: Mapping[str, str] | None = None,
                 **extra: object) -> dict:
-    """Write kpis.json, steps.csv, trajectories.csv and plot.png to ``out``; return the KPIs.
+    """
+    Write kpis.json, steps.csv, trajectories.csv and plot.png to ``out``; return the KPIs.
 
     ``controls`` are the applied heat rates (columns of ``applied``), ``zones``
     the zone temperatures (see :func:`zone_temperature_columns`); the plot
@@ -117,7 +126,7 @@ def run_outputs(out: pathlib.Path, applied: pd.DataFrame, fine: pd.DataFrame,
 
 
 def kpi_summary(kpis: dict) -> str:
-    """A few lines with the KPIs an operator looks at first."""
+    """Return a few lines with the KPIs an operator looks at first."""
     missing = kpis.get('mpc_records_missing', 0)
     return (f"energy {kpis['energy_kwh']:.2f} kWh (heating {kpis['heating_kwh']:.2f}, cooling "
             f"{kpis['cooling_kwh']:.2f})\n"

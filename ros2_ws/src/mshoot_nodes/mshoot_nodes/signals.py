@@ -1,4 +1,5 @@
-"""SIGINT and SIGTERM as a request to stop, not an exception in the middle of a write.
+"""
+SIGINT and SIGTERM as a request to stop, not an exception in the middle of a write.
 
 Python turns SIGINT into KeyboardInterrupt wherever the main thread happens to
 be (possibly inside a bag write) and dies on SIGTERM without running any
@@ -17,12 +18,14 @@ Handler = Callable[[int, FrameType | None], Any] | int | None
 
 
 class StopSignals:
-    """Turn ``signals`` into a stop request while installed (a context manager).
+    """
+    Turn ``signals`` into a stop request while installed (a context manager).
 
     Attributes
     ----------
     received : str
         Name of the first signal received ('' while none).
+
     """
 
     def __init__(self, signals: Sequence[int] = (signal.SIGINT, signal.SIGTERM)) -> None:
@@ -33,7 +36,7 @@ class StopSignals:
 
     @property
     def requested(self) -> bool:
-        """True once one of the signals arrived."""
+        """Return True once one of the signals arrived."""
         return self._event.is_set()
 
     def request(self, name: str = 'request') -> None:

@@ -1,4 +1,5 @@
-"""Scenarios, models and the simulated-time origin, built from parameter values.
+"""
+Scenarios, models and the simulated-time origin, built from parameter values.
 
 Models come from the one registry of :mod:`mshoot_core.models.registry`
 (re-exported here as ``build_model``, ``check_model``).
@@ -12,8 +13,8 @@ from __future__ import annotations
 import logging
 import pathlib
 
-from mshoot_core.models.registry import BUILTIN as MODELS  # noqa: F401 (API)
 from mshoot_core.models.registry import build_model, check_model  # noqa: F401 (API)
+from mshoot_core.models.registry import BUILTIN as MODELS  # noqa: F401 (API)
 from mshoot_core.scenario import reference_scenario
 import pandas as pd
 
@@ -41,7 +42,8 @@ def check_scenario(name: str, data: str) -> str | None:
 
 
 def load_scenario(name: str, data: str = '', hours: int = 72) -> pd.DataFrame:
-    """The scenario of a run: ``hours`` control steps (``hours + 1`` rows).
+    """
+    Return the scenario of a run: ``hours`` control steps (``hours + 1`` rows).
 
     Parameters
     ----------
@@ -58,12 +60,14 @@ def load_scenario(name: str, data: str = '', hours: int = 72) -> pd.DataFrame:
     ------
     FileNotFoundError, ValueError
         Missing data or a scenario that does not cover ``hours``.
+
     """
     return reference_scenario(name, data or None, hours)
 
 
 def start_ns(scenario: pd.DataFrame, start_time: str = '') -> int:
-    """ROS time [ns] of the first scenario row.
+    """
+    ROS time [ns] of the first scenario row.
 
     ``start_time`` (ISO, read as UTC) or else the scenario's ``attrs['start']``,
     else :data:`DEFAULT_START`. Real dates keep simulated time away from 0,
@@ -94,8 +98,11 @@ def check_start_time(text: str) -> str | None:
 
 
 def fmu_available() -> bool:
-    """True if the R1C1 FMU and its batch drivers are built where the runtime finds them
-    (``make setup``)."""
+    """
+    Return True if the R1C1 FMU and its batch drivers are built where the runtime finds them.
+
+    They are built by ``make setup``.
+    """
     try:
         from mshoot_core.fmu_cache import find_driver, find_fmu, NotBuiltError
     except ImportError:

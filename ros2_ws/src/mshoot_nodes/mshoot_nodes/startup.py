@@ -1,4 +1,5 @@
-"""Start-up of a node process: configuration errors end it with one clear line and exit 2.
+"""
+Start-up of a node process: configuration errors end it with one clear line and exit 2.
 
 Bad parameters, YAML values, FMU paths or variable names and CSV columns are
 all found while the node is constructed (parameters are validated on
@@ -25,15 +26,21 @@ _CLEAR = (InvalidParameterValueException, ValueError, FileNotFoundError)
 
 
 class StartupError(Exception):
-    """A node could not be built from its configuration (bad parameters, model, scenario):
-    the message is one line naming the node and the reason; bring-ups exit with
-    :data:`EXIT_CONFIG`."""
+    """
+    A node could not be built from its configuration (bad parameters, model, scenario).
+
+    The message is one line naming the node and the reason; bring-ups exit with
+    :data:`EXIT_CONFIG`.
+    """
 
 
 def startup_reason(exc: BaseException) -> str:
-    """One line on why a node could not start: the message of a clear configuration error
-    as it is, else the exception's type and message (never a traceback); the lines of a
-    message of several lines are joined with '; '."""
+    """
+    Say in one line why a node could not start.
+
+    The message of a clear configuration error as it is, else the exception's type and message
+    (never a traceback); the lines of a message of several lines are joined with '; '.
+    """
     text = str(exc) if isinstance(exc, _CLEAR) else f'{type(exc).__name__}: {exc}'
     if getattr(exc, 'reason', None):  # params.ParameterRejected: not every value given
         text = str(exc.reason)
@@ -43,7 +50,8 @@ def startup_reason(exc: BaseException) -> str:
 
 
 def construct(factory: Callable[[], NodeT], name: str) -> NodeT | None:
-    """Build a node; on a configuration error log it (fatal) and return None.
+    """
+    Build a node; on a configuration error log it (fatal) and return None.
 
     Parameters
     ----------
@@ -51,6 +59,7 @@ def construct(factory: Callable[[], NodeT], name: str) -> NodeT | None:
         Builds the node (e.g. the node class).
     name : str
         Logger name for the error (the node's name).
+
     """
     try:
         return factory()
@@ -63,7 +72,8 @@ def construct(factory: Callable[[], NodeT], name: str) -> NodeT | None:
 
 def run_node(factory: Callable[[], NodeT], name: str, args: list[str] | None = None, *,
              until_done: bool = False, bridge_logging: bool = False) -> NodeT | None:
-    """The ``main`` of a node process: init, construct, spin, clean up.
+    """
+    Run a node process (its ``main``): init, construct, spin, clean up.
 
     Ctrl-C and an external shutdown end the spin quietly; the node is destroyed
     and the context shut down in every case. A configuration error exits with
@@ -88,6 +98,7 @@ def run_node(factory: Callable[[], NodeT], name: str, args: list[str] | None = N
     node
         The node after it was destroyed (for its final state, e.g. ``failed``), or
         None when Ctrl-C came before it was built.
+
     """
     rclpy.init(args=args)
     node = None

@@ -1,4 +1,5 @@
-"""Rejected input messages: counted, and logged one clear line each, rate-limited.
+"""
+Rejected input messages: counted, and logged one clear line each, rate-limited.
 
 The rules live in :mod:`mshoot_core.safety`; this module only turns a
 :class:`~mshoot_core.safety.Rejection` into a log line on the node's logger
@@ -21,7 +22,8 @@ from mshoot_nodes.conversions import NS_PER_S
 
 
 class RejectionLog:
-    """Counts rejections of a node's inputs and logs them, throttled per (stream, kind).
+    """
+    Counts rejections of a node's inputs and logs them, throttled per (stream, kind).
 
     Parameters
     ----------
@@ -37,6 +39,7 @@ class RejectionLog:
     ----------
     counter : RejectionCounter
         Every rejection, by stream and kind.
+
     """
 
     def __init__(self, node: Node, period_s: float = 5.0,

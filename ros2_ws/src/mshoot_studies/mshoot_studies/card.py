@@ -1,4 +1,5 @@
-"""Model cards from the command line: check a card against its model, list an FMU's variables.
+"""
+Model cards from the command line: check a card against its model, list an FMU's variables.
 
     mshoot card check CARD.yaml      # validate; print what the card maps (exit 2: every problem)
     mshoot card variables MODEL.fmu  # every variable of an FMU: causality, type, unit, start
@@ -25,8 +26,11 @@ COLUMNS = (('section', 'section'), ('name', 'name'), ('variable', 'model variabl
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    """The command line of the card tools: fills ``parser`` (the ``card`` verb of ``mshoot``),
-    or a new parser when None."""
+    """
+    Build the command line of the card tools.
+
+    Fills ``parser`` (the ``card`` verb of ``mshoot``), or a new parser when None.
+    """
     if parser is None:
         parser = argparse.ArgumentParser(prog='python -m mshoot_studies.card',
                                          description=__doc__,
@@ -58,8 +62,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def check(path: pathlib.Path, out: TextIO, err: TextIO) -> int:
-    """Validate the card at ``path``; print its mapping to ``out`` (0) or every problem to
-    ``err`` (2)."""
+    """
+    Validate the card at ``path``.
+
+    Print its mapping to ``out`` (0) or every problem to ``err`` (2).
+    """
     try:
         card = cards.load_card(path)
     except cards.CardError as exc:

@@ -1,6 +1,7 @@
-"""The reference case (OU44 classroom, SPEC section 3) as a command.
+r"""
+The reference case (OU44 classroom, SPEC section 3) as a command.
 
-    mshoot case ou44 --data PATH --horizon 10 --control fmu --tolerance 1e-6 \\
+    mshoot case ou44 --data PATH --horizon 10 --control fmu --tolerance 1e-6 \
         --cost quadratic --out out/case
 
 runs the 72 h MPC emulation (hourly control, R1C1 emulator, perfect
@@ -27,9 +28,6 @@ import pathlib
 import time
 from typing import Any, Sequence
 
-import numpy as np
-import pandas as pd
-
 from mshoot_core.closed_loop import ClosedLoopResult, EmulationStopped, run_closed_loop
 from mshoot_core.controller import Controller
 from mshoot_core.emulation import Emulator
@@ -37,14 +35,16 @@ from mshoot_core.kpis import closed_loop_kpis
 from mshoot_core.models import card as cards
 from mshoot_core.models.base import Model
 from mshoot_core.models.r1c1 import KELVIN
-from mshoot_core.models.registry import (BUILTIN, build_model, check_model, CONTROL_TOLERANCE,
-                                         EMULATOR_TOLERANCE, is_card_path, MODEL_PARAMETERS,
-                                         model_names, ModelSettings)
+from mshoot_core.models.registry import (build_model, BUILTIN, check_model, CONTROL_TOLERANCE,
+                                         EMULATOR_TOLERANCE, is_card_path, model_names,
+                                         MODEL_PARAMETERS, ModelSettings)
 from mshoot_core.outputs import write_outputs
 from mshoot_core.plotting import PlotWorker
 from mshoot_core.scenario import DEFAULT_DATA, PUBLISHED, reference_scenario
 from mshoot_core.settings import (add_arguments, from_arguments, MpcSettings, option_wording,
                                   SettingsError)
+import numpy as np
+import pandas as pd
 
 logger = logging.getLogger(__name__)
 
@@ -58,7 +58,8 @@ INITIAL_C = 20.0
 def control_model(kind: str, tolerance: float = CONTROL_TOLERANCE,
                   data: str | pathlib.Path | None = None, report: dict | None = None,
                   scenario_start: str | None = None) -> Model:
-    """Build the control model of the case.
+    """
+    Build the control model of the case.
 
     Parameters
     ----------
@@ -67,10 +68,15 @@ def control_model(kind: str, tolerance: float = CONTROL_TOLERANCE,
         'python', 'fmu', 'fmu-cs', a path to an .fmu or a model card), or a
         scikit-learn model trained as in Setup 2 ('svr' is Setup 2 itself,
         'linear', 'ridge', 'knn', 'random_forest', 'mlp'; needs ``data``).
+    tolerance : float
+        Relative tolerance of an FMU control model's integrator.
+    data : path-like, optional
+        The OU44 measurements the data-driven models train on.
     report : dict, optional
         Filled with the training/validation report of data-driven models.
     scenario_start : str, optional
         The scenario's first row (ISO 8601), for a card's ``time_origin``.
+
     """
     if is_card_path(kind):
         return card_model(kind, 'control', tolerance, scenario_start)
@@ -91,13 +97,17 @@ def control_model(kind: str, tolerance: float = CONTROL_TOLERANCE,
 
 def card_model(path: str | pathlib.Path, role: str, tolerance: float,
                scenario_start: str | None = None) -> Model:
-    """The model of a card for ``role`` ('control' or 'emulator'), its FMU time origin
-    taken from the scenario's start (:func:`mshoot_core.models.card.time_origin_seconds`).
+    """
+    Build the model of a card for ``role`` ('control' or 'emulator').
+
+    Its FMU time origin is taken from the scenario's start
+    (:func:`mshoot_core.models.card.time_origin_seconds`).
 
     Raises
     ------
     ValueError
         A :class:`~mshoot_core.models.card.CardError` with every problem of the card.
+
     """
     card = cards.load_card(path)
     return cards.build_model(card, role, cards.time_origin_seconds(card, scenario_start),
@@ -105,16 +115,23 @@ def card_model(path: str | pathlib.Path, role: str, tolerance: float,
 
 
 def emulator_model(kind: str, scenario_start: str | None = None) -> Model:
-    """The emulated building of the case: a registry model or a card, at
-    :data:`~mshoot_core.models.registry.EMULATOR_TOLERANCE` (unless the card sets one)."""
+    """
+    Build the emulated building of the case: a registry model or a card.
+
+    At :data:`~mshoot_core.models.registry.EMULATOR_TOLERANCE` (unless the card sets one).
+    """
     if is_card_path(kind):
         return card_model(kind, 'emulator', EMULATOR_TOLERANCE, scenario_start)
     return build_model(kind, EMULATOR_TOLERANCE, role='emulator')
 
 
 def model_choice(value: str) -> str:
-    """argparse type of ``--control``/``--emulator``: a known name or a path to a card (.yaml)
-    or an .fmu file (checked with the other options, every problem at once)."""
+    """
+    Parse ``--control``/``--emulator``: a known name or a path to a card or an FMU.
+
+    An argparse type: a known name or a path to a card (.yaml) or an .fmu file (checked with the
+    other options, every problem at once).
+    """
     if value in (*CONTROL_MODELS, *model_names()) or value.endswith('.fmu') \
             or is_card_path(value):
         return value
@@ -129,7 +146,8 @@ def run_case(scenario: pd.DataFrame, control: Model, emulator_model: Model,
              x0: Sequence[float] | None = None,
              actuator_bounds: Sequence[tuple[float, float]] | None = None,
              **options: Any) -> tuple[ClosedLoopResult, dict]:
-    """Run the MPC emulation of a scenario and return the records and the KPIs.
+    """
+    Run the MPC emulation of a scenario and return the records and the KPIs.
 
     Parameters
     ----------
@@ -142,6 +160,8 @@ def run_case(scenario: pd.DataFrame, control: Model, emulator_model: Model,
         ``options`` (flat names such as ``cost='energy'``, ``solver='ipopt'``,
         ``comfort='soft'``, ``mode='naive'``; ``horizon`` is short for
         ``horizon_steps``).
+    horizon : int, optional
+        MPC horizon in control steps (``horizon_steps``).
     initial_c : float
         Initial zone temperature [degC].
     steps, log_every, progress, budget_s :
@@ -160,6 +180,7 @@ def run_case(scenario: pd.DataFrame, control: Model, emulator_model: Model,
         If the emulated building failed; its ``result`` holds the steps done
         and its ``kpis`` their KPIs with the reason under ``stopped`` (None
         without a step done).
+
     """
     if horizon is not None:
         options['horizon_steps'] = horizon
@@ -182,8 +203,11 @@ def run_case(scenario: pd.DataFrame, control: Model, emulator_model: Model,
 
 
 def _case_kpis(result: ClosedLoopResult, settings: MpcSettings) -> dict:
-    """The KPIs of a run and the settings that made it (the energy KPIs count the control
-    ``q``, or the first control when there is no ``q``)."""
+    """
+    Return the KPIs of a run and the settings that made it.
+
+    The energy KPIs count the control ``q``, or the first control when there is no ``q``.
+    """
     p, c = settings.problem, settings.comfort
     energy_control = 'q' if 'q' in p.control_names else p.control_names[0]
     kpis = closed_loop_kpis(result.steps, result.fine, p.step_s, result.wall_s,
@@ -203,8 +227,11 @@ CASE_SETTINGS = ('horizon_steps', 'cost', 'comfort', 'soft_penalty', 'solver', '
 
 def option_problems(args: argparse.Namespace,
                     scenario_steps: int | None = None) -> tuple[MpcSettings | None, list[str]]:
-    """The controller settings of parsed options, and every problem of the options at once
-    (settings, FMU tolerance, hours, and a horizon longer than the forecasts)."""
+    """
+    Return the controller settings of parsed options, and every problem of the options.
+
+    All problems at once: settings, FMU tolerance, hours, and a horizon longer than the forecasts.
+    """
     problems = ModelSettings(fmu_tolerance=args.tolerance).problems()
     for option, name in (('--control', args.control), ('--emulator', args.emulator)):
         if name in DATA_DRIVEN and option == '--control':
@@ -228,8 +255,11 @@ def option_problems(args: argparse.Namespace,
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    """The command line of the case: fills ``parser`` (e.g. the ``case`` verb of ``mshoot``),
-    or a new parser when None."""
+    """
+    Build the command line of the case.
+
+    It fills ``parser`` (e.g. the ``case`` verb of ``mshoot``), or a new parser when None.
+    """
     if parser is None:
         parser = argparse.ArgumentParser(
             prog='python -m mshoot_studies.case', description=__doc__,
@@ -250,7 +280,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                              f'{EMULATOR_TOLERANCE:g} unless the card sets one)')
     parser.add_argument('--tolerance', type=float, default=CONTROL_TOLERANCE,
                         help='relative tolerance of the control FMU integrator, in [1e-14, '
-                             f'1e-2] (default {CONTROL_TOLERANCE:g}; a card\'s own tolerance '
+                             f"1e-2] (default {CONTROL_TOLERANCE:g}; a card's own tolerance "
                              'wins)')
     add_arguments(parser, CASE_SETTINGS)
     parser.add_argument('--hours', type=int, default=72,
@@ -267,8 +297,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the case as parsed by :func:`build_parser`; 0, 2 on bad input, 1 if the emulated
-    building failed (partial outputs written); the reason is logged."""
+    """
+    Run the case as parsed by :func:`build_parser`.
+
+    Return 0, 2 on bad input, 1 if the emulated building failed (partial outputs written); the
+    reason is logged.
+    """
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format='%(asctime)s %(levelname)s %(name)s: %(message)s')
     settings, problems = option_problems(args)
@@ -345,8 +379,10 @@ def _run(args: argparse.Namespace, settings: MpcSettings, plotter: PlotWorker) -
 def card_setup(args: argparse.Namespace, settings: MpcSettings, control: Model,
                emulator: Model, scenario: pd.DataFrame
                ) -> tuple[MpcSettings, np.ndarray | None, list | None, list[str]]:
-    """What the cards of ``--control``/``--emulator`` change in the case, and every problem
-    of the pair with the scenario.
+    """
+    Apply the cards of ``--control``/``--emulator`` to the case; list every problem.
+
+    What the cards change in the case, and every problem of the pair with the scenario.
 
     The control card gives the MPC's controls (``control_names``) and, where it
     bounds them, the heat-rate range (one range for every control: where the
@@ -357,6 +393,7 @@ def card_setup(args: argparse.Namespace, settings: MpcSettings, control: Model,
     Returns
     -------
     settings, x0 (None: the default), actuator bounds (None: the MPC's), problems
+
     """
     problems: list[str] = []
     control_card = cards.load_card(args.control) if is_card_path(args.control) else None
@@ -413,7 +450,7 @@ def card_setup(args: argparse.Namespace, settings: MpcSettings, control: Model,
 
 def _write_stopped(out: pathlib.Path, result: ClosedLoopResult | None, kpis: dict,
                    title: str) -> None:
-    """The files of a stopped run: those of its steps done, or ``kpis.json`` alone."""
+    """Return the files of a stopped run: those of its steps done, or ``kpis.json`` alone."""
     if result is not None:
         write_outputs(out, result, kpis, title)
         return

@@ -1,4 +1,5 @@
-"""The ``mshoot`` command: one entry point, one verb per application.
+"""
+The ``mshoot`` command: one entry point, one verb per application.
 
     mshoot case ou44 --data PATH --horizon 10 --control fmu --out out/case
     mshoot case synthetic --control zone.yaml --emulator zone_cs.yaml --out out/zone
@@ -30,7 +31,7 @@ VERBS: dict[str, tuple[str, str]] = {
                                     'the synthetic scenario): KPIs, trajectories, plot'),
     'study': ('mshoot_studies.study', 'the reference study: every table and figure, runs on '
                                       'local worker processes or a Dask cluster'),
-    'card': ('mshoot_studies.card', "model cards: check a card against its model and print "
+    'card': ('mshoot_studies.card', 'model cards: check a card against its model and print '
                                     "what it maps, list an FMU's variables"),
 }
 
@@ -51,19 +52,21 @@ FIGURE_VERBS = frozenset({'case'})
 
 
 def _verb(argv: Sequence[str]) -> str | None:
-    """The verb of a command line (its first word that is not an option), if it is one."""
+    """Return the verb of a command line (its first word that is not an option), if it is one."""
     word = next((word for word in argv if not word.startswith('-')), None)
     return word if word in VERBS else None
 
 
 def build_parser(verbs: Sequence[str] | None = None) -> argparse.ArgumentParser:
-    """``mshoot`` with one subparser per verb of :data:`VERBS`.
+    """
+    ``mshoot`` with one subparser per verb of :data:`VERBS`.
 
     Parameters
     ----------
     verbs : sequence of str, optional
         The verbs whose options are needed (their modules are imported); the
         others are listed with their summary only. Default: all.
+
     """
     parser = argparse.ArgumentParser(
         prog='mshoot', description=__doc__,
@@ -83,7 +86,8 @@ def build_parser(verbs: Sequence[str] | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None, plot_worker: Any = None) -> int:
-    """Parse ``argv`` (default: the process arguments) and run the verb; its exit code.
+    """
+    Parse ``argv`` (default: the process arguments) and run the verb; its exit code.
 
     ``plot_worker``, a started :class:`mshoot_core.plotting.PlotWorker`, is handed to a
     verb of :data:`FIGURE_VERBS` (as ``args.plot_worker``); without it the verb starts its
@@ -98,9 +102,11 @@ def main(argv: Sequence[str] | None = None, plot_worker: Any = None) -> int:
 
 
 def exit_now(code: int) -> None:
-    """End the process with ``code`` once everything it wrote is out, without tearing the
-    interpreter down module by module (a few hundred ms for the thousand modules of a
-    run, spent after the last output).
+    """
+    End the process with ``code`` once everything it wrote is out.
+
+    Without tearing the interpreter down module by module (a few hundred ms for the thousand
+    modules of a run, spent after the last output).
 
     What a normal exit does for the files and logs is done first: the ``atexit``
     handlers (``logging.shutdown`` flushes and closes the log handlers, weakref
@@ -126,8 +132,11 @@ def exit_now(code: int) -> None:
 
 
 def console_main() -> None:
-    """The ``mshoot`` console script: the verb's :data:`VERB_ENVIRONMENT`, :func:`main`, then
-    a fast :func:`exit_now`."""
+    """
+    Run the ``mshoot`` console script.
+
+    The verb's :data:`VERB_ENVIRONMENT`, :func:`main`, then a fast :func:`exit_now`.
+    """
     verb = _verb(sys.argv[1:])
     for name, value in VERB_ENVIRONMENT.get(verb, {}).items():
         os.environ.setdefault(name, value)

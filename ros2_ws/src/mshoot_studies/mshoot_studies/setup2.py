@@ -1,4 +1,5 @@
-"""Setup 2 of the reference case: data-driven OU44 zone models trained on R1C1 responses.
+"""
+Setup 2 of the reference case: data-driven OU44 zone models trained on R1C1 responses.
 
 The R1C1 zone is simulated over the measured OU44 disturbances of
 2018-04-04 08:00 to 2018-04-13 21:00, excited by a +-2000 W sinusoidal heat
@@ -16,13 +17,12 @@ import logging
 import pathlib
 from typing import Any
 
-import numpy as np
-import pandas as pd
-
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.models.sklearn_model import (evaluate, make_excitation_data, make_zone_model,
                                               SklearnModel)
 from mshoot_core.scenario import load_ou44
+import numpy as np
+import pandas as pd
 
 logger = logging.getLogger(__name__)
 
@@ -34,7 +34,8 @@ SETUP2_END = '2018-04-13 21:00'
 
 @dataclasses.dataclass(frozen=True)
 class TrainingReport:
-    """How a data-driven zone model did on its validation data.
+    """
+    How a data-driven zone model did on its validation data.
 
     Attributes
     ----------
@@ -57,6 +58,7 @@ class TrainingReport:
         Wall-clock training time [s].
     validation : DataFrame, shape (n_validation, 3)
         ``T_true``, ``T_free_run``, ``T_one_step`` [degC] indexed by time [s].
+
     """
 
     estimator: str
@@ -75,7 +77,8 @@ def train_setup2(ou44_csv: str | pathlib.Path, estimator: str | Any = 'svr', see
                  *, ventilation: str = 'measured', step_s: float = 3600.0,
                  period_h: float = 10.0, amplitude_w: float = 2000.0,
                  use_state: bool = True) -> tuple[SklearnModel, TrainingReport]:
-    """Train a data-driven OU44 zone model on R1C1 responses (SPEC Setup 2) and validate it.
+    """
+    Train a data-driven OU44 zone model on R1C1 responses (SPEC Setup 2) and validate it.
 
     The R1C1 model is simulated over 2018-04-04 08:00 to 2018-04-13 21:00 on
     the measured disturbances (hourly means), from the measured initial
@@ -108,6 +111,7 @@ def train_setup2(ou44_csv: str | pathlib.Path, estimator: str | Any = 'svr', see
     Returns
     -------
     (SklearnModel, TrainingReport)
+
     """
     if ventilation not in ('measured', 'off'):
         raise ValueError(f"ventilation must be 'measured' or 'off', got {ventilation!r}")

@@ -1,4 +1,5 @@
-"""The reference study (OU44 classroom, SPEC section 3), every table and figure from scratch.
+"""
+The reference study (OU44 classroom, SPEC section 3), every table and figure from scratch.
 
     mshoot study --data PATH --out DIR [--hours 72] [--jobs 2] [--parts 1 2 3 4 5]
                  [--timeout SECONDS] [--dask local|SCHEDULER_ADDRESS]
@@ -39,13 +40,13 @@ import sys
 import time
 from typing import Any, Callable, Sequence
 
-import numpy as np
-import pandas as pd
-
 from mshoot_core.kpis import JOULES_PER_KWH
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.models.registry import build_model
 from mshoot_core.scenario import DEFAULT_DATA, PUBLISHED, reference_scenario
+import numpy as np
+import pandas as pd
+
 from mshoot_studies.sweeps import LOG_FORMAT, RunOutcome, RunSpec, SweepRunner
 
 logger = logging.getLogger(__name__)
@@ -77,7 +78,8 @@ MODEL_LABELS = {'python': 'R1C1 (Python, exact)', 'fmu': 'R1C1 FMU', 'svr': 'SVR
 
 @dataclasses.dataclass
 class PartResult:
-    """What one part of the study produced.
+    """
+    What one part of the study produced.
 
     Attributes
     ----------
@@ -94,6 +96,7 @@ class PartResult:
         The PNG written.
     json_path : pathlib.Path
         The JSON written (tables and notes).
+
     """
 
     number: int
@@ -119,7 +122,7 @@ def format_value(value: Any, fmt: str | Callable[[Any], str]) -> str:
 
 
 def markdown_table(rows: Sequence[dict], columns: Sequence[Column]) -> str:
-    """A GitHub markdown table of ``rows`` with ``columns`` = (key, header, format)."""
+    """Return a GitHub markdown table of ``rows`` with ``columns`` = (key, header, format)."""
     lines = ['| ' + ' | '.join(header for _, header, _ in columns) + ' |',
              '|' + '|'.join('---:' for _ in columns) + '|']
     for row in rows:
@@ -160,7 +163,7 @@ def _finish_part(out: pathlib.Path, number: int, name: str, title: str,
 
 
 def kpi_row(outcome: RunOutcome) -> dict:
-    """The common KPI columns of a run (energy [kWh], discomfort [K h], times [s])."""
+    """Return the common KPI columns of a run (energy [kWh], discomfort [K h], times [s])."""
     k = outcome.kpis
     return {'energy_kwh': k['energy_kwh'], 'heating_kwh': k['heating_kwh'],
             'cooling_kwh': k['cooling_kwh'], 'discomfort_kh': k['discomfort_kh'],
@@ -178,18 +181,20 @@ def _steps_cell(row: dict) -> str:
 # -- part 1: solution verification ------------------------------------------------------------
 def verification_specs(hours: int = 72, horizons: Sequence[int] = HORIZONS,
                        tolerance: float = REFERENCE_TOLERANCE) -> list[RunSpec]:
-    """Runs of part 1: the R1C1 FMU (ME) as control, its Co-Simulation twin as emulator."""
+    """Return the runs of part 1: the R1C1 FMU (ME) as control, its CS twin as emulator."""
     return [RunSpec('fmu', h, hours, tolerance=tolerance, emulator='fmu-cs') for h in horizons]
 
 
 def solution_verification(runner: SweepRunner, out: pathlib.Path, *, hours: int = 72,
                           horizons: Sequence[int] = HORIZONS,
                           tolerance: float = REFERENCE_TOLERANCE) -> PartResult:
-    """Part 1: q and T for each horizon with the comfort band; energy and discomfort per horizon.
+    """
+    Part 1: q and T for each horizon with the comfort band; energy and discomfort per horizon.
 
     Parameters
     ----------
     runner : SweepRunner
+        Executes the runs (in process, in a local pool or on Dask).
     out : path
         Output folder.
     hours : int
@@ -199,6 +204,7 @@ def solution_verification(runner: SweepRunner, out: pathlib.Path, *, hours: int 
         MPC horizons [h].
     tolerance : float
         Relative tolerance of the FMU control model.
+
     """
     from mshoot_studies.study_plots import plot_verification
     out.mkdir(parents=True, exist_ok=True)
@@ -261,7 +267,7 @@ def tolerance_specs(hours: int = 72, tolerances: Sequence[float] = TOLERANCES,
                     naive_tolerances: Sequence[float] = NAIVE_TOLERANCES,
                     naive_horizon: int = NAIVE_HORIZON, naive_hours: int = NAIVE_HOURS,
                     naive_budget_s: float = NAIVE_BUDGET_S, horizon: int = 10) -> list[RunSpec]:
-    """Runs of part 2: ours over the period at H = 10; naive and ours on the short window."""
+    """Return part 2's runs: ours over the period at H = 10; naive and ours on a short window."""
     window = min(naive_hours, hours)
     specs = [RunSpec('fmu', horizon, hours, tolerance=t, emulator='fmu-cs') for t in tolerances]
     for t in naive_tolerances:
@@ -273,7 +279,8 @@ def tolerance_specs(hours: int = 72, tolerances: Sequence[float] = TOLERANCES,
 
 def gradient_accuracy(data: str | pathlib.Path, tolerances: Sequence[float], samples: int = 16,
                       seed: int = 0) -> list[dict]:
-    """Accuracy of dT_end/dq of one 1 h interval of the R1C1 FMU, per tolerance.
+    """
+    Accuracy of dT_end/dq of one 1 h interval of the R1C1 FMU, per tolerance.
 
     Compares, against the exact derivative of the analytic R1C1 solution, (a)
     the finite difference the naive reproduction's solver takes (SciPy's
@@ -287,6 +294,7 @@ def gradient_accuracy(data: str | pathlib.Path, tolerances: Sequence[float], sam
     -------
     list of dict
         Per tolerance: median and max relative error [-] of both.
+
     """
     scenario = reference_scenario('ou44', data, hours=72)
     rng = np.random.default_rng(seed)
@@ -339,7 +347,7 @@ def _q_difference(naive: RunOutcome, fast: RunOutcome) -> tuple[float, float]:
 
 
 def naive_energy_sentence(energies_kwh: Sequence[float]) -> str:
-    """The energy range [kWh] of the naive runs that finished, as a sentence."""
+    """Return the energy range [kWh] of the naive runs that finished, as a sentence."""
     low, high = min(energies_kwh), max(energies_kwh)
     if f'{low:.2f}' == f'{high:.2f}':
         return f'The naive runs that finished all used {low:.2f} kWh. '
@@ -363,11 +371,13 @@ def integration_tolerance(runner: SweepRunner, out: pathlib.Path, *, hours: int 
                           naive_horizon: int = NAIVE_HORIZON, naive_hours: int = NAIVE_HOURS,
                           naive_budget_s: float = NAIVE_BUDGET_S, horizon: int = 10,
                           gradient_samples: int = 16) -> PartResult:
-    """Part 2: does the result depend on the FMU tolerance? Ours next to the naive ancestor.
+    """
+    Part 2: does the result depend on the FMU tolerance? Ours next to the naive ancestor.
 
     Parameters
     ----------
     runner : SweepRunner
+        Executes the runs (in process, in a local pool or on Dask).
     out : path
         Output folder.
     hours : int
@@ -379,8 +389,11 @@ def integration_tolerance(runner: SweepRunner, out: pathlib.Path, *, hours: int 
         (dense finite differences over all variables, serial simulations), so
         it runs at a short horizon [h] over the first ``naive_hours`` [h] with a
         wall budget [s] per run; ours runs the same window next to it.
+    horizon : int
+        MPC horizon [h] of our runs over the period.
     gradient_samples : int
         Operating points of :func:`gradient_accuracy`.
+
     """
     from mshoot_studies.study_plots import plot_tolerance
     out.mkdir(parents=True, exist_ok=True)
@@ -514,9 +527,12 @@ def solver_failure_summary(matrix_rows: Sequence[dict]) -> str:
 def data_driven_specs(hours: int = 72, models: Sequence[str] = DATA_DRIVEN_MODELS,
                       horizon: int = 10, matrix_hours: int = MATRIX_HOURS,
                       solvers: Sequence[str] = MATRIX_SOLVERS) -> list[RunSpec]:
-    """Runs of part 3: each model (and the exact R1C1) over the period with SLSQP (the
-    non-smooth ones over the matrix window only); the model x solver matrix over a short
-    window."""
+    """
+    Return the runs of part 3: each model over the period, and the model x solver matrix.
+
+    Each model (and the exact R1C1) runs over the period with SLSQP (the non-smooth ones over the
+    matrix window only); the model x solver matrix runs over a short window.
+    """
     specs = [main_data_driven_spec(m, hours, horizon, matrix_hours)
              for m in ('python',) + tuple(models)]
     window = min(matrix_hours, hours)
@@ -527,8 +543,11 @@ def data_driven_specs(hours: int = 72, models: Sequence[str] = DATA_DRIVEN_MODEL
 
 
 def main_data_driven_spec(model: str, hours: int, horizon: int, matrix_hours: int) -> RunSpec:
-    """The run of ``model`` in table 3a: the period, or the matrix window for k-NN and the
-    random forest."""
+    """
+    Return the run of ``model`` in table 3a.
+
+    The period, or the matrix window for k-NN and the random forest.
+    """
     period = min(matrix_hours, hours) if model in NON_SMOOTH_MODELS else hours
     return RunSpec(model, horizon, period)
 
@@ -536,7 +555,8 @@ def main_data_driven_spec(model: str, hours: int, horizon: int, matrix_hours: in
 def learned_response(model: Any, temperature_c: float = 21.0,
                      q_w: np.ndarray | None = None, disturbances: dict | None = None,
                      dt_s: float = 3600.0) -> tuple[np.ndarray, np.ndarray]:
-    """End temperature [degC] of one interval against the heat rate q [W].
+    """
+    End temperature [degC] of one interval against the heat rate q [W].
 
     Shows how smooth a control model is in its control: the exact R1C1 is
     affine in q; a learned model is what its regressor makes of it.
@@ -553,8 +573,11 @@ def learned_response(model: Any, temperature_c: float = 21.0,
 
 def wrong_slope_share(q_w: np.ndarray, t_end: np.ndarray, exact_t_end: np.ndarray,
                       threshold: float = 0.5) -> float:
-    """Share [-] of the q grid where a model's local dT_end/dq is off the exact one by more
-    than ``threshold`` (relative): what a gradient-based solver sees wrongly."""
+    """
+    Return the share [-] of the q grid where a model's local dT_end/dq is off the exact one.
+
+    Off by more than ``threshold`` (relative): what a gradient-based solver sees wrongly.
+    """
     slope = np.gradient(t_end, q_w)
     exact = np.gradient(exact_t_end, q_w)
     return float(np.mean(np.abs(slope - exact) > threshold * np.abs(exact)))
@@ -564,21 +587,26 @@ def data_driven(runner: SweepRunner, out: pathlib.Path, *, hours: int = 72,
                 models: Sequence[str] = DATA_DRIVEN_MODELS, horizon: int = 10,
                 matrix_hours: int = MATRIX_HOURS,
                 solvers: Sequence[str] = MATRIX_SOLVERS) -> PartResult:
-    """Part 3: Setup 2 (SVR) and every other scikit-learn model as the control model.
+    """
+    Part 3: Setup 2 (SVR) and every other scikit-learn model as the control model.
 
     Parameters
     ----------
     runner : SweepRunner
+        Executes the runs (in process, in a local pool or on Dask).
     out : path
         Output folder.
     hours : int
         Period [h] of the main runs (SLSQP, ``horizon``).
     models : sequence of str
         Data-driven control models (trained as in Setup 2).
+    horizon : int
+        MPC horizon [h].
     matrix_hours : int
         Window [h] of the model x solver matrix.
     solvers : sequence of str
         Solvers of the matrix.
+
     """
     from mshoot_studies.study_plots import plot_data_driven
     out.mkdir(parents=True, exist_ok=True)
@@ -684,7 +712,7 @@ def data_driven(runner: SweepRunner, out: pathlib.Path, *, hours: int = 72,
 # -- part 4: computation time -----------------------------------------------------------------
 def time_specs(hours: int = 72, horizons: Sequence[int] = HORIZONS,
                tolerance: float = REFERENCE_TOLERANCE) -> list[RunSpec]:
-    """Runs of part 4: FMU (as in part 1), Python and SVR control models per horizon."""
+    """Return the runs of part 4: FMU (as in part 1), Python and SVR control models per horizon."""
     specs = verification_specs(hours, horizons, tolerance)
     specs += [RunSpec('python', h, hours) for h in horizons]
     specs += [RunSpec('svr', h, hours) for h in horizons]
@@ -694,11 +722,13 @@ def time_specs(hours: int = 72, horizons: Sequence[int] = HORIZONS,
 def computation_time(runner: SweepRunner, out: pathlib.Path, *, hours: int = 72,
                      horizons: Sequence[int] = HORIZONS,
                      tolerance: float = REFERENCE_TOLERANCE) -> PartResult:
-    """Part 4: computation time against the horizon for the FMU, Python and SVR control models.
+    """
+    Part 4: computation time against the horizon for the FMU, Python and SVR control models.
 
     Parameters
     ----------
     runner : SweepRunner
+        Executes the runs (in process, in a local pool or on Dask).
     out : path
         Output folder.
     hours : int
@@ -707,6 +737,7 @@ def computation_time(runner: SweepRunner, out: pathlib.Path, *, hours: int = 72,
         MPC horizons [h].
     tolerance : float
         Tolerance of the FMU control model.
+
     """
     from mshoot_studies.study_plots import plot_time
     out.mkdir(parents=True, exist_ok=True)
@@ -753,7 +784,7 @@ def computation_time(runner: SweepRunner, out: pathlib.Path, *, hours: int = 72,
 # -- part 5: beyond the original --------------------------------------------------------------
 def beyond_specs(hours: int = 72, penalties: Sequence[float] = SOFT_PENALTIES,
                  horizon: int = 10) -> list[RunSpec]:
-    """Runs of part 5: both costs with hard comfort and with soft comfort at each penalty."""
+    """Return the runs of part 5: both costs with hard comfort, and soft comfort per penalty."""
     specs = []
     for cost in ('quadratic', 'energy'):
         specs.append(RunSpec('python', horizon, hours, cost=cost))
@@ -763,8 +794,11 @@ def beyond_specs(hours: int = 72, penalties: Sequence[float] = SOFT_PENALTIES,
 
 
 def energy_at_equal_discomfort(curve: Sequence[dict], discomfort_kh: float) -> float:
-    """Energy [kWh] of a trade-off curve at ``discomfort_kh`` [K h] (linear interpolation;
-    NaN outside the curve's discomfort range)."""
+    """
+    Return the energy [kWh] of a trade-off curve at ``discomfort_kh`` [K h].
+
+    Linear interpolation; NaN outside the curve's discomfort range.
+    """
     points = sorted((r['discomfort_kh'], r['energy_kwh']) for r in curve)
     d = np.array([p[0] for p in points])
     e = np.array([p[1] for p in points])
@@ -776,11 +810,13 @@ def energy_at_equal_discomfort(curve: Sequence[dict], discomfort_kh: float) -> f
 def beyond_the_original(runner: SweepRunner, out: pathlib.Path, *, hours: int = 72,
                         penalties: Sequence[float] = SOFT_PENALTIES,
                         horizon: int = 10) -> PartResult:
-    """Part 5: energy cost against quadratic cost, and the soft-comfort trade-off curve.
+    """
+    Part 5: energy cost against quadratic cost, and the soft-comfort trade-off curve.
 
     Parameters
     ----------
     runner : SweepRunner
+        Executes the runs (in process, in a local pool or on Dask).
     out : path
         Output folder.
     hours : int
@@ -789,6 +825,7 @@ def beyond_the_original(runner: SweepRunner, out: pathlib.Path, *, hours: int = 
         Soft-comfort penalty weights on normalised slack.
     horizon : int
         MPC horizon [h].
+
     """
     from mshoot_studies.study_plots import plot_tradeoff
     out.mkdir(parents=True, exist_ok=True)
@@ -873,7 +910,8 @@ def execution_sentence(runner: SweepRunner) -> str:
 def write_study_markdown(results: Sequence[PartResult], out: pathlib.Path, *, hours: int,
                          wall_s: float, executed_by: str, data: pathlib.Path,
                          load: tuple[float, ...] = (math.nan,)) -> pathlib.Path:
-    """Write ``study.md``: how it was made, then every part's tables, figure and notes.
+    """
+    Write ``study.md``: how it was made, then every part's tables, figure and notes.
 
     ``executed_by`` says where the runs went (:attr:`SweepRunner.description`);
     ``load`` is the system load average before the run (1, 5, 15 min).
@@ -913,7 +951,8 @@ def write_study_markdown(results: Sequence[PartResult], out: pathlib.Path, *, ho
 def run_study(data: str | pathlib.Path, out: str | pathlib.Path, *, hours: int = 72,
               jobs: int = 2, parts: Sequence[int] = tuple(PARTS),
               timeout_s: float | None = None, dask: str | None = None) -> list[PartResult]:
-    """Run the requested parts (their runs first, all together) and write ``study.md``.
+    """
+    Run the requested parts (their runs first, all together) and write ``study.md``.
 
     Parameters
     ----------
@@ -932,6 +971,7 @@ def run_study(data: str | pathlib.Path, out: str | pathlib.Path, *, hours: int =
         Wall-clock limit [s] of each run (see :class:`SweepRunner`).
     dask : str, optional
         A Dask scheduler's address, or 'local' (see :class:`SweepRunner`).
+
     """
     unknown = [p for p in parts if p not in PARTS]
     if unknown:
@@ -960,8 +1000,11 @@ def run_study(data: str | pathlib.Path, out: str | pathlib.Path, *, hours: int =
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    """The command line of the study: fills ``parser`` (e.g. the ``study`` verb of
-    ``mshoot``), or a new parser when None."""
+    """
+    Build the command line of the study.
+
+    It fills ``parser`` (e.g. the ``study`` verb of ``mshoot``), or a new parser when None.
+    """
     if parser is None:
         parser = argparse.ArgumentParser(
             prog='python -m mshoot_studies.study', description=__doc__,

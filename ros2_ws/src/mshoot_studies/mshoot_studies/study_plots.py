@@ -1,4 +1,5 @@
-"""Figures of the reference study: one PNG per part.
+"""
+Figures of the reference study: one PNG per part.
 
 Headless by construction: figures are :class:`matplotlib.figure.Figure` objects
 drawn by the Agg canvas, never through pyplot (no display, no global state).
@@ -39,7 +40,8 @@ def _band(ax: Axes, fine: pd.DataFrame) -> None:
 
 
 def plot_verification(outcomes: Sequence[RunOutcome], path: pathlib.Path) -> pathlib.Path:
-    """Part 1: zone temperature [degC] with the band and heat rate [kW] for each horizon.
+    """
+    Part 1: zone temperature [degC] with the band and heat rate [kW] for each horizon.
 
     Parameters
     ----------
@@ -47,6 +49,7 @@ def plot_verification(outcomes: Sequence[RunOutcome], path: pathlib.Path) -> pat
         One run per horizon (same period).
     path : path
         PNG to write.
+
     """
     fig = Figure(figsize=(11, 7))
     ax_t, ax_q = fig.subplots(2, 1, sharex=True, gridspec_kw={'height_ratios': [3, 2]})
@@ -78,7 +81,8 @@ def plot_tolerance(ours: Sequence[Mapping], window: Sequence[Mapping],
                    gradients: Sequence[Mapping], path: pathlib.Path, *,
                    published_loose: tuple[float, float] | None, published: Mapping | None,
                    horizon: int, window_spec: tuple[int, int] | None = None) -> pathlib.Path:
-    """Part 2: energy vs discomfort per tolerance; naive vs ours; gradient error vs tolerance.
+    """
+    Part 2: energy vs discomfort per tolerance; naive vs ours; gradient error vs tolerance.
 
     Parameters
     ----------
@@ -87,6 +91,7 @@ def plot_tolerance(ours: Sequence[Mapping], window: Sequence[Mapping],
     window : rows with tolerance, method ('ours' / 'naive'), energy_kwh, steps
         The short-window comparison.
     gradients : rows of :func:`mshoot_studies.study.gradient_accuracy`
+        Gradient errors against the exact derivative, per tolerance.
     path : path
         PNG to write.
     published_loose : (float, float) or None
@@ -97,6 +102,7 @@ def plot_tolerance(ours: Sequence[Mapping], window: Sequence[Mapping],
         Horizon of ``ours`` [h].
     window_spec : (int, int), optional
         Horizon [h] and length [h] of the short window.
+
     """
     fig = Figure(figsize=(16, 5))
     axes = fig.subplots(1, 3)
@@ -199,15 +205,20 @@ def plot_tolerance(ours: Sequence[Mapping], window: Sequence[Mapping],
 def plot_data_driven(validations: Mapping[str, pd.DataFrame],
                      responses: Mapping[str, tuple[np.ndarray, np.ndarray]],
                      outcomes: Mapping[str, RunOutcome], path: pathlib.Path) -> pathlib.Path:
-    """Part 3: validation free runs, one-step response to q, closed-loop temperatures.
+    """
+    Part 3: validation free runs, one-step response to q, closed-loop temperatures.
 
     Parameters
     ----------
     validations : {model: DataFrame with T_true, T_free_run [degC], index time [s]}
+        Free runs of each model over the validation data.
     responses : {model: (q [W], end temperature [degC])}
-    outcomes : {model: RunOutcome} over the period
+        One-step response of each model to the heat rate.
+    outcomes : {model: RunOutcome}
+        Closed-loop run of each model over the period.
     path : path
         PNG to write.
+
     """
     fig = Figure(figsize=(16, 9))
     grid = fig.add_gridspec(2, 2, height_ratios=[1, 1])
@@ -259,7 +270,8 @@ def plot_data_driven(validations: Mapping[str, pd.DataFrame],
 
 
 def plot_time(rows: Sequence[Mapping], path: pathlib.Path, hours: int) -> pathlib.Path:
-    """Part 4: wall time [s] and median solve time [s] against the horizon [h].
+    """
+    Part 4: wall time [s] and median solve time [s] against the horizon [h].
 
     Parameters
     ----------
@@ -269,6 +281,7 @@ def plot_time(rows: Sequence[Mapping], path: pathlib.Path, hours: int) -> pathli
         PNG to write.
     hours : int
         Simulated period [h] (for the labels).
+
     """
     fig = Figure(figsize=(13, 5))
     ax_w, ax_s = fig.subplots(1, 2)
@@ -298,14 +311,18 @@ def plot_time(rows: Sequence[Mapping], path: pathlib.Path, hours: int) -> pathli
 
 def plot_tradeoff(curves: Mapping[str, Sequence[Mapping]], hard: Mapping[str, RunOutcome],
                   path: pathlib.Path) -> pathlib.Path:
-    """Part 5: energy [kWh] vs discomfort [K h] per cost; q of the hard-comfort runs.
+    """
+    Part 5: energy [kWh] vs discomfort [K h] per cost; q of the hard-comfort runs.
 
     Parameters
     ----------
     curves : {cost: rows with comfort, soft_penalty, energy_kwh, discomfort_kh}
-    hard : {cost: RunOutcome} with hard comfort
+        Trade-off curve of each cost.
+    hard : {cost: RunOutcome}
+        Run of each cost with hard comfort.
     path : path
         PNG to write.
+
     """
     fig = Figure(figsize=(15, 5.5))
     ax_c, ax_q = fig.subplots(1, 2, gridspec_kw={'width_ratios': [1, 1.4]})

@@ -1,4 +1,5 @@
-"""Sweeps of closed-loop runs: specification, execution, caching, local or Dask workers.
+"""
+Sweeps of closed-loop runs: specification, execution, caching, local or Dask workers.
 
 A :class:`RunSpec` names one 72 h (or shorter) MPC emulation of the OU44 case:
 control model, horizon, FMU tolerance, evaluation mode, cost, comfort handling,
@@ -35,13 +36,13 @@ import pathlib
 import time
 from typing import Any, Iterable, Sequence
 
-import pandas as pd
-
 from mshoot_core.kpis import closed_loop_kpis
 from mshoot_core.models.base import Model
 from mshoot_core.models.r1c1 import R1C1Model
 from mshoot_core.models.registry import build_model, EMULATOR_TOLERANCE
 from mshoot_core.scenario import reference_scenario
+import pandas as pd
+
 from mshoot_studies.case import DATA_DRIVEN, run_case
 
 logger = logging.getLogger(__name__)
@@ -67,7 +68,8 @@ WORKER_PRELOAD = ('mshoot_studies.sweeps', 'mshoot_core.models.sklearn_model',
 
 @dataclasses.dataclass(frozen=True)
 class RunSpec:
-    """One closed-loop MPC emulation of the OU44 case.
+    """
+    One closed-loop MPC emulation of the OU44 case.
 
     Attributes
     ----------
@@ -94,6 +96,7 @@ class RunSpec:
         Wall-clock budget [s] of the run (model set-up included): the run is
         stopped when it is spent, in the middle of a step if need be, and
         keeps the steps it finished. None: no budget.
+
     """
 
     control: str
@@ -136,7 +139,7 @@ class RunSpec:
 
     @property
     def label(self) -> str:
-        """A short human-readable name of the run."""
+        """Return a short human-readable name of the run."""
         parts = [self.control]
         if self.control == 'fmu':
             parts.append(f'tol {self.tolerance:.0e}')
@@ -153,7 +156,7 @@ class RunSpec:
         return ' '.join(parts)
 
     def estimated_cost(self) -> float:
-        """A rough relative run time, used to start long runs first."""
+        """Return a rough relative run time, used to start long runs first."""
         factor = {'python': 1.0, 'fmu': 25.0, 'svr': 3.0, 'linear': 5.0, 'ridge': 2.0,
                   'knn': 40.0, 'random_forest': 35.0, 'mlp': 2.0}[self.control]
         if self.solver == 'ipopt':
@@ -168,7 +171,8 @@ class RunSpec:
 
 @dataclasses.dataclass
 class RunOutcome:
-    """The records of one run.
+    """
+    The records of one run.
 
     Attributes
     ----------
@@ -187,6 +191,7 @@ class RunOutcome:
     stop : {'completed', 'budget', 'timeout'}
         How the run ended: every step run, stopped by its budget
         (:attr:`RunSpec.budget_s`), or stopped by the runner's per-run timeout.
+
     """
 
     spec: RunSpec
@@ -208,7 +213,8 @@ class RunOutcome:
 
 
 def train_control_model(kind: str, data: str | pathlib.Path) -> tuple[Model, dict]:
-    """Train a data-driven control model as in Setup 2.
+    """
+    Train a data-driven control model as in Setup 2.
 
     Returns
     -------
@@ -216,6 +222,7 @@ def train_control_model(kind: str, data: str | pathlib.Path) -> tuple[Model, dic
         The model and its :class:`~mshoot_studies.setup2.TrainingReport`
         fields as a dict (validation RMSEs [K], fit time [s], the validation
         table ``validation`` with ``T_true``, ``T_free_run`` [degC]).
+
     """
     from mshoot_studies.setup2 import train_setup2
     started = time.perf_counter()
@@ -229,8 +236,12 @@ def train_control_model(kind: str, data: str | pathlib.Path) -> tuple[Model, dic
 
 # -- stopping a run at its deadline -----------------------------------------------------------
 class RunStopped(BaseException):
-    """Raised inside a run when its deadline has passed (a BaseException, like
-    KeyboardInterrupt, so that no ``except Exception`` on the way swallows it)."""
+    """
+    Raised inside a run when its deadline has passed.
+
+    A BaseException, like KeyboardInterrupt, so that no ``except Exception`` on the way swallows
+    it.
+    """
 
 
 class Deadline:
@@ -260,7 +271,8 @@ class Deadline:
 
 
 class StoppableModel(Model):
-    """A control model that stops its run at the first evaluation after a deadline.
+    """
+    A control model that stops its run at the first evaluation after a deadline.
 
     Every model evaluation of an MPC step (a simulation, a batch of intervals,
     their Jacobians) first checks ``deadline``, so a run stops in the middle of
@@ -272,6 +284,7 @@ class StoppableModel(Model):
     model : Model
         The control model.
     deadline : Deadline
+
     """
 
     def __init__(self, model: Model, deadline: Deadline) -> None:
@@ -315,8 +328,11 @@ class StoppableModel(Model):
         return self._model.check_inputs(*args, **kwargs)
 
     def __getattr__(self, name: str) -> Any:
-        """The wrapped model's other attributes; its other methods check the deadline too
-        (e.g. the naive evaluation's ``simulate_fresh``)."""
+        """
+        Return the wrapped model's other attributes; its other methods check the deadline too.
+
+        E.g. the naive evaluation's ``simulate_fresh``.
+        """
         if name in ('_model', '_deadline') or name.startswith('__'):
             raise AttributeError(name)
         value = getattr(self._model, name)
@@ -333,11 +349,13 @@ class StoppableModel(Model):
 # -- one run ----------------------------------------------------------------------------------
 def execute(spec: RunSpec, scenario: pd.DataFrame, control: Model | None = None,
             timeout_s: float | None = None) -> RunOutcome:
-    """Run one closed-loop emulation, stopped at its budget or ``timeout_s``.
+    """
+    Run one closed-loop emulation, stopped at its budget or ``timeout_s``.
 
     Parameters
     ----------
     spec : RunSpec
+        What to run: models, settings, period and budget.
     scenario : DataFrame
         The OU44 scenario of ``spec.hours`` steps
         (:func:`mshoot_core.scenario.reference_scenario`).
@@ -351,6 +369,7 @@ def execute(spec: RunSpec, scenario: pd.DataFrame, control: Model | None = None,
     -------
     RunOutcome
         With the steps finished before a stop (:attr:`RunOutcome.stop`).
+
     """
     limits = [(s, why) for s, why in ((spec.budget_s, 'budget'), (timeout_s, 'timeout'))
               if s is not None]
@@ -415,7 +434,7 @@ def _configure_logging(root_level: int, levels: dict[str, int]) -> None:
 
 
 def _logging_setup() -> tuple[int, dict[str, int]]:
-    """The root level and the explicitly set levels of this process's loggers."""
+    """Return the root level and the explicitly set levels of this process's loggers."""
     levels = {name: item.level for name, item in logging.root.manager.loggerDict.items()
               if isinstance(item, logging.Logger) and item.level != logging.NOTSET}
     return logging.getLogger().getEffectiveLevel(), levels
@@ -423,7 +442,8 @@ def _logging_setup() -> tuple[int, dict[str, int]]:
 
 # -- the runner -------------------------------------------------------------------------------
 class SweepRunner:
-    """Executes :class:`RunSpec` lists once each and caches the outcomes.
+    """
+    Executes :class:`RunSpec` lists once each and caches the outcomes.
 
     Parameters
     ----------
@@ -445,6 +465,7 @@ class SweepRunner:
 
     The pool, cluster or client is started on first use and ended by
     :meth:`close` (or leaving a ``with`` block).
+
     """
 
     def __init__(self, data: str | pathlib.Path, jobs: int = 2, *,
@@ -493,7 +514,7 @@ class SweepRunner:
 
     @property
     def parallel_runs(self) -> int:
-        """Runs executed at a time (1 in process; the cluster's worker threads on Dask)."""
+        """Return how many runs execute at a time (1 in process; the cluster's threads on Dask)."""
         if self.dask is not None:
             self._start()
             return max(1, sum(self._client.nthreads().values()))
@@ -511,7 +532,7 @@ class SweepRunner:
         return f'{self.jobs} worker processes'
 
     def _start(self) -> concurrent.futures.Executor:
-        """The executor runs are submitted to (started on first use)."""
+        """Return the executor runs are submitted to (started on first use)."""
         if self._executor is not None:
             return self._executor
         root_level, levels = _logging_setup()
@@ -543,14 +564,14 @@ class SweepRunner:
 
     # -- inputs of the runs ----------------------------------------------------------------
     def training(self, kind: str) -> tuple[Model, dict]:
-        """The trained data-driven model ``kind`` and its report (trained once)."""
+        """Return the trained data-driven model ``kind`` and its report (trained once)."""
         if kind not in self.trained:
             self.trained[kind], self.training_reports[kind] = train_control_model(kind,
                                                                                   self.data)
         return self.trained[kind], self.training_reports[kind]
 
     def scenario(self, hours: int) -> pd.DataFrame:
-        """The OU44 scenario of ``hours`` control steps (loaded once)."""
+        """Return the OU44 scenario of ``hours`` control steps (loaded once)."""
         if hours not in self._scenarios:
             self._scenarios[hours] = reference_scenario('ou44', self.data, hours=hours)
         return self._scenarios[hours]

@@ -1,4 +1,5 @@
-"""mshoot_testing: test support, not a production package.
+"""
+mshoot_testing: test support, not a production package.
 
 Fault injection at the controller's seams (:mod:`mshoot_testing.faults`) and an
 in-process closed loop to poke at (:mod:`mshoot_testing.harness`), used by the

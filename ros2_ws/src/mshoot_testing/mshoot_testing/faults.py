@@ -1,4 +1,5 @@
-"""Fault injection at the real seams of the controller: the solver and the model.
+"""
+Fault injection at the real seams of the controller: the solver and the model.
 
 Test support (package mshoot_testing, not a production package), for tests
 and the soak benchmark. :class:`FaultySolver` wraps any
@@ -41,12 +42,14 @@ class InjectedModelError(RuntimeError):
 
 
 class Faults:
-    """Armed faults, consumed in order (thread-safe: solves run in worker threads).
+    """
+    Armed faults, consumed in order (thread-safe: solves run in worker threads).
 
     Attributes
     ----------
     injected : Counter
         Fault kind -> times injected so far.
+
     """
 
     def __init__(self, kinds: Sequence[str]) -> None:
@@ -75,7 +78,7 @@ class Faults:
         return len(self._armed)
 
     def take(self) -> tuple[str, float] | None:
-        """The next armed fault (consumed), or None."""
+        """Take the next armed fault (consumed), or None."""
         with self._lock:
             if not self._armed:
                 return None
@@ -114,7 +117,8 @@ class FaultySolver(Solver):
 
 
 class FaultyModel(Model):
-    """A model that delegates to ``inner`` unless a 'raise' fault is armed.
+    """
+    A model that delegates to ``inner`` unless a 'raise' fault is armed.
 
     Each armed fault is taken by one model call (a simulation or a Jacobian
     evaluation), which raises; the solve that made the call fails with it.
@@ -151,7 +155,7 @@ class FaultyModel(Model):
 
     def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                            t_start_s: np.ndarray | None = None) -> tuple[np.ndarray,
-                                                                        np.ndarray]:
+                                                                         np.ndarray]:
         self._maybe_raise()
         times = self._times(t_start_s)
         return self.inner.simulate_intervals(x_start, u, dt_s, **times)

@@ -1,4 +1,5 @@
-"""An in-process closed loop to poke at: faults, restarts and malformed messages.
+"""
+An in-process closed loop to poke at: faults, restarts and malformed messages.
 
 Test support (package mshoot_testing), used by the fault-injection tests and
 the soak benchmark (``bench/soak.py``).
@@ -20,12 +21,6 @@ from typing import Any, Callable, Sequence
 from mshoot_core.models.base import Model
 from mshoot_core.models.r1c1 import KELVIN
 from mshoot_msgs.msg import Forecast, MpcStatus, Setpoint, ZoneState
-import numpy as np
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
-from rclpy.parameter import Parameter
-
 from mshoot_nodes.conversions import (forecast_msg, NS_PER_S, ns_to_stamp, setpoint_msg,
                                       zone_state_msg)
 from mshoot_nodes.emulator_node import EmulatorNode
@@ -33,6 +28,11 @@ from mshoot_nodes.forecaster_node import ForecasterNode
 from mshoot_nodes.mpc_node import MpcNode
 from mshoot_nodes.readiness import run_requirements
 from mshoot_nodes.recorder_node import RecorderNode
+import numpy as np
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 #: ``header.frame_id`` of the malformed messages (tells them apart in a bag).
 MALFORMED = 'malformed'
@@ -56,7 +56,8 @@ def _overrides(values: dict[str, Any]) -> list[Parameter]:
 def malformed_zone_state(defect: str, now_ns: int, latest_ns: int, step_ns: int,
                          rng: np.random.Generator, states: Sequence[str] = ('T',),
                          controls: Sequence[str] = ('q',)) -> ZoneState:
-    """A zone state the MPC must reject for ``defect`` (:data:`STATE_DEFECTS`).
+    """
+    Build a zone state the MPC must reject for ``defect`` (:data:`STATE_DEFECTS`).
 
     ``now_ns`` is the receiver's clock, ``latest_ns`` the newest state it
     accepted (> 0), ``step_ns`` the control step; ``states`` and ``controls``
@@ -102,8 +103,11 @@ def malformed_zone_state(defect: str, now_ns: int, latest_ns: int, step_ns: int,
 
 def malformed_forecast(defect: str, now_ns: int, latest_ns: int, step_ns: int,
                        rng: np.random.Generator, samples: int = 11) -> Forecast:
-    """A forecast the MPC must reject for ``defect`` (:data:`FORECAST_DEFECTS`) (the MPC's
-    model needs Tout, solrad and occ, and may assume dpos)."""
+    """
+    Build a forecast the MPC must reject for ``defect`` (:data:`FORECAST_DEFECTS`).
+
+    The MPC's model needs Tout, solrad and occ, and may assume dpos.
+    """
     import pandas as pd
     n = max(int(samples), 1)
     window = pd.DataFrame({'Tout': rng.uniform(-5, 15, n), 'solrad': rng.uniform(0, 500, n),
@@ -153,7 +157,8 @@ def malformed_forecast(defect: str, now_ns: int, latest_ns: int, step_ns: int,
 def malformed_setpoint(defect: str, now_ns: int, latest_ns: int, step_ns: int,
                        rng: np.random.Generator, controls: Sequence[str] = ('q',),
                        temperatures: Sequence[str] = ('T',)) -> Setpoint:
-    """A setpoint the emulator must reject for ``defect`` (:data:`SETPOINT_DEFECTS`).
+    """
+    Build a setpoint the emulator must reject for ``defect`` (:data:`SETPOINT_DEFECTS`).
 
     ``now_ns`` is the emulator's current step, ``latest_ns`` the newest
     setpoint it accepted (or the step before ``now_ns``); ``controls`` and
@@ -208,7 +213,8 @@ def malformed_setpoint(defect: str, now_ns: int, latest_ns: int, step_ns: int,
 
 # -- the loop -----------------------------------------------------------------------------
 class ClosedLoop:
-    """Emulator, forecaster, MPC (and recorder) in one executor, advanced step by step.
+    """
+    Emulator, forecaster, MPC (and recorder) in one executor, advanced step by step.
 
     Parameters
     ----------
@@ -228,6 +234,7 @@ class ClosedLoop:
         ``mpc`` is None while the MPC is stopped.
     retired : list of MpcNode
         Earlier MPC incarnations (destroyed; their ``history`` and counters stay).
+
     """
 
     def __init__(self, context: Context, node_params: dict[str, dict[str, Any]], *,
@@ -268,7 +275,8 @@ class ClosedLoop:
     # -- spinning -------------------------------------------------------------------------
     def spin_until(self, condition: Callable[[], bool], timeout_s: float,
                    what: str = 'the condition') -> float:
-        """Spin until ``condition()``; TimeoutError after ``timeout_s`` of wall time.
+        """
+        Spin until ``condition()``; TimeoutError after ``timeout_s`` of wall time.
 
         Returns the wall time it took [s].
         """
@@ -288,7 +296,7 @@ class ClosedLoop:
 
     @property
     def steps_done(self) -> int:
-        """Steps the emulator has applied."""
+        """Return the steps the emulator has applied."""
         return self.emulator.steps_done if hasattr(self, 'emulator') else 0
 
     def run_steps(self, steps: int, timeout_s: float = 60.0) -> None:
@@ -329,7 +337,7 @@ class ClosedLoop:
         return [item for node in nodes for item in node.history]
 
     def mpc_rejections(self, stream: str | None = None) -> int:
-        """Inputs rejected by every MPC incarnation."""
+        """Return the inputs rejected by every MPC incarnation."""
         nodes = self.retired + ([self.mpc] if self.mpc is not None else [])
         return sum(node.rejections.total(stream) for node in nodes)
 

@@ -1,4 +1,5 @@
-"""The generic model interface every zone model implements.
+"""
+The generic model interface every zone model implements.
 
 A model maps inputs held constant over intervals (zero-order hold) and an
 initial state vector to state and output trajectories. The one required
@@ -24,7 +25,8 @@ logger = logging.getLogger(__name__)
 
 
 class ModelValueError(ValueError):
-    """A model produced non-finite states or outputs (NaN or inf).
+    """
+    A model produced non-finite states or outputs (NaN or inf).
 
     Ends a solve (the controller falls back: 'solve_failed') and stops an
     emulation; it is not an input error of the caller.
@@ -35,6 +37,7 @@ class ModelValueError(ValueError):
         The model variable (state or output name) that is not finite.
     time_s : float or None
         When, in the model's own time [s] (for FMUs: FMU time), where known.
+
     """
 
     def __init__(self, message: str, variable: str = '', time_s: float | None = None) -> None:
@@ -45,12 +48,14 @@ class ModelValueError(ValueError):
 
 def interval_start_times(t_start_s: Sequence[float] | np.ndarray | None,
                          batch: int) -> np.ndarray | None:
-    """``t_start_s`` as a finite float array of shape (batch,), or None.
+    """
+    ``t_start_s`` as a finite float array of shape (batch,), or None.
 
     Raises
     ------
     ValueError
         On a wrong shape or a non-finite time.
+
     """
     if t_start_s is None:
         return None
@@ -76,7 +81,8 @@ def _takes_start_times(method: object) -> bool:
 
 
 def accepts_start_times(model: 'Model') -> bool:
-    """Whether ``model``'s batch methods take ``t_start_s`` (models written before it did not).
+    """
+    Whether ``model``'s batch methods take ``t_start_s`` (models written before it did not).
 
     The optimiser passes interval start times only to models that accept them;
     others are time-invariant by construction.
@@ -88,7 +94,8 @@ def accepts_start_times(model: 'Model') -> bool:
 
 @dataclasses.dataclass(frozen=True)
 class IntervalJacobians:
-    """End values of B independent intervals and their derivatives.
+    """
+    End values of B independent intervals and their derivatives.
 
     Attributes
     ----------
@@ -104,6 +111,7 @@ class IntervalJacobians:
         d y_end / d x_start.
     dy_du : ndarray, shape (B, ny, len(wrt_inputs))
         d y_end / d u for the requested input columns.
+
     """
 
     x_end: np.ndarray
@@ -115,7 +123,8 @@ class IntervalJacobians:
 
 
 class Model(abc.ABC):
-    """A dynamic zone model with named inputs, states and outputs.
+    """
+    A dynamic zone model with named inputs, states and outputs.
 
     Subclasses set :attr:`input_names`, :attr:`state_names` and
     :attr:`output_names` and implement :meth:`simulate`. Units are the
@@ -131,8 +140,9 @@ class Model(abc.ABC):
 
     @abc.abstractmethod
     def simulate(self, udf: pd.DataFrame, x0: Sequence[float]) -> tuple[pd.DataFrame,
-                                                                       pd.DataFrame]:
-        """Simulate from ``x0`` over the time index of ``udf``.
+                                                                        pd.DataFrame]:
+        """
+        Simulate from ``x0`` over the time index of ``udf``.
 
         Parameters
         ----------
@@ -149,26 +159,29 @@ class Model(abc.ABC):
             Outputs at the times of ``udf.index``.
         xdf : DataFrame, shape (T, nx)
             States at the times of ``udf.index``; the first row equals ``x0``.
+
         """
 
     # -- helpers shared by all models -------------------------------------------------------
     def check_inputs(self, udf: pd.DataFrame, x0: Sequence[float]) -> tuple[np.ndarray,
-                                                                             np.ndarray,
-                                                                             np.ndarray]:
-        """Validate ``udf`` and ``x0``; return times [s], inputs (T, nu) and x0 (nx,).
+                                                                            np.ndarray,
+                                                                            np.ndarray]:
+        """
+        Validate ``udf`` and ``x0``; return times [s], inputs (T, nu) and x0 (nx,).
 
         Raises
         ------
         ValueError
             If columns are missing, the index is not strictly increasing,
             values are not finite, or ``x0`` has the wrong length.
+
         """
         if not isinstance(udf, pd.DataFrame):
             raise TypeError(f'udf must be a pandas DataFrame, got {type(udf).__name__}')
         missing = [n for n in self.input_names if n not in udf.columns]
         if missing:
-            raise ValueError(f'udf lacks input columns {missing}; expected {list(self.input_names)}'
-                             f', got {list(udf.columns)}')
+            raise ValueError(f'udf lacks input columns {missing}; expected '
+                             f'{list(self.input_names)}, got {list(udf.columns)}')
         t = np.asarray(udf.index, dtype=float)
         if t.size < 2 or np.any(np.diff(t) <= 0):
             raise ValueError('udf index must be at least two strictly increasing times [s]')
@@ -185,12 +198,14 @@ class Model(abc.ABC):
 
     def _check_batch(self, x_start: np.ndarray,
                      u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``x_start`` (B, nx) and ``u`` (B, nu) of a batch as finite float arrays.
+        """
+        ``x_start`` (B, nx) and ``u`` (B, nu) of a batch as finite float arrays.
 
         Raises
         ------
         ValueError
             On a wrong shape or a non-finite value, naming the model's variables.
+
         """
         x_start = np.atleast_2d(np.asarray(x_start, dtype=float))
         u = np.atleast_2d(np.asarray(u, dtype=float))
@@ -207,8 +222,9 @@ class Model(abc.ABC):
 
     def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                            t_start_s: np.ndarray | None = None) -> tuple[np.ndarray,
-                                                                        np.ndarray]:
-        """Simulate B independent intervals of length ``dt_s`` (the batch path).
+                                                                         np.ndarray]:
+        """
+        Simulate B independent intervals of length ``dt_s`` (the batch path).
 
         Each interval starts from its own state with its own constant inputs.
         The default calls :meth:`simulate` once per interval; fast models
@@ -232,6 +248,7 @@ class Model(abc.ABC):
         -------
         x_end : ndarray, shape (B, nx)
         y_end : ndarray, shape (B, ny)
+
         """
         x_start = np.atleast_2d(np.asarray(x_start, dtype=float))
         u = np.atleast_2d(np.asarray(u, dtype=float))
@@ -250,7 +267,8 @@ class Model(abc.ABC):
     def interval_jacobians(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                            wrt_inputs: Sequence[int],
                            t_start_s: np.ndarray | None = None) -> IntervalJacobians | None:
-        """Analytic end values and derivatives of B intervals, or None.
+        """
+        Analytic end values and derivatives of B intervals, or None.
 
         Models with analytic (or forward-sensitivity) derivatives override
         this; the default returns None and the optimiser falls back to
@@ -259,18 +277,22 @@ class Model(abc.ABC):
         Parameters
         ----------
         x_start : ndarray, shape (B, nx)
+            Start state of each interval.
         u : ndarray, shape (B, nu)
+            Inputs of each interval, columns in :attr:`input_names` order.
         dt_s : float
             Interval length [s].
         wrt_inputs : sequence of int
             Column indices of ``u`` to differentiate with respect to.
         t_start_s : ndarray, shape (B,), optional
             Start time of each interval [s] (see :meth:`simulate_intervals`).
+
         """
         return None
 
     def jacobian_sparsity(self, wrt_inputs: Sequence[int]) -> np.ndarray | None:
-        """Structure of one interval's Jacobian, or None for dense.
+        """
+        Structure of one interval's Jacobian, or None for dense.
 
         Returns
         -------
@@ -278,5 +300,6 @@ class Model(abc.ABC):
             True where d(x_end, y_end)/d(x_start, u[wrt_inputs]) may be
             non-zero. Models of weakly coupled parts (e.g. independent zones)
             declare it so finite differences perturb many columns at once.
+
         """
         return None

@@ -1,4 +1,5 @@
-"""Model cards: a zone model described once (YAML) for every application.
+"""
+Model cards: a zone model described once (YAML) for every application.
 
 A card names the model (an FMU, or a built-in model) and maps its variables
 onto the *canonical* names the applications speak: the MPC's controls, the
@@ -116,7 +117,8 @@ NAME_UNIT = {'occ': '1', 'dpos': '%'}
 
 
 class CardError(ValueError):
-    """An invalid model card: ``problems`` holds every problem, ``path`` the card.
+    """
+    An invalid model card: ``problems`` holds every problem, ``path`` the card.
 
     The message is one line: the card's path and the problems joined by '; '.
     """
@@ -129,7 +131,8 @@ class CardError(ValueError):
 
 @dataclasses.dataclass(frozen=True)
 class CardVariable:
-    """One mapped variable of a card.
+    """
+    One mapped variable of a card.
 
     Attributes
     ----------
@@ -151,12 +154,13 @@ class CardVariable:
         ``state``, ...; set by :func:`load_card`).
     model_start : float or None
         The model's own start value of the variable, in the canonical unit.
+
     """
 
     variable: str
     unit: str = ''
-    min: float | None = None
-    max: float | None = None
+    min: float | None = None  # noqa: A003 (the card's key)
+    max: float | None = None  # noqa: A003 (the card's key)
     activate: str | None = None
     start: float | None = None
     canonical_unit: str = ''
@@ -170,7 +174,8 @@ class CardVariable:
 
 @dataclasses.dataclass(frozen=True)
 class ModelCard:
-    """A validated model card (see the module docstring; made by :func:`load_card`).
+    """
+    A validated model card (see the module docstring; made by :func:`load_card`).
 
     Attributes
     ----------
@@ -195,6 +200,7 @@ class ModelCard:
         Canonical name -> mapped variable, in the card's order.
     description : str
         Free text.
+
     """
 
     path: pathlib.Path
@@ -226,7 +232,7 @@ class ModelCard:
 
     @property
     def input_names(self) -> tuple[str, ...]:
-        """Controls, then disturbances (the input order of the card's FMU models)."""
+        """Return the controls, then the disturbances (the input order of the FMU models)."""
         return tuple(self.controls) + tuple(self.disturbances)
 
     @property
@@ -243,13 +249,17 @@ class ModelCard:
                       default[1] if v.max is None else v.max) for v in self.controls.values())
 
     def initial_state(self, zone_temperature_k: float) -> np.ndarray:
-        """A start state [canonical units]: ``T`` from ``zone_temperature_k`` [K], the
-        other states from the card's ``start``, else the model's start value.
+        """
+        Return a start state [canonical units].
+
+        ``T`` from ``zone_temperature_k`` [K], the other states from the card's ``start``, else the
+        model's start value.
 
         Raises
         ------
         ValueError
             If a state other than T has neither.
+
         """
         values, missing = [], []
         for name, v in self.states.items():
@@ -274,12 +284,14 @@ def _same_unit(a: str, b: str) -> bool:
 
 
 def conversion(canonical_unit: str, model_unit: str) -> tuple[float, float]:
-    """``(scale, offset)`` with model value = scale * canonical value + offset.
+    """
+    ``(scale, offset)`` with model value = scale * canonical value + offset.
 
     Raises
     ------
     ValueError
         If the units are not of one quantity of :data:`UNITS` (and not equal).
+
     """
     if _same_unit(canonical_unit, model_unit):
         return 1.0, 0.0
@@ -290,8 +302,12 @@ def conversion(canonical_unit: str, model_unit: str) -> tuple[float, float]:
 
 
 def canonical_unit(section: str, name: str, unit: str) -> tuple[str, str | None]:
-    """The canonical unit of ``name`` in ``section`` whose model unit is ``unit``, and the
-    problem when it cannot convert (None if it can)."""
+    """
+    Return the canonical unit of ``name`` in ``section`` and the problem, if any.
+
+    The canonical unit of ``name`` in ``section`` whose model unit is ``unit``, and the problem
+    when it cannot convert (None if it can).
+    """
     known = UNITS.get(unit)
     need = NAME_QUANTITY.get(name)
     if need is not None and (known is None or known.quantity != need):
@@ -319,7 +335,7 @@ class ModelVariable:
 
     name: str
     causality: str
-    type: str = 'Real'
+    type: str = 'Real'  # noqa: A003 (the FMI attribute)
     unit: str = ''
     start: float | None = None
     variability: str = ''
@@ -405,7 +421,7 @@ def _python_catalogue() -> _Catalogue:
 
 
 def _listing(variables: Sequence[ModelVariable], wanted: str = '') -> str:
-    """The valid names with causality and unit (close matches of ``wanted`` first)."""
+    """Return the valid names with causality and unit (close matches of ``wanted`` first)."""
     names = [v.name for v in variables]
     if not names:
         return 'none'
@@ -451,7 +467,7 @@ def _read_yaml(path: pathlib.Path) -> Any:
 
 
 def schema() -> dict:
-    """The JSON Schema of a card (:data:`SCHEMA_PATH`)."""
+    """Return the JSON Schema of a card (:data:`SCHEMA_PATH`)."""
     return json.loads(SCHEMA_PATH.read_text(encoding='utf-8'))
 
 
@@ -471,7 +487,7 @@ def schema_problems(document: Any) -> list[str]:
             both = isinstance(document, dict) and 'fmu' in document and 'builtin' in document
             problems.append(f"give {'only ' if both else ''}one of 'fmu' (path of an FMU, "
                             f"relative to the card) or 'builtin' (one of "
-                            f"{list(BUILTIN_SOURCES)})" + (', not both' if both else ''))
+                            f'{list(BUILTIN_SOURCES)})' + (', not both' if both else ''))
         elif kind == 'additionalProperties':
             allowed = sorted(error.schema.get('properties', {}))
             extra = sorted(set(error.instance) - set(allowed))
@@ -506,8 +522,11 @@ ENTRY_KEYS = {'controls': ('variable', 'unit', 'min', 'max', 'activate'),
 
 def _variable_section(document: dict, section: str,
                       schema_problems: Sequence[str]) -> dict[str, dict]:
-    """The entries of a section to check against the model, without the keys the schema
-    refused (unknown keys, wrong types: reported already)."""
+    """
+    Return the entries of a section to check against the model.
+
+    Without the keys the schema refused (unknown keys, wrong types: reported already).
+    """
     raw = document.get(section)
     if not isinstance(raw, dict):
         return {}
@@ -522,7 +541,8 @@ def _variable_section(document: dict, section: str,
 
 
 def load_card(path: str | pathlib.Path) -> ModelCard:
-    """Read and validate a model card (YAML), against the schema and against its model.
+    """
+    Read and validate a model card (YAML), against the schema and against its model.
 
     Parameters
     ----------
@@ -541,6 +561,7 @@ def load_card(path: str | pathlib.Path) -> ModelCard:
         variable names the model does not have in that role (each with the
         model's valid names, causality and unit), units that do not convert,
         bad parameters, a bad time origin.
+
     """
     path = pathlib.Path(path).expanduser()
     document = _read_yaml(path)
@@ -593,7 +614,7 @@ def _time_origin_problem(value: str) -> str | None:
 def _catalogue(path: pathlib.Path, document: dict, fmi_type: Any,
                problems: list[str]) -> tuple[_Catalogue | None, pathlib.Path | None,
                                              str | None]:
-    """The model's variables, its FMU (absolute) and the FMI interface used."""
+    """Return the model's variables, its FMU (absolute) and the FMI interface used."""
     builtin, fmu_name = document.get('builtin'), document.get('fmu')
     if (builtin is None) == (fmu_name is None) or fmi_type not in ('auto', *FMI_TYPES):
         return None, None, None
@@ -612,7 +633,7 @@ def _catalogue(path: pathlib.Path, document: dict, fmi_type: Any,
     elif isinstance(fmu_name, str):
         fmu = (path.parent / pathlib.Path(fmu_name).expanduser()).resolve()
         if not fmu.exists():
-            problems.append(f'fmu: file not found: {fmu} (the path is relative to the card\'s '
+            problems.append(f"fmu: file not found: {fmu} (the path is relative to the card's "
                             f'folder {path.parent.resolve()})')
             return None, None, None
     else:
@@ -642,7 +663,7 @@ def _catalogue(path: pathlib.Path, document: dict, fmi_type: Any,
 
 def _check_variables(catalogue: _Catalogue, sections: dict[str, dict[str, dict]],
                      problems: list[str]) -> dict[str, dict[str, CardVariable]]:
-    """The card's variables resolved against the model; problems appended."""
+    """Resolve the card's variables against the model; problems appended."""
     kinds = {'controls': (catalogue.inputs, 'a Real input'),
              'disturbances': (catalogue.inputs, 'a Real input'),
              'states': (catalogue.states, f'one of the {catalogue.state_kind}'),
@@ -765,12 +786,14 @@ def _parameter_problems(catalogue: _Catalogue, parameters: Mapping[str, Any]) ->
 
 # -- building the model -----------------------------------------------------------------------
 def builtin_card(name: str) -> pathlib.Path:
-    """Path of a built-in card: 'r1c1', 'r1c1_fmu' or 'r1c1_fmu_cs'.
+    """
+    Path of a built-in card: 'r1c1', 'r1c1_fmu' or 'r1c1_fmu_cs'.
 
     Raises
     ------
     ValueError
         For another name.
+
     """
     path = CARDS_DIR / f'{name}.yaml'
     if not path.is_file():
@@ -780,12 +803,15 @@ def builtin_card(name: str) -> pathlib.Path:
 
 
 def time_origin_seconds(card: ModelCard, scenario_start: str | datetime.datetime | None) -> float:
-    """Seconds from the scenario's first row to FMU time 0 (the model's ``time_origin_s``).
+    """
+    Seconds from the scenario's first row to FMU time 0 (the model's ``time_origin_s``).
 
     FMU time = scenario time [s] - this value: 0 for ``time_origin: scenario``.
 
     Parameters
     ----------
+    card : ModelCard
+        The card (its ``time_origin``).
     scenario_start : str or datetime or None
         The scenario's first row (``scenario.attrs['start']``, ISO 8601).
 
@@ -794,6 +820,7 @@ def time_origin_seconds(card: ModelCard, scenario_start: str | datetime.datetime
     ValueError
         If the card gives a date-time and the scenario's start is unknown, or
         one is time-zone aware and the other not.
+
     """
     if card.time_origin == 'scenario':
         return 0.0
@@ -811,7 +838,7 @@ def time_origin_seconds(card: ModelCard, scenario_start: str | datetime.datetime
 
 
 def role_tolerance(role: str) -> float:
-    """The default integrator tolerance of a role (see :mod:`mshoot_core.models.registry`)."""
+    """Return a role's default integrator tolerance (see :mod:`mshoot_core.models.registry`)."""
     if role not in ROLES:
         raise ValueError(f'role must be one of {list(ROLES)}, got {role!r}')
     return CONTROL_TOLERANCE if role == 'control' else EMULATOR_TOLERANCE
@@ -819,7 +846,8 @@ def role_tolerance(role: str) -> float:
 
 def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
                 time_origin_s: float = 0.0, tolerance: float | None = None) -> Model:
-    """The model a card describes, speaking its canonical names and units.
+    """
+    Build the model a card describes, speaking its canonical names and units.
 
     Parameters
     ----------
@@ -848,6 +876,7 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
         For a card path that does not load.
     ValueError
         For a bad role or tolerance, or a time origin this FmiModel cannot use.
+
     """
     if not isinstance(card, ModelCard):
         card = load_card(card)
@@ -914,10 +943,12 @@ class _Conversions:
 
 
 class CardFmiModel(FmiModel):
-    """An :class:`~mshoot_core.models.fmi.FmiModel` whose units differ from the canonical
-    ones: values are converted at the boundary of every public method (inputs and states
-    in, states and outputs out, derivatives scaled), so the applications see canonical
-    units while the FMU sees its own.
+    """
+    An :class:`~mshoot_core.models.fmi.FmiModel` whose units differ from the canonical ones.
+
+    Values are converted at the boundary of every public method (inputs and states in, states and
+    outputs out, derivatives scaled), so the applications see canonical units while the FMU sees
+    its own.
 
     Parameters
     ----------
@@ -925,6 +956,7 @@ class CardFmiModel(FmiModel):
         The affine maps (from :func:`build_model`).
     *args, **kwargs
         Those of :class:`~mshoot_core.models.fmi.FmiModel`.
+
     """
 
     def __init__(self, *args: Any, conversions: _Conversions, **kwargs: Any) -> None:
@@ -1025,8 +1057,12 @@ class CardFmiModel(FmiModel):
 
 # -- what a card maps (the card check) --------------------------------------------------------
 def describe(card: ModelCard) -> list[dict[str, str]]:
-    """One row per mapped variable: section, canonical name, model variable, causality,
-    model unit, canonical unit and the conversion (``model = a * canonical + b``)."""
+    """
+    Describe the mapping of a card: one row per mapped variable.
+
+    Columns: section, canonical name, model variable, causality, model unit, canonical unit and the
+    conversion (``model = a * canonical + b``).
+    """
     rows = []
     for section in SECTIONS:
         for name, v in getattr(card, section).items():

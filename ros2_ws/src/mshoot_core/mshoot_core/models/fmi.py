@@ -1,4 +1,5 @@
-"""Any FMI 2.0 FMU (Model Exchange or Co-Simulation) as a :class:`Model`, through fmpy.
+"""
+Any FMI 2.0 FMU (Model Exchange or Co-Simulation) as a :class:`Model`, through fmpy.
 
 The FMU is extracted once into the cache (keyed by the file's sha256, see
 :func:`mshoot_core.fmu_cache.extract_fmu`), its modelDescription read and one
@@ -149,7 +150,8 @@ def _listed(names: Sequence[str]) -> str:
 
 
 def read_fmu_description(folder: str | pathlib.Path, label: str) -> Any:
-    """Read the modelDescription of an extracted FMU; refuse what FmiModel cannot run.
+    """
+    Read the modelDescription of an extracted FMU; refuse what FmiModel cannot run.
 
     Parameters
     ----------
@@ -163,6 +165,7 @@ def read_fmu_description(folder: str | pathlib.Path, label: str) -> Any:
     ValueError
         If the modelDescription is missing or unreadable, or the FMU is an
         FMI 3.0 FMU (not supported yet).
+
     """
     try:
         md = fmpy.read_model_description(str(folder))
@@ -179,7 +182,8 @@ def read_fmu_description(folder: str | pathlib.Path, label: str) -> Any:
 
 class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFiniteChecks,
                Model):
-    """An FMI 2.0 FMU behind the :class:`Model` interface (fmpy).
+    """
+    An FMI 2.0 FMU behind the :class:`Model` interface (fmpy).
 
     Parameters
     ----------
@@ -236,6 +240,7 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
     :class:`~mshoot_core.models.fmi_me.ModelExchangeIntegration` and the
     forward sensitivities (:meth:`interval_jacobians`) from
     :class:`~mshoot_core.models.fmi_sensitivities.ForwardSensitivities`.
+
     """
 
     def __init__(self, fmu_path: str | pathlib.Path, inputs: VariableNames,
@@ -351,8 +356,11 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
 
     def _set_parameters_plan(self, parameters: dict[str, Any],
                              fixed_inputs: dict[str, Any]) -> None:
-        """Validate ``parameters`` and ``fixed_inputs``; group them by FMI type for one set
-        call each (both are set after every reset, before initialisation)."""
+        """
+        Validate ``parameters`` and ``fixed_inputs``; group them by FMI type.
+
+        One set call each; both are set after every reset, before initialisation.
+        """
         settable = [v.name for v in self.model_description.modelVariables
                     if v.causality != 'input' and v.variability != 'constant'
                     and (v.causality == 'parameter' or v.initial in ('exact', 'approx'))]
@@ -411,7 +419,8 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         logger.debug('instantiated %s as %s', self.fmu_path.name, self.fmi_type)
 
     def _bind_drivers(self) -> None:
-        """Find and bind the compiled driver this model's batches will use, if any.
+        """
+        Find and bind the compiled driver this model's batches will use, if any.
 
         Done at construction, so that a missing build stops the model here
         (a :class:`~mshoot_core.fmu_cache.NotBuiltError` naming the command
@@ -461,7 +470,7 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
 
     @property
     def fmu(self) -> FMU2Model | FMU2Slave:
-        """The fmpy instance (raises if closed)."""
+        """Return the fmpy instance (raises if closed)."""
         if self._fmu is None:
             raise RuntimeError('the FmiModel is closed')
         return self._fmu
@@ -532,7 +541,8 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
             raise
 
     def _start_interval(self, x0: np.ndarray, u: np.ndarray, t0: float = 0.0) -> None:
-        """Bring the instance to FMU time ``t0`` with states ``x0`` and inputs ``u``.
+        """
+        Bring the instance to FMU time ``t0`` with states ``x0`` and inputs ``u``.
 
         Model Exchange FMUs that support FMU states restore a snapshot taken
         after the first initialisation (no re-initialisation) and set the
@@ -544,8 +554,11 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
             self._initialize(t0, x0, u)
 
     def _fmu_start_times(self, t_start_s: np.ndarray | None, batch: int) -> np.ndarray | None:
-        """FMU start times of a batch's intervals (caller's times minus the origin), or None
-        (every interval at FMU time 0)."""
+        """
+        Return the FMU start times of a batch's intervals, or None.
+
+        The caller's times minus the origin; None means every interval at FMU time 0.
+        """
         times = interval_start_times(t_start_s, batch)
         if times is None or not self.time_origin_s:
             return times
@@ -562,7 +575,8 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
     # -- the Model interface ----------------------------------------------------------------
     def simulate(self, udf: pd.DataFrame,
                  x0: Sequence[float]) -> tuple[pd.DataFrame, pd.DataFrame]:
-        """Simulate from ``x0`` over the index of ``udf`` (inputs held per interval).
+        """
+        Simulate from ``x0`` over the index of ``udf`` (inputs held per interval).
 
         Outputs at ``t_{k+1}`` are those at the end of interval k (evaluated
         with interval k's inputs), as in :meth:`simulate_intervals`; outputs
@@ -580,6 +594,7 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         ydf : DataFrame, shape (T, ny)
         xdf : DataFrame, shape (T, nx)
             ``xdf.iloc[0]`` equals ``x0``.
+
         """
         t, u, x0_arr = self.check_inputs(udf, x0)
         self._plant = None  # the instance is re-initialised: a plant run ends here
@@ -603,7 +618,8 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
 
     def simulate_fresh(self, udf: pd.DataFrame,
                        x0: Sequence[float]) -> tuple[pd.DataFrame, pd.DataFrame]:
-        """Simulate as the ancestor did: ``fmpy.simulate_fmu`` from the file, every time.
+        """
+        Simulate as the ancestor did: ``fmpy.simulate_fmu`` from the file, every time.
 
         Extracts, instantiates and frees the FMU for this one simulation (the
         per-simulation cost the ``naive`` optimiser mode reproduces); inputs
@@ -637,13 +653,16 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
 
     def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                            t_start_s: np.ndarray | None = None) -> tuple[np.ndarray,
-                                                                        np.ndarray]:
-        """Simulate B independent intervals of ``dt_s`` [s] on the one instance.
+                                                                         np.ndarray]:
+        """
+        Simulate B independent intervals of ``dt_s`` [s] on the one instance.
 
         Parameters
         ----------
         x_start : ndarray, shape (B, nx)
+            Start state of each interval.
         u : ndarray, shape (B, nu)
+            Inputs of each interval, columns in :attr:`input_names` order.
         dt_s : float
             Interval length [s].
         t_start_s : ndarray, shape (B,), optional
@@ -660,6 +679,7 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         ------
         FmuValueError
             If a state or output is not finite (names it and the FMU time).
+
         """
         x_start, u, dt_s = self._check_batch(x_start, u, dt_s)
         t0 = self._fmu_start_times(t_start_s, x_start.shape[0])
@@ -681,7 +701,8 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
     def _batch_in_c(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                     x_end: np.ndarray, y_end: np.ndarray,
                     t_start: np.ndarray | None = None) -> bool:
-        """Run a Co-Simulation batch in the compiled driver; False where it does not apply.
+        """
+        Run a Co-Simulation batch in the compiled driver; False where it does not apply.
 
         Applies to Co-Simulation FMUs whose parameters are all Real, after the
         first initialisation through fmpy; each interval makes the same FMI
@@ -692,6 +713,7 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         ------
         NotBuiltError
             If the driver is not built (``make setup``).
+
         """
         if self.is_model_exchange or not self._initialized_once or any(
                 kind != 'Real' for kind in self._parameter_groups):
@@ -722,7 +744,8 @@ R1C1_VARIABLES: dict[str, Any] = {
 def r1c1_fmi_model(parameters: Any = None, fmi_type: str | None = 'CoSimulation',
                    tolerance: float = 1e-8,
                    fmu_path: str | pathlib.Path | None = None) -> FmiModel:
-    """Return the R1C1 zone as an :class:`FmiModel` with the names of ``R1C1Model``.
+    """
+    Return the R1C1 zone as an :class:`FmiModel` with the names of ``R1C1Model``.
 
     Inputs ``solrad, Tout, occ, dpos, q``; state ``T`` [K] (the FMU's
     ``heatCapacitor.T``); outputs ``T`` [degC] and ``Qr`` [J].
@@ -745,6 +768,7 @@ def r1c1_fmi_model(parameters: Any = None, fmi_type: str | None = 'CoSimulation'
     NotBuiltError
         Without ``fmu_path``, if the built-in FMU is not built (the message
         names the command that builds it).
+
     """
     if parameters is None:
         values: dict[str, Any] = {}

@@ -1,4 +1,5 @@
-"""ctypes bindings of the batch drivers ``fmu_src/cs_batch.c`` and ``fmu_src/me_batch.c``.
+"""
+ctypes bindings of the batch drivers ``fmu_src/cs_batch.c`` and ``fmu_src/me_batch.c``.
 
 A driver runs a batch of independent intervals of one FMU instance in one C
 loop, calling the FMU's own functions (taken from the library fmpy loaded for
@@ -42,36 +43,43 @@ SIZE_P = ctypes.POINTER(ctypes.c_size_t)
 
 
 def size_array(values: Sequence[int]) -> ctypes.Array:
-    """A ``size_t`` array of ``values`` (at least one element)."""
+    """Return a ``size_t`` array of ``values`` (at least one element)."""
     return (ctypes.c_size_t * max(len(values), 1))(*values)
 
 
 def real_array(values: Sequence[float]) -> ctypes.Array:
-    """An ``fmi2Real`` (double) array of ``values``."""
+    """Return an ``fmi2Real`` (double) array of ``values``."""
     return (ctypes.c_double * len(values))(*values)
 
 
 def vr_array(refs: Sequence[int]) -> ctypes.Array:
-    """An ``fmi2ValueReference`` (unsigned int) array of ``refs``."""
+    """Return an ``fmi2ValueReference`` (unsigned int) array of ``refs``."""
     return (ctypes.c_uint * len(refs))(*refs)
 
 
 def double_pointer(array: np.ndarray) -> Any:
-    """A ``double *`` to the data of the contiguous float64 ``array`` (no copy)."""
+    """Return a ``double *`` to the data of the contiguous float64 ``array`` (no copy)."""
     return array.ctypes.data_as(DOUBLE_P)
 
 
 def address(array: np.ndarray | None) -> int | None:
-    """The data address of a C-contiguous float64 ``array`` (kept alive by the caller, e.g.
-    from :func:`~mshoot_core.models.base.interval_start_times`) for a ``const double *``
-    argument, or None (NULL)."""
+    """
+    Return the data address of a C-contiguous float64 ``array``, or None (NULL).
+
+    For a ``const double *`` argument; the caller keeps ``array`` alive (e.g. from
+    :func:`~mshoot_core.models.base.interval_start_times`).
+    """
     return None if array is None else array.__array_interface__['data'][0]
 
 
 def _address(array: np.ndarray) -> int:
-    """The address of the data of the contiguous ``array`` (no copy), for an argument the
-    driver declares as ``void *``: half the cost of a typed pointer (:func:`double_pointer`),
-    and nothing to keep alive beyond ``array`` itself, which the caller holds for the call."""
+    """
+    Return the address of the data of the contiguous ``array`` (no copy).
+
+    For an argument the driver declares as ``void *``: half the cost of a typed pointer
+    (:func:`double_pointer`), and nothing to keep alive beyond ``array`` itself, which the caller
+    holds for the call.
+    """
     return array.ctypes.data
 
 
@@ -96,7 +104,8 @@ CS_FUNCTIONS = ('fmi2Reset', 'fmi2SetReal', 'fmi2GetReal', 'fmi2SetupExperiment'
 
 
 class CsBatchDriver:
-    """The batched Co-Simulation driver bound to one FMU's functions.
+    """
+    The batched Co-Simulation driver bound to one FMU's functions.
 
     Parameters
     ----------
@@ -109,6 +118,7 @@ class CsBatchDriver:
     ------
     NotBuiltError
         If the driver is not built (``make setup``).
+
     """
 
     def __init__(self, fmu: FMU2Slave, label: str) -> None:
@@ -130,7 +140,8 @@ class CsBatchDriver:
             starts: np.ndarray, input_refs: ctypes.Array, inputs: np.ndarray,
             state_refs: ctypes.Array, x_end: np.ndarray, output_refs: ctypes.Array,
             y_end: np.ndarray, t_start: np.ndarray | None = None) -> None:
-        """Run B intervals of ``dt_s`` [s]; fill ``x_end`` (B, nx) and ``y_end`` (B, ny).
+        """
+        Run B intervals of ``dt_s`` [s]; fill ``x_end`` (B, nx) and ``y_end`` (B, ny).
 
         ``starts`` (B, len(start_refs)) are the start values of the states set
         before initialisation, ``inputs`` (B, len(input_refs)) the inputs
@@ -141,6 +152,7 @@ class CsBatchDriver:
         ------
         RuntimeError
             If an FMI call fails (the message names the call and the interval).
+
         """
         code = self._batch(
             self._api_address, component, x_end.shape[0], dt_s,
@@ -197,7 +209,8 @@ class MeProblem(ctypes.Structure):
 
 @dataclasses.dataclass(frozen=True)
 class SensitivityRequest:
-    """Forward sensitivities the Model Exchange driver integrates along with the states.
+    """
+    Forward sensitivities the Model Exchange driver integrates along with the states.
 
     The columns are the model states', then those of the inputs ``input_refs``;
     the absolute tolerance of S_ij is ``nominal_factor * x_nom_i / nom_j``.
@@ -210,6 +223,7 @@ class SensitivityRequest:
         Their nominal values (same units as the inputs).
     nominal_factor : float
         Tightening of the sensitivities' absolute tolerances relative to the states'.
+
     """
 
     input_refs: tuple[int, ...]
@@ -231,7 +245,8 @@ ME_STAGES = ('restore/reset', 'parameters', 'start values', 'setup', 'enter init
 
 
 class DriverGaveUp(Exception):
-    """The Model Exchange driver met what it does not do (an event, stiffness).
+    """
+    The Model Exchange driver met what it does not do (an event, stiffness).
 
     Attributes
     ----------
@@ -239,6 +254,7 @@ class DriverGaveUp(Exception):
         What it met.
     interval : int
         Index of the interval in the batch.
+
     """
 
     def __init__(self, reason: str, interval: int) -> None:
@@ -255,7 +271,8 @@ def me_problem(*, snapshot: int | None, needs_completed_step: bool, tolerance: f
                par_values: Sequence[float], start_refs: Sequence[int],
                start_index: Sequence[int], fmu_output_refs: Sequence[int],
                sensitivities: SensitivityRequest | None) -> tuple[MeProblem, list]:
-    """Describe a Model Exchange batch for the driver.
+    """
+    Describe a Model Exchange batch for the driver.
 
     Returns the structure and the arrays it points to: keep both alive while
     the structure is used. ``fmu_output_refs`` are the model outputs that are
@@ -297,7 +314,8 @@ def me_problem(*, snapshot: int | None, needs_completed_step: bool, tolerance: f
 
 
 class MeBatchDriver:
-    """The batched Model Exchange driver bound to one FMU's functions.
+    """
+    The batched Model Exchange driver bound to one FMU's functions.
 
     Functions an FMU may not export (optional capabilities) stay NULL; the
     driver only calls them where the model description says they exist.
@@ -313,6 +331,7 @@ class MeBatchDriver:
     ------
     NotBuiltError
         If the driver is not built (``make setup``).
+
     """
 
     def __init__(self, fmu: FMU2Model, label: str) -> None:
@@ -332,7 +351,8 @@ class MeBatchDriver:
     def run(self, component: Any, problem: MeProblem, starts: np.ndarray, inputs: np.ndarray,
             x_end: np.ndarray, y_end: np.ndarray, s_end: np.ndarray,
             dyo: np.ndarray, t_start: np.ndarray | None = None) -> None:
-        """Integrate B intervals from ``starts`` (B, nx) with ``inputs`` (B, nu).
+        """
+        Integrate B intervals from ``starts`` (B, nx) with ``inputs`` (B, nu).
 
         Interval b starts at FMU time ``t_start[b]`` [s] (None: every one at 0).
 
@@ -346,6 +366,7 @@ class MeBatchDriver:
             For an interval the driver does not do (an event, too many steps).
         RuntimeError
             If an FMI call fails or the FMU requests termination.
+
         """
         batch = starts.shape[0]
         stats = self._stats

@@ -1,4 +1,5 @@
-"""Model Exchange integration of an :class:`~mshoot_core.models.fmi.FmiModel`.
+"""
+Model Exchange integration of an :class:`~mshoot_core.models.fmi.FmiModel`.
 
 Two integrators, the same FMI calls around them:
 
@@ -50,7 +51,8 @@ class HeldInputs:
 
 
 class ModelExchangeIntegration:
-    """Model Exchange part of :class:`~mshoot_core.models.fmi.FmiModel` (a mixin).
+    """
+    Model Exchange part of :class:`~mshoot_core.models.fmi.FmiModel` (a mixin).
 
     Works on the model's FMU instance and configuration; keeps on the
     instance the CVode solver (``_solver``), the FMU-state snapshot
@@ -137,7 +139,8 @@ class ModelExchangeIntegration:
                 self._solver.reset(t)
 
     def _restore_snapshot(self, x0: np.ndarray, u: np.ndarray, t0: float = 0.0) -> None:
-        """Bring the instance to FMU time ``t0`` with ``x0`` and ``u`` through its snapshot.
+        """
+        Bring the instance to FMU time ``t0`` with ``x0`` and ``u`` through its snapshot.
 
         The first call initialises at time 0 and takes the snapshot; later
         ones restore it (no re-initialisation), write the states and apply the
@@ -163,7 +166,8 @@ class ModelExchangeIntegration:
 
     # -- the compiled batch ---------------------------------------------------------------
     def me_batch_plan(self) -> str | None:
-        """Why Model Exchange intervals cannot go to the compiled driver, or None if they can.
+        """
+        Why Model Exchange intervals cannot go to the compiled driver, or None if they can.
 
         The driver integrates with an explicit Runge-Kutta method and handles
         no events, so it applies to Model Exchange FMUs without event
@@ -185,7 +189,7 @@ class ModelExchangeIntegration:
 
     def _me_problem(self, dt_s: float,
                     sensitivities: SensitivityRequest | None) -> tuple[MeProblem, list]:
-        """The driver's description of a batch, and the arrays it points to (keep both)."""
+        """Return the driver's description of a batch, and the arrays it points to (keep both)."""
         par_refs, par_values = self._parameter_groups.get('Real', ([], []))
         fmu_outputs = {o.variable.name for o in self.model_description.outputs}
         return me_problem(
@@ -210,7 +214,8 @@ class ModelExchangeIntegration:
                        sensitivities: SensitivityRequest | None = None,
                        t_start: np.ndarray | None = None
                        ) -> tuple[np.ndarray, np.ndarray] | bool:
-        """Run a Model Exchange batch in the compiled driver; False where it does not apply.
+        """
+        Run a Model Exchange batch in the compiled driver; False where it does not apply.
 
         Each interval makes the FMI calls of :meth:`_start_interval`, then
         integrates with Dormand-Prince 5(4) at :attr:`tolerance` (absolute
@@ -234,6 +239,7 @@ class ModelExchangeIntegration:
         ------
         NotBuiltError
             If the driver is not built (``make setup``).
+
         """
         if self._me_driver is False:
             return False
@@ -275,9 +281,12 @@ class ModelExchangeIntegration:
 
     def _non_finite_interval(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                              t_start: np.ndarray | None, gave_up: DriverGaveUp) -> None:
-        """Integrate the interval the driver gave up on with CVode: raise its FmuValueError
-        if the FMU computes non-finite values there, else return (any other failure is
-        left to the CVode run of the whole batch)."""
+        """
+        Integrate the interval the driver gave up on with CVode.
+
+        Raise its FmuValueError if the FMU computes non-finite values there, else return (any other
+        failure is left to the CVode run of the whole batch).
+        """
         b = gave_up.interval
         if not 0 <= b < x_start.shape[0]:
             return

@@ -1,4 +1,5 @@
-"""An FMU model as a plant: one instance stepped forward for a whole run (:mod:`.fmi`).
+"""
+An FMU model as a plant: one instance stepped forward for a whole run (:mod:`.fmi`).
 
 The emulated building must behave like a building: every internal state of
 its FMU (the ones the model maps and all others: wall temperatures, meters,
@@ -47,7 +48,8 @@ class _PlantRun:
 
 
 class FmuPlant:
-    """The plant part of :class:`~mshoot_core.models.fmi.FmiModel` (a mixin, see the module).
+    """
+    The plant part of :class:`~mshoot_core.models.fmi.FmiModel` (a mixin, see the module).
 
     Keeps the run in ``_plant`` (None when no run is going on).
     """
@@ -55,7 +57,7 @@ class FmuPlant:
     # -- the run -------------------------------------------------------------------------------
     @property
     def plant_time_s(self) -> float | None:
-        """Current time of the plant run in the caller's time base [s], or None."""
+        """Return the current time of the plant run in the caller's time base [s], or None."""
         if self._plant is None:
             return None
         return self._plant.time + self.time_origin_s
@@ -69,7 +71,8 @@ class FmuPlant:
 
     def plant_start(self, x0: Sequence[float], t_s: float,
                     u: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
-        """Initialise the plant at time ``t_s`` with states ``x0`` and inputs ``u``.
+        """
+        Initialise the plant at time ``t_s`` with states ``x0`` and inputs ``u``.
 
         Parameters
         ----------
@@ -85,6 +88,7 @@ class FmuPlant:
         -------
         x, y : ndarray, shapes (nx,), (ny,)
             States and outputs after initialisation.
+
         """
         x0 = np.asarray(x0, dtype=float).reshape(-1)
         if x0.size != len(self.state_names) or not np.all(np.isfinite(x0)):
@@ -110,7 +114,8 @@ class FmuPlant:
         return self._plant
 
     def plant_step(self, u: Sequence[float], dt_s: float) -> tuple[np.ndarray, np.ndarray]:
-        """Hold inputs ``u`` for ``dt_s`` [s] and advance the plant; return the end values.
+        """
+        Hold inputs ``u`` for ``dt_s`` [s] and advance the plant; return the end values.
 
         Co-Simulation: one ``fmi2DoStep``. Model Exchange: integrated on from
         where the last step ended (an input change is an event); the solver
@@ -128,6 +133,7 @@ class FmuPlant:
             run is then over: do not step the plant further.
         RuntimeError
             Without a plant run.
+
         """
         plant = self._require_plant()
         dt_s = float(dt_s)
@@ -145,7 +151,7 @@ class FmuPlant:
         return x, y
 
     def plant_read(self) -> tuple[np.ndarray, np.ndarray]:
-        """The plant's current (states, outputs)."""
+        """Return the plant's current (states, outputs)."""
         self._require_plant()
         return self._read()
 
@@ -161,7 +167,8 @@ class FmuPlant:
                 'inputs': list(self.input_names), 'states': list(self.state_names)}
 
     def plant_save(self) -> bytes:
-        """The whole plant (FMU state, time, inputs) as bytes for :meth:`plant_restore`.
+        """
+        Return the whole plant (FMU state, time, inputs) as bytes for :meth:`plant_restore`.
 
         Raises
         ------
@@ -169,6 +176,7 @@ class FmuPlant:
             If the FMU cannot serialise its state (:attr:`can_save_plant`).
         RuntimeError
             Without a plant run.
+
         """
         plant = self._require_plant()
         if not self.can_save_plant:
@@ -188,13 +196,15 @@ class FmuPlant:
         return PLANT_MAGIC + struct.pack('<I', len(text)) + text + data
 
     def plant_restore(self, saved: bytes) -> tuple[np.ndarray, np.ndarray]:
-        """Resume a plant saved by :meth:`plant_save` (same FMU, same role); return (x, y).
+        """
+        Resume a plant saved by :meth:`plant_save` (same FMU, same role); return (x, y).
 
         Raises
         ------
         ValueError
             If ``saved`` is not a plant state of this FMU and interface, or the
             FMU cannot restore its state.
+
         """
         if not isinstance(saved, (bytes, bytearray)) or not saved.startswith(PLANT_MAGIC):
             raise ValueError('not a saved plant state (expected the bytes of plant_save)')

@@ -1,4 +1,5 @@
-"""Forward sensitivities of Model Exchange intervals of an FMU model (:mod:`.fmi`).
+"""
+Forward sensitivities of Model Exchange intervals of an FMU model (:mod:`.fmi`).
 
 For Model Exchange FMUs with ``providesDirectionalDerivative``,
 :meth:`ForwardSensitivities.interval_jacobians` integrates the forward
@@ -32,7 +33,8 @@ SENSITIVITY_NOMINAL_FACTOR = 1e-2
 
 
 class _Sensitivities:
-    """The augmented ODE [x, S] for fmpy's CVode solver (callbacks on raw buffers).
+    """
+    The augmented ODE [x, S] for fmpy's CVode solver (callbacks on raw buffers).
 
     Only the columns the model needs are integrated: ``S = [Sx | Su]`` of
     shape (n, k + m), Sx the derivatives w.r.t. the k model states among the
@@ -101,7 +103,8 @@ class _Sensitivities:
             ds[:, j] = column
 
     def get_nominals(self, buffer: Any, size: int) -> None:
-        """Nominals (absolute tolerance = tolerance * nominal) of [x, S].
+        """
+        Nominals (absolute tolerance = tolerance * nominal) of [x, S].
 
         The FMU's nominals for x; for S_ij the change of x_i per nominal
         change of state or input j (x_nom_i / nom_j), tightened by
@@ -121,7 +124,8 @@ class _Sensitivities:
 
 
 class ForwardSensitivities:
-    """Forward-sensitivity part of :class:`~mshoot_core.models.fmi.FmiModel` (a mixin).
+    """
+    Forward-sensitivity part of :class:`~mshoot_core.models.fmi.FmiModel` (a mixin).
 
     Keeps on the instance, per set of input columns, the CVode solvers of
     the augmented systems (``_sensitivity_solvers``) and the requests to the
@@ -148,7 +152,7 @@ class ForwardSensitivities:
         return None
 
     def _sensitivity_request(self, wrt: Sequence[int]) -> SensitivityRequest:
-        """The input columns ``wrt`` (indices of :attr:`input_names`) with their nominals."""
+        """Return the inputs ``wrt`` (indices of :attr:`input_names`) with their nominals."""
         key = tuple(wrt)
         request = self._sensitivity_requests.get(key)
         if request is None:
@@ -161,7 +165,7 @@ class ForwardSensitivities:
         return request
 
     def _sensitivity_solver(self, wrt: Sequence[int]) -> tuple[_Sensitivities, Any]:
-        """The augmented system and its CVode solver for the input columns ``wrt`` (cached)."""
+        """Return the augmented system and its CVode solver for the inputs ``wrt`` (cached)."""
         key = tuple(wrt)
         if key not in self._sensitivity_solvers:
             from fmpy.sundials import CVodeSolver
@@ -206,7 +210,8 @@ class ForwardSensitivities:
     def interval_jacobians(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                            wrt_inputs: Sequence[int],
                            t_start_s: np.ndarray | None = None) -> IntervalJacobians | None:
-        """End values and forward-sensitivity derivatives of B intervals (ME), or None.
+        """
+        End values and forward-sensitivity derivatives of B intervals (ME), or None.
 
         Integrates ``[x, Sx, Su]`` at the model's tolerance, the Jacobian-vector
         products from ``fmi2GetDirectionalDerivative``: in the compiled
@@ -219,7 +224,9 @@ class ForwardSensitivities:
         Parameters
         ----------
         x_start : ndarray, shape (B, nx)
+            Start state of each interval.
         u : ndarray, shape (B, nu)
+            Inputs of each interval, columns in :attr:`input_names` order.
         dt_s : float
             Interval length [s].
         wrt_inputs : sequence of int
@@ -232,6 +239,7 @@ class ForwardSensitivities:
         ------
         FmuValueError
             If a state or output is not finite (names it and the FMU time).
+
         """
         wrt = [int(j) for j in wrt_inputs]
         bad = [j for j in wrt if not 0 <= j < len(self.input_names)]

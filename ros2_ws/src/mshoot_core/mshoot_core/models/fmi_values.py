@@ -1,4 +1,5 @@
-"""Non-finite values of FMU models (:mod:`.fmi`): one clear error instead of a solver's.
+"""
+Non-finite values of FMU models (:mod:`.fmi`): one clear error instead of a solver's.
 
 An FMU that computes NaN or inf (a division by zero past some time, a table
 read out of range) used to surface as whatever failed next: ``NaN`` in a
@@ -31,7 +32,8 @@ __all__ = ['FmuValueError', 'NonFiniteChecks']
 
 
 class FmuValueError(ModelValueError):
-    """An FMU produced a non-finite state, derivative or output.
+    """
+    An FMU produced a non-finite state, derivative or output.
 
     Attributes
     ----------
@@ -41,6 +43,7 @@ class FmuValueError(ModelValueError):
         FMU time [s] at which it was seen.
     fmu : str
         File name of the FMU.
+
     """
 
     def __init__(self, fmu: str, kind: str, variable: str, value: float, time_s: float | None,
@@ -54,7 +57,8 @@ class FmuValueError(ModelValueError):
 
 
 class NonFiniteChecks:
-    """Finite-value checks of :class:`~mshoot_core.models.fmi.FmiModel` (a mixin).
+    """
+    Finite-value checks of :class:`~mshoot_core.models.fmi.FmiModel` (a mixin).
 
     Uses the model's variable lists; keeps the last time set by an integrator
     (``_fmu_time``) and the first non-finite derivative CVode met
@@ -78,7 +82,8 @@ class NonFiniteChecks:
 
     def _check_finite(self, x_end: np.ndarray, y_end: np.ndarray,
                       t_end: np.ndarray | float | None, where: str = '') -> None:
-        """Raise :class:`FmuValueError` for the earliest non-finite entry of the end values.
+        """
+        Raise :class:`FmuValueError` for the earliest non-finite entry of the end values.
 
         Parameters
         ----------
@@ -88,6 +93,7 @@ class NonFiniteChecks:
             FMU times of those values [s] (None: unknown).
         where : str
             Appended to the message (e.g. which interval).
+
         """
         if np.isfinite(x_end).all() and np.isfinite(y_end).all():
             return
@@ -107,8 +113,12 @@ class NonFiniteChecks:
                                         time, names[i], where)
 
     def _diagnose(self, error: Exception, where: str = '') -> None:
-        """After an integrator failed: raise :class:`FmuValueError` if the FMU now holds a
-        non-finite state, derivative or output; else return (the caller re-raises)."""
+        """
+        Raise :class:`FmuValueError` if the FMU holds non-finite values after a failure.
+
+        After an integrator failed: raise :class:`FmuValueError` if the FMU now holds a non-finite
+        state, derivative or output; else return (the caller re-raises).
+        """
         fmu = self._fmu
         time = getattr(self, '_fmu_time', None)
         n = getattr(self, '_n_continuous', 0)
@@ -145,5 +155,5 @@ class NonFiniteChecks:
 
 
 def fmu_name(model: object) -> str:
-    """The FMU's file name of an FMU model."""
+    """Return the FMU's file name of an FMU model."""
     return model.fmu_path.name

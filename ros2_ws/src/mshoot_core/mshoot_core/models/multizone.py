@@ -1,4 +1,5 @@
-"""A building of Z R1C1 zones, vectorised: the scale test case of the optimiser.
+"""
+A building of Z R1C1 zones, vectorised: the scale test case of the optimiser.
 
 Every zone follows the R1C1 equations of :mod:`mshoot_core.models.r1c1` with
 its own size, solar aperture and occupancy share, under the shared outdoor
@@ -19,7 +20,8 @@ from mshoot_core.models.r1c1 import KELVIN, R1C1Model, R1C1Parameters
 
 
 class MultiZoneModel(Model):
-    """Z independent R1C1 zones in one model.
+    """
+    Z independent R1C1 zones in one model.
 
     Parameters
     ----------
@@ -36,6 +38,7 @@ class MultiZoneModel(Model):
     The controls (:attr:`control_names`) are the heat rates ``q_i``; every state
     is a zone temperature bounded by the comfort band (:attr:`comfort_states`;
     see :func:`mshoot_core.models.registry.control_interface`).
+
     """
 
     def __init__(self, n_zones: int, seed: int = 0,
@@ -58,7 +61,7 @@ class MultiZoneModel(Model):
         self.comfort_states = self.state_names
 
     def _zone_inputs(self, u: np.ndarray) -> np.ndarray:
-        """Inputs of every zone, shape (B, Z, 5), from the model inputs (B, 4 + Z)."""
+        """Return the inputs of every zone, shape (B, Z, 5), from the model inputs (B, 4 + Z)."""
         batch = u.shape[0]
         zone_u = np.empty((batch, self.n_zones, 5))
         zone_u[:, :, 0] = u[:, [0]] * self.solar_share
@@ -69,12 +72,12 @@ class MultiZoneModel(Model):
         return zone_u
 
     def _coefficients(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """f [W], g [W/K] and capacity C [J/K] per batch row and zone, shapes (B, Z)."""
+        """Return f [W], g [W/K] and capacity C [J/K] per batch row and zone, shapes (B, Z)."""
         f, g = self.zones.affine_coefficients(self._zone_inputs(u))
         return f, g, np.broadcast_to(self.zones.parameters.capacity_j_k, f.shape)
 
     def simulate(self, udf: pd.DataFrame, x0: Sequence[float]) -> tuple[pd.DataFrame,
-                                                                       pd.DataFrame]:
+                                                                        pd.DataFrame]:
         t, u, x0_arr = self.check_inputs(udf, x0)
         states = np.empty((t.size, self.n_zones))
         states[0] = x0_arr
@@ -87,7 +90,7 @@ class MultiZoneModel(Model):
 
     def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                            t_start_s: np.ndarray | None = None) -> tuple[np.ndarray,
-                                                                        np.ndarray]:
+                                                                         np.ndarray]:
         """Exact end values of B intervals (``t_start_s`` ignored: time-invariant)."""
         x_start = np.atleast_2d(np.asarray(x_start, dtype=float))
         f, g, cap = self._coefficients(np.atleast_2d(np.asarray(u, dtype=float)))
@@ -132,7 +135,8 @@ class MultiZoneModel(Model):
 
 
 def multizone_mpc_options(model: MultiZoneModel, solver: str = 'ipopt') -> dict:
-    """MPC keyword arguments for a :class:`MultiZoneModel`.
+    """
+    MPC keyword arguments for a :class:`MultiZoneModel`.
 
     One heater per zone (-2000..2000 W), every zone bounded by the comfort
     band, and for IPOPT the large-problem configuration: a single

@@ -1,4 +1,5 @@
-"""The R1C1 zone model of the OU44 reference case, in plain Python (exact solution).
+"""
+The R1C1 zone model of the OU44 reference case, in plain Python (exact solution).
 
     C dT/dt = (Tout + 273.15 - T)/R + shgc*solrad + occheff*occ*M(T) + qv + q
     C = tmass*1.2*1005*Vi,  R = RExt/(3*Vi^(2/3)),  M(T) = 84*(325.15 - T)/32
@@ -30,7 +31,8 @@ AIR_HEAT_PER_M3H = 1206.0 / 3600.0
 
 @dataclasses.dataclass(frozen=True)
 class R1C1Parameters:
-    """Parameters of the R1C1 zone (defaults: the calibrated OU44 classroom).
+    """
+    Parameters of the R1C1 zone (defaults: the calibrated OU44 classroom).
 
     Each field may also be an array of per-zone values (see
     :class:`mshoot_core.models.multizone.MultiZoneModel`).
@@ -51,6 +53,7 @@ class R1C1Parameters:
         Zone volume [m3].
     maxVent : float
         Maximum ventilation flow [m3/h].
+
     """
 
     tmass: float = 50.0
@@ -82,7 +85,8 @@ class R1C1Parameters:
 
 
 class R1C1Model(Model):
-    """The R1C1 zone with its exact per-interval solution.
+    """
+    The R1C1 zone with its exact per-interval solution.
 
     Inputs: ``solrad`` [W/m2], ``Tout`` [degC], ``occ`` [persons], ``dpos``
     [%], ``q`` [W]. State: ``T`` [K]. Outputs: ``T`` [degC], ``Qr`` = integral
@@ -112,8 +116,8 @@ class R1C1Model(Model):
         f, g = self.affine_coefficients(np.atleast_2d(u))
         return (f - g * T) / self.parameters.capacity_j_k
 
-    def simulate(self, udf: pd.DataFrame, x0: Sequence[float]) -> tuple[pd.DataFrame,
-                                                                       pd.DataFrame]:
+    def simulate(self, udf: pd.DataFrame,
+                 x0: Sequence[float]) -> tuple[pd.DataFrame, pd.DataFrame]:
         t, u, x0_arr = self.check_inputs(udf, x0)
         temps = np.empty(t.size)
         heat = np.zeros(t.size)
@@ -132,7 +136,7 @@ class R1C1Model(Model):
 
     def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                            t_start_s: np.ndarray | None = None) -> tuple[np.ndarray,
-                                                                        np.ndarray]:
+                                                                         np.ndarray]:
         """Exact end values of B intervals (``t_start_s`` ignored: time-invariant)."""
         x_start = np.atleast_2d(np.asarray(x_start, dtype=float))
         u = np.atleast_2d(np.asarray(u, dtype=float))

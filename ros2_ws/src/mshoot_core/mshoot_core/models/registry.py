@@ -1,4 +1,5 @@
-"""One registry of zone models: one vocabulary and one set of defaults everywhere.
+"""
+One registry of zone models: one vocabulary and one set of defaults everywhere.
 
 The case command, the study, the benchmarks and the ROS nodes build their
 models here, by name:
@@ -40,7 +41,7 @@ from typing import Callable
 import numpy as np
 
 from mshoot_core.models.base import Model
-from mshoot_core.settings import SettingsGroup, fields_of, setting, SettingField
+from mshoot_core.settings import fields_of, setting, SettingField, SettingsGroup
 
 logger = logging.getLogger(__name__)
 
@@ -60,7 +61,8 @@ _REGISTERED: dict[str, tuple[Callable[[float], Model], str]] = {}
 
 
 def register(name: str, factory: Callable[[float], Model], description: str) -> None:
-    """Add a model name (e.g. a trained data-driven model) to the vocabulary.
+    """
+    Add a model name (e.g. a trained data-driven model) to the vocabulary.
 
     Parameters
     ----------
@@ -70,6 +72,7 @@ def register(name: str, factory: Callable[[float], Model], description: str) -> 
         ``factory(tolerance) -> Model``.
     description : str
         One line for help texts.
+
     """
     if (name in BUILTIN or name in MULTIZONE or name.endswith('.fmu') or is_card_path(name)
             or not name):
@@ -88,8 +91,11 @@ def is_card_path(name: str) -> bool:
 
 
 def check_model(name: str) -> str | None:
-    """Why ``name`` does not name a model, or None (a model card is loaded and checked
-    against its model: every problem of the card in one line)."""
+    """
+    Say why ``name`` does not name a model, or return None.
+
+    A model card is loaded and checked against its model: every problem of the card in one line.
+    """
     if name in BUILTIN or name in MULTIZONE or name in _REGISTERED:
         return None
     if name.endswith('.fmu'):
@@ -107,7 +113,8 @@ def check_model(name: str) -> str | None:
 
 def build_model(name: str, tolerance: float = CONTROL_TOLERANCE,
                 role: str = 'control') -> Model:
-    """The model named ``name`` (see the module docstring).
+    """
+    Build the model named ``name`` (see the module docstring).
 
     Parameters
     ----------
@@ -123,6 +130,7 @@ def build_model(name: str, tolerance: float = CONTROL_TOLERANCE,
     ValueError
         Unknown name, missing FMU file, FMU support missing, or an invalid
         model card (:class:`~mshoot_core.models.card.CardError`, every problem).
+
     """
     if not 0 < tolerance < 1:
         raise ValueError(f'tolerance must be in (0, 1), got {tolerance}')
@@ -151,7 +159,8 @@ def build_model(name: str, tolerance: float = CONTROL_TOLERANCE,
 
 @dataclasses.dataclass(frozen=True)
 class ControlInterface:
-    """How a model is controlled: what the MPC optimises and the comfort band bounds.
+    """
+    How a model is controlled: what the MPC optimises and the comfort band bounds.
 
     Attributes
     ----------
@@ -165,6 +174,7 @@ class ControlInterface:
         temperature state (in the model's state order): bounded by the comfort
         band [degC] plus ``offset`` (273.15 for states in K); the form of
         :class:`mshoot_core.mpc.MPC`'s ``state_bounds``.
+
     """
 
     control_names: tuple[str, ...]
@@ -173,12 +183,15 @@ class ControlInterface:
 
     @property
     def temperature_names(self) -> tuple[str, ...]:
-        """The zone temperature states (those bounded by the comfort band)."""
+        """Return the zone temperature states (those bounded by the comfort band)."""
         return tuple(self.state_bounds)
 
     def temperatures_c(self, x: np.ndarray) -> np.ndarray:
-        """Zone temperatures [degC] of states ``x`` (..., nx), shape (..., nz) in the order
-        of :attr:`temperature_names`."""
+        """
+        Return the zone temperatures [degC] of states ``x``.
+
+        ``x`` has shape (..., nx), the result (..., nz) in the order of :attr:`temperature_names`.
+        """
         x = np.asarray(x, dtype=float)
         columns = [self.state_names.index(s) for s in self.state_bounds]
         offsets = np.array([spec[2] for spec in self.state_bounds.values()])
@@ -186,13 +199,15 @@ class ControlInterface:
 
 
 def control_interface(model: Model) -> ControlInterface:
-    """The controls and zone temperatures of ``model`` (see the module docstring).
+    """
+    Return the controls and zone temperatures of ``model`` (see the module docstring).
 
     Raises
     ------
     ValueError
         If the declared names are not inputs / states of the model, or a model
         declares no controls and has no input ``q``.
+
     """
     inputs, states = tuple(model.input_names), tuple(model.state_names)
     controls = getattr(model, 'control_names', None)
@@ -223,7 +238,7 @@ class ModelSettings(SettingsGroup):
 
     model: str = setting('python', "zone model: 'python' (exact R1C1), 'fmu' (the R1C1 FMU, "
                          "Model Exchange), 'fmu-cs' (Co-Simulation), 'r1c1x2' (two R1C1 "
-                         "zones, controls q_0, q_1), a path to an .fmu with the R1C1 zone "
+                         'zones, controls q_0, q_1), a path to an .fmu with the R1C1 zone '
                          'interface, or a path to a model card (.yaml)', apply='fixed')
     fmu_tolerance: float = setting(CONTROL_TOLERANCE, 'relative tolerance of the FMU '
                                    'integrator [-]', low=1e-14, high=1e-2, apply='fixed',
@@ -234,7 +249,7 @@ class ModelSettings(SettingsGroup):
         return [problem] if problem else []
 
     def build(self) -> Model:
-        """The model (see :func:`build_model`)."""
+        """Build the model (see :func:`build_model`)."""
         return build_model(self.model, self.fmu_tolerance)
 
 

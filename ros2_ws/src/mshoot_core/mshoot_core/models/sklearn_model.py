@@ -1,4 +1,5 @@
-"""Data-driven zone models: any scikit-learn regressor behind the :class:`Model` interface.
+"""
+Data-driven zone models: any scikit-learn regressor behind the :class:`Model` interface.
 
 A :class:`SklearnModel` learns the **per-step change of its states** over a
 fixed learning step ``step_s`` [s],
@@ -78,7 +79,8 @@ ESTIMATOR_FACTORIES: dict[str, Callable[[int], Any]] = {
 
 
 def make_estimator(name: str, seed: int = 0) -> Any:
-    """Return a fresh unfitted regressor of the built-in kind ``name``.
+    """
+    Return a fresh unfitted regressor of the built-in kind ``name``.
 
     Parameters
     ----------
@@ -92,6 +94,7 @@ def make_estimator(name: str, seed: int = 0) -> Any:
     ------
     ValueError
         If ``name`` is not a known estimator.
+
     """
     try:
         factory = ESTIMATOR_FACTORIES[name]
@@ -104,7 +107,8 @@ def make_estimator(name: str, seed: int = 0) -> Any:
 # -- analytic outputs -------------------------------------------------------------------------
 @dataclasses.dataclass(frozen=True)
 class AnalyticOutput:
-    """An output given by a fixed function instead of a regressor.
+    """
+    An output given by a fixed function instead of a regressor.
 
     Attributes
     ----------
@@ -119,6 +123,7 @@ class AnalyticOutput:
         integral of ``function`` over time [unit * s], accumulated over the
         learned steps (rectangle rule on each step's start state and input;
         exact for functions of the inputs only) from 0 at the start.
+
     """
 
     name: str
@@ -151,7 +156,8 @@ class _InputValue:
 
 
 def state_output(name: str, state: str, scale: float = 1.0, offset: float = 0.0) -> AnalyticOutput:
-    """Output ``scale * state + offset``.
+    """
+    Output ``scale * state + offset``.
 
     E.g. ``state_output('T', 'T', offset=-273.15)``: the zone temperature [degC].
     """
@@ -159,7 +165,8 @@ def state_output(name: str, state: str, scale: float = 1.0, offset: float = 0.0)
 
 
 def input_integral(name: str, input_name: str) -> AnalyticOutput:
-    """Output the integral of an input over time [input unit * s].
+    """
+    Output the integral of an input over time [input unit * s].
 
     E.g. ``input_integral('Qr', 'q')``: the heat delivered [J].
     """
@@ -184,7 +191,8 @@ class _Standardiser:
 
 
 class _Regressor:
-    """One regressor group (the state increments or the learned outputs).
+    """
+    One regressor group (the state increments or the learned outputs).
 
     Fits one estimator on all targets when it supports several (scikit-learn
     ``multi_output`` tag), otherwise one clone per target.
@@ -228,7 +236,8 @@ def _supports_multi_output(estimator: Any) -> bool:
 
 
 class SklearnModel(Model):
-    """A zone model whose state increments (and optional outputs) are learned regressions.
+    """
+    A zone model whose state increments (and optional outputs) are learned regressions.
 
     Parameters
     ----------
@@ -267,6 +276,7 @@ class SklearnModel(Model):
     ValueError
         On empty or duplicate names, a non-positive step, or analytic outputs
         that refer to unknown states or inputs.
+
     """
 
     def __init__(self, estimator: Any, state_names: Sequence[str], input_names: Sequence[str],
@@ -343,7 +353,7 @@ class SklearnModel(Model):
 
     @property
     def is_fitted(self) -> bool:
-        """True once :meth:`fit` has succeeded."""
+        """Return True once :meth:`fit` has succeeded."""
         return self._state_regressor is not None
 
     def _require_fitted(self) -> None:
@@ -354,7 +364,8 @@ class SklearnModel(Model):
     def fit(self, states: pd.DataFrame | Sequence[pd.DataFrame],
             inputs: pd.DataFrame | Sequence[pd.DataFrame],
             outputs: pd.DataFrame | Sequence[pd.DataFrame] | None = None) -> 'SklearnModel':
-        """Learn the state increments (and learned outputs) from trajectories.
+        """
+        Learn the state increments (and learned outputs) from trajectories.
 
         Each trajectory is sampled every ``step_s``; consecutive rows k, k+1
         give one training pair ``(x_k, u_k) -> x_{k+1} - x_k`` with ``u_k``
@@ -382,6 +393,7 @@ class SklearnModel(Model):
         ValueError
             On missing columns, non-finite values, mismatched indices, a time
             step other than ``step_s``, or fewer than two training pairs.
+
         """
         states_list = _as_list(states, 'states')
         inputs_list = _as_list(inputs, 'inputs')
@@ -493,7 +505,8 @@ class SklearnModel(Model):
 
     # -- prediction ------------------------------------------------------------------------
     def predict_increments(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """One learned step: the state increments for B (state, input) pairs.
+        """
+        One learned step: the state increments for B (state, input) pairs.
 
         Parameters
         ----------
@@ -506,6 +519,7 @@ class SklearnModel(Model):
         -------
         ndarray, shape (B, nx)
             Predicted ``x_{k+1} - x_k`` over ``step_s``.
+
         """
         self._require_fitted()
         x, u = self._check_batch(x, u)
@@ -549,7 +563,8 @@ class SklearnModel(Model):
 
     def _advance(self, x: np.ndarray, u: np.ndarray,
                  n_steps: int) -> tuple[np.ndarray, np.ndarray]:
-        """Integrate ``n_steps`` learned steps from x (B, nx) under constant u (B, nu).
+        """
+        Integrate ``n_steps`` learned steps from x (B, nx) under constant u (B, nu).
 
         Returns the end states (B, nx) and the integrals of the integrated
         outputs over the interval (B, ny; zero in the other columns).
@@ -563,12 +578,14 @@ class SklearnModel(Model):
         return x, integrals
 
     def n_steps(self, dt_s: float) -> int:
-        """Return the number of learned steps in an interval of ``dt_s`` [s].
+        """
+        Return the number of learned steps in an interval of ``dt_s`` [s].
 
         Raises
         ------
         ValueError
             If ``dt_s`` is not a positive whole multiple of :attr:`step_s`.
+
         """
         ratio = float(dt_s) / self.step_s
         n = int(round(ratio))
@@ -579,8 +596,9 @@ class SklearnModel(Model):
 
     def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                            t_start_s: np.ndarray | None = None) -> tuple[np.ndarray,
-                                                                        np.ndarray]:
-        """Simulate B independent intervals, one ``predict`` per learned step for the batch.
+                                                                         np.ndarray]:
+        """
+        Simulate B independent intervals, one ``predict`` per learned step for the batch.
 
         Parameters
         ----------
@@ -607,6 +625,7 @@ class SklearnModel(Model):
             On wrong shapes, non-finite values, or ``dt_s`` not a multiple of ``step_s``.
         NotFittedError
             If the model is not trained (a ValueError subclass).
+
         """
         self._require_fitted()
         n = self.n_steps(dt_s)
@@ -616,7 +635,8 @@ class SklearnModel(Model):
 
     def simulate(self, udf: pd.DataFrame,
                  x0: Sequence[float]) -> tuple[pd.DataFrame, pd.DataFrame]:
-        """Simulate from ``x0`` over the index of ``udf`` (every step a multiple of ``step_s``).
+        """
+        Simulate from ``x0`` over the index of ``udf`` (every step a multiple of ``step_s``).
 
         Parameters
         ----------
@@ -640,6 +660,7 @@ class SklearnModel(Model):
             is not a multiple of ``step_s``.
         NotFittedError
             If the model is not trained.
+
         """
         self._require_fitted()
         t, u, x0_arr = self.check_inputs(udf, x0)
@@ -658,7 +679,8 @@ class SklearnModel(Model):
         return ydf, xdf
 
     def one_step_predictions(self, states: pd.DataFrame, inputs: pd.DataFrame) -> pd.DataFrame:
-        """One-step-ahead state predictions along a trajectory.
+        """
+        One-step-ahead state predictions along a trajectory.
 
         Parameters
         ----------
@@ -671,6 +693,7 @@ class SklearnModel(Model):
         -------
         DataFrame, shape (T, nx)
             Row k+1 = ``states`` row k + predicted increment; row 0 = ``states`` row 0.
+
         """
         self._require_fitted()
         x = self._frame_values(states, self.state_names, 'states')
@@ -706,7 +729,8 @@ def _as_list(frames: pd.DataFrame | Sequence[pd.DataFrame], label: str) -> list[
 
 def make_zone_model(estimator: Any | str, step_s: float = 3600.0, use_state: bool = True,
                     seed: int = 0, **kwargs: Any) -> SklearnModel:
-    """Make a data-driven stand-in for :class:`R1C1Model`: same inputs, state and outputs.
+    """
+    Make a data-driven stand-in for :class:`R1C1Model`: same inputs, state and outputs.
 
     State ``T`` [K] learned; outputs ``T`` [degC] = state - 273.15 and
     ``Qr`` [J] = integral of q dt, both analytic.
@@ -723,6 +747,7 @@ def make_zone_model(estimator: Any | str, step_s: float = 3600.0, use_state: boo
         Seed of a named estimator.
     **kwargs
         Further :class:`SklearnModel` keywords.
+
     """
     if isinstance(estimator, str):
         estimator = make_estimator(estimator, seed)
@@ -735,7 +760,8 @@ def make_zone_model(estimator: Any | str, step_s: float = 3600.0, use_state: boo
 # -- training data ----------------------------------------------------------------------------
 @dataclasses.dataclass(frozen=True)
 class Trajectories:
-    """Simulated trajectories on one time grid.
+    """
+    Simulated trajectories on one time grid.
 
     Attributes
     ----------
@@ -745,6 +771,7 @@ class Trajectories:
         States on the same index.
     outputs : DataFrame, shape (T, ny)
         Outputs on the same index.
+
     """
 
     inputs: pd.DataFrame
@@ -763,7 +790,8 @@ def make_excitation_data(emulator_model: Model, disturbances_df: pd.DataFrame,
                          step_s: float = 3600.0, *, x0: Sequence[float] = (293.15,),
                          control_name: str = 'q', phase_rad: float = 0.0,
                          fixed_inputs: Mapping[str, float] | None = None) -> Trajectories:
-    """Responses of a physical model to a sinusoidal control on given disturbances.
+    """
+    Responses of a physical model to a sinusoidal control on given disturbances.
 
     The control is ``amplitude_w * sin(2 pi (t - t0) / period + phase)``
     sampled at the start of every step and held over it (SPEC Setup 2:
@@ -803,6 +831,7 @@ def make_excitation_data(emulator_model: Model, disturbances_df: pd.DataFrame,
     ------
     ValueError
         On missing or non-finite disturbances, or non-positive steps/periods.
+
     """
     if control_name not in emulator_model.input_names:
         raise ValueError(f'control {control_name!r} is not an input of the model; inputs '
@@ -847,13 +876,15 @@ def _rmse(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def evaluate(model: SklearnModel, data: Trajectories) -> tuple[float, float, float, pd.DataFrame]:
-    """Free-run and one-step errors of ``model`` on ``data`` for its first state.
+    """
+    Free-run and one-step errors of ``model`` on ``data`` for its first state.
 
     Returns
     -------
     (rmse_free_run, max_abs_free_run, rmse_one_step, table)
         Errors in the state's unit (K for zone temperatures); ``table`` has
         columns ``true``, ``free_run``, ``one_step`` indexed by time [s].
+
     """
     state = model.state_names[0]
     _, xdf = model.simulate(data.inputs, data.states.iloc[0].to_numpy())
