@@ -580,8 +580,12 @@ def test_case_scenario_has_the_series_of_the_zone_card(zone_cards):
 
 
 def test_co_simulation_only_fmu_runs_from_its_card(tmp_path):
-    """An FMU that offers only Co-Simulation: `auto` picks it, `model-exchange` is a problem
-    of the card, and as control model and emulator it gives the built-in CS FMU's KPIs."""
+    """
+    An FMU that offers only Co-Simulation runs from its card.
+
+    `auto` picks Co-Simulation, `model-exchange` is a problem of the card, and as control model
+    and emulator it gives the built-in CS FMU's KPIs.
+    """
     fmu = build_test_fmu('zone_cs')
     auto = write_card(tmp_path, 'zone_cs.yaml', ZONE_CARD, fmu)
     model = cards.build_model(auto)

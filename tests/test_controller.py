@@ -304,8 +304,11 @@ def test_core_and_ros_make_the_same_decisions(fault, context):
 
 
 def test_model_raising_from_hour_20_same_decisions_over_ros(context):
-    """The 72 h run whose control model raises from hour 20 on, over ROS (lockstep, real
-    nodes in one process): the decisions of the core run, step by step."""
+    """
+    The 72 h run whose control model raises from hour 20 on, over ROS: the core run's decisions.
+
+    Lockstep, real nodes in one process; the decisions of the core run, step by step.
+    """
     from mshoot_testing.harness import ClosedLoop
     steps = core_decisions('raise', hours=72, fault_steps=(20, 72))
     model, solver = fault_setup('raise')

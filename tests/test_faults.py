@@ -333,8 +333,11 @@ def test_supervisor_never_plans_from_a_stale_plan():
 
 
 def test_emulator_restart_resumes_the_fmu_plant_from_its_saved_state(context, tmp_path):
-    """The emulator saves its FMU plant after every step; a restart at start_step resumes it
-    (every internal state, Qr included): the same trajectory as the uninterrupted run."""
+    """
+    The emulator saves its FMU plant after every step; a restart at start_step resumes it.
+
+    Every internal state, Qr included: the same trajectory as the uninterrupted run.
+    """
     state_file = tmp_path / 'plant.bin'
     fmu = {'model': 'fmu-cs', 'plant_state_file': str(state_file)}
     whole = make_loop(context, hours=6, emulator=dict(fmu, plant_state_file=''))

@@ -63,8 +63,8 @@ must not wait on a simulated-time timer).
 from __future__ import annotations
 
 import collections
-import logging
 import json
+import logging
 import pathlib
 import sys
 from typing import Any
