@@ -130,9 +130,25 @@ def test_ou44_reference_calibration(ou44_csv: pathlib.Path, tmp_path: pathlib.Pa
     assert scores['rmse_k'] == pytest.approx(published['rmse_validation_k'], rel=1e-12)
 
 
+def test_ou44_calibration_of_an_fmu_card(ou44_csv: pathlib.Path,
+                                         tmp_path: pathlib.Path) -> None:
+    """The built-in Co-Simulation FMU (an exact solver) reaches the Python R1C1's optimum."""
+    python, fmu = tmp_path / 'python', tmp_path / 'fmu'
+    assert verb.main(['ou44', '--data', str(ou44_csv), '--out', str(python), '--no-figure']) == 0
+    assert verb.main(['ou44', '--data', str(ou44_csv), '--out', str(fmu), '--no-figure',
+                      '--model', str(cards.builtin_card('r1c1_fmu_cs'))]) == 0
+    a, b = (json.loads((p / 'calibration.json').read_text()) for p in (python, fmu))
+    for name, value in a['parameters'].items():
+        assert b['parameters'][name] == pytest.approx(value, rel=1e-3), name
+    card = cards.load_card(fmu / 'r1c1_calibrated.yaml')
+    assert card.builtin == 'r1c1-fmu' and card.interface == 'CoSimulation'
+    assert card.parameters['tmass'] == pytest.approx(b['parameters']['tmass'], rel=1e-12)
+
+
 @pytest.mark.parametrize('extra', [['--starts', '0'], ['--free', 'tmass,nope'],
                                    ['--bound', 'tmass=5:1'], ['--prior', 'shgc=4'],
-                                   ['--train', '2018-04-04 08:00', '2017-01-01 00:00']])
+                                   ['--train', '2018-04-04 08:00', '2017-01-01 00:00'],
+                                   ['--model', 'no_such_card.yaml']])
 def test_bad_options_exit_2_one_line(ou44_csv: pathlib.Path, tmp_path: pathlib.Path,
                                      extra: list) -> None:
     run = subprocess.run([sys.executable, '-m', 'mshoot_studies.calibrate', 'ou44', '--data',

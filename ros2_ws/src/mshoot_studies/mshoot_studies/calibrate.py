@@ -72,6 +72,9 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument('--validation', nargs=2, metavar=('START', 'END'),
                         default=list(calibration.OU44_VALIDATION),
                         help='validation period, inclusive (default: %(default)s)')
+    parser.add_argument('--model', type=pathlib.Path, default=None, metavar='CARD',
+                        help='model card of the model to calibrate (e.g. the built-in R1C1 FMU '
+                             'card); default: the Python R1C1')
     parser.add_argument('--free', default=','.join(FREE),
                         help='comma-separated parameters to fit, from '
                              f'{list(BOUNDS)} (default: %(default)s); the others are fixed '
@@ -160,11 +163,20 @@ def run(args: argparse.Namespace) -> int:
         free = free_parameters(args)
         train, validation = calibration.ou44_periods(data, tuple(args.train),
                                                      tuple(args.validation), args.max_heat)
+        card = None if args.model is None else cards.load_card(args.model)
+        if card is None or card.builtin == 'r1c1':
+            fixed = {k: v for k, v in PUBLISHED.items() if k not in {p.name for p in free}}
+            build = calibration.r1c1_builder(fixed)
+        else:
+            fixed = {k: v for k, v in card.parameters.items()
+                     if k not in {p.name for p in free}}
+            build = calibration.card_builder(card)
+            build({p.name: p.initial for p in free})  # unknown parameter names fail here
+            train, validation = (dataclasses.replace(p, x0=card.initial_state(p.x0[0]))
+                                 for p in (train, validation))
     except (ValueError, FileNotFoundError) as error:
         logger.error('%s', ' '.join(str(error).split()))
         return 2
-    fixed = {k: v for k, v in PUBLISHED.items() if k not in {p.name for p in free}}
-    build = calibration.r1c1_builder(fixed)
     result = calibration.calibrate(build, free, [train], [validation], starts=args.starts,
                                    seed=args.seed)
     published_model = calibration.r1c1_builder()({})
@@ -177,12 +189,14 @@ def run(args: argparse.Namespace) -> int:
         published[f'mae_{period.name}_k'] = scores['mae_k']
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    card_path = write_card(out / CARD_NAME, {**fixed, **result.parameters}, result)
+    card_path = write_card(out / CARD_NAME, {**fixed, **result.parameters}, result, card)
     figure = None
     if not args.no_figure:
         figure = draw(out / FIGURE_NAME, [train, validation], result.simulated, published_sim)
     report = {
-        'case': args.case, 'data': str(data), 'parameters': result.parameters,
+        'case': args.case, 'data': str(data),
+        'model': 'python r1c1' if card is None else str(card.path),
+        'parameters': result.parameters,
         'fixed': fixed,
         'rmse_train_k': result.metrics['train']['rmse_k'],
         'rmse_validation_k': result.metrics['validation']['rmse_k'],
@@ -216,19 +230,27 @@ def _json_default(value: Any) -> Any:
 
 
 def write_card(path: pathlib.Path, parameters: dict[str, float],
-               result: calibration.CalibrationResult) -> pathlib.Path:
+               result: calibration.CalibrationResult,
+               card: cards.ModelCard | None = None) -> pathlib.Path:
     """
-    Write the model card of the Python R1C1 with ``parameters``; check that it loads.
+    Write the model card of the calibrated model with ``parameters``; check that it loads.
 
-    The card is the built-in ``r1c1`` card with a description and the parameters.
+    The card is ``card`` (default: the built-in ``r1c1`` card) with a
+    description and the parameters; an FMU it names is referred to by its
+    absolute path.
     """
-    document = yaml.safe_load(cards.builtin_card('r1c1').read_text())
+    source = cards.builtin_card('r1c1') if card is None else card.path
+    document = yaml.safe_load(source.read_text())
+    if card is not None and card.builtin is None:
+        document['fmu'] = str(card.fmu)
     rmse = result.metrics
-    text = (f'R1C1 zone calibrated by mshoot calibrate (RMSE train '
+    what = 'R1C1 zone' if card is None else document.get('description', 'zone model')
+    text = (f'{what}, calibrated by mshoot calibrate (RMSE train '
             f'{rmse["train"]["rmse_k"]:.3f} K, validation {rmse["validation"]["rmse_k"]:.3f} K)'
-            if 'validation' in rmse else 'R1C1 zone calibrated by mshoot calibrate')
-    ordered = {'description': text, 'builtin': 'r1c1',
-               'parameters': {k: float(v) for k, v in parameters.items()}}
+            if 'validation' in rmse else f'{what}, calibrated by mshoot calibrate')
+    ordered = {'description': text}
+    ordered.update({k: document[k] for k in ('builtin', 'fmu') if k in document})
+    ordered['parameters'] = {k: float(v) for k, v in parameters.items()}
     ordered.update({k: v for k, v in document.items() if k not in ordered})
     path.write_text('# Written by mshoot calibrate.\n'
                     + yaml.safe_dump(ordered, sort_keys=False, default_flow_style=None))
