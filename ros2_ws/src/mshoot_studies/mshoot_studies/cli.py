@@ -33,6 +33,8 @@ VERBS: dict[str, tuple[str, str]] = {
                                       'local worker processes or a Dask cluster'),
     'card': ('mshoot_studies.card', 'model cards: check a card against its model and print '
                                     "what it maps, list an FMU's variables"),
+    'calibrate': ('mshoot_studies.calibrate', 'fit model parameters to measured data (the OU44 '
+                                              'reference calibration): RMSEs, card, figure'),
 }
 
 

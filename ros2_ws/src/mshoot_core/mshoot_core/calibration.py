@@ -1,0 +1,568 @@
+"""
+Calibration: fit named parameters of a zone model to measured data by least squares.
+
+A :class:`Period` is a stretch of measurements: the model's inputs held over
+each row, the start state (from the measured output at the first row) and the
+measured output. :func:`calibrate` simulates every training period freely
+(no state correction) from its start state, minimises the residuals
+(simulated - measured) / ``noise`` over the free parameters within their
+bounds (:func:`scipy.optimize.least_squares`, from one or several starts),
+with optional Gaussian priors as extra residuals, then reports per period the
+RMSE and MAE [K], the parameters with approximate confidence intervals from
+the Jacobian at the optimum (covariance ``s^2 (J^T J)^-1``), and warnings for
+parameters at a bound or strongly correlated.
+
+The model is rebuilt for every parameter vector by a ``build(parameters)``
+callable: :func:`r1c1_builder` for the Python R1C1, :func:`card_builder` for
+the model of a card (an FMU's parameters are set before every
+initialisation). :func:`ou44_periods` makes the periods of the OU44 reference
+calibration from the measurements.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import pathlib
+import time
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+import scipy.optimize
+import scipy.stats
+
+from mshoot_core.models.base import Model
+
+__all__ = ['calibrate', 'CalibrationResult', 'card_builder', 'FreeParameter', 'metrics',
+           'OU44_FIXED', 'OU44_FREE', 'OU44_MAX_HEAT_W', 'OU44_TRAIN', 'OU44_VALIDATION',
+           'ou44_periods', 'Period', 'r1c1_builder', 'simulate_period']
+
+logger = logging.getLogger(__name__)
+
+KELVIN = 273.15
+#: |correlation| above which two parameters are reported as strongly correlated.
+CORRELATION_WARNING = 0.95
+#: Distance to a bound, as a fraction of the bounds' span, reported as 'at a bound'.
+BOUND_WARNING = 1e-3
+#: Seconds between two progress messages of a fit.
+PROGRESS_S = 5.0
+
+#: Radiator power at a fully open valve (vpos = 100 %) [W] of the OU44 classroom.
+OU44_MAX_HEAT_W = 2689.0
+#: The OU44 reference calibration's training and validation periods (local time, inclusive).
+OU44_TRAIN = ('2018-04-04 08:00', '2018-04-09 08:00')
+OU44_VALIDATION = ('2018-04-09 08:00', '2018-04-13 08:00')
+#: Fixed parameters of the OU44 R1C1 calibration.
+OU44_FIXED = {'Tve': 21.0, 'Vi': 486.5, 'maxVent': 4800.0}
+
+
+@dataclasses.dataclass(frozen=True)
+class FreeParameter:
+    """
+    One parameter to fit.
+
+    Attributes
+    ----------
+    name : str
+        Parameter name, as the model builder knows it.
+    initial : float
+        Start value of the fit (the first start).
+    lower, upper : float
+        Bounds (lower < upper, initial within them).
+    prior_mean, prior_sd : float or None
+        Optional Gaussian prior: adds ``(value - prior_mean) / prior_sd`` to
+        the residuals (both or neither).
+
+    """
+
+    name: str
+    initial: float
+    lower: float
+    upper: float
+    prior_mean: float | None = None
+    prior_sd: float | None = None
+
+    def __post_init__(self) -> None:
+        values = (self.initial, self.lower, self.upper)
+        if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
+            raise ValueError(f'parameter {self.name}: initial, lower and upper must be finite '
+                             f'numbers, got {values}')
+        if not self.lower < self.upper:
+            raise ValueError(f'parameter {self.name}: lower {self.lower:g} must be below upper '
+                             f'{self.upper:g}')
+        if not self.lower <= self.initial <= self.upper:
+            raise ValueError(f'parameter {self.name}: initial {self.initial:g} outside '
+                             f'[{self.lower:g}, {self.upper:g}]')
+        if (self.prior_mean is None) != (self.prior_sd is None):
+            raise ValueError(f'parameter {self.name}: a prior needs both prior_mean and '
+                             'prior_sd')
+        if self.prior_sd is not None and not self.prior_sd > 0:
+            raise ValueError(f'parameter {self.name}: prior_sd must be > 0, got '
+                             f'{self.prior_sd}')
+
+
+@dataclasses.dataclass(frozen=True)
+class Period:
+    """
+    A stretch of measurements, simulated freely from its first row.
+
+    Attributes
+    ----------
+    name : str
+        Label (e.g. 'train', 'validation').
+    inputs : DataFrame
+        Model inputs indexed by time [s], held over each row (the last row
+        only ends the previous interval).
+    x0 : ndarray
+        Start state of the model [its state units].
+    measured : ndarray
+        Measured output at every row [output unit, degC for T].
+    output : str
+        Name of the model output compared with ``measured``.
+    timestamps : DatetimeIndex or None
+        Wall-clock time of the rows, for the figure.
+
+    """
+
+    name: str
+    inputs: pd.DataFrame
+    x0: np.ndarray
+    measured: np.ndarray
+    output: str = 'T'
+    timestamps: pd.DatetimeIndex | None = None
+
+    def __post_init__(self) -> None:
+        measured = np.asarray(self.measured, dtype=float).reshape(-1)
+        if measured.size != len(self.inputs) or measured.size < 2:
+            raise ValueError(f'period {self.name}: {measured.size} measured values for '
+                             f'{len(self.inputs)} rows of inputs (need at least two)')
+        if not np.all(np.isfinite(measured)):
+            raise ValueError(f'period {self.name}: the measured {self.output} has gaps')
+        object.__setattr__(self, 'measured', measured)
+        object.__setattr__(self, 'x0', np.asarray(self.x0, dtype=float).reshape(-1))
+
+
+@dataclasses.dataclass
+class CalibrationResult:
+    """
+    What :func:`calibrate` found.
+
+    Attributes
+    ----------
+    parameters : dict of str -> float
+        Fitted values of the free parameters.
+    std : dict of str -> float
+        Approximate standard deviations (nan if the Jacobian is singular).
+    ci95 : dict of str -> (float, float)
+        Approximate 95 % confidence intervals.
+    correlation : ndarray
+        Correlation matrix of the free parameters (their order).
+    metrics : dict of str -> dict
+        Period name -> {'rmse_k', 'mae_k', 'rows'} at the fitted parameters.
+    warnings : list of str
+        Parameters at a bound, strongly correlated ones, an unidentifiable fit.
+    cost : float
+        Half the sum of squared residuals at the optimum.
+    evaluations : int
+        Model simulations of all periods run by the fit.
+    starts : list of dict
+        Per start: initial values, final values, cost.
+    success : bool
+        Whether the best start converged.
+    message : str
+        The optimiser's message for the best start.
+    wall_s : float
+        Wall time of the fit [s].
+    simulated : dict of str -> ndarray
+        Period name -> simulated output at every row, fitted parameters.
+
+    """
+
+    parameters: dict[str, float]
+    std: dict[str, float]
+    ci95: dict[str, tuple[float, float]]
+    correlation: np.ndarray
+    metrics: dict[str, dict[str, float]]
+    warnings: list[str]
+    cost: float
+    evaluations: int
+    starts: list[dict[str, Any]]
+    success: bool
+    message: str
+    wall_s: float
+    simulated: dict[str, np.ndarray]
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return the JSON-ready summary (no simulated series)."""
+        names = list(self.parameters)
+        return {'parameters': dict(self.parameters), 'std': dict(self.std),
+                'ci95': {k: list(v) for k, v in self.ci95.items()},
+                'correlation': {a: {b: float(self.correlation[i, j])
+                                    for j, b in enumerate(names)}
+                                for i, a in enumerate(names)},
+                'metrics': self.metrics, 'warnings': list(self.warnings),
+                'cost': self.cost, 'evaluations': self.evaluations, 'starts': self.starts,
+                'success': self.success, 'message': self.message, 'wall_s': self.wall_s}
+
+
+Builder = Callable[[Mapping[str, float]], Model]
+
+
+def simulate_period(model: Model, period: Period) -> np.ndarray:
+    """
+    Simulate ``period`` freely from its start state; return the output at every row.
+
+    Parameters
+    ----------
+    model : Model
+        The model (its inputs are taken from ``period.inputs`` by name).
+    period : Period
+        The period.
+
+    Returns
+    -------
+    ndarray, shape (rows,)
+        The simulated ``period.output`` [its unit].
+
+    """
+    udf = period.inputs[list(model.input_names)]
+    ydf, _ = model.simulate(udf, period.x0)
+    return ydf[period.output].to_numpy(dtype=float)
+
+
+def metrics(simulated: np.ndarray, measured: np.ndarray) -> dict[str, float]:
+    """
+    Return the RMSE and MAE [K] of ``simulated`` against ``measured`` over rows 1..N.
+
+    Row 0 is the start state (taken from the measurement) and is left out.
+    """
+    error = np.asarray(simulated, dtype=float)[1:] - np.asarray(measured, dtype=float)[1:]
+    return {'rmse_k': float(np.sqrt(np.mean(error ** 2))),
+            'mae_k': float(np.mean(np.abs(error))), 'rows': int(error.size)}
+
+
+def r1c1_builder(fixed: Mapping[str, float] | None = None) -> Builder:
+    """
+    Return a builder of the Python R1C1 with ``fixed`` parameters and the free ones given.
+
+    Parameters
+    ----------
+    fixed : mapping, optional
+        Fields of :class:`~mshoot_core.models.r1c1.R1C1Parameters` held fixed
+        (the others default to the published values unless fitted).
+
+    """
+    from mshoot_core.models.r1c1 import R1C1Model, R1C1Parameters
+    names = {f.name for f in dataclasses.fields(R1C1Parameters)}
+    base = dict(fixed or {})
+    unknown = sorted(set(base) - names)
+    if unknown:
+        raise ValueError(f'unknown R1C1 parameters {unknown}; expected names from '
+                         f'{sorted(names)}')
+
+    def build(parameters: Mapping[str, float]) -> Model:
+        unknown = sorted(set(parameters) - names)
+        if unknown:
+            raise ValueError(f'unknown R1C1 parameters {unknown}; expected names from '
+                             f'{sorted(names)}')
+        return R1C1Model(R1C1Parameters(**{**base, **{k: float(v)
+                                                      for k, v in parameters.items()}}))
+
+    return build
+
+
+def card_builder(card: Any, tolerance: float | None = None) -> Builder:
+    """
+    Return a builder of a model card's model with the given parameters.
+
+    For an FMU the model is built once (its instance and drivers) and the
+    parameters are replaced before each simulation: :class:`FmiModel` sets
+    them after every reset, before initialisation. The Python R1C1 is rebuilt.
+
+    Parameters
+    ----------
+    card : ModelCard or path
+        The card (see :mod:`mshoot_core.models.card`); its ``parameters`` are
+        the fixed ones.
+    tolerance : float, optional
+        Integrator tolerance when the card sets none (default: the control
+        role's).
+
+    """
+    from mshoot_core.models import card as cards
+    if not isinstance(card, cards.ModelCard):
+        card = cards.load_card(card)
+    if card.builtin == 'r1c1':
+        return r1c1_builder(card.parameters)
+    model = cards.build_model(card, role='control', tolerance=tolerance)
+    fixed = dict(card.parameters)
+
+    def build(parameters: Mapping[str, float]) -> Model:
+        values = {**fixed, **{k: float(v) for k, v in parameters.items()}}
+        # FmiModel validates the names and sets the values before every initialisation.
+        model._set_parameters_plan(values, dict(model.fixed_inputs))
+        return model
+
+    return build
+
+
+class _Problem:
+    """The residual function of a fit over scaled parameters theta = value / scale."""
+
+    def __init__(self, build: Builder, free: Sequence[FreeParameter], periods: Sequence[Period],
+                 noise: float) -> None:
+        self.build = build
+        self.free = list(free)
+        self.periods = list(periods)
+        self.noise = noise
+        self.scale = np.array([max(abs(p.initial), abs(p.lower), abs(p.upper)) or 1.0
+                               for p in self.free])
+        self.evaluations = 0
+        self.started = time.monotonic()
+        self.last_report = self.started
+        self.best = math.inf
+
+    def values(self, theta: np.ndarray) -> dict[str, float]:
+        return {p.name: float(v) for p, v in zip(self.free, np.asarray(theta) * self.scale)}
+
+    def simulate(self, values: Mapping[str, float]) -> list[np.ndarray]:
+        model = self.build(values)
+        self.evaluations += 1
+        return [simulate_period(model, period) for period in self.periods]
+
+    def residuals(self, theta: np.ndarray) -> np.ndarray:
+        values = self.values(theta)
+        try:
+            outputs = self.simulate(values)
+        except (ValueError, ArithmeticError) as error:
+            logger.debug('simulation failed at %s: %s', values, error)
+            size = sum(len(p.measured) - 1 for p in self.periods)
+            return np.full(size + len(self.priors), 1e6)
+        parts = [(y[1:] - p.measured[1:]) / self.noise for y, p in zip(outputs, self.periods)]
+        parts.append(np.array([(values[p.name] - p.prior_mean) / p.prior_sd
+                               for p in self.priors]))
+        r = np.concatenate(parts)
+        cost = 0.5 * float(r @ r)
+        self.best = min(self.best, cost)
+        now = time.monotonic()
+        if now - self.last_report >= PROGRESS_S:
+            self.last_report = now
+            logger.info('calibration: %d simulations, %.1f s, best cost %.6g', self.evaluations,
+                        now - self.started, self.best)
+        return r
+
+    @property
+    def priors(self) -> list[FreeParameter]:
+        return [p for p in self.free if p.prior_sd is not None]
+
+
+def _start_points(free: Sequence[FreeParameter], starts: int,
+                  seed: int) -> list[np.ndarray]:
+    """Return the first start (the initial values) and ``starts - 1`` uniform draws in bounds."""
+    rng = np.random.default_rng(seed)
+    points = [np.array([p.initial for p in free])]
+    lower = np.array([p.lower for p in free])
+    upper = np.array([p.upper for p in free])
+    for _ in range(starts - 1):
+        points.append(lower + (upper - lower) * rng.uniform(0.05, 0.95, size=len(free)))
+    return points
+
+
+def calibrate(build: Builder, free: Sequence[FreeParameter], train: Sequence[Period],
+              validation: Sequence[Period] = (), starts: int = 1, seed: int = 0,
+              noise: float = 1.0, xtol: float = 1e-10, max_evaluations: int | None = None,
+              ) -> CalibrationResult:
+    """
+    Fit the ``free`` parameters to the ``train`` periods; score every period.
+
+    Parameters
+    ----------
+    build : callable
+        ``build(parameters) -> Model`` for a mapping name -> value of the
+        free parameters (:func:`r1c1_builder`, :func:`card_builder`).
+    free : sequence of FreeParameter
+        The parameters to fit, their start values, bounds and priors.
+    train : sequence of Period
+        The periods fitted.
+    validation : sequence of Period
+        Periods only scored.
+    starts : int
+        Number of starts: the initial values, then uniform draws within the
+        bounds (seeded by ``seed``); the best fit wins.
+    seed : int
+        Seed of the random starts.
+    noise : float
+        Measurement noise standard deviation [K]: the data residuals are
+        divided by it (matters only next to priors).
+    xtol, max_evaluations : float, int
+        Stopping rules of :func:`scipy.optimize.least_squares` (``xtol``,
+        ``max_nfev`` per start).
+
+    Returns
+    -------
+    CalibrationResult
+
+    Raises
+    ------
+    ValueError
+        For no free parameters, duplicate names, no training period, a bad
+        number of starts or noise.
+
+    """
+    free = list(free)
+    if not free:
+        raise ValueError('calibrate needs at least one free parameter')
+    names = [p.name for p in free]
+    if len(set(names)) != len(names):
+        raise ValueError(f'duplicate free parameters in {names}')
+    if not train:
+        raise ValueError('calibrate needs at least one training period')
+    if isinstance(starts, bool) or not isinstance(starts, int) or starts < 1:
+        raise ValueError(f'starts must be an integer >= 1, got {starts!r}')
+    if not (isinstance(noise, (int, float)) and math.isfinite(noise) and noise > 0):
+        raise ValueError(f'noise must be a positive number [K], got {noise!r}')
+    t0 = time.perf_counter()
+    problem = _Problem(build, free, train, float(noise))
+    lower = np.array([p.lower for p in free]) / problem.scale
+    upper = np.array([p.upper for p in free]) / problem.scale
+    best, records = None, []
+    for k, start in enumerate(_start_points(free, starts, seed)):
+        theta0 = np.clip(start / problem.scale, lower, upper)
+        fit = scipy.optimize.least_squares(problem.residuals, theta0, bounds=(lower, upper),
+                                           method='trf', x_scale='jac', xtol=xtol, ftol=1e-12,
+                                           gtol=1e-12, max_nfev=max_evaluations)
+        records.append({'initial': problem.values(theta0), 'final': problem.values(fit.x),
+                        'cost': float(fit.cost), 'success': bool(fit.success)})
+        logger.info('calibration start %d/%d: cost %.6g (%s)', k + 1, starts, fit.cost,
+                    fit.message)
+        if best is None or fit.cost < best.cost:
+            best = fit
+    values = problem.values(best.x)
+    std, ci95, correlation, warnings = _uncertainty(best, problem, free, values)
+    model = build(values)
+    simulated, scores = {}, {}
+    for period in [*train, *validation]:
+        simulated[period.name] = simulate_period(model, period)
+        scores[period.name] = metrics(simulated[period.name], period.measured)
+    wall_s = time.perf_counter() - t0
+    logger.info('calibration done in %.2f s, %d simulations: %s', wall_s, problem.evaluations,
+                ', '.join(f'{k} = {v:.6g}' for k, v in values.items()))
+    return CalibrationResult(values, std, ci95, correlation, scores, warnings, float(best.cost),
+                             problem.evaluations, records, bool(best.success), str(best.message),
+                             wall_s, simulated)
+
+
+def _uncertainty(fit: Any, problem: _Problem, free: Sequence[FreeParameter],
+                 values: Mapping[str, float]) -> tuple[dict, dict, np.ndarray, list[str]]:
+    """Covariance s^2 (J^T J)^-1 at the optimum; confidence intervals; warnings."""
+    n = len(free)
+    m = fit.fun.size
+    jac = np.asarray(fit.jac, dtype=float) / problem.scale[None, :]  # d r / d value
+    dof = max(m - n, 1)
+    s2 = 2.0 * float(fit.cost) / dof
+    warnings = []
+    try:
+        cov = s2 * np.linalg.inv(jac.T @ jac)
+        if not np.all(np.isfinite(cov)):
+            raise np.linalg.LinAlgError('non-finite covariance')
+    except np.linalg.LinAlgError:
+        cov = np.full((n, n), np.nan)
+        warnings.append('the Jacobian at the optimum is singular: parameters not identifiable '
+                        'from these data')
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    with np.errstate(invalid='ignore', divide='ignore'):
+        correlation = cov / np.outer(sd, sd)
+    quantile = float(scipy.stats.t.ppf(0.975, dof))
+    std = {p.name: float(s) for p, s in zip(free, sd)}
+    ci95 = {p.name: (values[p.name] - quantile * s, values[p.name] + quantile * s)
+            for p, s in zip(free, sd)}
+    for p in free:
+        margin = BOUND_WARNING * (p.upper - p.lower)
+        if values[p.name] <= p.lower + margin:
+            warnings.append(f'{p.name} = {values[p.name]:.6g} is at its lower bound {p.lower:g}')
+        elif values[p.name] >= p.upper - margin:
+            warnings.append(f'{p.name} = {values[p.name]:.6g} is at its upper bound {p.upper:g}')
+    for i in range(n):
+        for j in range(i + 1, n):
+            if abs(correlation[i, j]) > CORRELATION_WARNING:
+                warnings.append(f'{free[i].name} and {free[j].name} are strongly correlated '
+                                f'(correlation {correlation[i, j]:+.3f})')
+    for text in warnings:
+        logger.warning('calibration: %s', text)
+    return std, ci95, correlation, warnings
+
+
+# -- the OU44 reference calibration -----------------------------------------------------------
+#: Free parameters of the OU44 calibration: start values (the published ones) and bounds.
+OU44_FREE = (FreeParameter('tmass', 50.0, 1.0, 250.0),
+             FreeParameter('shgc', 4.608961327935981, 0.0, 20.0),
+             FreeParameter('occheff', 2.0836995296486704, 0.0, 10.0),
+             FreeParameter('RExt', 4.0, 0.1, 40.0))
+
+
+def ou44_periods(path: str | pathlib.Path, train: tuple[str, str] = OU44_TRAIN,
+                 validation: tuple[str, str] = OU44_VALIDATION,
+                 max_heat_w: float = OU44_MAX_HEAT_W) -> list[Period]:
+    """
+    Read the OU44 measurements into the training and validation periods.
+
+    The 30-minute rows as they are (inputs held over each row), inputs
+    ``solrad``, ``Tout``, ``occ``, ``dpos`` and ``q = max_heat_w * vpos / 100``;
+    the start state is the measured temperature at the first row of each
+    period, the measured output ``T`` [degC].
+
+    Parameters
+    ----------
+    path : path-like
+        The ``measurements.csv`` file (columns datetime, T, solrad, Tout, occ,
+        dpos, vpos).
+    train, validation : (str, str)
+        Inclusive time ranges (local time).
+    max_heat_w : float
+        Radiator power at a fully open valve [W].
+
+    Returns
+    -------
+    list of Period
+        ``[train, validation]``, named 'train' and 'validation'.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        If the file is missing, lacks columns, or a range is not covered
+        without gaps.
+
+    """
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f'OU44 data not found at {path}')
+    raw = pd.read_csv(path)
+    columns = ('datetime', 'T', 'solrad', 'Tout', 'occ', 'dpos', 'vpos')
+    missing = [c for c in columns if c not in raw.columns]
+    if missing:
+        raise ValueError(f'{path}: missing columns {missing}; expected {list(columns)}, got '
+                         f'{list(raw.columns)}')
+    raw['datetime'] = pd.to_datetime(raw['datetime'])
+    raw = raw.set_index('datetime').sort_index()
+    periods = []
+    for name, (start, end) in (('train', train), ('validation', validation)):
+        t0, t1 = pd.Timestamp(start), pd.Timestamp(end)
+        if not t0 < t1:
+            raise ValueError(f'{name} period: start {t0} must be before end {t1}')
+        if t0 < raw.index[0] or t1 > raw.index[-1]:
+            raise ValueError(f'{path} covers {raw.index[0]} to {raw.index[-1]}, not the '
+                             f'{name} period {t0} to {t1}')
+        sel = raw.loc[t0:t1, list(columns[1:])].astype(float)
+        if sel.isna().any().any():
+            raise ValueError(f'{path}: gaps in the data of the {name} period {t0} to {t1}')
+        seconds = (sel.index - t0).total_seconds().to_numpy()
+        inputs = pd.DataFrame({'solrad': sel['solrad'].to_numpy(),
+                               'Tout': sel['Tout'].to_numpy(), 'occ': sel['occ'].to_numpy(),
+                               'dpos': sel['dpos'].to_numpy(),
+                               'q': max_heat_w * sel['vpos'].to_numpy() / 100.0},
+                              index=pd.Index(seconds, name='time_s'))
+        measured = sel['T'].to_numpy()
+        periods.append(Period(name, inputs, np.array([measured[0] + KELVIN]), measured,
+                              timestamps=sel.index))
+    return periods

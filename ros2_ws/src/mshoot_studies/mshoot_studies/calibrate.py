@@ -1,0 +1,301 @@
+"""
+Calibrate the R1C1 zone model on measured data: the OU44 reference calibration.
+
+    mshoot calibrate ou44 --data ../shared/data/ou44/measurements.csv --out out/calibration
+
+The defaults reproduce the reference study's setup: the R1C1 with the measured
+inputs solrad, Tout, occ, dpos and the radiator valve vpos (q = 2689 W *
+vpos / 100); free tmass, shgc, occheff and RExt; Tve = 21 degC, Vi = 486.5 m3
+and maxVent = 4800 m3/h fixed; training 2018-04-04 08:00 to 2018-04-09 08:00,
+validation 2018-04-09 08:00 to 2018-04-13 08:00; inputs held over each
+30-minute row; each period simulated freely from the measured temperature at
+its first row. Least squares within bounds (:mod:`mshoot_core.calibration`).
+
+Writes to ``--out``: ``calibration.json`` (the fitted parameters with
+approximate 95 % confidence intervals, RMSE and MAE per period next to those
+of the published parameters computed the same way, warnings, wall time),
+``r1c1_calibrated.yaml`` (a model card of the Python R1C1 with the fitted
+parameters, for ``mshoot case --control``) and ``calibration.png`` (measured
+vs simulated over both periods).
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import logging
+import pathlib
+import time
+from typing import Any, Sequence
+
+from mshoot_core import calibration
+from mshoot_core.models import card as cards
+from mshoot_core.models.r1c1 import R1C1Parameters
+from mshoot_core.scenario import DEFAULT_DATA
+import numpy as np
+import yaml
+
+logger = logging.getLogger(__name__)
+
+#: Default bounds of every R1C1 parameter that may be freed.
+BOUNDS = {'tmass': (1.0, 250.0), 'shgc': (0.0, 20.0), 'occheff': (0.0, 10.0),
+          'RExt': (0.1, 40.0), 'Tve': (10.0, 30.0), 'Vi': (50.0, 5000.0),
+          'maxVent': (0.0, 20000.0)}
+#: Parameters freed by default (the study's).
+FREE = ('tmass', 'shgc', 'occheff', 'RExt')
+#: The published (calibrated) parameters of the reference case.
+PUBLISHED = dataclasses.asdict(R1C1Parameters())
+#: Files written to ``--out``.
+JSON_NAME = 'calibration.json'
+CARD_NAME = 'r1c1_calibrated.yaml'
+FIGURE_NAME = 'calibration.png'
+
+
+def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    """
+    Build the command line of the calibration.
+
+    Fills ``parser`` (the ``calibrate`` verb of ``mshoot``), or a new parser when None.
+    """
+    if parser is None:
+        parser = argparse.ArgumentParser(prog='python -m mshoot_studies.calibrate',
+                                         description=__doc__,
+                                         formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('case', choices=['ou44'], help='the measured building (ou44)')
+    parser.add_argument('--data', type=pathlib.Path, default=None,
+                        help=f'the OU44 measurements.csv (default: {DEFAULT_DATA})')
+    parser.add_argument('--out', type=pathlib.Path, default=pathlib.Path('out/calibration'),
+                        help='output folder (default: out/calibration)')
+    parser.add_argument('--train', nargs=2, metavar=('START', 'END'),
+                        default=list(calibration.OU44_TRAIN),
+                        help='training period, inclusive (default: %(default)s)')
+    parser.add_argument('--validation', nargs=2, metavar=('START', 'END'),
+                        default=list(calibration.OU44_VALIDATION),
+                        help='validation period, inclusive (default: %(default)s)')
+    parser.add_argument('--model', type=pathlib.Path, default=None, metavar='CARD',
+                        help='model card of the model to calibrate (e.g. the built-in R1C1 FMU '
+                             'card); default: the Python R1C1')
+    parser.add_argument('--free', default=','.join(FREE),
+                        help='comma-separated parameters to fit, from '
+                             f'{list(BOUNDS)} (default: %(default)s); the others are fixed '
+                             'at their published values')
+    parser.add_argument('--bound', action='append', default=[], metavar='NAME=LO:HI',
+                        help='bounds of a free parameter (repeatable; defaults: '
+                             + ', '.join(f'{k} {lo:g}:{hi:g}' for k, (lo, hi) in BOUNDS.items())
+                             + ')')
+    parser.add_argument('--prior', action='append', default=[], metavar='NAME=MEAN:SD',
+                        help='Gaussian prior on a free parameter (repeatable)')
+    parser.add_argument('--starts', type=int, default=1,
+                        help='number of starts: the published values, then random points '
+                             'within the bounds (default: 1)')
+    parser.add_argument('--seed', type=int, default=0, help='seed of the random starts')
+    parser.add_argument('--max-heat', type=float, default=calibration.OU44_MAX_HEAT_W,
+                        help='radiator power at a fully open valve [W] (default: %(default)s)')
+    parser.add_argument('--no-figure', action='store_true', help='skip the figure')
+    parser.add_argument('-v', '--verbose', action='store_true', help='debug logging')
+    return parser
+
+
+def _pair(text: str, option: str) -> tuple[str, float, float]:
+    """Parse ``NAME=A:B``."""
+    name, sep, rest = text.partition('=')
+    first, sep2, second = rest.partition(':')
+    try:
+        if not (sep and sep2):
+            raise ValueError
+        return name.strip(), float(first), float(second)
+    except ValueError:
+        raise ValueError(f'{option} {text!r}: expected NAME=A:B with numbers A and B') from None
+
+
+def free_parameters(args: argparse.Namespace) -> list[calibration.FreeParameter]:
+    """
+    Return the free parameters of the command line (names, bounds, priors).
+
+    Raises
+    ------
+    ValueError
+        For an unknown or repeated name, bad bounds or priors.
+
+    """
+    names = [n.strip() for n in args.free.split(',') if n.strip()]
+    unknown = [n for n in names if n not in BOUNDS]
+    if not names or unknown:
+        raise ValueError(f'--free {args.free!r}: expected names from {list(BOUNDS)}')
+    if len(set(names)) != len(names):
+        raise ValueError(f'--free {args.free!r}: a parameter is named twice')
+    bounds = {n: BOUNDS[n] for n in names}
+    for text in args.bound:
+        name, lo, hi = _pair(text, '--bound')
+        if name not in bounds:
+            raise ValueError(f'--bound {text!r}: {name!r} is not a free parameter ({names})')
+        bounds[name] = (lo, hi)
+    priors: dict[str, tuple[float, float]] = {}
+    for text in args.prior:
+        name, mean, sd = _pair(text, '--prior')
+        if name not in bounds:
+            raise ValueError(f'--prior {text!r}: {name!r} is not a free parameter ({names})')
+        priors[name] = (mean, sd)
+    free = []
+    for name, (lo, hi) in bounds.items():
+        start = min(max(PUBLISHED[name], lo), hi) if lo < hi else PUBLISHED[name]
+        mean, sd = priors.get(name, (None, None))
+        free.append(calibration.FreeParameter(name, start, lo, hi, mean, sd))
+    return free
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Parse ``argv`` (default: the process arguments) and run; the exit code."""
+    return run(build_parser().parse_args(argv))
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the calibration parsed by :func:`build_parser`: 0, or 2 on bad input."""
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+                        format='%(asctime)s %(levelname)s %(name)s: %(message)s')
+    started = time.perf_counter()
+    data = args.data if args.data is not None else DEFAULT_DATA.resolve()
+    try:
+        if isinstance(args.starts, bool) or args.starts < 1:
+            raise ValueError(f'--starts must be >= 1, got {args.starts}')
+        if not (np.isfinite(args.max_heat) and args.max_heat > 0):
+            raise ValueError(f'--max-heat must be a positive power [W], got {args.max_heat}')
+        free = free_parameters(args)
+        train, validation = calibration.ou44_periods(data, tuple(args.train),
+                                                     tuple(args.validation), args.max_heat)
+        card = None if args.model is None else cards.load_card(args.model)
+        if card is None or card.builtin == 'r1c1':
+            fixed = {k: v for k, v in PUBLISHED.items() if k not in {p.name for p in free}}
+            build = calibration.r1c1_builder(fixed)
+        else:
+            fixed = {k: v for k, v in card.parameters.items()
+                     if k not in {p.name for p in free}}
+            build = calibration.card_builder(card)
+            build({p.name: p.initial for p in free})  # unknown parameter names fail here
+            train, validation = (dataclasses.replace(p, x0=card.initial_state(p.x0[0]))
+                                 for p in (train, validation))
+    except (ValueError, FileNotFoundError) as error:
+        logger.error('%s', ' '.join(str(error).split()))
+        return 2
+    result = calibration.calibrate(build, free, [train], [validation], starts=args.starts,
+                                   seed=args.seed)
+    published_model = calibration.r1c1_builder()({})
+    published = {'parameters': PUBLISHED}
+    published_sim = {}
+    for period in (train, validation):
+        published_sim[period.name] = calibration.simulate_period(published_model, period)
+        scores = calibration.metrics(published_sim[period.name], period.measured)
+        published[f'rmse_{period.name}_k'] = scores['rmse_k']
+        published[f'mae_{period.name}_k'] = scores['mae_k']
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    card_path = write_card(out / CARD_NAME, {**fixed, **result.parameters}, result, card)
+    figure = None
+    if not args.no_figure:
+        figure = draw(out / FIGURE_NAME, [train, validation], result.simulated, published_sim)
+    report = {
+        'case': args.case, 'data': str(data),
+        'model': 'python r1c1' if card is None else str(card.path),
+        'parameters': result.parameters,
+        'fixed': fixed,
+        'rmse_train_k': result.metrics['train']['rmse_k'],
+        'rmse_validation_k': result.metrics['validation']['rmse_k'],
+        'mae_train_k': result.metrics['train']['mae_k'],
+        'mae_validation_k': result.metrics['validation']['mae_k'],
+        'published': published, 'wall_s': result.wall_s,
+        'total_wall_s': time.perf_counter() - started,
+        'setup': {'train': list(args.train), 'validation': list(args.validation),
+                  'rows': {p.name: len(p.measured) for p in (train, validation)},
+                  'max_heat_w': args.max_heat, 'inputs': list(train.inputs.columns),
+                  'bounds': {p.name: [p.lower, p.upper] for p in free},
+                  'priors': {p.name: [p.prior_mean, p.prior_sd] for p in free
+                             if p.prior_sd is not None},
+                  'starts': args.starts, 'seed': args.seed,
+                  'metric': 'rows 1..N of each period (row 0 is the measured start state)'},
+        'card': str(card_path), 'figure': None if figure is None else str(figure),
+        **{k: v for k, v in result.to_dict().items() if k not in ('parameters', 'wall_s')},
+    }
+    (out / JSON_NAME).write_text(json.dumps(report, indent=2, default=_json_default) + '\n')
+    logger.info('RMSE train %.4f K (published %.4f K), validation %.4f K (published %.4f K); '
+                'fit %.2f s; wrote %s', report['rmse_train_k'], published['rmse_train_k'],
+                report['rmse_validation_k'], published['rmse_validation_k'], result.wall_s,
+                out / JSON_NAME)
+    return 0
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f'not JSON serialisable: {type(value).__name__}')
+
+
+def write_card(path: pathlib.Path, parameters: dict[str, float],
+               result: calibration.CalibrationResult,
+               card: cards.ModelCard | None = None) -> pathlib.Path:
+    """
+    Write the model card of the calibrated model with ``parameters``; check that it loads.
+
+    The card is ``card`` (default: the built-in ``r1c1`` card) with a
+    description and the parameters; an FMU it names is referred to by its
+    absolute path.
+    """
+    source = cards.builtin_card('r1c1') if card is None else card.path
+    document = yaml.safe_load(source.read_text())
+    if card is not None and card.builtin is None:
+        document['fmu'] = str(card.fmu)
+    rmse = result.metrics
+    what = 'R1C1 zone' if card is None else document.get('description', 'zone model')
+    text = (f'{what}, calibrated by mshoot calibrate (RMSE train '
+            f'{rmse["train"]["rmse_k"]:.3f} K, validation {rmse["validation"]["rmse_k"]:.3f} K)'
+            if 'validation' in rmse else f'{what}, calibrated by mshoot calibrate')
+    ordered = {'description': text}
+    ordered.update({k: document[k] for k in ('builtin', 'fmu') if k in document})
+    ordered['parameters'] = {k: float(v) for k, v in parameters.items()}
+    ordered.update({k: v for k, v in document.items() if k not in ordered})
+    path.write_text('# Written by mshoot calibrate.\n'
+                    + yaml.safe_dump(ordered, sort_keys=False, default_flow_style=None))
+    cards.load_card(path)  # raises CardError if the card does not load
+    return path
+
+
+def draw(path: pathlib.Path, periods: Sequence[calibration.Period],
+         simulated: dict[str, np.ndarray], published: dict[str, np.ndarray]) -> pathlib.Path:
+    """Draw measured vs simulated (fitted and published parameters) over the periods."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from mshoot_core.plotting import DPI, PNG_COMPRESSION
+    fig = Figure(figsize=(10, 6))
+    FigureCanvasAgg(fig)
+    ax_t, ax_e = fig.subplots(2, 1, sharex=True, gridspec_kw={'height_ratios': [3, 2]})
+    fig.subplots_adjust(left=0.085, right=0.985, bottom=0.1, top=0.9, hspace=0.07)
+    for k, period in enumerate(periods):
+        when = period.timestamps if period.timestamps is not None else period.inputs.index
+        first = k == 0
+        ax_t.plot(when, period.measured, color='k', lw=1.2, label='measured' if first else None)
+        ax_t.plot(when, simulated[period.name], color='tab:red', lw=1.4,
+                  label='calibrated' if first else None)
+        ax_t.plot(when, published[period.name], color='tab:blue', lw=1.0, ls='--',
+                  label='published parameters' if first else None)
+        ax_e.plot(when, simulated[period.name] - period.measured, color='tab:red', lw=1.2)
+        ax_e.plot(when, published[period.name] - period.measured, color='tab:blue', lw=1.0,
+                  ls='--')
+        if k > 0:
+            for ax in (ax_t, ax_e):
+                ax.axvline(when[0], color='grey', lw=1.0, ls=':')
+        ax_t.text(when[len(when) // 2], 1.01, period.name, transform=ax_t.get_xaxis_transform(),
+                  ha='center', va='bottom')
+    ax_t.set_ylabel('zone temperature [°C]')
+    ax_t.grid(alpha=0.3)
+    ax_t.legend(loc='upper left', framealpha=0.9)
+    ax_e.axhline(0.0, color='k', lw=0.5)
+    ax_e.set_ylabel('simulated − measured [K]')
+    ax_e.grid(alpha=0.3)
+    fig.suptitle('R1C1 calibration: free simulation of each period from its first measurement')
+    fig.autofmt_xdate()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=DPI, pil_kwargs={'compress_level': PNG_COMPRESSION})
+    return path
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
