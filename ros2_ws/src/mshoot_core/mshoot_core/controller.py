@@ -241,7 +241,7 @@ class Controller:
             If a setting fixed once running changes (see :meth:`MPC.update`).
 
         """
-        fixed = self._fixed_changes(settings)
+        fixed = self.settings.fixed_changes(settings)
         if fixed:
             raise ValueError(f'{fixed} cannot change once the controller runs')
         if self._inflight is not None:
@@ -249,10 +249,6 @@ class Controller:
             self._configure_inputs(settings)
             return 'deferred'
         return self._apply(settings)
-
-    def _fixed_changes(self, settings: MpcSettings) -> list[str]:
-        return sorted(n for n in self.settings.changed(settings)
-                      if n == 'control_names' or (n in BY_NAME and BY_NAME[n].read_only))
 
     def _apply(self, settings: MpcSettings) -> str:
         changed = self.settings.changed(settings)

@@ -176,11 +176,10 @@ class MPC:
             ``blas_threads``) or the controls change.
 
         """
-        changed = self.settings.changed(settings)
-        fixed = sorted(n for n in changed if n in ('control_names',) or (
-            n in BY_NAME and BY_NAME[n].read_only))
+        fixed = self.settings.fixed_changes(settings)
         if fixed:
             raise ValueError(f'{fixed} cannot change once the MPC runs: build a new one')
+        changed = self.settings.changed(settings)
         if not changed:
             return 'unchanged'
         old, self.settings = self.settings, settings

@@ -376,6 +376,17 @@ class MpcSettings:
             out.add('solver_extra')
         return out
 
+    def fixed_changes(self, other: MpcSettings) -> list[str]:
+        """
+        Return the changed names in ``other`` that cannot change once running.
+
+        Those are the settings described as fixed (``step_s``, ``mode``,
+        ``blas_threads``) and the controls, sorted.
+
+        """
+        return sorted(n for n in self.changed(other)
+                      if n == 'control_names' or (n in BY_NAME and BY_NAME[n].read_only))
+
 
 def _coerce(f: SettingField, value: Any) -> Any:
     """Ints given for float settings become floats (a CLI or YAML habit)."""
