@@ -33,6 +33,7 @@ import scipy.optimize
 import scipy.stats
 
 from mshoot_core.models.base import Model
+from mshoot_core.scenario import OU44_COLUMNS, read_ou44
 
 __all__ = ['calibrate', 'CalibrationResult', 'card_builder', 'FreeParameter', 'metrics',
            'OU44_FIXED', 'OU44_FREE', 'OU44_MAX_HEAT_W', 'OU44_TRAIN', 'OU44_VALIDATION',
@@ -534,17 +535,8 @@ def ou44_periods(path: str | pathlib.Path, train: tuple[str, str] = OU44_TRAIN,
         without gaps.
 
     """
-    path = pathlib.Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f'OU44 data not found at {path}')
-    raw = pd.read_csv(path)
-    columns = ('datetime', 'T', 'solrad', 'Tout', 'occ', 'dpos', 'vpos')
-    missing = [c for c in columns if c not in raw.columns]
-    if missing:
-        raise ValueError(f'{path}: missing columns {missing}; expected {list(columns)}, got '
-                         f'{list(raw.columns)}')
-    raw['datetime'] = pd.to_datetime(raw['datetime'])
-    raw = raw.set_index('datetime').sort_index()
+    columns = (*OU44_COLUMNS, 'vpos')
+    raw = read_ou44(path, columns)
     periods = []
     for name, (start, end) in (('train', train), ('validation', validation)):
         t0, t1 = pd.Timestamp(start), pd.Timestamp(end)

@@ -65,6 +65,41 @@ def comfort_band(hours_of_day: np.ndarray, occupied: tuple[float, float] = (21.0
             np.where(occ, occupied[1], unoccupied[1]))
 
 
+def read_ou44(path: str | pathlib.Path,
+              columns: tuple[str, ...] = OU44_COLUMNS) -> pd.DataFrame:
+    """
+    Read the OU44 measurements file, indexed by its (local) date-times, sorted.
+
+    Parameters
+    ----------
+    path : path-like
+        The ``measurements.csv`` file (30-minute means).
+    columns : tuple of str
+        Columns the caller needs (``datetime`` among them).
+
+    Returns
+    -------
+    DataFrame
+        Every column of the file, indexed by ``datetime``.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        If the file is missing or lacks one of ``columns``.
+
+    """
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f'OU44 data not found at {path}')
+    raw = pd.read_csv(path)
+    missing = [c for c in columns if c not in raw.columns]
+    if missing:
+        raise ValueError(f'{path}: missing columns {missing}; expected {list(columns)}, '
+                         f'got {list(raw.columns)}')
+    raw['datetime'] = pd.to_datetime(raw['datetime'])
+    return raw.set_index('datetime').sort_index()
+
+
 def load_ou44(path: str | pathlib.Path, start: str = '2018-04-05 00:00',
               end: str = '2018-04-08 00:00', step_s: float = 3600.0) -> pd.DataFrame:
     """
@@ -91,16 +126,7 @@ def load_ou44(path: str | pathlib.Path, start: str = '2018-04-05 00:00',
         If the file is missing, lacks columns, or does not cover the range.
 
     """
-    path = pathlib.Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f'OU44 data not found at {path}')
-    raw = pd.read_csv(path)
-    missing = [c for c in OU44_COLUMNS if c not in raw.columns]
-    if missing:
-        raise ValueError(f'{path}: missing columns {missing}; expected {list(OU44_COLUMNS)}, '
-                         f'got {list(raw.columns)}')
-    raw['datetime'] = pd.to_datetime(raw['datetime'])
-    raw = raw.set_index('datetime').sort_index()
+    raw = read_ou44(path)
     if step_s <= 0 or step_s % 1800:
         raise ValueError(f'step_s must be a positive multiple of 1800 s, got {step_s}')
     values = raw[['T', 'solrad', 'Tout', 'occ', 'dpos']].astype(float)
