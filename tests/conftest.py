@@ -27,6 +27,20 @@ def ou44_csv() -> pathlib.Path:
     return OU44_CSV
 
 
+@pytest.fixture(scope='session')
+def r1c1_fmu() -> pathlib.Path:
+    """Return the built-in R1C1 FMU, built by ``make setup`` (as the runtime expects)."""
+    from mshoot_core import fmu_cache
+    return fmu_cache.find_fmu('r1c1')
+
+
+@pytest.fixture(scope='session')
+def r2c2_fmu() -> pathlib.Path:
+    """Return the R2C2 test FMU, built by the tests (gcc) when it is not built yet."""
+    from mshoot_core import fmu_build
+    return fmu_build.ensure_fmu('r2c2')
+
+
 def private_context() -> Any:
     """
     Return an initialised rclpy context of this test alone, with discovery off.

@@ -12,7 +12,6 @@ import signal
 import subprocess
 import time
 
-from mshoot_core import fmu_build
 from mshoot_msgs.msg import MpcStatus
 from mshoot_nodes import contract
 from mshoot_nodes.conversions import NS_PER_S, stamp_to_ns
@@ -108,14 +107,6 @@ def test_mpc_killed_and_restarted_picks_up_within_one_step(tmp_path, monkeypatch
     assert {stamp_to_ns(s.header.stamp) for s in statuses} <= {
         EPOCH_NS + k * 3600 * NS_PER_S for k in range(HOURS)}
     assert picked_up_s < 30.0
-
-
-@pytest.fixture(scope='module')
-def r2c2_fmu():
-    try:
-        return fmu_build.ensure_fmu('r2c2')
-    except Exception as exc:  # noqa: BLE001 - no compiler: skip, as the FMU tests do
-        pytest.skip(f'R2C2 FMU not available: {exc}')
 
 
 def test_bad_configuration_exits_non_zero_with_the_reason(tmp_path, r2c2_fmu):

@@ -30,16 +30,6 @@ R2C2_PARAMETERS = {'Cair': 5.0e6, 'Cwall': 5.0e7, 'Raw': 0.002, 'Rwa': 0.01, 'Rw
 
 
 @pytest.fixture(scope='module')
-def r1c1_fmu():
-    return fmu_cache.find_fmu('r1c1')  # built by make setup, as the runtime expects
-
-
-@pytest.fixture(scope='module')
-def r2c2_fmu():
-    return fmu_build.ensure_fmu('r2c2')  # a test FMU: the tests build it
-
-
-@pytest.fixture(scope='module')
 def r1c1_cs(r1c1_fmu):
     with r1c1_fmi_model(fmi_type='CoSimulation', fmu_path=r1c1_fmu) as model:
         yield model

@@ -18,16 +18,6 @@ import numpy as np
 import pytest
 
 
-@pytest.fixture(scope='module')
-def r1c1_fmu():
-    return fmu_cache.find_fmu('r1c1')  # built by make setup, as the runtime expects
-
-
-@pytest.fixture(scope='module')
-def r2c2_fmu():
-    return fmu_build.ensure_fmu('r2c2')  # a test FMU: the tests build it
-
-
 # -- the setup command ---------------------------------------------------------------------
 def test_setup_command_builds_what_the_runtime_finds(tmp_path, monkeypatch, capsys):
     """`--cache` (what make setup runs) fills an empty cache with the FMUs and both drivers."""
