@@ -34,7 +34,7 @@ from rclpy.logging import LoggingSeverity
 from rclpy.parameter import Parameter
 
 from mshoot_nodes import contract
-from mshoot_nodes.config import default_params_files, ros_args
+from mshoot_nodes.config import add_model_options, default_params_files, ros_args
 from mshoot_nodes.conversions import mpc_records_frame
 from mshoot_nodes.emulator_node import build_emulator, EmulatorNode
 from mshoot_nodes.forecaster_node import ForecasterNode
@@ -189,12 +189,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--data', default=None, help="OU44 measurements.csv for 'ou44'")
     parser.add_argument('--hours', type=int, default=None, help='control steps (default 72)')
     parser.add_argument('--horizon', type=int, default=None, help='MPC horizon [steps]')
-    parser.add_argument('--emulator-model', default=None,
-                        help='emulation model: python, fmu, fmu-cs, r1c1x2 (two zones) or an '
-                             '.fmu path')
-    parser.add_argument('--control-model', default=None,
-                        help='MPC model: python, fmu, fmu-cs, r1c1x2 (two zones) or an .fmu '
-                             'path')
+    add_model_options(parser)
     parser.add_argument('--cost', choices=('quadratic', 'energy'), default=None)
     parser.add_argument('--comfort', choices=('hard', 'soft'), default=None)
     parser.add_argument('--solver', default=None, help='slsqp, trust-constr or ipopt')

@@ -6,6 +6,7 @@ files without importing numpy, pandas and scipy.
 """
 from __future__ import annotations
 
+import argparse
 import pathlib
 from typing import Sequence
 
@@ -41,3 +42,18 @@ def ros_args(params_files: Sequence[pathlib.Path]) -> list[str]:
     for path in params_files:
         args += ['--params-file', str(path)]
     return args
+
+
+def add_model_options(parser: argparse.ArgumentParser) -> None:
+    """
+    Add ``--emulator-model`` and ``--control-model`` to a bring-up's command line.
+
+    Both default to None: the model of ``emulator.yaml`` / ``mpc.yaml``.
+
+    """
+    models = ('python, fmu, fmu-cs, r1c1x2 (two zones), an .fmu path or a model card '
+              '(.yaml)')
+    parser.add_argument('--emulator-model', default=None,
+                        help=f'emulation model (default: the emulator.yaml one): {models}')
+    parser.add_argument('--control-model', default=None,
+                        help=f'MPC model (default: the mpc.yaml one): {models}')

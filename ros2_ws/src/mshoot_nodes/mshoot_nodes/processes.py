@@ -35,7 +35,7 @@ from typing import Sequence
 
 from ament_index_python.packages import get_package_prefix, PackageNotFoundError
 
-from mshoot_nodes.config import default_params_files
+from mshoot_nodes.config import add_model_options, default_params_files
 from mshoot_nodes.readiness import run_requirements
 from mshoot_nodes.startup import EXIT_CONFIG
 
@@ -62,12 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="'synthetic' (default), 'ou44' or an OU44-format CSV")
     parser.add_argument('--data', default='', help="OU44 measurements.csv for 'ou44'")
     parser.add_argument('--hours', type=int, default=72, help='control steps (default 72)')
-    parser.add_argument('--emulator-model', default=None,
-                        help='emulation model (default: the emulator.yaml one): python, fmu, '
-                             'fmu-cs, r1c1x2, an .fmu path or a model card (.yaml)')
-    parser.add_argument('--control-model', default=None,
-                        help='MPC model (default: the mpc.yaml one): python, fmu, fmu-cs, '
-                             'r1c1x2, an .fmu path or a model card (.yaml)')
+    add_model_options(parser)
     parser.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap')
     parser.add_argument('--out', type=pathlib.Path, default=pathlib.Path('out/processes'))
     parser.add_argument('--timeout', type=float, default=600.0,
