@@ -13,10 +13,19 @@ the Jacobian at the optimum (covariance ``s^2 (J^T J)^-1``), and warnings for
 parameters at a bound or strongly correlated.
 
 The model is rebuilt for every parameter vector by a ``build(parameters)``
-callable: :func:`r1c1_builder` for the Python R1C1, :func:`card_builder` for
+callable: :func:`r1c1_builder` for the Python R1C1, :func:`model_builder` for
+any Python model built from a parameters dataclass, :func:`card_builder` for
 the model of a card (an FMU's parameters are set before every
 initialisation). :func:`ou44_periods` makes the periods of the OU44 reference
 calibration from the measurements.
+
+The Jacobian of the residuals with respect to the parameters is analytic
+where the model has parameter sensitivities (``parameter_sensitivities``,
+e.g. the exact R1C1's forward sensitivities), else forward finite
+differences: one batched simulation of all perturbed parameter vectors when
+the builder can batch them (``simulate_batch``), one simulation per parameter
+otherwise. :func:`cross_validate` scores a fit setup on held-out blocks of a
+training period (the rest of the period fitted), without a validation period.
 """
 from __future__ import annotations
 
@@ -35,9 +44,10 @@ import scipy.stats
 from mshoot_core.models.base import Model
 from mshoot_core.scenario import OU44_COLUMNS, read_ou44
 
-__all__ = ['calibrate', 'CalibrationResult', 'card_builder', 'FreeParameter', 'metrics',
-           'OU44_FIXED', 'OU44_FREE', 'OU44_MAX_HEAT_W', 'OU44_TRAIN', 'OU44_VALIDATION',
-           'ou44_periods', 'Period', 'r1c1_builder', 'simulate_period']
+__all__ = ['calibrate', 'CalibrationResult', 'card_builder', 'cross_validate', 'FreeParameter',
+           'JACOBIANS', 'LOSSES', 'metrics', 'model_builder', 'ModelBuilder', 'OU44_FIXED',
+           'OU44_FREE', 'OU44_MAX_HEAT_W', 'OU44_STUDY_BOUNDS', 'OU44_STUDY_FREE', 'OU44_TRAIN',
+           'OU44_VALIDATION', 'ou44_periods', 'Period', 'r1c1_builder', 'simulate_period']
 
 logger = logging.getLogger(__name__)
 
@@ -48,6 +58,13 @@ CORRELATION_WARNING = 0.95
 BOUND_WARNING = 1e-3
 #: Seconds between two progress messages of a fit.
 PROGRESS_S = 5.0
+#: Robust losses of :func:`scipy.optimize.least_squares` ('linear': plain least squares).
+LOSSES = ('linear', 'soft_l1', 'huber', 'cauchy', 'arctan')
+#: Jacobian methods: 'auto' (analytic where the model has it, else 'fd'), 'analytic', 'fd'
+#: (forward differences, batched where the builder can), and scipy's own '2-point'/'3-point'.
+JACOBIANS = ('auto', 'analytic', 'fd', '2-point', '3-point')
+#: Relative step of the forward differences (scaled by max(|value|, 1e-3 * bounds' span)).
+FD_STEP = 1.5e-8
 
 #: Radiator power at a fully open valve (vpos = 100 %) [W] of the OU44 classroom.
 OU44_MAX_HEAT_W = 2689.0
@@ -123,6 +140,10 @@ class Period:
         Name of the model output compared with ``measured``.
     timestamps : DatetimeIndex or None
         Wall-clock time of the rows, for the figure.
+    weights : ndarray or None
+        Weight of each row's residual in the fit (>= 0; row 0, the start
+        state, is never fitted); None: all 1. The reported RMSE and MAE are
+        unweighted.
 
     """
 
@@ -132,6 +153,7 @@ class Period:
     measured: np.ndarray
     output: str = 'T'
     timestamps: pd.DatetimeIndex | None = None
+    weights: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         measured = np.asarray(self.measured, dtype=float).reshape(-1)
@@ -142,6 +164,20 @@ class Period:
             raise ValueError(f'period {self.name}: the measured {self.output} has gaps')
         object.__setattr__(self, 'measured', measured)
         object.__setattr__(self, 'x0', np.asarray(self.x0, dtype=float).reshape(-1))
+        if self.weights is not None:
+            weights = np.asarray(self.weights, dtype=float).reshape(-1)
+            if weights.size != measured.size or not np.all(np.isfinite(weights)) \
+                    or np.any(weights < 0) or not np.any(weights[1:] > 0):
+                raise ValueError(f'period {self.name}: weights must be {measured.size} finite '
+                                 'values >= 0, some of rows 1.. positive')
+            object.__setattr__(self, 'weights', weights)
+
+    @property
+    def root_weights(self) -> np.ndarray:
+        """Square roots of the weights of rows 1..N (the residuals' factors)."""
+        if self.weights is None:
+            return np.ones(self.measured.size - 1)
+        return np.sqrt(self.weights[1:])
 
 
 @dataclasses.dataclass
@@ -156,7 +192,8 @@ class CalibrationResult:
     std : dict of str -> float
         Approximate standard deviations (nan if the Jacobian is singular).
     ci95 : dict of str -> (float, float)
-        Approximate 95 % confidence intervals.
+        Approximate 95 % confidence intervals, clipped to the bounds (not
+        meaningful for a parameter at a bound: see the warnings).
     correlation : ndarray
         Correlation matrix of the free parameters (their order).
     metrics : dict of str -> dict
@@ -166,7 +203,15 @@ class CalibrationResult:
     cost : float
         Half the sum of squared residuals at the optimum.
     evaluations : int
-        Model simulations of all periods run by the fit.
+        Model simulations of all periods run by the fit (a batched
+        simulation of B parameter vectors counts B).
+    jacobians : int
+        Jacobian evaluations of the fit.
+    jac : str
+        How the Jacobian was computed ('analytic', 'fd', 'fd-batched',
+        '2-point', '3-point').
+    loss : str
+        The fit criterion (:data:`LOSSES`).
     starts : list of dict
         Per start: initial values, final values, cost.
     success : bool
@@ -188,6 +233,9 @@ class CalibrationResult:
     warnings: list[str]
     cost: float
     evaluations: int
+    jacobians: int
+    jac: str
+    loss: str
     starts: list[dict[str, Any]]
     success: bool
     message: str
@@ -203,7 +251,8 @@ class CalibrationResult:
                                     for j, b in enumerate(names)}
                                 for i, a in enumerate(names)},
                 'metrics': self.metrics, 'warnings': list(self.warnings),
-                'cost': self.cost, 'evaluations': self.evaluations, 'starts': self.starts,
+                'cost': self.cost, 'evaluations': self.evaluations, 'jacobians': self.jacobians,
+                'jac': self.jac, 'loss': self.loss, 'starts': self.starts,
                 'success': self.success, 'message': self.message, 'wall_s': self.wall_s}
 
 
@@ -243,7 +292,97 @@ def metrics(simulated: np.ndarray, measured: np.ndarray) -> dict[str, float]:
             'mae_k': float(np.mean(np.abs(error))), 'rows': int(error.size)}
 
 
-def r1c1_builder(fixed: Mapping[str, float] | None = None) -> Builder:
+class ModelBuilder:
+    """
+    Builder of a Python model from its parameters dataclass, for :func:`calibrate`.
+
+    ``build(parameters)`` returns ``model_cls(parameters_cls(**fixed,
+    **parameters))``. When ``model_cls`` has ``simulate_parameter_batch``
+    (a model whose parameters may be arrays, one value per parameter
+    vector), :meth:`simulate_batch` simulates many parameter vectors in one
+    call: the batched finite differences of :func:`calibrate`.
+
+    Parameters
+    ----------
+    model_cls : type
+        The model class, constructed from one parameters object.
+    parameters_cls : type
+        Its parameters dataclass.
+    fixed : mapping, optional
+        Fields held fixed (the others keep their defaults unless fitted).
+    label : str, optional
+        The model's name in messages (default: the class name).
+
+    Raises
+    ------
+    ValueError
+        For a name that is not a field of ``parameters_cls``.
+
+    """
+
+    def __init__(self, model_cls: type, parameters_cls: type,
+                 fixed: Mapping[str, float] | None = None, label: str | None = None) -> None:
+        if not dataclasses.is_dataclass(parameters_cls):
+            raise TypeError(f'parameters_cls must be a dataclass, got {parameters_cls!r}')
+        self.model_cls = model_cls
+        self.parameters_cls = parameters_cls
+        self.label = label or model_cls.__name__
+        self.names = frozenset(f.name for f in dataclasses.fields(parameters_cls))
+        self.fixed = dict(fixed or {})
+        self._check(self.fixed)
+
+    def _check(self, parameters: Mapping[str, Any]) -> None:
+        unknown = sorted(set(parameters) - self.names)
+        if unknown:
+            raise ValueError(f'unknown {self.label} parameters {unknown}; '
+                             f'expected names from {sorted(self.names)}')
+
+    def __call__(self, parameters: Mapping[str, float]) -> Model:
+        """Return the model with ``parameters`` (name -> value) over the fixed ones."""
+        self._check(parameters)
+        return self.model_cls(self.parameters_cls(
+            **{**self.fixed, **{k: float(v) for k, v in parameters.items()}}))
+
+    @property
+    def can_batch(self) -> bool:
+        """Whether :meth:`simulate_batch` runs all parameter vectors in one simulation."""
+        return hasattr(self.model_cls, 'simulate_parameter_batch')
+
+    def simulate_batch(self, parameter_sets: Sequence[Mapping[str, float]],
+                       period: Period) -> np.ndarray:
+        """
+        Simulate ``period`` for every parameter vector; return the output (B, rows).
+
+        One batched simulation when :attr:`can_batch` (the state is the
+        output: the R1C1 zone temperature [degC] from the state [K]), else
+        one simulation per vector.
+        """
+        keys = {tuple(sorted(values)) for values in parameter_sets}
+        if not self.can_batch or period.output != 'T' or len(keys) != 1:
+            return np.array([simulate_period(self(values), period) for values in parameter_sets])
+        for values in parameter_sets:
+            self._check(values)
+        columns = {name: np.array([float(values[name]) for values in parameter_sets])
+                   for name in keys.pop()}
+        model = self.model_cls(self.parameters_cls(**{**self.fixed, **columns}))
+        udf = period.inputs[list(model.input_names)]
+        return model.simulate_parameter_batch(udf, period.x0).T - KELVIN
+
+
+def model_builder(model_cls: type, parameters_cls: type,
+                  fixed: Mapping[str, float] | None = None,
+                  label: str | None = None) -> ModelBuilder:
+    """
+    Return a builder of ``model_cls(parameters_cls(...))`` (see :class:`ModelBuilder`).
+
+    For any Python model constructed from a parameters dataclass; the
+    Jacobian of a fit is analytic when the model has
+    ``parameter_sensitivities(udf, x0, names)``.
+    """
+    return ModelBuilder(model_cls, parameters_cls, fixed, label)
+
+
+def r1c1_builder(fixed: Mapping[str, float] | None = None) -> ModelBuilder:
     """
     Return a builder of the Python R1C1 with ``fixed`` parameters and the free ones given.
 
@@ -255,22 +394,7 @@ def r1c1_builder(fixed: Mapping[str, float] | None = None) -> Builder:
 
     """
     from mshoot_core.models.r1c1 import R1C1Model, R1C1Parameters
-    names = {f.name for f in dataclasses.fields(R1C1Parameters)}
-    base = dict(fixed or {})
-    unknown = sorted(set(base) - names)
-    if unknown:
-        raise ValueError(f'unknown R1C1 parameters {unknown}; expected names from '
-                         f'{sorted(names)}')
-
-    def build(parameters: Mapping[str, float]) -> Model:
-        unknown = sorted(set(parameters) - names)
-        if unknown:
-            raise ValueError(f'unknown R1C1 parameters {unknown}; expected names from '
-                             f'{sorted(names)}')
-        return R1C1Model(R1C1Parameters(**{**base, **{k: float(v)
-                                                      for k, v in parameters.items()}}))
-
-    return build
+    return ModelBuilder(R1C1Model, R1C1Parameters, fixed, label='R1C1')
 
 
 def card_builder(card: Any, tolerance: float | None = None) -> Builder:
@@ -309,20 +433,26 @@ def card_builder(card: Any, tolerance: float | None = None) -> Builder:
 
 
 class _Problem:
-    """The residual function of a fit over scaled parameters theta = value / scale."""
+    """The residuals of a fit and their Jacobian over scaled parameters theta = value / scale."""
 
     def __init__(self, build: Builder, free: Sequence[FreeParameter], periods: Sequence[Period],
-                 noise: float) -> None:
+                 noise: float, fd_step: float = FD_STEP) -> None:
         self.build = build
         self.free = list(free)
+        self.names = [p.name for p in self.free]
         self.periods = list(periods)
         self.noise = noise
+        self.fd_step = fd_step
         self.scale = np.array([max(abs(p.initial), abs(p.lower), abs(p.upper)) or 1.0
                                for p in self.free])
+        self.lower = np.array([p.lower for p in self.free])
+        self.upper = np.array([p.upper for p in self.free])
         self.evaluations = 0
+        self.jacobians = 0
         self.started = time.monotonic()
         self.last_report = self.started
         self.best = math.inf
+        self._last: tuple[np.ndarray, list[np.ndarray]] | None = None
 
     def values(self, theta: np.ndarray) -> dict[str, float]:
         return {p.name: float(v) for p, v in zip(self.free, np.asarray(theta) * self.scale)}
@@ -332,26 +462,100 @@ class _Problem:
         self.evaluations += 1
         return [simulate_period(model, period) for period in self.periods]
 
+    @property
+    def size(self) -> int:
+        return sum(len(p.measured) - 1 for p in self.periods) + len(self.priors)
+
+    def _residuals_of(self, values: Mapping[str, float],
+                      outputs: Sequence[np.ndarray]) -> np.ndarray:
+        parts = [p.root_weights * (y[1:] - p.measured[1:]) / self.noise
+                 for y, p in zip(outputs, self.periods)]
+        parts.append(np.array([(values[p.name] - p.prior_mean) / p.prior_sd
+                               for p in self.priors]))
+        return np.concatenate(parts)
+
     def residuals(self, theta: np.ndarray) -> np.ndarray:
         values = self.values(theta)
         try:
             outputs = self.simulate(values)
         except (ValueError, ArithmeticError) as error:
             logger.debug('simulation failed at %s: %s', values, error)
-            size = sum(len(p.measured) - 1 for p in self.periods)
-            return np.full(size + len(self.priors), 1e6)
-        parts = [(y[1:] - p.measured[1:]) / self.noise for y, p in zip(outputs, self.periods)]
-        parts.append(np.array([(values[p.name] - p.prior_mean) / p.prior_sd
-                               for p in self.priors]))
-        r = np.concatenate(parts)
+            self._last = None
+            return np.full(self.size, 1e6)
+        self._last = (np.array(theta, dtype=float), outputs)
+        r = self._residuals_of(values, outputs)
         cost = 0.5 * float(r @ r)
         self.best = min(self.best, cost)
+        self._progress()
+        return r
+
+    def _progress(self) -> None:
         now = time.monotonic()
         if now - self.last_report >= PROGRESS_S:
             self.last_report = now
-            logger.info('calibration: %d simulations, %.1f s, best cost %.6g', self.evaluations,
-                        now - self.started, self.best)
-        return r
+            logger.info('calibration: %d simulations, %d Jacobians, %.1f s, best cost %.6g',
+                        self.evaluations, self.jacobians, now - self.started, self.best)
+
+    # -- the Jacobian d r / d theta -----------------------------------------------------------
+    def analytic_available(self) -> bool:
+        """Whether the model has parameter sensitivities for every period's output."""
+        model = self.build({p.name: p.initial for p in self.free})
+        return hasattr(model, 'parameter_sensitivities') and all(
+            p.output in model.output_names for p in self.periods)
+
+    def _data_rows(self, dy: Sequence[np.ndarray]) -> np.ndarray:
+        """Rows of the data residuals from d output / d value (rows, n) per period."""
+        return np.vstack([(p.root_weights / self.noise)[:, None] * d[1:]
+                          for d, p in zip(dy, self.periods)])
+
+    def _prior_rows(self) -> np.ndarray:
+        rows = np.zeros((len(self.priors), len(self.free)))
+        for i, prior in enumerate(self.priors):
+            rows[i, self.names.index(prior.name)] = 1.0 / prior.prior_sd
+        return rows
+
+    def jacobian_analytic(self, theta: np.ndarray) -> np.ndarray:
+        values = self.values(theta)
+        model = self.build(values)
+        self.evaluations += 1
+        self.jacobians += 1
+        dy = []
+        for period in self.periods:
+            udf = period.inputs[list(model.input_names)]
+            _, sens = model.parameter_sensitivities(udf, period.x0, self.names)
+            dy.append(sens[:, list(model.output_names).index(period.output), :])
+        self._progress()
+        return np.vstack([self._data_rows(dy), self._prior_rows()]) * self.scale[None, :]
+
+    def fd_steps(self, theta: np.ndarray) -> np.ndarray:
+        """Forward steps in values, turned backward where the upper bound is near."""
+        values = np.asarray(theta) * self.scale
+        step = self.fd_step * np.maximum(np.abs(values), 1e-3 * (self.upper - self.lower))
+        return np.where(values + step > self.upper, -step, step)
+
+    def jacobian_fd(self, theta: np.ndarray) -> np.ndarray:
+        theta = np.asarray(theta, dtype=float)
+        base = self.values(theta)
+        steps = self.fd_steps(theta)
+        perturbed = [{**base, name: base[name] + h} for name, h in zip(self.names, steps)]
+        self.jacobians += 1
+        batch = getattr(self.build, 'simulate_batch', None)
+        if batch is not None and getattr(self.build, 'can_batch', False):
+            # one batched simulation per period of the base and all perturbed vectors
+            outputs = [batch([base, *perturbed], period) for period in self.periods]
+            self.evaluations += len(perturbed) + 1
+            y0 = [y[0] for y in outputs]
+            columns = [[y[j + 1] for y in outputs] for j in range(len(perturbed))]
+        else:
+            if self._last is not None and np.array_equal(self._last[0], theta):
+                y0 = self._last[1]
+            else:
+                y0 = self.simulate(base)
+            columns = [self.simulate(values) for values in perturbed]
+        dy = [np.column_stack([(columns[j][i] - y0[i]) / steps[j] for j in range(len(steps))])
+              for i in range(len(self.periods))]
+        self._progress()
+        return np.vstack([self._data_rows(dy), self._prior_rows()]) * self.scale[None, :]
 
     @property
     def priors(self) -> list[FreeParameter]:
@@ -373,7 +577,8 @@ def _start_points(free: Sequence[FreeParameter], starts: int,
 def calibrate(build: Builder, free: Sequence[FreeParameter], train: Sequence[Period],
               validation: Sequence[Period] = (), starts: int = 1, seed: int = 0,
               noise: float = 1.0, xtol: float = 1e-10, max_evaluations: int | None = None,
-              ) -> CalibrationResult:
+              jac: str = 'auto', loss: str = 'linear', f_scale: float = 1.0,
+              fd_step: float = FD_STEP) -> CalibrationResult:
     """
     Fit the ``free`` parameters to the ``train`` periods; score every period.
 
@@ -381,11 +586,12 @@ def calibrate(build: Builder, free: Sequence[FreeParameter], train: Sequence[Per
     ----------
     build : callable
         ``build(parameters) -> Model`` for a mapping name -> value of the
-        free parameters (:func:`r1c1_builder`, :func:`card_builder`).
+        free parameters (:func:`r1c1_builder`, :func:`model_builder`,
+        :func:`card_builder`).
     free : sequence of FreeParameter
         The parameters to fit, their start values, bounds and priors.
     train : sequence of Period
-        The periods fitted.
+        The periods fitted (their ``weights`` weight the residuals).
     validation : sequence of Period
         Periods only scored.
     starts : int
@@ -395,20 +601,35 @@ def calibrate(build: Builder, free: Sequence[FreeParameter], train: Sequence[Per
         Seed of the random starts.
     noise : float
         Measurement noise standard deviation [K]: the data residuals are
-        divided by it (matters only next to priors).
+        divided by it (matters only next to priors or a robust loss).
     xtol, max_evaluations : float, int
         Stopping rules of :func:`scipy.optimize.least_squares` (``xtol``,
         ``max_nfev`` per start).
+    jac : str
+        The Jacobian (:data:`JACOBIANS`): 'auto' is 'analytic' when the
+        model has ``parameter_sensitivities`` for the periods' output, else
+        'fd' (forward differences of relative step ``fd_step``, one batched
+        simulation when the builder can batch parameter vectors);
+        '2-point'/'3-point' let scipy difference the residuals.
+    loss, f_scale : str, float
+        Fit criterion of :func:`scipy.optimize.least_squares`: 'linear'
+        (least squares) or a robust loss (:data:`LOSSES`) whose residuals
+        beyond ``f_scale`` (in units of ``noise``) weigh less.
+    fd_step : float
+        Relative step of the finite differences.
 
     Returns
     -------
     CalibrationResult
+        The confidence intervals come from the plain least-squares
+        covariance at the optimum (also for a robust loss: approximate).
 
     Raises
     ------
     ValueError
         For no free parameters, duplicate names, no training period, a bad
-        number of starts or noise.
+        number of starts, noise, Jacobian method, loss or step, or
+        ``jac='analytic'`` for a model without parameter sensitivities.
 
     """
     free = list(free)
@@ -421,18 +642,35 @@ def calibrate(build: Builder, free: Sequence[FreeParameter], train: Sequence[Per
         raise ValueError('calibrate needs at least one training period')
     if isinstance(starts, bool) or not isinstance(starts, int) or starts < 1:
         raise ValueError(f'starts must be an integer >= 1, got {starts!r}')
-    if not (isinstance(noise, (int, float)) and math.isfinite(noise) and noise > 0):
-        raise ValueError(f'noise must be a positive number [K], got {noise!r}')
+    for label, value in (('noise', noise), ('f_scale', f_scale), ('fd_step', fd_step)):
+        if isinstance(value, bool) or not (isinstance(value, (int, float))
+                                           and math.isfinite(value) and value > 0):
+            raise ValueError(f'{label} must be a positive number, got {value!r}')
+    if jac not in JACOBIANS:
+        raise ValueError(f'jac must be one of {list(JACOBIANS)}, got {jac!r}')
+    if loss not in LOSSES:
+        raise ValueError(f'loss must be one of {list(LOSSES)}, got {loss!r}')
     t0 = time.perf_counter()
-    problem = _Problem(build, free, train, float(noise))
-    lower = np.array([p.lower for p in free]) / problem.scale
-    upper = np.array([p.upper for p in free]) / problem.scale
+    problem = _Problem(build, free, train, float(noise), float(fd_step))
+    analytic = problem.analytic_available()
+    if jac == 'analytic' and not analytic:
+        raise ValueError('jac=analytic: the model has no parameter_sensitivities for the '
+                         f'output {train[0].output!r}; use jac=fd')
+    method = 'analytic' if jac == 'auto' and analytic else ('fd' if jac == 'auto' else jac)
+    jacobian = {'analytic': problem.jacobian_analytic, 'fd': problem.jacobian_fd}.get(method,
+                                                                                      method)
+    if method == 'fd' and getattr(build, 'can_batch', False):
+        method = 'fd-batched'
+    lower = problem.lower / problem.scale
+    upper = problem.upper / problem.scale
     best, records = None, []
     for k, start in enumerate(_start_points(free, starts, seed)):
         theta0 = np.clip(start / problem.scale, lower, upper)
-        fit = scipy.optimize.least_squares(problem.residuals, theta0, bounds=(lower, upper),
-                                           method='trf', x_scale='jac', xtol=xtol, ftol=1e-12,
-                                           gtol=1e-12, max_nfev=max_evaluations)
+        fit = scipy.optimize.least_squares(problem.residuals, theta0, jac=jacobian,
+                                           bounds=(lower, upper), method='trf', x_scale='jac',
+                                           xtol=xtol, ftol=1e-12, gtol=1e-12,
+                                           max_nfev=max_evaluations, loss=loss,
+                                           f_scale=float(f_scale))
         records.append({'initial': problem.values(theta0), 'final': problem.values(fit.x),
                         'cost': float(fit.cost), 'success': bool(fit.success)})
         logger.info('calibration start %d/%d: cost %.6g (%s)', k + 1, starts, fit.cost,
@@ -440,28 +678,96 @@ def calibrate(build: Builder, free: Sequence[FreeParameter], train: Sequence[Per
         if best is None or fit.cost < best.cost:
             best = fit
     values = problem.values(best.x)
-    std, ci95, correlation, warnings = _uncertainty(best, problem, free, values)
+    for p in free:  # undo the round-off of the scaling at a bound
+        span = p.upper - p.lower
+        values[p.name] = min(max(values[p.name], p.lower), p.upper)
+        for bound in (p.lower, p.upper):
+            if abs(values[p.name] - bound) <= 1e-12 * span:
+                values[p.name] = bound
+    # the plain residuals and their Jacobian at the optimum (scipy's are loss-modified)
+    theta = np.array([values[name] for name in names]) / problem.scale
+    final_jac = (problem.jacobian_analytic if analytic else problem.jacobian_fd)(theta)
+    std, ci95, correlation, warnings = _uncertainty(problem.residuals(theta), final_jac,
+                                                    problem, free, values)
     model = build(values)
     simulated, scores = {}, {}
     for period in [*train, *validation]:
         simulated[period.name] = simulate_period(model, period)
         scores[period.name] = metrics(simulated[period.name], period.measured)
     wall_s = time.perf_counter() - t0
-    logger.info('calibration done in %.2f s, %d simulations: %s', wall_s, problem.evaluations,
+    logger.info('calibration done in %.2f s, %d simulations, %d Jacobians (%s): %s', wall_s,
+                problem.evaluations, problem.jacobians, method,
                 ', '.join(f'{k} = {v:.6g}' for k, v in values.items()))
     return CalibrationResult(values, std, ci95, correlation, scores, warnings, float(best.cost),
-                             problem.evaluations, records, bool(best.success), str(best.message),
-                             wall_s, simulated)
+                             problem.evaluations, problem.jacobians, method, loss, records,
+                             bool(best.success), str(best.message), wall_s, simulated)
 
 
-def _uncertainty(fit: Any, problem: _Problem, free: Sequence[FreeParameter],
-                 values: Mapping[str, float]) -> tuple[dict, dict, np.ndarray, list[str]]:
+def cross_validate(build: Builder, free: Sequence[FreeParameter], period: Period,
+                   folds: int = 5, **options: Any) -> dict[str, Any]:
+    """
+    Score a fit setup on held-out blocks of one training period.
+
+    Rows 1..N are cut into ``folds`` consecutive blocks. For each block the
+    parameters are fitted to the other rows (the block's weights set to 0;
+    the whole period is still simulated freely from its first row, the
+    inputs being measured), and the block's rows are scored. No validation
+    period is involved: this chooses between fit setups (bounds, priors,
+    losses, weights) on the training data alone.
+
+    Parameters
+    ----------
+    build, free
+        As for :func:`calibrate`.
+    period : Period
+        The training period.
+    folds : int
+        Number of blocks (2 or more; each at least two rows).
+    **options
+        Passed to :func:`calibrate` (starts, jac, loss, f_scale, noise ...).
+
+    Returns
+    -------
+    dict
+        ``rmse_k`` (over all held-out rows), ``mae_k`` and ``folds``: per
+        block its first and last row, ``rmse_k`` and fitted ``parameters``.
+
+    Raises
+    ------
+    ValueError
+        For a bad number of folds.
+
+    """
+    rows = len(period.measured) - 1
+    if isinstance(folds, bool) or not isinstance(folds, int) or not 2 <= folds <= rows // 2:
+        raise ValueError(f'folds must be an integer from 2 to {rows // 2}, got {folds!r}')
+    base = np.ones(rows + 1) if period.weights is None else period.weights
+    errors, out = [], []
+    for block in np.array_split(np.arange(1, rows + 1), folds):
+        weights = base.copy()
+        weights[block] = 0.0
+        fitted = calibrate(build, free, [dataclasses.replace(period, weights=weights)],
+                           **options)
+        simulated = simulate_period(build(fitted.parameters), period)
+        error = simulated[block] - period.measured[block]
+        errors.append(error)
+        out.append({'rows': [int(block[0]), int(block[-1])],
+                    'rmse_k': float(np.sqrt(np.mean(error ** 2))),
+                    'parameters': fitted.parameters})
+    error = np.concatenate(errors)
+    return {'rmse_k': float(np.sqrt(np.mean(error ** 2))),
+            'mae_k': float(np.mean(np.abs(error))), 'folds': out}
+
+
+def _uncertainty(residuals: np.ndarray, jac_theta: np.ndarray, problem: _Problem,
+                 free: Sequence[FreeParameter], values: Mapping[str, float]
+                 ) -> tuple[dict, dict, np.ndarray, list[str]]:
     """Covariance s^2 (J^T J)^-1 at the optimum; confidence intervals; warnings."""
     n = len(free)
-    m = fit.fun.size
-    jac = np.asarray(fit.jac, dtype=float) / problem.scale[None, :]  # d r / d value
+    m = residuals.size
+    jac = np.asarray(jac_theta, dtype=float) / problem.scale[None, :]  # d r / d value
     dof = max(m - n, 1)
-    s2 = 2.0 * float(fit.cost) / dof
+    s2 = float(residuals @ residuals) / dof
     warnings = []
     try:
         cov = s2 * np.linalg.inv(jac.T @ jac)
@@ -476,8 +782,8 @@ def _uncertainty(fit: Any, problem: _Problem, free: Sequence[FreeParameter],
         correlation = cov / np.outer(sd, sd)
     quantile = float(scipy.stats.t.ppf(0.975, dof))
     std = {p.name: float(s) for p, s in zip(free, sd)}
-    ci95 = {p.name: (values[p.name] - quantile * s, values[p.name] + quantile * s)
-            for p, s in zip(free, sd)}
+    ci95 = {p.name: (max(values[p.name] - quantile * s, p.lower),
+                     min(values[p.name] + quantile * s, p.upper)) for p, s in zip(free, sd)}
     for p in free:
         margin = BOUND_WARNING * (p.upper - p.lower)
         if values[p.name] <= p.lower + margin:
@@ -495,11 +801,22 @@ def _uncertainty(fit: Any, problem: _Problem, free: Sequence[FreeParameter],
 
 
 # -- the OU44 reference calibration -----------------------------------------------------------
-#: Free parameters of the OU44 calibration: start values (the published ones) and bounds.
+#: Free parameters of the OU44 calibration: start values (the published ones) and wide bounds.
 OU44_FREE = (FreeParameter('tmass', 50.0, 1.0, 250.0),
              FreeParameter('shgc', 4.608961327935981, 0.0, 20.0),
              FreeParameter('occheff', 2.0836995296486704, 0.0, 10.0),
              FreeParameter('RExt', 4.0, 0.1, 40.0))
+#: Bounds of the reference study's own estimation (the original MShoot's
+#: examples/bs2019/case1/case1_est.py: tmass 1-50, shgc 0-10, occheff 0.5-3, RExt 0.5-4):
+#: prior knowledge of the study, not fitted to these data. The published parameters are the
+#: bounded least-squares optimum of the study's setup (hourly means, a 20 degC start) within
+#: them, tmass and RExt on their upper bounds.
+OU44_STUDY_BOUNDS = {'tmass': (1.0, 50.0), 'shgc': (0.0, 10.0), 'occheff': (0.5, 3.0),
+                     'RExt': (0.5, 4.0)}
+#: :data:`OU44_FREE` within :data:`OU44_STUDY_BOUNDS`.
+OU44_STUDY_FREE = tuple(FreeParameter(p.name, min(max(p.initial, OU44_STUDY_BOUNDS[p.name][0]),
+                                                  OU44_STUDY_BOUNDS[p.name][1]),
+                                      *OU44_STUDY_BOUNDS[p.name]) for p in OU44_FREE)
 
 
 def ou44_periods(path: str | pathlib.Path, train: tuple[str, str] = OU44_TRAIN,

@@ -5,18 +5,24 @@ Calibrate the R1C1 zone model on measured data: the OU44 reference calibration.
 
 The defaults reproduce the reference study's setup: the R1C1 with the measured
 inputs solrad, Tout, occ, dpos and the radiator valve vpos (q = 2689 W *
-vpos / 100); free tmass, shgc, occheff and RExt; Tve = 21 degC, Vi = 486.5 m3
-and maxVent = 4800 m3/h fixed; training 2018-04-04 08:00 to 2018-04-09 08:00,
-validation 2018-04-09 08:00 to 2018-04-13 08:00; inputs held over each
-30-minute row; each period simulated freely from the measured temperature at
-its first row. Least squares within bounds (:mod:`mshoot_core.calibration`).
+vpos / 100); free tmass, shgc, occheff and RExt within the study's own
+estimation bounds (tmass 1-50, shgc 0-10, occheff 0.5-3, RExt 0.5-4: prior
+knowledge, ``--bounds wide`` for 1-250, 0-20, 0-10, 0.1-40); Tve = 21 degC,
+Vi = 486.5 m3 and maxVent = 4800 m3/h fixed; training 2018-04-04 08:00 to
+2018-04-09 08:00, validation 2018-04-09 08:00 to 2018-04-13 08:00; inputs
+held over each 30-minute row; each period simulated freely from the measured
+temperature at its first row. Least squares within the bounds with the
+analytic Jacobian of the R1C1 (:mod:`mshoot_core.calibration`); with the
+study's bounds the least-squares optimum within the wide bounds is fitted
+too and reported next to it (``comparison``).
 
 Writes to ``--out``: ``calibration.json`` (the fitted parameters with
 approximate 95 % confidence intervals, RMSE and MAE per period next to those
 of the published parameters computed the same way, warnings, wall time),
 ``r1c1_calibrated.yaml`` (a model card of the Python R1C1 with the fitted
 parameters, for ``mshoot case --control``) and ``calibration.png`` (measured
-vs simulated over both periods).
+vs simulated over both periods). ``--cv-folds N`` adds a blocked
+cross-validation inside the training period (no validation data).
 """
 from __future__ import annotations
 
@@ -30,21 +36,34 @@ from typing import Any, Sequence
 
 from mshoot_core import calibration
 from mshoot_core.models import card as cards
-from mshoot_core.models.r1c1 import R1C1Parameters
+from mshoot_core.models.r1c1 import OCC_HEAT_W, R1C1Parameters
 from mshoot_core.scenario import DEFAULT_DATA
 import numpy as np
 import yaml
 
 logger = logging.getLogger(__name__)
 
-#: Default bounds of every R1C1 parameter that may be freed.
+#: Wide bounds of every R1C1 parameter that may be freed (``--bounds wide``).
 BOUNDS = {'tmass': (1.0, 250.0), 'shgc': (0.0, 20.0), 'occheff': (0.0, 10.0),
           'RExt': (0.1, 40.0), 'Tve': (10.0, 30.0), 'Vi': (50.0, 5000.0),
           'maxVent': (0.0, 20000.0)}
+#: Bounds by ``--bounds`` choice: the study's own (the default) or the wide ones.
+BOUND_SETS = {'study': {**BOUNDS, **calibration.OU44_STUDY_BOUNDS}, 'wide': BOUNDS}
+#: What calibration.json says of each choice of bounds.
+BOUND_SOURCES = {
+    'study': "the reference study's own estimation bounds (original MShoot "
+             'examples/bs2019/case1/case1_est.py: tmass 1-50, shgc 0-10, occheff 0.5-3, '
+             'RExt 0.5-4), used as prior knowledge: they were set before, and not fitted to, '
+             'these data; the published parameters are the bounded least-squares optimum of the '
+             "study's own setup within them",
+    'wide': 'wide bounds (tmass 1-250, shgc 0-20, occheff 0-10, RExt 0.1-40): no prior '
+            'knowledge beyond physical signs'}
 #: Parameters freed by default (the study's).
 FREE = ('tmass', 'shgc', 'occheff', 'RExt')
 #: The published (calibrated) parameters of the reference case.
 PUBLISHED = dataclasses.asdict(R1C1Parameters())
+#: Floor area of the OU44 classroom [m2] (the data's README; the study's Vi = 139 m2 * 3.5 m).
+FLOOR_AREA_M2 = 139.0
 #: Files written to ``--out``.
 JSON_NAME = 'calibration.json'
 CARD_NAME = 'r1c1_calibrated.yaml'
@@ -79,9 +98,15 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                         help='comma-separated parameters to fit, from '
                              f'{list(BOUNDS)} (default: %(default)s); the others are fixed '
                              'at their published values')
+    parser.add_argument('--bounds', choices=sorted(BOUND_SETS), default='study',
+                        help="default bounds: the reference study's (prior knowledge; tmass "
+                             '1:50, shgc 0:10, occheff 0.5:3, RExt 0.5:4) or wide ones (tmass '
+                             '1:250, shgc 0:20, occheff 0:10, RExt 0.1:40) (default: '
+                             '%(default)s)')
     parser.add_argument('--bound', action='append', default=[], metavar='NAME=LO:HI',
-                        help='bounds of a free parameter (repeatable; defaults: '
-                             + ', '.join(f'{k} {lo:g}:{hi:g}' for k, (lo, hi) in BOUNDS.items())
+                        help='bounds of a free parameter over --bounds (repeatable; others: '
+                             + ', '.join(f'{k} {lo:g}:{hi:g}' for k, (lo, hi) in BOUNDS.items()
+                                         if k not in calibration.OU44_STUDY_BOUNDS)
                              + ')')
     parser.add_argument('--prior', action='append', default=[], metavar='NAME=MEAN:SD',
                         help='Gaussian prior on a free parameter (repeatable)')
@@ -89,6 +114,22 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                         help='number of starts: the published values, then random points '
                              'within the bounds (default: 1)')
     parser.add_argument('--seed', type=int, default=0, help='seed of the random starts')
+    parser.add_argument('--loss', choices=calibration.LOSSES, default='linear',
+                        help='fit criterion: least squares or a robust loss of '
+                             'scipy.optimize.least_squares (default: %(default)s)')
+    parser.add_argument('--f-scale', type=float, default=1.0,
+                        help='residual [K] beyond which a robust loss weighs less '
+                             '(default: %(default)s)')
+    parser.add_argument('--jac', choices=calibration.JACOBIANS, default='auto',
+                        help='Jacobian of the residuals: analytic where the model has '
+                             "parameter sensitivities, else finite differences ('auto'), or "
+                             'forced (default: %(default)s)')
+    parser.add_argument('--cv-folds', type=int, default=0,
+                        help='blocked cross-validation inside the training period with this '
+                             'many folds (0: none; default: %(default)s)')
+    parser.add_argument('--no-compare', action='store_true',
+                        help='with the study bounds, skip the comparison fit within the wide '
+                             'bounds')
     parser.add_argument('--max-heat', type=float, default=calibration.OU44_MAX_HEAT_W,
                         help='radiator power at a fully open valve [W] (default: %(default)s)')
     parser.add_argument('--no-figure', action='store_true', help='skip the figure')
@@ -124,7 +165,7 @@ def free_parameters(args: argparse.Namespace) -> list[calibration.FreeParameter]
         raise ValueError(f'--free {args.free!r}: expected names from {list(BOUNDS)}')
     if len(set(names)) != len(names):
         raise ValueError(f'--free {args.free!r}: a parameter is named twice')
-    bounds = {n: BOUNDS[n] for n in names}
+    bounds = {n: BOUND_SETS[getattr(args, 'bounds', 'wide')][n] for n in names}
     for text in args.bound:
         name, lo, hi = _pair(text, '--bound')
         if name not in bounds:
@@ -144,6 +185,27 @@ def free_parameters(args: argparse.Namespace) -> list[calibration.FreeParameter]
     return free
 
 
+def physical(parameters: dict[str, float]) -> dict[str, float]:
+    """
+    Return the physical quantities of R1C1 parameters, to judge their plausibility.
+
+    ``capacity_kj_m2k``: heat capacity per floor area [kJ/(m2 K)] (EN ISO
+    13790 classes: 80 very light, 110 light, 165 medium, 260 heavy, 370 very
+    heavy); ``envelope_ua_w_k``: conductance to the outdoors 1/R [W/K];
+    ``occupant_heat_w``: heat per occupant at 20 degC [W]; ``shgc_m2``: the
+    solar aperture [m2]; ``envelope_time_constant_h``: C R [h].
+    """
+    values = R1C1Parameters(**{k: v for k, v in {**PUBLISHED, **parameters}.items()
+                               if k in PUBLISHED})
+    capacity = values.capacity_j_k
+    return {'capacity_mj_k': capacity / 1e6,
+            'capacity_kj_m2k': capacity / FLOOR_AREA_M2 / 1e3,
+            'envelope_ua_w_k': 1.0 / values.resistance_k_w,
+            'occupant_heat_w': values.occheff * OCC_HEAT_W,
+            'shgc_m2': values.shgc,
+            'envelope_time_constant_h': capacity * values.resistance_k_w / 3600.0}
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Parse ``argv`` (default: the process arguments) and run; the exit code."""
     return run(build_parser().parse_args(argv))
@@ -160,6 +222,10 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f'--starts must be >= 1, got {args.starts}')
         if not (np.isfinite(args.max_heat) and args.max_heat > 0):
             raise ValueError(f'--max-heat must be a positive power [W], got {args.max_heat}')
+        if not (np.isfinite(args.f_scale) and args.f_scale > 0):
+            raise ValueError(f'--f-scale must be a positive residual [K], got {args.f_scale}')
+        if args.cv_folds < 0 or args.cv_folds == 1:
+            raise ValueError(f'--cv-folds must be 0 (none) or >= 2, got {args.cv_folds}')
         free = free_parameters(args)
         train, validation = calibration.ou44_periods(data, tuple(args.train),
                                                      tuple(args.validation), args.max_heat)
@@ -174,52 +240,91 @@ def run(args: argparse.Namespace) -> int:
             build({p.name: p.initial for p in free})  # unknown parameter names fail here
             train, validation = (dataclasses.replace(p, x0=card.initial_state(p.x0[0]))
                                  for p in (train, validation))
+        if args.jac == 'analytic' and not hasattr(build({}), 'parameter_sensitivities'):
+            raise ValueError('--jac analytic: this model has no parameter sensitivities; use '
+                             '--jac auto or fd')
+        if args.cv_folds > (len(train.measured) - 1) // 2:
+            raise ValueError(f'--cv-folds {args.cv_folds}: the training period has only '
+                             f'{len(train.measured) - 1} rows to fold')
     except (ValueError, FileNotFoundError) as error:
         logger.error('%s', ' '.join(str(error).split()))
         return 2
-    result = calibration.calibrate(build, free, [train], [validation], starts=args.starts,
-                                   seed=args.seed)
+    options = {'starts': args.starts, 'seed': args.seed, 'jac': args.jac, 'loss': args.loss,
+               'f_scale': args.f_scale}
+    result = calibration.calibrate(build, free, [train], [validation], **options)
     published_model = calibration.r1c1_builder()({})
-    published = {'parameters': PUBLISHED}
+    published = {'parameters': PUBLISHED, 'physical': physical(PUBLISHED)}
     published_sim = {}
     for period in (train, validation):
         published_sim[period.name] = calibration.simulate_period(published_model, period)
         scores = calibration.metrics(published_sim[period.name], period.measured)
         published[f'rmse_{period.name}_k'] = scores['rmse_k']
         published[f'mae_{period.name}_k'] = scores['mae_k']
+    comparison, compared_sim = {}, None
+    if args.bounds == 'study' and not args.no_compare:
+        wide = [dataclasses.replace(p, lower=BOUNDS[p.name][0], upper=BOUNDS[p.name][1])
+                for p in free]
+        logger.info('comparison: the same fit within the wide bounds')
+        other = calibration.calibrate(build, wide, [train], [validation], **options)
+        compared_sim = other.simulated
+        comparison['wide_bounds'] = {
+            'bounds': {p.name: [p.lower, p.upper] for p in wide},
+            'parameters': other.parameters, 'physical': physical({**fixed, **other.parameters}),
+            'ci95': {k: list(v) for k, v in other.ci95.items()},
+            'rmse_train_k': other.metrics['train']['rmse_k'],
+            'rmse_validation_k': other.metrics['validation']['rmse_k'],
+            'warnings': other.warnings, 'wall_s': other.wall_s}
+    cross_validation = None
+    if args.cv_folds:
+        logger.info('cross-validation inside the training period: %d folds', args.cv_folds)
+        cross_validation = {'folds_n': args.cv_folds, **calibration.cross_validate(
+            build, free, train, args.cv_folds, **options)}
+        if 'wide_bounds' in comparison:
+            comparison['wide_bounds']['cross_validation'] = calibration.cross_validate(
+                build, wide, train, args.cv_folds, **options)['rmse_k']
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     card_path = write_card(out / CARD_NAME, {**fixed, **result.parameters}, result, card)
     figure = None
     if not args.no_figure:
-        figure = draw(out / FIGURE_NAME, [train, validation], result.simulated, published_sim)
+        figure = draw(out / FIGURE_NAME, [train, validation], result.simulated, published_sim,
+                      compared_sim, f'calibrated ({args.bounds} bounds)')
+    overridden = {p.name for p in free} & {_pair(t, '--bound')[0] for t in args.bound}
     report = {
         'case': args.case, 'data': str(data),
         'model': 'python r1c1' if card is None else str(card.path),
         'parameters': result.parameters,
+        'physical': physical({**fixed, **result.parameters}),
         'fixed': fixed,
         'rmse_train_k': result.metrics['train']['rmse_k'],
         'rmse_validation_k': result.metrics['validation']['rmse_k'],
         'mae_train_k': result.metrics['train']['mae_k'],
         'mae_validation_k': result.metrics['validation']['mae_k'],
         'published': published, 'wall_s': result.wall_s,
-        'total_wall_s': time.perf_counter() - started,
+        'total_wall_s': None,
+        'bounds_source': BOUND_SOURCES[args.bounds] + (
+            f'; overridden by --bound for {sorted(overridden)}' if overridden else ''),
         'setup': {'train': list(args.train), 'validation': list(args.validation),
                   'rows': {p.name: len(p.measured) for p in (train, validation)},
                   'max_heat_w': args.max_heat, 'inputs': list(train.inputs.columns),
+                  'bounds_choice': args.bounds,
                   'bounds': {p.name: [p.lower, p.upper] for p in free},
                   'priors': {p.name: [p.prior_mean, p.prior_sd] for p in free
                              if p.prior_sd is not None},
-                  'starts': args.starts, 'seed': args.seed,
+                  'starts': args.starts, 'seed': args.seed, 'loss': args.loss,
+                  'f_scale_k': args.f_scale,
                   'metric': 'rows 1..N of each period (row 0 is the measured start state)'},
+        'comparison': comparison, 'cross_validation': cross_validation,
         'card': str(card_path), 'figure': None if figure is None else str(figure),
         **{k: v for k, v in result.to_dict().items() if k not in ('parameters', 'wall_s')},
     }
+    report['total_wall_s'] = time.perf_counter() - started
     (out / JSON_NAME).write_text(json.dumps(report, indent=2, default=_json_default) + '\n')
     logger.info('RMSE train %.4f K (published %.4f K), validation %.4f K (published %.4f K); '
-                'fit %.2f s; wrote %s', report['rmse_train_k'], published['rmse_train_k'],
-                report['rmse_validation_k'], published['rmse_validation_k'], result.wall_s,
-                out / JSON_NAME)
+                'fit %.2f s (%s Jacobian), total %.2f s; wrote %s', report['rmse_train_k'],
+                published['rmse_train_k'], report['rmse_validation_k'],
+                published['rmse_validation_k'], result.wall_s, result.jac,
+                report['total_wall_s'], out / JSON_NAME)
     return 0
 
 
@@ -259,8 +364,10 @@ def write_card(path: pathlib.Path, parameters: dict[str, float],
 
 
 def draw(path: pathlib.Path, periods: Sequence[calibration.Period],
-         simulated: dict[str, np.ndarray], published: dict[str, np.ndarray]) -> pathlib.Path:
-    """Draw measured vs simulated (fitted and published parameters) over the periods."""
+         simulated: dict[str, np.ndarray], published: dict[str, np.ndarray],
+         wide: dict[str, np.ndarray] | None = None,
+         label: str = 'calibrated') -> pathlib.Path:
+    """Draw measured vs simulated (fitted, published, wide-bounds fit) over the periods."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     from mshoot_core.plotting import DPI, PNG_COMPRESSION
@@ -273,12 +380,17 @@ def draw(path: pathlib.Path, periods: Sequence[calibration.Period],
         first = k == 0
         ax_t.plot(when, period.measured, color='k', lw=1.2, label='measured' if first else None)
         ax_t.plot(when, simulated[period.name], color='tab:red', lw=1.4,
-                  label='calibrated' if first else None)
+                  label=label if first else None)
         ax_t.plot(when, published[period.name], color='tab:blue', lw=1.0, ls='--',
                   label='published parameters' if first else None)
         ax_e.plot(when, simulated[period.name] - period.measured, color='tab:red', lw=1.2)
         ax_e.plot(when, published[period.name] - period.measured, color='tab:blue', lw=1.0,
                   ls='--')
+        if wide is not None:
+            ax_t.plot(when, wide[period.name], color='tab:green', lw=1.0, ls=':',
+                      label='least squares, wide bounds' if first else None)
+            ax_e.plot(when, wide[period.name] - period.measured, color='tab:green', lw=1.0,
+                      ls=':')
         if k > 0:
             for ax in (ax_t, ax_e):
                 ax.axvline(when[0], color='grey', lw=1.0, ls=':')

@@ -8,7 +8,9 @@ The R1C1 zone model of the OU44 reference case, in plain Python (exact solution)
 With inputs held constant over an interval the right-hand side is affine in
 T, dT/dt = (f - g*T)/C, so each interval has the closed-form solution
 T(t) = T_inf + (T0 - T_inf)*exp(-g*t/C), T_inf = f/g: no integrator, no
-tolerance, and exact derivatives.
+tolerance, and exact derivatives, also with respect to the parameters
+(:meth:`R1C1Model.parameter_sensitivities`, the forward sensitivities of the
+exact discretisation, for calibration).
 """
 from __future__ import annotations
 
@@ -27,6 +29,8 @@ OCC_HEAT_ZERO_K = 325.15
 OCC_HEAT_SPAN_K = 32.0
 #: Volumetric heat capacity of air [J/(m3 K)] over 3600 s/h, as in the original model.
 AIR_HEAT_PER_M3H = 1206.0 / 3600.0
+#: Heat capacity of the zone air per m3 and per unit of tmass [J/(m3 K)].
+AIR_CAPACITY_J_M3K = 1.2 * 1005.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,7 +80,7 @@ class R1C1Parameters:
     @property
     def capacity_j_k(self) -> float:
         """Heat capacity C [J/K]."""
-        return self.tmass * 1.2 * 1005.0 * self.Vi
+        return self.tmass * AIR_CAPACITY_J_M3K * self.Vi
 
     @property
     def resistance_k_w(self) -> float:
@@ -174,3 +178,133 @@ class R1C1Model(Model):
         dy_dx0 = np.zeros((batch, 2, 1))
         dy_dx0[:, 0, 0] = decay
         return IntervalJacobians(x_end, y_end, dx_dx0, dx_du, dy_dx0, dy_du)
+
+    def simulate_parameter_batch(self, udf: pd.DataFrame, x0: Sequence[float]) -> np.ndarray:
+        """
+        Simulate B parameter vectors at once: the parameters are arrays of B values.
+
+        Each field of :attr:`parameters` is a scalar (shared) or an array of
+        shape (B,); the B zones see the same inputs and start state. One
+        numpy expression per row serves all B (batched finite differences of
+        a calibration).
+
+        Parameters
+        ----------
+        udf : DataFrame
+            Inputs as for :meth:`simulate`.
+        x0 : sequence of float, length 1
+            Start temperature [K], shared.
+
+        Returns
+        -------
+        ndarray, shape (T, B)
+            The temperature [K] of every parameter vector at every row.
+
+        """
+        t, u, x0_arr = self.check_inputs(udf, x0)
+        dt = np.diff(t)[:, None]
+        f, g = self.affine_coefficients(u[:-1, None, :])
+        cap = np.asarray(self.parameters.capacity_j_k, dtype=float)
+        f, g = np.broadcast_arrays(f, g)
+        decay = np.exp(-g * dt / cap)
+        t_inf = f / g
+        temps = np.empty((t.size, f.shape[1]))
+        temps[0] = x0_arr[0]
+        for k in range(dt.shape[0]):
+            temps[k + 1] = t_inf[k] + (temps[k] - t_inf[k]) * decay[k]
+        return temps
+
+    def _coefficient_derivatives(self, u: np.ndarray, names: Sequence[str]
+                                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Return the derivatives of f [W], g [W/K] (rows of ``u``) and C [J/K] by ``names``."""
+        p = self.parameters
+        solrad, tout, occ, dpos = (u[:, i] for i in range(4))
+        vi23 = p.Vi ** (2.0 / 3.0)
+        conductance = 3.0 * vi23 / p.RExt  # 1/R [W/K]
+        per_occupant = occ * OCC_HEAT_W / OCC_HEAT_SPAN_K
+        per_vent = AIR_HEAT_PER_M3H * dpos / 100.0
+        supply = np.maximum(tout, p.Tve) + KELVIN
+        rows = u.shape[0]
+        df = np.zeros((rows, len(names)))
+        dg = np.zeros((rows, len(names)))
+        dcap = np.zeros(len(names))
+        for j, name in enumerate(names):
+            if name == 'tmass':
+                dcap[j] = AIR_CAPACITY_J_M3K * p.Vi
+            elif name == 'shgc':
+                df[:, j] = solrad
+            elif name == 'occheff':
+                dg[:, j] = per_occupant
+                df[:, j] = per_occupant * OCC_HEAT_ZERO_K
+            elif name == 'RExt':
+                dg[:, j] = -conductance / p.RExt
+                df[:, j] = dg[:, j] * (tout + KELVIN)
+            elif name == 'Tve':  # through max(Tout, Tve): 0 where the outdoor air is warmer
+                df[:, j] = per_vent * p.maxVent * (p.Tve > tout)
+            elif name == 'maxVent':
+                dg[:, j] = per_vent
+                df[:, j] = per_vent * supply
+            elif name == 'Vi':
+                dg[:, j] = conductance * (2.0 / 3.0) / p.Vi
+                df[:, j] = dg[:, j] * (tout + KELVIN)
+                dcap[j] = p.tmass * AIR_CAPACITY_J_M3K
+            else:
+                raise ValueError(f'unknown R1C1 parameter {name!r}; expected names from '
+                                 f'{[f.name for f in dataclasses.fields(R1C1Parameters)]}')
+        return df, dg, dcap
+
+    def parameter_sensitivities(self, udf: pd.DataFrame, x0: Sequence[float],
+                                names: Sequence[str]) -> tuple[pd.DataFrame, np.ndarray]:
+        """
+        Simulate as :meth:`simulate` and return the exact output derivatives w.r.t. parameters.
+
+        Forward sensitivities of the exact per-interval solution: with
+        a = exp(-g dt/C) and T_inf = f/g,
+        dT_{k+1}/dp = dT_inf/dp (1 - a) + (T_k - T_inf) da/dp + a dT_k/dp,
+        dT_0/dp = 0 (the start state is given).
+
+        Parameters
+        ----------
+        udf : DataFrame
+            Inputs as for :meth:`simulate`.
+        x0 : sequence of float, length 1
+            Start temperature [K].
+        names : sequence of str
+            Fields of :class:`R1C1Parameters` (scalar-valued).
+
+        Returns
+        -------
+        ydf : DataFrame
+            The outputs of :meth:`simulate`.
+        dy_dp : ndarray, shape (T, 2, len(names))
+            d output / d parameter at every row [output unit per parameter
+            unit]; ``Qr`` does not depend on the parameters (zeros).
+
+        Raises
+        ------
+        ValueError
+            For an unknown name or array-valued parameters.
+
+        """
+        names = list(names)
+        if any(np.ndim(getattr(self.parameters, f.name)) for f in
+               dataclasses.fields(self.parameters)):
+            raise ValueError('parameter_sensitivities needs scalar R1C1 parameters')
+        ydf, xdf = self.simulate(udf, x0)
+        t, u, _ = self.check_inputs(udf, x0)
+        temps = xdf['T'].to_numpy()
+        dt = np.diff(t)
+        f, g = self.affine_coefficients(u[:-1])
+        df, dg, dcap = self._coefficient_derivatives(u[:-1], names)
+        cap = self.parameters.capacity_j_k
+        decay = np.exp(-g * dt / cap)
+        t_inf = f / g
+        dt_inf = (df * g[:, None] - f[:, None] * dg) / (g ** 2)[:, None]
+        ddecay = -(decay * dt)[:, None] * (dg * cap - g[:, None] * dcap[None, :]) / cap ** 2
+        sens = np.zeros((t.size, len(names)))
+        for k in range(dt.size):
+            sens[k + 1] = (dt_inf[k] * (1.0 - decay[k]) + (temps[k] - t_inf[k]) * ddecay[k]
+                           + decay[k] * sens[k])
+        dy_dp = np.zeros((t.size, 2, len(names)))
+        dy_dp[:, 0, :] = sens
+        return ydf, dy_dp
