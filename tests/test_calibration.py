@@ -92,6 +92,52 @@ def test_recovers_fmu_parameters_through_card() -> None:
     assert_recovered(result)
 
 
+def test_recovers_r2c2_fmu_parameters_with_an_unmeasured_wall(r2c2_fmu: pathlib.Path) -> None:
+    """A two-state FMU (Model Exchange): only the air temperature is fitted."""
+    from mshoot_core.models.fmi import FmiModel
+    parameters = {'Cair': 5.0e6, 'Cwall': 5.0e7, 'Raw': 0.002, 'Rwa': 0.01, 'Rwin': 0.04,
+                  'fsun': 0.6}
+    with FmiModel(r2c2_fmu, inputs=['Tamb', 'Qhvac', 'Qsun'],
+                  states={'Ta': 'air.T', 'Tw': 'wall.T'}, outputs=['Tair', 'Pwin'],
+                  parameters=parameters, tolerance=1e-10) as model:
+        build = calibration.fmi_builder(model)
+        rows = 2 * 48 + 1
+        hours = np.arange(rows) * 0.5
+        inputs = pd.DataFrame({
+            'Tamb': 5.0 + 4.0 * np.sin(2 * np.pi * (hours - 9) / 24),
+            'Qhvac': np.random.default_rng(2).uniform(0.0, 3000.0, rows),
+            'Qsun': np.clip(3000.0 * np.sin(2 * np.pi * (hours - 6) / 24), 0.0, None)},
+            index=pd.Index(hours * 3600.0, name='time_s'))
+        truth = {'Cwall': 5.0e7, 'Rwa': 0.01, 'fsun': 0.6}
+        start = calibration.Period('gen', inputs, np.array([20.0, 18.0]), np.zeros(rows),
+                                   output='Tair')
+        period = dataclasses.replace(start, name='train',
+                                     measured=calibration.simulate_period(build(truth), start))
+        free = [calibration.FreeParameter('Cwall', 3.0e7, 1.0e6, 2.0e8),
+                calibration.FreeParameter('Rwa', 0.015, 1e-3, 0.1),
+                calibration.FreeParameter('fsun', 0.4, 0.0, 1.0)]
+        result = calibration.calibrate(build, free, [period])
+    assert result.jac == 'fd'
+    for name, value in truth.items():
+        assert result.parameters[name] == pytest.approx(value, rel=1e-3), name
+    assert result.metrics['train']['rmse_k'] < 1e-3
+
+
+def test_registry_builder() -> None:
+    build = calibration.registry_builder('python', calibration.OU44_FIXED)
+    assert isinstance(build, calibration.ModelBuilder)
+    fmu = calibration.registry_builder('fmu-cs', calibration.OU44_FIXED)
+    period = generated_period(build, 24 + 1)
+    np.testing.assert_allclose(calibration.simulate_period(fmu(TRUTH), period),
+                               calibration.simulate_period(build(TRUTH), period), atol=1e-6)
+    with pytest.raises(ValueError, match='settable parameters'):
+        calibration.registry_builder('r1c1x2')
+    with pytest.raises(ValueError, match='model must be one of'):
+        calibration.registry_builder('nope')
+    with pytest.raises(TypeError, match='no settable parameters'):
+        calibration.fmi_builder(build(TRUTH))
+
+
 def test_bad_parameters_raise() -> None:
     with pytest.raises(ValueError, match='lower'):
         calibration.FreeParameter('tmass', 5.0, 10.0, 1.0)

@@ -15,8 +15,9 @@ parameters at a bound or strongly correlated.
 The model is rebuilt for every parameter vector by a ``build(parameters)``
 callable: :func:`r1c1_builder` for the Python R1C1, :func:`model_builder` for
 any Python model built from a parameters dataclass, :func:`card_builder` for
-the model of a card (an FMU's parameters are set before every
-initialisation). :func:`ou44_periods` makes the periods of the OU44 reference
+the model of a card and :func:`fmi_builder` for any FMU model (an FMU's
+parameters are set before every initialisation), :func:`registry_builder`
+for a model name of the registry. :func:`ou44_periods` makes the periods of the OU44 reference
 calibration from the measurements.
 
 The Jacobian of the residuals with respect to the parameters is analytic
@@ -44,10 +45,11 @@ import scipy.stats
 from mshoot_core.models.base import Model
 from mshoot_core.scenario import OU44_COLUMNS, read_ou44
 
-__all__ = ['calibrate', 'CalibrationResult', 'card_builder', 'cross_validate', 'FreeParameter',
-           'JACOBIANS', 'LOSSES', 'metrics', 'model_builder', 'ModelBuilder', 'OU44_FIXED',
-           'OU44_FREE', 'OU44_MAX_HEAT_W', 'OU44_STUDY_BOUNDS', 'OU44_STUDY_FREE', 'OU44_TRAIN',
-           'OU44_VALIDATION', 'ou44_periods', 'Period', 'r1c1_builder', 'simulate_period']
+__all__ = ['calibrate', 'CalibrationResult', 'card_builder', 'cross_validate', 'fmi_builder',
+           'FreeParameter', 'JACOBIANS', 'LOSSES', 'metrics', 'model_builder', 'ModelBuilder',
+           'OU44_FIXED', 'OU44_FREE', 'OU44_MAX_HEAT_W', 'OU44_STUDY_BOUNDS', 'OU44_STUDY_FREE',
+           'OU44_TRAIN', 'OU44_VALIDATION', 'ou44_periods', 'Period', 'r1c1_builder',
+           'registry_builder', 'simulate_period']
 
 logger = logging.getLogger(__name__)
 
@@ -397,39 +399,106 @@ def r1c1_builder(fixed: Mapping[str, float] | None = None) -> ModelBuilder:
     return ModelBuilder(R1C1Model, R1C1Parameters, fixed, label='R1C1')
 
 
-def card_builder(card: Any, tolerance: float | None = None) -> Builder:
+def fmi_builder(model: Any, fixed: Mapping[str, float] | None = None) -> Builder:
+    """
+    Return a builder of an FMU model (:class:`~mshoot_core.models.fmi.FmiModel`).
+
+    The model is built once (its instance and drivers); ``build(parameters)``
+    replaces its parameters (``fixed`` overlaid by the given ones), which
+    :class:`FmiModel` validates and sets after every reset, before
+    initialisation. The Jacobian of a fit is then a finite difference, one
+    simulation per parameter.
+
+    Parameters
+    ----------
+    model : FmiModel
+        The model, with any parameters of its own.
+    fixed : mapping, optional
+        Parameters held fixed over the model's own.
+
+    Raises
+    ------
+    TypeError
+        If ``model`` cannot set parameters.
+
+    """
+    if not hasattr(model, '_set_parameters_plan'):
+        raise TypeError(f'{type(model).__name__} has no settable parameters; use '
+                        'model_builder for a Python model')
+    base = {**dict(getattr(model, 'parameters', {}) or {}), **dict(fixed or {})}
+    inputs = dict(model.fixed_inputs)
+
+    def build(parameters: Mapping[str, float]) -> Model:
+        values = {**base, **{k: float(v) for k, v in parameters.items()}}
+        model._set_parameters_plan(values, inputs)  # names checked, set at every initialisation
+        return model
+
+    return build
+
+
+def card_builder(card: Any, tolerance: float | None = None,
+                 fixed: Mapping[str, float] | None = None) -> Builder:
     """
     Return a builder of a model card's model with the given parameters.
 
-    For an FMU the model is built once (its instance and drivers) and the
-    parameters are replaced before each simulation: :class:`FmiModel` sets
-    them after every reset, before initialisation. The Python R1C1 is rebuilt.
+    For an FMU the model is built once and its parameters replaced before
+    each simulation (:func:`fmi_builder`); the Python R1C1 is rebuilt.
 
     Parameters
     ----------
     card : ModelCard or path
         The card (see :mod:`mshoot_core.models.card`); its ``parameters`` are
-        the fixed ones.
+        fixed.
     tolerance : float, optional
         Integrator tolerance when the card sets none (default: the control
         role's).
+    fixed : mapping, optional
+        Parameters held fixed over the card's.
 
     """
     from mshoot_core.models import card as cards
     if not isinstance(card, cards.ModelCard):
         card = cards.load_card(card)
     if card.builtin == 'r1c1':
-        return r1c1_builder(card.parameters)
+        return r1c1_builder({**card.parameters, **dict(fixed or {})})
     model = cards.build_model(card, role='control', tolerance=tolerance)
-    fixed = dict(card.parameters)
+    return fmi_builder(model, fixed)
 
-    def build(parameters: Mapping[str, float]) -> Model:
-        values = {**fixed, **{k: float(v) for k, v in parameters.items()}}
-        # FmiModel validates the names and sets the values before every initialisation.
-        model._set_parameters_plan(values, dict(model.fixed_inputs))
-        return model
 
-    return build
+def registry_builder(name: str, fixed: Mapping[str, float] | None = None,
+                     tolerance: float | None = None) -> Builder:
+    """
+    Return a builder of a model of the registry (:mod:`mshoot_core.models.registry`) by name.
+
+    Parameters
+    ----------
+    name : str
+        'python' (the exact R1C1, analytic Jacobian), 'fmu' or 'fmu-cs' (the
+        built-in R1C1 FMU), a path to an .fmu file with the R1C1's variables,
+        or a model card (.yaml).
+    fixed : mapping, optional
+        Parameters held fixed (the model's defaults otherwise).
+    tolerance : float, optional
+        Integrator tolerance of an FMU (default: the control role's).
+
+    Raises
+    ------
+    ValueError
+        For a name whose models are built without settable parameters (the
+        multi-zone model, registered data-driven models) or an unknown name.
+
+    """
+    from mshoot_core.models import registry
+    if name == 'python':
+        return r1c1_builder(fixed)
+    if registry.is_card_path(name):
+        return card_builder(name, tolerance, fixed)
+    if name in ('fmu', 'fmu-cs') or str(name).endswith('.fmu'):
+        return fmi_builder(registry.build_model(
+            name, registry.CONTROL_TOLERANCE if tolerance is None else tolerance), fixed)
+    problem = registry.check_model(name)
+    raise ValueError(problem or f'model {name!r} is built without settable parameters; '
+                     'calibrate a model card or a Python model (model_builder) instead')
 
 
 class _Problem:
