@@ -185,6 +185,13 @@ def test_batched_simulation_equals_one_by_one() -> None:
     for row, values in zip(batch, vectors):
         np.testing.assert_allclose(row, calibration.simulate_period(build(values), period),
                                    rtol=0, atol=1e-10)
+    # every output of the model's batch, here the heat Qr too
+    from mshoot_core.models.r1c1 import R1C1Model, R1C1Parameters
+    arrays = {k: np.array([v[k] for v in vectors]) for k in TRUTH}
+    outputs = R1C1Model(R1C1Parameters(**calibration.OU44_FIXED, **arrays)
+                        ).simulate_parameter_batch(period.inputs, period.x0)
+    ydf, _ = build(vectors[1]).simulate(period.inputs, period.x0)
+    np.testing.assert_allclose(outputs[:, :, 1], ydf[['T', 'Qr']].to_numpy(), rtol=1e-12)
 
 
 @pytest.mark.parametrize('jac', ['fd', '2-point'])
@@ -279,6 +286,41 @@ def test_model_builder_is_generic() -> None:
         build({'nope': 1.0})
     with pytest.raises(TypeError, match='dataclass'):
         calibration.model_builder(R1C1Model, dict)
+
+
+def test_ou44_periods_are_the_issue_setup(ou44_csv: pathlib.Path) -> None:
+    """An independent integration of the SPEC's R1C1 over the issue's periods: same RMSEs."""
+    import scipy.integrate
+    raw = pd.read_csv(ou44_csv, parse_dates=['datetime']).set_index('datetime')
+    p = {'tmass': 50.0, 'shgc': 4.608961327935981, 'occheff': 2.0836995296486704, 'RExt': 4.0,
+         'Tve': 21.0, 'Vi': 486.5, 'maxVent': 4800.0}
+    cap = p['tmass'] * 1.2 * 1005.0 * p['Vi']
+    res = p['RExt'] / (3.0 * p['Vi'] ** (2.0 / 3.0))
+    periods = calibration.ou44_periods(ou44_csv)
+    for period, (start, end), rows in zip(periods, (('2018-04-04 08:00', '2018-04-09 08:00'),
+                                                    ('2018-04-09 08:00', '2018-04-13 08:00')),
+                                          (241, 193)):
+        data = raw.loc[start:end]
+        assert len(data) == rows == len(period.measured)
+        temps = [data['T'].iloc[0] + 273.15]
+        for k in range(rows - 1):  # row k's inputs held over [t_k, t_k+1)
+            row = data.iloc[k]
+
+            def rhs(_t: float, x: np.ndarray, row: pd.Series = row) -> np.ndarray:
+                heat = (84.0 * (325.15 - x[0]) / 32.0 * p['occheff'] * row['occ']
+                        + (row['Tout'] + 273.15 - x[0]) / res + p['shgc'] * row['solrad']
+                        + 1206.0 / 3600.0 * p['maxVent'] * row['dpos'] / 100.0
+                        * (max(row['Tout'], p['Tve']) + 273.15 - x[0])
+                        + 2689.0 * row['vpos'] / 100.0)
+                return np.array([heat / cap])
+
+            end_k = scipy.integrate.solve_ivp(rhs, (0.0, 1800.0), [temps[-1]], rtol=1e-11,
+                                              atol=1e-9).y[0, -1]
+            temps.append(end_k)
+        error = np.array(temps[1:]) - 273.15 - data['T'].to_numpy()[1:]
+        ours = calibration.metrics(calibration.simulate_period(
+            calibration.r1c1_builder()({}), period), period.measured)
+        assert ours['rmse_k'] == pytest.approx(float(np.sqrt(np.mean(error ** 2))), abs=1e-6)
 
 
 def test_ou44_reference_calibration(ou44_csv: pathlib.Path, tmp_path: pathlib.Path) -> None:

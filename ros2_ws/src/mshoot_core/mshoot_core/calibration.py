@@ -301,8 +301,9 @@ class ModelBuilder:
     ``build(parameters)`` returns ``model_cls(parameters_cls(**fixed,
     **parameters))``. When ``model_cls`` has ``simulate_parameter_batch``
     (a model whose parameters may be arrays, one value per parameter
-    vector), :meth:`simulate_batch` simulates many parameter vectors in one
-    call: the batched finite differences of :func:`calibrate`.
+    vector, returning its outputs of shape (rows, outputs, B)),
+    :meth:`simulate_batch` simulates many parameter vectors in one call: the
+    batched finite differences of :func:`calibrate`.
 
     Parameters
     ----------
@@ -355,12 +356,13 @@ class ModelBuilder:
         """
         Simulate ``period`` for every parameter vector; return the output (B, rows).
 
-        One batched simulation when :attr:`can_batch` (the state is the
-        output: the R1C1 zone temperature [degC] from the state [K]), else
-        one simulation per vector.
+        One batched simulation when :attr:`can_batch`: the model's
+        ``simulate_parameter_batch(udf, x0)`` returns its outputs (rows,
+        outputs, B) for parameters that are arrays of B values; else one
+        simulation per vector.
         """
         keys = {tuple(sorted(values)) for values in parameter_sets}
-        if not self.can_batch or period.output != 'T' or len(keys) != 1:
+        if not self.can_batch or len(keys) != 1:
             return np.array([simulate_period(self(values), period) for values in parameter_sets])
         for values in parameter_sets:
             self._check(values)
@@ -368,7 +370,8 @@ class ModelBuilder:
                    for name in keys.pop()}
         model = self.model_cls(self.parameters_cls(**{**self.fixed, **columns}))
         udf = period.inputs[list(model.input_names)]
-        return model.simulate_parameter_batch(udf, period.x0).T - KELVIN
+        outputs = model.simulate_parameter_batch(udf, period.x0)
+        return outputs[:, list(model.output_names).index(period.output), :].T
 
 
 def model_builder(model_cls: type, parameters_cls: type,

@@ -197,8 +197,9 @@ class R1C1Model(Model):
 
         Returns
         -------
-        ndarray, shape (T, B)
-            The temperature [K] of every parameter vector at every row.
+        ndarray, shape (T, 2, B)
+            The outputs (:attr:`output_names`: T [degC], Qr [J]) of every
+            parameter vector at every row.
 
         """
         t, u, x0_arr = self.check_inputs(udf, x0)
@@ -208,11 +209,13 @@ class R1C1Model(Model):
         f, g = np.broadcast_arrays(f, g)
         decay = np.exp(-g * dt / cap)
         t_inf = f / g
-        temps = np.empty((t.size, f.shape[1]))
-        temps[0] = x0_arr[0]
+        out = np.zeros((t.size, 2, f.shape[1]))
+        out[0, 0] = x0_arr[0]
         for k in range(dt.shape[0]):
-            temps[k + 1] = t_inf[k] + (temps[k] - t_inf[k]) * decay[k]
-        return temps
+            out[k + 1, 0] = t_inf[k] + (out[k, 0] - t_inf[k]) * decay[k]
+        out[:, 0] -= KELVIN
+        out[1:, 1] = np.cumsum(u[:-1, 4] * dt[:, 0])[:, None]
+        return out
 
     def _coefficient_derivatives(self, u: np.ndarray, names: Sequence[str]
                                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
