@@ -409,7 +409,7 @@ class Controller:
 
     @property
     def estimate(self) -> Estimate | None:
-        """Return the newest state estimate (None without estimation or before the first)."""
+        """Return the newest state estimate, or None (no estimation, or none yet)."""
         return None if self.estimator is None else self.estimator.estimate
 
     @property

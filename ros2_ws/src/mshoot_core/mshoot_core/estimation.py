@@ -137,7 +137,7 @@ class Estimate:
 
     @property
     def std(self) -> np.ndarray:
-        """Standard deviation of every state [K]."""
+        """Return the standard deviation of every state [K]."""
         return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
 
     def __iter__(self):  # noqa: D105 (x_hat, P = estimate)

@@ -117,7 +117,7 @@ PARAMS = (
     ParamSpec('initial_temperature_c', 20.0, 'zone temperature at the first step: every '
               'state of the model starts at it (in K) [degC]', low=-50.0, high=80.0,
               read_only=True),
-    ParamSpec('initial_states', '', "states starting elsewhere than initial_temperature_c, "
+    ParamSpec('initial_states', '', 'states starting elsewhere than initial_temperature_c, '
               "comma-separated 'name=degC' (e.g. 'Tw=18': the envelope of model r2c2) [degC]",
               read_only=True),
     ParamSpec('measured_states', '', "states published on /zone/state, comma-separated ('' = "
