@@ -133,6 +133,33 @@ def test_r2c2_by_name_and_its_measured_states():
         R2C2Parameters(Raw=0.0)
 
 
+def test_cards_say_which_states_are_measured(tmp_path, r2c2_fmu):
+    """The built-in R2C2 card, an FMU card with ``measured: false``: the controller estimates."""
+    from mshoot_core.models import card as cards
+    model = build_model(str(cards.builtin_card('r2c2')))
+    assert isinstance(model, R2C2Model) and model.measured_states == ('T',)
+    assert controller_for(model).estimator.measured == ('T',)
+    text = (f'fmu: {r2c2_fmu}\n'
+            'controls: {q: {variable: Qhvac, unit: W}}\n'
+            'disturbances: {Tout: {variable: Tamb}, Qsun: {variable: Qsun}}\n'
+            'states: {T: {variable: air.T}, Tw: {variable: wall.T, measured: false}}\n'
+            'outputs: {T: {variable: Tair}}\n')
+    path = tmp_path / 'r2c2_fmu.yaml'
+    path.write_text(text)
+    card = cards.load_card(path)
+    assert card.measured_states == ('T',) and card.state_names == ('T', 'Tw')
+    fmu_model = cards.build_model(card)
+    try:
+        assert fmu_model.measured_states == ('T',)
+        controller = controller_for(fmu_model)
+        assert controller.estimator is not None and controller.measured_states == ('T',)
+    finally:
+        fmu_model.close()
+    path.write_text(text.replace('measured: false', 'measured: maybe'))
+    with pytest.raises(cards.CardError, match='states.Tw.measured'):
+        cards.load_card(path)
+
+
 # -- the estimate -----------------------------------------------------------------------------
 def test_estimate_converges_from_an_envelope_3k_off(air_only_noisy):
     """0.1 K sensor noise: 3 K off at the start, within 0.3 K after 2 steps and from then on."""
