@@ -202,6 +202,14 @@ def test_closed_loop_kpis_with_a_noisy_sensor(fully_measured, air_only_noisy):
     assert kpis['discomfort_kh'] <= reference['discomfort_kh'] + 0.5
 
 
+def test_a_comfort_margin_trades_energy_for_comfort(air_only_noisy):
+    """Narrowing the band by 2 std of the estimated air temperature: no discomfort, more energy."""
+    _, plain, _ = air_only_noisy
+    _, kpis, _ = closed_loop(('T',), NOISE_K, comfort_margin_std=2.0)
+    assert kpis['discomfort_kh'] < 0.05 * plain['discomfort_kh']
+    assert kpis['energy_kwh'] > 1.03 * plain['energy_kwh']
+
+
 def test_a_wrong_model_estimates_worse(air_only_noisy):
     """A control model whose envelope is five times lighter: the estimate stays off."""
     result, _, _ = air_only_noisy

@@ -658,9 +658,28 @@ class Controller:
         window = (frame if offset == 0 and len(frame) == horizon + 1 else
                   forecast_window(frame, int(min(offset, len(frame) - 1)), horizon))
         self._last_step_ns = step
-        self._dispatch(step, state, window, steady_ns, self._std_of(step))
+        std = self._std_of(step)
+        self._dispatch(step, state, self._with_margin(window, std), steady_ns, std)
         self._collect(outcomes, time.monotonic_ns())
         return outcomes
+
+    def _with_margin(self, window: pd.DataFrame, std: np.ndarray | None) -> pd.DataFrame:
+        """
+        Return the forecast window with the comfort band narrowed for an uncertain state.
+
+        By ``comfort_margin_std`` standard deviations of the estimated zone temperatures (the
+        largest), on each side, at most to the band's middle.
+        """
+        z = self.settings.estimation.comfort_margin_std
+        bounded = [self.model.state_names.index(s) for s in self.mpc.state_bounds]
+        if std is None or z <= 0 or not bounded or not set(COMFORT_SERIES) <= set(window):
+            return window
+        margin = z * float(np.max(std[bounded]))
+        out = window.copy()
+        half = 0.5 * (out['comfort_max'] - out['comfort_min'])
+        out['comfort_min'] = out['comfort_min'] + np.minimum(margin, half)
+        out['comfort_max'] = out['comfort_max'] - np.minimum(margin, half)
+        return out
 
     def _due(self, step: int, now_ns: int, steady_ns: int) -> tuple[float, float]:
         """How long the step has been due: (wall time, clock time) [s]."""

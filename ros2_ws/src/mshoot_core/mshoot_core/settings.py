@@ -296,6 +296,10 @@ class EstimationSettings(SettingsGroup):
     initial_std_k: float = setting(3.0, 'standard deviation of the first estimate of an '
                                    'unmeasured state [K]', low=1e-6, high=1000.0,
                                    apply='inputs')
+    comfort_margin_std: float = setting(0.0, 'with an estimated state: the comfort band is '
+                                        'narrowed by this many standard deviations of the '
+                                        'estimated zone temperature, on each side [-]',
+                                        low=0.0, high=10.0, apply='inputs')
 
     @property
     def measured(self) -> tuple[str, ...]:

@@ -224,7 +224,8 @@ def _case_kpis(result: ClosedLoopResult, settings: MpcSettings) -> dict:
 #: Controller settings offered as options of the case command.
 CASE_SETTINGS = ('horizon_steps', 'cost', 'comfort', 'soft_penalty', 'solver', 'mode',
                  'relaxation', 'solver_max_iter', 'time_budget_s', 'on_failure',
-                 'estimation', 'measured_states', 'measurement_noise_k', 'process_noise_k')
+                 'estimation', 'measured_states', 'measurement_noise_k', 'process_noise_k',
+                 'comfort_margin_std')
 
 
 def option_problems(args: argparse.Namespace,
