@@ -11,6 +11,7 @@ import pandas as pd
 
 from mshoot_core.controller import Controller, StepOutcome
 from mshoot_core.emulation import Emulator, StepRecord
+from mshoot_core.estimation import Sensors
 from mshoot_core.models.base import ModelValueError
 from mshoot_core.mpc import MPC
 from mshoot_core.safety import NS_PER_S
@@ -78,7 +79,9 @@ def step_row(outcome: StepOutcome, record: StepRecord, state_names: tuple[str, .
     ``solve_time_s``, ``success``, ``status``, ``iterations``, ``objective``,
     ``max_defect``, ``relaxed``, ``model_evaluations`` (NaN or False without a
     solve result), and the decision's ``source`` ('optimum', 'plan', 'safe'),
-    ``fallback``, ``fallback_code`` and ``fallback_reason``.
+    ``fallback``, ``fallback_code`` and ``fallback_reason``; with an estimated
+    state, also ``{state}_estimate`` (the state the step was planned from) and
+    ``{state}_std`` (its standard deviation [K]).
     """
     decision, result = outcome.decision, outcome.result
     row = {'time_s': record.t_start_s}
@@ -101,22 +104,39 @@ def step_row(outcome: StepOutcome, record: StepRecord, state_names: tuple[str, .
                    model_evaluations=0)
     row.update(source=decision.source, fallback=bool(decision.fallback),
                fallback_code=decision.code, fallback_reason=decision.reason)
+    if outcome.x0_std is not None and outcome.x0 is not None:
+        for i, name in enumerate(state_names):
+            row[f'{name}_estimate'] = float(outcome.x0[i])
+            row[f'{name}_std'] = float(outcome.x0_std[i])
     return row
 
 
-def offer_scenario_inputs(controller: Controller, emulator: Emulator, now_ns: int) -> None:
+def offer_scenario_inputs(controller: Controller, emulator: Emulator, now_ns: int,
+                          sensors: Sensors | None = None,
+                          applied: np.ndarray | None = None) -> None:
     """
     Give the controller the emulated state and a perfect forecast, as the nodes do.
 
     The forecast is the scenario's next N+1 rows (the series the controller knows), stamped at the
-    emulator's time, as the emulator and forecaster nodes do.
+    emulator's time, as the emulator and forecaster nodes do. With ``sensors`` the controller gets
+    what they read (the measured states, with their noise) and the controls ``applied`` over the
+    last step, by name, as the emulator node publishes them.
     """
     window = forecast_window(emulator.scenario, emulator.index, controller.mpc.horizon_steps)
     known = controller.forecast_known
     values = window.to_numpy(dtype=float)
     series = {name: values[:, j] for j, name in enumerate(window.columns) if name in known}
+    if sensors is None:
+        state = controller.offer_state(now_ns, emulator.x, now_ns)
+    else:
+        readings = sensors.read(emulator.x, emulator.index)
+        controls = () if applied is None else emulator.control_names
+        state = controller.offer_named_state(
+            now_ns, list(readings), list(readings.values()), now_ns,
+            control_names=list(controls), control_values=[] if applied is None else
+            [float(v) for v in applied])
     for stream, rejection in (
-            ('state', controller.offer_state(now_ns, emulator.x, now_ns)),
+            ('state', state),
             ('forecast', controller.offer_forecast(now_ns, emulator.step_s, series, now_ns))):
         if rejection:
             logger.warning('%s at %.0f s rejected [%s]: %s', stream, now_ns / NS_PER_S,
@@ -125,7 +145,8 @@ def offer_scenario_inputs(controller: Controller, emulator: Emulator, now_ns: in
 
 def run_closed_loop(controller: Controller | MPC, emulator: Emulator, steps: int | None = None,
                     progress: Callable[[list[dict], list[pd.DataFrame]], None] | None = None,
-                    log_every: int = 12, budget_s: float | None = None) -> ClosedLoopResult:
+                    log_every: int = 12, budget_s: float | None = None,
+                    sensors: Sensors | None = None) -> ClosedLoopResult:
     """
     Run the controller against the emulator for ``steps`` control steps (default: to the end).
 
@@ -153,6 +174,9 @@ def run_closed_loop(controller: Controller | MPC, emulator: Emulator, steps: int
     budget_s : float, optional
         Wall-time budget of the whole run [s]: no step is started once it is
         spent, and the result holds the steps done (at least one).
+    sensors : Sensors, optional
+        What the controller is given of the emulated state: the measured states
+        with their noise (default: every state, exactly).
 
     Raises
     ------
@@ -181,7 +205,8 @@ def run_closed_loop(controller: Controller | MPC, emulator: Emulator, steps: int
             logger.info('budget of %.0f s spent after %d/%d steps', budget_s, k, total)
             break
         now_ns = int(round(emulator.t_s * NS_PER_S))
-        offer_scenario_inputs(controller, emulator, now_ns)
+        applied = (np.array([rows[-1][n] for n in emulator.control_names]) if rows else None)
+        offer_scenario_inputs(controller, emulator, now_ns, sensors, applied)
         outcomes = controller.poll(now_ns)
         if len(outcomes) != 1 or outcomes[0].step_ns != now_ns:
             raise RuntimeError(f'the controller decided {[o.step_ns for o in outcomes]} at '

@@ -13,6 +13,15 @@ the same decisions through the same code:
   :class:`~mshoot_core.safety.Rejection` (counted) and never reaches the
   optimiser; :meth:`Controller.offer_named_state` takes the state as named
   values (the form of a ``ZoneState`` message);
+- when the control model's states are not all measured (its
+  ``measured_states``, or the settings' ``measured_states``), the controller
+  estimates the others (:class:`~mshoot_core.estimation.StateEstimator`, an
+  extended Kalman filter; setting ``estimation``): every measurement is
+  corrected against the prediction over the last interval, with the controls
+  decided (or, from a ``ZoneState``, applied) and the disturbances of the
+  forecast that covered it; the estimate is what the step is planned from
+  (:attr:`Controller.estimate`, :attr:`StepOutcome.x0_std`). Offered
+  unmeasured states are ignored;
 - :meth:`Controller.poll` is called whenever something may have changed (a new
   input, a timer, a finished solve) with the controller's clock ``now_ns``
   (simulated or real time) and a steady wall clock ``steady_ns``; it returns
@@ -46,13 +55,14 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from mshoot_core.models.base import Model
+from mshoot_core.estimation import Estimate, estimation_needed, StateEstimator
+from mshoot_core.models.base import Model, ModelValueError
 from mshoot_core.models.registry import control_interface, ControlInterface
 from mshoot_core.mpc import MPC, MpcResult
-from mshoot_core.safety import (check_forecast, check_series, check_zone_state, COMFORT_SERIES,
-                                Decision, InputWait, LIMITS, NS_PER_S, PRICE_SERIES,
-                                Rejection, RejectionCounter, reorder, SetpointSupervisor,
-                                StampGate)
+from mshoot_core.safety import (check_forecast, check_named, check_series, check_zone_state,
+                                COMFORT_SERIES, Decision, InputWait, LIMITS, NS_PER_S,
+                                PRICE_SERIES, Rejection, RejectionCounter, reorder,
+                                SetpointSupervisor, StampGate)
 from mshoot_core.scenario import forecast_window
 from mshoot_core.settings import BY_NAME, MpcSettings
 
@@ -80,7 +90,10 @@ class StepOutcome:
     solve_time_s : float
         Wall time of the solve, or of the wait that ended in a fallback [s].
     x0 : ndarray or None
-        The state the step was solved from.
+        The state the step was solved from (measured, or estimated).
+    x0_std : ndarray or None
+        Standard deviation of every state of an estimated ``x0`` [K] (None when
+        the state is measured or there is none).
 
     """
 
@@ -89,6 +102,7 @@ class StepOutcome:
     result: MpcResult | None
     solve_time_s: float
     x0: np.ndarray | None
+    x0_std: np.ndarray | None = None
 
     @property
     def t_s(self) -> float:
@@ -105,6 +119,7 @@ class _Solve:
     started_ns: int
     future: concurrent.futures.Future
     fallback_given: bool = False
+    x0_std: np.ndarray | None = None
 
 
 class Controller:
@@ -130,6 +145,9 @@ class Controller:
     on_solve_done : callable, optional
         Called (from the executor's thread) when a solve finishes: the owner
         should then call :meth:`poll`.
+    initial_state : sequence of float, optional
+        With estimation: the first estimate's unmeasured states (default: the
+        mean of the measured ones, see :func:`~mshoot_core.estimation.initial_guess`).
 
     Attributes
     ----------
@@ -139,6 +157,14 @@ class Controller:
         Rejected inputs by stream ('state', 'forecast') and kind.
     results : dict
         Step stamp [ns] -> MpcResult of the latest steps (late ones included).
+    estimator : StateEstimator or None
+        The state estimator, when the states are estimated (see the module).
+
+    Raises
+    ------
+    ValueError
+        If the measured states are not states of the model, or ``estimation``
+        is 'off' while some are not measured.
 
     """
 
@@ -147,7 +173,8 @@ class Controller:
                  state_bounds: dict | None = None,
                  assumed_inputs: Mapping[str, float] | None = None,
                  on_solve_done: Callable[[], None] | None = None,
-                 history_length: int = 1000) -> None:
+                 history_length: int = 1000,
+                 initial_state: Sequence[float] | None = None) -> None:
         if mpc is None:
             if model is None:
                 raise TypeError('Controller needs a model or an MPC')
@@ -171,6 +198,13 @@ class Controller:
         self._inflight: _Solve | None = None
         self._due_since: tuple[int, int, int] | None = None
         self._pending: MpcSettings | None = None
+        self._decided: dict[int, np.ndarray] = {}
+        self._estimates: dict[int, Estimate] = {}
+        self.estimator: StateEstimator | None = None
+        if estimation_needed(self.model, self.settings.estimation):
+            self.estimator = StateEstimator.from_settings(
+                self.model, self.settings.estimation, self.settings.problem.step_s,
+                initial_state=initial_state)
         self.supervisor = self._build_supervisor()
         self._configure_inputs()
 
@@ -254,6 +288,9 @@ class Controller:
         changed = self.settings.changed(settings)
         what = self.mpc.update(settings)
         self._configure_inputs()
+        if self.estimator is not None:
+            e = self.settings.estimation
+            self.estimator.configure(e.measurement_noise_k, e.process_noise_k, e.initial_std_k)
         if any('supervisor' in BY_NAME[n].applies for n in changed if n in BY_NAME):
             self.supervisor = self._build_supervisor()
             what += '+supervisor'
@@ -279,12 +316,12 @@ class Controller:
         names = self.model.state_names
         values = np.asarray(x, dtype=float).reshape(-1)
         if values.size != len(names):
-            rejection = Rejection('length', f'state has {values.size} values, expected '
-                                  f'{len(names)} ({list(names)})')
-        else:
-            low, high = self.state_range()
-            rejection = next((r for r in (check_series(name, values[i:i + 1], low[i], high[i])
-                                          for i, name in enumerate(names)) if r), None)
+            return self.reject('state', Rejection('length', f'state has {values.size} values, '
+                                                  f'expected {len(names)} ({list(names)})'))
+        if self.estimator is not None:  # only the measured states count
+            return self._measure(stamp_ns, {n: float(values[names.index(n)])
+                                            for n in self.estimator.measured}, now_ns)
+        rejection = self._range_rejection(dict(zip(names, values)))
         rejection = rejection or self._state_gate.check(stamp_ns, now_ns)
         if rejection:
             return self.reject('state', rejection)
@@ -292,6 +329,94 @@ class Controller:
         self._states[int(stamp_ns)] = values.copy()
         _trim(self._states)
         return None
+
+    def _range_rejection(self, values: Mapping[str, float]) -> Rejection | None:
+        """Return the first state outside its plausible range (:meth:`state_range`)."""
+        names = self.model.state_names
+        low, high = self.state_range()
+        return next((r for r in (check_series(name, [value], low[names.index(name)],
+                                              high[names.index(name)])
+                                 for name, value in values.items()) if r), None)
+
+    def _measure(self, stamp_ns: int, measured: Mapping[str, float], now_ns: int,
+                 applied: Mapping[str, float] | None = None) -> Rejection | None:
+        """Correct the state estimate with the measured states at ``stamp_ns``."""
+        rejection = (self._range_rejection(measured)
+                     or self._state_gate.check(stamp_ns, now_ns))
+        if rejection:
+            return self.reject('state', rejection)
+        stamp_ns = int(stamp_ns)
+        estimator = self.estimator
+        last = estimator.estimate
+        if last is not None and _ns(last.t_s) == stamp_ns:
+            self._state_gate.accept(stamp_ns, now_ns)  # a repeat (heartbeat): taken already
+            return None
+        inputs = None
+        if last is not None:
+            inputs, why = self._inputs_between(_ns(last.t_s), stamp_ns, applied or {})
+            if inputs is None:
+                logger.warning('state estimate restarted at %.0f s: %s', stamp_ns / NS_PER_S,
+                               why)
+                estimator.reset()
+        try:
+            estimate = estimator.update(stamp_ns / NS_PER_S, measured, inputs)
+        except ModelValueError as exc:
+            logger.warning('state estimate restarted at %.0f s: the prediction failed (%s)',
+                           stamp_ns / NS_PER_S, exc)
+            estimator.reset()
+            estimate = estimator.update(stamp_ns / NS_PER_S, measured)
+        self._state_gate.accept(stamp_ns, now_ns)
+        self._states[stamp_ns] = estimate.x.copy()
+        self._estimates[stamp_ns] = estimate
+        _trim(self._states)
+        _trim(self._estimates)
+        return None
+
+    def _inputs_between(self, t0_ns: int, t1_ns: int, applied: Mapping[str, float]
+                        ) -> tuple[pd.DataFrame | None, str]:
+        """
+        Return the model inputs over [t0, t1) by interval start [s], or None and why not.
+
+        One interval per control step touched: the controls decided for the step (the applied
+        ones of a ``ZoneState`` for the last step), the disturbances of the newest forecast that
+        covered the step.
+        """
+        controls = self.settings.problem.control_names
+        starts = [t0_ns] + list(range((t0_ns // self.step_ns + 1) * self.step_ns, t1_ns,
+                                      self.step_ns))
+        rows = []
+        for k, start in enumerate(starts):
+            step = (start // self.step_ns) * self.step_ns
+            if k == len(starts) - 1 and applied and set(applied) == set(controls):
+                u = dict(applied)
+            elif step in self._decided:
+                u = dict(zip(controls, self._decided[step]))
+            else:
+                return None, f'no control decided for the step at {step / NS_PER_S:.0f} s'
+            stamps = [s for s in self._forecasts
+                      if s <= start and (start - s) // self.step_ns < len(self._forecasts[s])]
+            if not stamps:
+                return None, f'no forecast covered the step at {step / NS_PER_S:.0f} s'
+            frame = self._forecasts[max(stamps)]
+            row = frame.iloc[int((start - max(stamps)) // self.step_ns)]
+            missing = [n for n in self.model.input_names if n not in u and n not in row.index]
+            if missing:
+                return None, f'the forecast lacks the model inputs {missing}'
+            rows.append([float(u[n]) if n in u else float(row[n])
+                         for n in self.model.input_names])
+        return pd.DataFrame(rows, columns=list(self.model.input_names),
+                            index=pd.Index([s / NS_PER_S for s in starts], name='time_s')), ''
+
+    @property
+    def estimate(self) -> Estimate | None:
+        """Return the newest state estimate, or None (no estimation, or none yet)."""
+        return None if self.estimator is None else self.estimator.estimate
+
+    @property
+    def measured_states(self) -> tuple[str, ...]:
+        """Return the states taken from measurements (all of them without estimation)."""
+        return (self.estimator.measured if self.estimator is not None
+                else tuple(self.model.state_names))
 
     def offer_named_state(self, stamp_ns: int, state_names: Sequence[str],
                           state_values: Sequence[float], now_ns: int, *,
@@ -306,8 +431,26 @@ class Controller:
 
         The names are checked (:func:`~mshoot_core.safety.check_zone_state`: exactly the
         model's states; applied controls among the controller's), then the state goes to
-        :meth:`offer_state` in the model's order.
+        :meth:`offer_state` in the model's order. With estimation the states must be
+        among the model's and hold the measured ones (the others are ignored); the applied
+        controls enter the prediction over the last step.
         """
+        if self.estimator is not None:
+            measured = self.estimator.measured
+            rejection = (check_named('state', state_names, state_values,
+                                     allowed=self.model.state_names)
+                         or check_zone_state((), (), output_names, output_values,
+                                             control_names, control_values,
+                                             allowed_controls=self.settings.problem.control_names))
+            missing = [n for n in measured if n not in state_names]
+            if rejection is None and missing:
+                rejection = Rejection('names', f'state: the measured states {missing} are '
+                                      f'missing (got {list(state_names)})')
+            if rejection:
+                return self.reject('state', rejection)
+            values = dict(zip(state_names, map(float, state_values)))
+            return self._measure(stamp_ns, {n: values[n] for n in measured}, now_ns,
+                                 dict(zip(control_names, map(float, control_values))))
         rejection = check_zone_state(state_names, state_values, output_names, output_values,
                                      control_names, control_values,
                                      expected_states=self.model.state_names,
@@ -393,6 +536,13 @@ class Controller:
         _trim(self._forecasts)
         return None
 
+    def _std_of(self, step_ns: int) -> np.ndarray | None:
+        """Return the standard deviation of the estimate a step is planned from, or None."""
+        oldest = step_ns - self._state_gate.max_age_ns
+        stamps = [s for s in self._states if oldest <= s < step_ns + self.step_ns]
+        estimate = self._estimates.get(max(stamps)) if stamps else None
+        return None if estimate is None else estimate.std
+
     def _state_for(self, step_ns: int) -> np.ndarray | None:
         oldest = step_ns - self._state_gate.max_age_ns
         stamps = [s for s in self._states if oldest <= s < step_ns + self.step_ns]
@@ -449,8 +599,15 @@ class Controller:
             The steps decided by this call, in order (usually none or one).
 
         """
-        steady_ns = time.monotonic_ns() if steady_ns is None else int(steady_ns)
-        now_ns = int(now_ns)
+        outcomes = self._poll(int(now_ns), time.monotonic_ns() if steady_ns is None
+                              else int(steady_ns))
+        for outcome in outcomes:  # what the building gets: the prediction of the estimate
+            self._decided[outcome.step_ns] = np.asarray(outcome.decision.controls,
+                                                        dtype=float).reshape(-1)
+        _trim(self._decided)
+        return outcomes
+
+    def _poll(self, now_ns: int, steady_ns: int) -> list[StepOutcome]:
         outcomes: list[StepOutcome] = []
         self._collect(outcomes, steady_ns)
         job = self._inflight
@@ -460,7 +617,8 @@ class Controller:
             if elapsed >= budget:  # the solver did not stop at its deadline (e.g. a hung model)
                 job.fallback_given = True
                 outcomes.append(self._fallback(job.step_ns, 'budget', f'time budget exceeded '
-                                               f'({budget:g} s)', elapsed, job.x0))
+                                               f'({budget:g} s)', elapsed, job.x0,
+                                               x0_std=job.x0_std))
         step = (now_ns // self.step_ns) * self.step_ns
         last = self._last_step_ns
         if last is not None and step < last and job is None:
@@ -500,9 +658,28 @@ class Controller:
         window = (frame if offset == 0 and len(frame) == horizon + 1 else
                   forecast_window(frame, int(min(offset, len(frame) - 1)), horizon))
         self._last_step_ns = step
-        self._dispatch(step, state, window, steady_ns)
+        std = self._std_of(step)
+        self._dispatch(step, state, self._with_margin(window, std), steady_ns, std)
         self._collect(outcomes, time.monotonic_ns())
         return outcomes
+
+    def _with_margin(self, window: pd.DataFrame, std: np.ndarray | None) -> pd.DataFrame:
+        """
+        Return the forecast window with the comfort band narrowed for an uncertain state.
+
+        By ``comfort_margin_std`` standard deviations of the estimated zone temperatures (the
+        largest), on each side, at most to the band's middle.
+        """
+        z = self.settings.estimation.comfort_margin_std
+        bounded = [self.model.state_names.index(s) for s in self.mpc.state_bounds]
+        if std is None or z <= 0 or not bounded or not set(COMFORT_SERIES) <= set(window):
+            return window
+        margin = z * float(np.max(std[bounded]))
+        out = window.copy()
+        half = 0.5 * (out['comfort_max'] - out['comfort_min'])
+        out['comfort_min'] = out['comfort_min'] + np.minimum(margin, half)
+        out['comfort_max'] = out['comfort_max'] - np.minimum(margin, half)
+        return out
 
     def _due(self, step: int, now_ns: int, steady_ns: int) -> tuple[float, float]:
         """How long the step has been due: (wall time, clock time) [s]."""
@@ -517,6 +694,10 @@ class Controller:
                        (self._last_step_ns or 0) / NS_PER_S, step / NS_PER_S)
         self._states.clear()
         self._forecasts.clear()
+        self._decided.clear()
+        self._estimates.clear()
+        if self.estimator is not None:
+            self.estimator.reset()
         for gate in (self._state_gate, self._forecast_gate):
             gate.reset()
         self.supervisor.reset()
@@ -524,20 +705,20 @@ class Controller:
         self._last_step_ns = None
 
     def _dispatch(self, step_ns: int, x0: np.ndarray, window: pd.DataFrame,
-                  steady_ns: int) -> None:
+                  steady_ns: int, x0_std: np.ndarray | None = None) -> None:
         budget = self.settings.supervisor.time_budget_s
         deadline = time.perf_counter() + budget if budget > 0 else None
         t_s = step_ns / NS_PER_S
         if self.executor is None:
             future: concurrent.futures.Future = concurrent.futures.Future()
-            self._inflight = _Solve(step_ns, x0.copy(), steady_ns, future)
+            self._inflight = _Solve(step_ns, x0.copy(), steady_ns, future, x0_std=x0_std)
             try:
                 future.set_result(self.mpc.solve(x0, t_s, window, deadline=deadline))
             except Exception as exc:  # noqa: BLE001 - a failed solve is a decision
                 future.set_exception(exc)
             return
         future = self.executor.submit(self.mpc.solve, x0, t_s, window, deadline)
-        self._inflight = _Solve(step_ns, x0.copy(), steady_ns, future)
+        self._inflight = _Solve(step_ns, x0.copy(), steady_ns, future, x0_std=x0_std)
         if self.on_solve_done is not None:
             callback = self.on_solve_done
             future.add_done_callback(lambda _: callback())
@@ -558,7 +739,8 @@ class Controller:
                              step_s, type(exc).__name__, exc)
             else:
                 outcomes.append(self._fallback(job.step_ns, 'solve_failed', f'solve failed: '
-                                               f'{type(exc).__name__}: {exc}', elapsed, job.x0))
+                                               f'{type(exc).__name__}: {exc}', elapsed, job.x0,
+                                               x0_std=job.x0_std))
             return
         self.results[job.step_ns] = result
         _trim(self.results, self.history_length)
@@ -572,17 +754,18 @@ class Controller:
             outcomes.append(self._fallback(job.step_ns, 'budget', f'time budget exceeded '
                                            f'({budget:g} s): solver stopped after '
                                            f'{result.nit} iterations', result.solve_time_s,
-                                           job.x0, result))
+                                           job.x0, result, x0_std=job.x0_std))
             return
         decision = self.supervisor.review(
             step_s, result, accept_unconverged=self.settings.supervisor.on_failure == 'plan')
         outcomes.append(StepOutcome(job.step_ns, decision, result, result.solve_time_s,
-                                    job.x0))
+                                    job.x0, job.x0_std))
 
     def _fallback(self, step_ns: int, code: str, reason: str, waited_s: float,
-                  x0: np.ndarray | None, result: MpcResult | None = None) -> StepOutcome:
+                  x0: np.ndarray | None, result: MpcResult | None = None, *,
+                  x0_std: np.ndarray | None = None) -> StepOutcome:
         decision = self.supervisor.fallback(step_ns / NS_PER_S, code, reason)
-        return StepOutcome(step_ns, decision, result, waited_s, x0)
+        return StepOutcome(step_ns, decision, result, waited_s, x0, x0_std)
 
     def hand_back(self, now_ns: int) -> StepOutcome:
         """

@@ -29,12 +29,14 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 from typing import Sequence
 
 import numpy as np
 import pandas as pd
 
 from mshoot_core.models.base import Model, ModelValueError
+from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.scenario import DISTURBANCE_COLUMNS, validate_scenario
 
 logger = logging.getLogger(__name__)
@@ -56,6 +58,44 @@ class Warmup:
 
     x0: Sequence[float]
     controls: np.ndarray
+
+
+def initial_state(state_names: Sequence[str], temperature_c: float,
+                  overrides: str = '') -> np.ndarray:
+    """
+    Return a zone model's initial state [K]: every state at ``temperature_c``, but those named.
+
+    Parameters
+    ----------
+    state_names : sequence of str
+        The model's states (temperatures in K).
+    temperature_c : float
+        Temperature of every state not overridden [degC].
+    overrides : str
+        Comma-separated ``name=temperature`` [degC], e.g. ``'Tw=18'`` (an envelope 3 K
+        below the air at 21 degC); '' for none.
+
+    Raises
+    ------
+    ValueError
+        On a malformed item, an unknown or repeated state or a non-finite temperature.
+
+    """
+    names = tuple(state_names)
+    x = np.full(len(names), float(temperature_c) + KELVIN)
+    seen = set()
+    for item in (i.strip() for i in overrides.split(',') if i.strip()):
+        name, _, value = (part.strip() for part in item.partition('='))
+        try:
+            temperature = float(value)
+        except ValueError:
+            temperature = math.nan
+        if name not in names or name in seen or not _ or not math.isfinite(temperature):
+            raise ValueError(f"initial states must be 'name=degC' items of the states "
+                             f'{list(names)}, each once, got {item!r}')
+        seen.add(name)
+        x[names.index(name)] = temperature + KELVIN
+    return x
 
 
 def is_plant(model: Model) -> bool:

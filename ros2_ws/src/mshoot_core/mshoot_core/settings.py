@@ -273,10 +273,52 @@ class InputSettings(SettingsGroup):
                                   '[s]', low=0.0, high=86400.0, apply='inputs')
 
 
+#: Ways of getting the state a step is planned from (setting ``estimation``).
+ESTIMATION_MODES = ('auto', 'off', 'ekf')
+
+
+@dataclasses.dataclass(frozen=True)
+class EstimationSettings(SettingsGroup):
+    """How the state a step is planned from comes from the measurements."""
+
+    estimation: str = setting('auto', "'auto': estimate the states when not all are measured "
+                              "(an extended Kalman filter on the model), 'ekf': always filter, "
+                              "'off': every state must be measured and is taken as it is",
+                              choices=ESTIMATION_MODES, apply='fixed')
+    measured_states: str = setting('', "the states a sensor measures, comma-separated ('' = "
+                                   'those the model declares, else all of them)', apply='fixed')
+    measurement_noise_k: float = setting(0.1, 'standard deviation of a measured state, e.g. '
+                                         'the air temperature sensor [K]', low=1e-6, high=100.0,
+                                         apply='inputs')
+    process_noise_k: float = setting(0.05, 'standard deviation of the model error of every '
+                                     'state over one control step [K]', low=0.0, high=100.0,
+                                     apply='inputs')
+    initial_std_k: float = setting(3.0, 'standard deviation of the first estimate of an '
+                                   'unmeasured state [K]', low=1e-6, high=1000.0,
+                                   apply='inputs')
+    comfort_margin_std: float = setting(0.0, 'with an estimated state: the comfort band is '
+                                        'narrowed by this many standard deviations of the '
+                                        'estimated zone temperature, on each side [-]',
+                                        low=0.0, high=10.0, apply='inputs')
+
+    @property
+    def measured(self) -> tuple[str, ...]:
+        """Return the measured states named by ``measured_states`` (empty: the model's)."""
+        return tuple(n.strip() for n in self.measured_states.split(',') if n.strip())
+
+    def rules(self) -> list[str]:
+        names = self.measured
+        bad = [n for n in names if not n.isidentifier()]
+        if bad or len(set(names)) != len(names):
+            return [f'measured_states must be distinct state names separated by commas, got '
+                    f'{self.measured_states!r}']
+        return []
+
+
 #: The groups of :class:`MpcSettings`, by attribute name.
 GROUPS: dict[str, type] = {'problem': ProblemSettings, 'comfort': ComfortSettings,
                            'solver': SolverSettings, 'supervisor': SupervisorSettings,
-                           'inputs': InputSettings}
+                           'inputs': InputSettings, 'estimation': EstimationSettings}
 
 
 def fields_of(group: type) -> tuple[SettingField, ...]:
@@ -309,6 +351,7 @@ class MpcSettings:
     solver: SolverSettings = dataclasses.field(default_factory=SolverSettings)
     supervisor: SupervisorSettings = dataclasses.field(default_factory=SupervisorSettings)
     inputs: InputSettings = dataclasses.field(default_factory=InputSettings)
+    estimation: EstimationSettings = dataclasses.field(default_factory=EstimationSettings)
 
     def __post_init__(self) -> None:
         problems = []

@@ -475,9 +475,10 @@ class ShootingProblem:
         result.nfev += phase1.nfev
         if not phase1.success:
             result.message = f'{result.message} (least-violation phase: {phase1.message})'
+        with np.errstate(invalid='ignore'):  # unbounded states: inf - inf
+            relaxed_by = np.fmax(lower - relaxed_lower, relaxed_upper - upper)
         logger.debug('bounds relaxed by up to %.3g (state units): least-violation phase %s, '
-                     'least-cost phase %s', float(np.max(np.maximum(lower - relaxed_lower,
-                                                                    relaxed_upper - upper))),
+                     'least-cost phase %s', float(np.nanmax(relaxed_by, initial=0.0)),
                      phase1.message, result.message)
         return result
 

@@ -369,13 +369,16 @@ def decision_setpoint_msg(stamp_ns: int, decision: Decision, step_s: float,
 def decision_status_msg(stamp_ns: int, decision: Decision, result: MpcResult | None, *,
                         solve_time_s: float, rejected_states: int = 0,
                         rejected_forecasts: int = 0,
-                        consecutive_fallbacks: int = 0) -> MpcStatus:
+                        consecutive_fallbacks: int = 0,
+                        state: Mapping[str, float] | None = None,
+                        state_std: Sequence[float] | None = None) -> MpcStatus:
     """
     Return the status of a supervisor decision; never a non-finite number.
 
     ``result`` is the step's solve result if there is one (its numbers are
     reported even when it was not used); without one, ``objective`` and
-    ``max_defect`` are -1.
+    ``max_defect`` are -1. ``state`` is the state the step was planned from by
+    name [K], ``state_std`` the standard deviation of an estimated one [K].
     """
     msg = status_msg(stamp_ns, result, fallback=decision.fallback,
                      message=decision.reason, solve_time_s=solve_time_s)
@@ -387,6 +390,11 @@ def decision_status_msg(stamp_ns: int, decision: Decision, result: MpcResult | N
     msg.rejected_states = _int32(rejected_states)
     msg.rejected_forecasts = _int32(rejected_forecasts)
     msg.consecutive_fallbacks = _int32(consecutive_fallbacks)
+    if state is not None and all(np.isfinite(v) for v in state.values()):
+        msg.state_names = [str(name) for name in state]
+        msg.state_values = [float(v) for v in state.values()]
+        if state_std is not None and len(state_std) == len(state):
+            msg.state_std = [_finite(v, -1.0) for v in state_std]
     return msg
 
 

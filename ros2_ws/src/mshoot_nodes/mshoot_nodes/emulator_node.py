@@ -39,7 +39,14 @@ Safety (the rules are in :mod:`mshoot_core.safety`):
 - a model that raises or returns non-finite states ends the run with an
   error; nothing non-finite is ever published;
 - ``start_step`` and ``initial_temperature_c`` restart a run mid-scenario
-  from a given time and state.
+  from a given time and state (``initial_states`` sets single states apart,
+  e.g. the envelope of an R2C2).
+
+Sensors (:class:`mshoot_core.estimation.Sensors`): ``/zone/state`` carries the
+``measured_states`` only (default: all), with seeded Gaussian noise of
+``measurement_noise_k`` (the same per step as the offline loop's
+``run_closed_loop(..., sensors=...)``, re-published heartbeats included); the
+records (``trajectories.csv``) keep the true states.
 
 Lifecycle (:mod:`mshoot_nodes.lifecycle`; ``autostart`` true by default, so a
 plain ``ros2 run`` configures and activates at once): *configure* loads the
@@ -69,8 +76,8 @@ import pathlib
 import sys
 from typing import Any
 
-from mshoot_core.emulation import Emulator, StepRecord
-from mshoot_core.models.r1c1 import KELVIN
+from mshoot_core.emulation import Emulator, initial_state, StepRecord
+from mshoot_core.estimation import Sensors
 from mshoot_core.models.registry import (control_interface, ControlInterface,
                                          EMULATOR_TOLERANCE)
 from mshoot_core.safety import (check_setpoint, check_stamp_fields, Rejection, reorder,
@@ -110,6 +117,15 @@ PARAMS = (
     ParamSpec('initial_temperature_c', 20.0, 'zone temperature at the first step: every '
               'state of the model starts at it (in K) [degC]', low=-50.0, high=80.0,
               read_only=True),
+    ParamSpec('initial_states', '', 'states starting elsewhere than initial_temperature_c, '
+              "comma-separated 'name=degC' (e.g. 'Tw=18': the envelope of model r2c2) [degC]",
+              read_only=True),
+    ParamSpec('measured_states', '', "states published on /zone/state, comma-separated ('' = "
+              'all: the sensors of the building)', read_only=True),
+    ParamSpec('measurement_noise_k', 0.0, 'standard deviation of the Gaussian noise on the '
+              'published states (0 = exact) [K]', low=0.0, high=100.0, read_only=True),
+    ParamSpec('noise_seed', 0, 'seed of the measurement noise (the same per step as the '
+              'offline loop with that seed) [-]', low=0, high=2 ** 31 - 1, read_only=True),
     ParamSpec('start_step', 0, 'scenario step to start at (a restart mid-run, with '
               'initial_temperature_c the state then) [-]', low=0, high=1_000_000,
               read_only=True),
@@ -206,8 +222,9 @@ def build_emulator(p: dict[str, Any]) -> Emulator:
     if start > 0 and saved and pathlib.Path(saved).is_file():
         plant_state = pathlib.Path(saved).read_bytes()  # its time is checked on restore
         logger.info('resuming the plant at step %d from %s', start, saved)
-    return Emulator(model, scenario, [p['initial_temperature_c'] + KELVIN] * len(
-        model.state_names), control_names=controls,
+    return Emulator(model, scenario, initial_state(
+        model.state_names, p['initial_temperature_c'], p.get('initial_states', '')),
+        control_names=controls,
         control_bounds=((p['heat_rate_min_w'], p['heat_rate_max_w']),) * len(controls),
         step_s=p['step_s'], fine_step_s=p['fine_step_s'], start_index=start,
         plant_state=plant_state)
@@ -297,6 +314,9 @@ class EmulatorNode(ManagedNode):
         p = self.params
         self.emulator = build_emulator(p)
         self.interface = control_interface(self.emulator.model)
+        self.sensors = Sensors(self.emulator.model.state_names,
+                               [n.strip() for n in p['measured_states'].split(',') if n.strip()],
+                               p['measurement_noise_k'], p['noise_seed'])
         self.epoch_ns = sources.start_ns(self.emulator.scenario, p['start_time'])
         self._reset_run()
         self._clock_pub = self.create_lifecycle_publisher(ClockMsg, contract.CLOCK,
@@ -467,8 +487,7 @@ class EmulatorNode(ManagedNode):
         controls = ({} if last is None else
                     dict(zip(emulator.control_names, map(float, last.controls))))
         self._state_pub.publish(zone_state_msg(
-            stamp, dict(zip(emulator.model.state_names, map(float, emulator.x))), outputs,
-            controls, zone))
+            stamp, self.sensors.read(emulator.x, emulator.index), outputs, controls, zone))
         self._last_publish_ns = self._steady_ns()
 
     def _heartbeat(self) -> None:

@@ -28,6 +28,13 @@ thread on whole steps, on every input, every 50 ms and when a solve finishes.
 - a step always gets a setpoint; ``fallback``, ``source``,
   ``fallback_reason`` and the reason in ``message`` say where it came from. No
   published number is ever non-finite.
+- a model whose states are not all measured (e.g. ``model:=r2c2``: the
+  envelope temperature is not) gets them estimated by the controller from the
+  measured ones of ``/zone/state`` (settings ``estimation``,
+  ``measured_states``, ``measurement_noise_k``, ...; unmeasured states in the
+  message are ignored); the state every step was planned from and the
+  standard deviation of its estimate are in the status (``state_names``,
+  ``state_values``, ``state_std``) and on /diagnostics;
 - restarted mid-run, the node picks up from the latched forecast and the next
   zone state (the emulator's heartbeat in lockstep) within one step.
 """
@@ -232,7 +239,16 @@ class MpcNode(ManagedNode):
             'last_solve_s': '' if last is None else last.solve_time_s,
             'solving': c.busy,
             'horizon_steps': c.mpc.horizon_steps, 'solver': c.mpc.solver.name,
+            'measured_states': ','.join(c.measured_states),
         }
+        estimate = c.estimate
+        if c.estimator is not None:
+            values_['estimate_updates'] = c.estimator.updates
+            values_['estimate_restarts'] = c.estimator.resets
+            values_['estimate_time'] = '' if estimate is None else f'{estimate.t_s:.0f}'
+            for i, name in enumerate(c.model.state_names):  # [K]
+                values_[f'estimate_{name}'] = '' if estimate is None else float(estimate.x[i])
+                values_[f'std_{name}'] = '' if estimate is None else float(estimate.std[i])
         if last is None:
             return Report(Level.OK, 'waiting for the first step', values_)
         if last.fallback:
@@ -330,7 +346,10 @@ class MpcNode(ManagedNode):
             step_ns, decision, result, solve_time_s=outcome.solve_time_s,
             rejected_states=self.rejections.total('state'),
             rejected_forecasts=self.rejections.total('forecast'),
-            consecutive_fallbacks=self.controller.supervisor.consecutive_fallbacks)
+            consecutive_fallbacks=self.controller.supervisor.consecutive_fallbacks,
+            state=(None if outcome.x0 is None else
+                   dict(zip(self.controller.model.state_names, map(float, outcome.x0)))),
+            state_std=outcome.x0_std)
         self._setpoint_pub.publish(setpoint)
         self._status_pub.publish(status)
         self._last_setpoint = setpoint

@@ -167,7 +167,7 @@ def run_case(scenario: pd.DataFrame, control: Model, emulator_model: Model,
     steps, log_every, progress, budget_s :
         See :func:`mshoot_core.closed_loop.run_closed_loop`.
     x0 : sequence of float, optional
-        Start state of the emulated building (default: ``T`` at ``initial_c``).
+        Start state of the emulated building (default: every state at ``initial_c``).
     actuator_bounds : sequence of (float, float), optional
         The emulated building's limits of every control (default: the MPC's bounds).
 
@@ -188,7 +188,8 @@ def run_case(scenario: pd.DataFrame, control: Model, emulator_model: Model,
     p = settings.problem
     controller = Controller(control, settings)
     emulator = Emulator(emulator_model, scenario,
-                        [initial_c + KELVIN] if x0 is None else list(x0),
+                        [initial_c + KELVIN] * len(emulator_model.state_names) if x0 is None
+                        else list(x0),
                         control_names=p.control_names,
                         control_bounds=p.control_bounds if actuator_bounds is None
                         else actuator_bounds)
@@ -222,7 +223,9 @@ def _case_kpis(result: ClosedLoopResult, settings: MpcSettings) -> dict:
 
 #: Controller settings offered as options of the case command.
 CASE_SETTINGS = ('horizon_steps', 'cost', 'comfort', 'soft_penalty', 'solver', 'mode',
-                 'relaxation', 'solver_max_iter', 'time_budget_s', 'on_failure')
+                 'relaxation', 'solver_max_iter', 'time_budget_s', 'on_failure',
+                 'estimation', 'measured_states', 'measurement_noise_k', 'process_noise_k',
+                 'comfort_margin_std')
 
 
 def option_problems(args: argparse.Namespace,

@@ -19,6 +19,7 @@ the states the MPC shoots over, and the measured outputs::
       occ: {variable: occ}
     states:
       T: {variable: cair.T, unit: K}
+      # Tw: {variable: wall.T, unit: K, measured: false}  # estimated by the controller
     outputs:
       T: {variable: T, unit: degC}
 
@@ -31,7 +32,11 @@ once in one :class:`CardError` naming the card, with the model's valid names
 an :class:`~mshoot_core.models.fmi.FmiModel` with the name mapping, the
 parameters, the overwrite switches held at 1 and, where a unit differs from
 the canonical one, the conversion at its boundary
-(:class:`CardFmiModel`); or the exact Python R1C1.
+(:class:`CardFmiModel`); or the exact Python R1C1 or R2C2 (``builtin: r1c1``, ``r2c2``).
+
+A state no sensor measures says ``measured: false``: the model's
+``measured_states`` leave it out and a controller estimates it
+(:mod:`mshoot_core.estimation`).
 
 Canonical units (what the applications see): states in SI (temperatures in
 K, power W, energy J); inputs and outputs in the scenario's conventions
@@ -77,7 +82,9 @@ SCHEMA_PATH = pathlib.Path(__file__).resolve().parents[1] / 'schema' / 'model_ca
 #: Exchange), ``r1c1_fmu_cs.yaml`` (Co-Simulation).
 CARDS_DIR = pathlib.Path(__file__).resolve().parents[1] / 'cards'
 #: The built-in model sources of ``builtin:``.
-BUILTIN_SOURCES = ('r1c1', 'r1c1-fmu')
+BUILTIN_SOURCES = ('r1c1', 'r1c1-fmu', 'r2c2')
+#: The built-in Python models of ``builtin:``: name -> label.
+PYTHON_SOURCES = {'r1c1': 'the Python R1C1', 'r2c2': 'the Python R2C2'}
 #: Card ``fmi_type`` -> FMI interface name (``auto`` resolves to one of them).
 FMI_TYPES = {'model-exchange': 'ModelExchange', 'co-simulation': 'CoSimulation'}
 #: Roles a card's model is built for.
@@ -154,6 +161,9 @@ class CardVariable:
         ``state``, ...; set by :func:`load_card`).
     model_start : float or None
         The model's own start value of the variable, in the canonical unit.
+    measured : bool
+        For a state: whether a sensor measures it (default true); the
+        controller estimates the others.
 
     """
 
@@ -166,6 +176,7 @@ class CardVariable:
     canonical_unit: str = ''
     causality: str = ''
     model_start: float | None = None
+    measured: bool = True
 
     def conversion(self) -> tuple[float, float]:
         """``(scale, offset)`` with model value = scale * canonical value + offset."""
@@ -242,6 +253,11 @@ class ModelCard:
     @property
     def output_names(self) -> tuple[str, ...]:
         return tuple(self.outputs)
+
+    @property
+    def measured_states(self) -> tuple[str, ...]:
+        """Return the states a sensor measures (those without ``measured: false``)."""
+        return tuple(name for name, v in self.states.items() if v.measured)
 
     def control_bounds(self, default: tuple[float, float]) -> tuple[tuple[float, float], ...]:
         """(min, max) of every control [canonical unit], ``default`` where the card has none."""
@@ -406,18 +422,23 @@ def _fmu_catalogue(label: str, md: Any, interface: str) -> _Catalogue:
     return _Catalogue(label, inputs, states, outputs, switches, parameters, state_kind)
 
 
-def _python_catalogue() -> _Catalogue:
+def _python_catalogue(builtin: str = 'r1c1') -> _Catalogue:
     from mshoot_core.models.r1c1 import R1C1Parameters
+    from mshoot_core.models.r2c2 import R2C2Parameters
+    label = PYTHON_SOURCES[builtin]
     inputs = [ModelVariable('solrad', 'input', unit='W/m2'),
               ModelVariable('Tout', 'input', unit='degC'),
               ModelVariable('occ', 'input', unit='1'), ModelVariable('dpos', 'input', unit='%'),
               ModelVariable('q', 'input', unit='W')]
-    parameters = [ModelVariable(f.name, 'parameter', start=f.default)
-                  for f in dataclasses.fields(R1C1Parameters)]
-    return _Catalogue('the Python R1C1', inputs, [ModelVariable('T', 'state', unit='K')],
+    fields = dataclasses.fields(R1C1Parameters if builtin == 'r1c1' else R2C2Parameters)
+    parameters = [ModelVariable(f.name, 'parameter', start=f.default) for f in fields]
+    states = [ModelVariable('T', 'state', unit='K')]
+    if builtin == 'r2c2':
+        states.append(ModelVariable('Tw', 'state', unit='K'))
+    return _Catalogue(label, inputs, states,
                       [ModelVariable('T', 'output', unit='degC'),
                        ModelVariable('Qr', 'output', unit='J')], [], parameters,
-                      'states of the Python R1C1', python=True)
+                      f'states of {label}', python=True)
 
 
 def _listing(variables: Sequence[ModelVariable], wanted: str = '') -> str:
@@ -516,7 +537,8 @@ def schema_problems(document: Any) -> list[str]:
 
 #: The keys of a variable entry, by section (as in the schema).
 ENTRY_KEYS = {'controls': ('variable', 'unit', 'min', 'max', 'activate'),
-              'disturbances': ('variable', 'unit'), 'states': ('variable', 'unit', 'start'),
+              'disturbances': ('variable', 'unit'),
+              'states': ('variable', 'unit', 'start', 'measured'),
               'outputs': ('variable', 'unit')}
 
 
@@ -618,11 +640,11 @@ def _catalogue(path: pathlib.Path, document: dict, fmi_type: Any,
     builtin, fmu_name = document.get('builtin'), document.get('fmu')
     if (builtin is None) == (fmu_name is None) or fmi_type not in ('auto', *FMI_TYPES):
         return None, None, None
-    if builtin == 'r1c1':
+    if builtin in PYTHON_SOURCES:
         if fmu_name is None and 'fmi_type' in document and fmi_type != 'auto':
-            problems.append('fmi_type: the Python R1C1 (builtin: r1c1) is not an FMU; leave '
-                            'fmi_type out')
-        return _python_catalogue(), None, None
+            problems.append(f'fmi_type: {PYTHON_SOURCES[builtin]} (builtin: {builtin}) is not '
+                            'an FMU; leave fmi_type out')
+        return _python_catalogue(builtin), None, None
     if builtin == 'r1c1-fmu':
         from mshoot_core.fmu_cache import find_fmu
         try:
@@ -685,8 +707,8 @@ def _check_variables(catalogue: _Catalogue, sections: dict[str, dict[str, dict]]
                 mine.append(f'{where}: {variable!r} is not {what} of {catalogue.label}; '
                             f'valid: {_listing(choices, variable)}')
             elif catalogue.python and variable != name:
-                mine.append(f'{where}: the Python R1C1 keeps its own names: use {variable!r} as '
-                            'the canonical name too')
+                mine.append(f'{where}: {catalogue.label} keeps its own names: use {variable!r} '
+                            'as the canonical name too')
             unit = spec.get('unit')
             if found is not None and unit is None:
                 unit = found.unit
@@ -700,7 +722,7 @@ def _check_variables(catalogue: _Catalogue, sections: dict[str, dict[str, dict]]
             elif problem:
                 pass
             elif catalogue.python and not _same_unit(canonical, unit or ''):
-                mine.append(f'{where}: the Python R1C1 has no unit conversion')
+                mine.append(f'{where}: {catalogue.label} has no unit conversion')
             low, high = spec.get('min'), spec.get('max')
             if low is not None and high is not None and not low <= high:
                 mine.append(f'{where}: min {low} must be <= max {high}')
@@ -712,7 +734,8 @@ def _check_variables(catalogue: _Catalogue, sections: dict[str, dict[str, dict]]
             resolved[name] = CardVariable(
                 variable=variable, unit=unit, min=low, max=high,
                 activate=spec.get('activate'), start=spec.get('start'),
-                canonical_unit=canonical, causality=found.causality, model_start=model_start)
+                canonical_unit=canonical, causality=found.causality, model_start=model_start,
+                measured=bool(spec.get('measured', True)))
         out[section] = resolved
     _check_unique(out, problems)
     _check_switches(catalogue, sections, problems)
@@ -721,7 +744,7 @@ def _check_variables(catalogue: _Catalogue, sections: dict[str, dict[str, dict]]
                   for name, spec in sections[s].items()}
         missing = [v.name for v in catalogue.inputs if v.name not in mapped]
         if missing:
-            problems.append(f'the Python R1C1 needs every input mapped: missing {missing} (as '
+            problems.append(f'{catalogue.label} needs every input mapped: missing {missing} (as '
                             'controls or disturbances)')
     return out
 
@@ -752,7 +775,7 @@ def _check_switches(catalogue: _Catalogue, sections: dict[str, dict[str, dict]],
             continue
         where = f'controls.{name}.activate'
         if catalogue.python:
-            problems.append(f'{where}: the Python R1C1 has no overwrite switches')
+            problems.append(f'{where}: {catalogue.label} has no overwrite switches')
         elif switch not in switches:
             problems.append(f'{where}: {switch!r} is not an input of {catalogue.label}; '
                             f'valid: {_listing(catalogue.switches, switch)}')
@@ -787,7 +810,7 @@ def _parameter_problems(catalogue: _Catalogue, parameters: Mapping[str, Any]) ->
 # -- building the model -----------------------------------------------------------------------
 def builtin_card(name: str) -> pathlib.Path:
     """
-    Path of a built-in card: 'r1c1', 'r1c1_fmu' or 'r1c1_fmu_cs'.
+    Path of a built-in card: 'r1c1', 'r1c1_fmu', 'r1c1_fmu_cs' or 'r2c2'.
 
     Raises
     ------
@@ -888,6 +911,9 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
     if card.builtin == 'r1c1':
         from mshoot_core.models.r1c1 import R1C1Model, R1C1Parameters
         return R1C1Model(R1C1Parameters(**card.parameters))
+    if card.builtin == 'r2c2':
+        from mshoot_core.models.r2c2 import R2C2Model, R2C2Parameters
+        return R2C2Model(R2C2Parameters(**card.parameters), card.measured_states)
     options: dict[str, Any] = {}
     if 'time_origin_s' in inspect.signature(FmiModel).parameters:
         options['time_origin_s'] = float(time_origin_s)
@@ -909,6 +935,7 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
     # its zone air temperatures (T, T_<zone>) as the states the comfort band bounds.
     model.control_names = tuple(card.control_names)
     model.comfort_states = tuple(n for n in card.state_names if n == 'T' or n.startswith('T_'))
+    model.measured_states = card.measured_states  # the others are estimated
     logger.debug('built %r from %s for the %s', model, card.path, role)
     return model
 

@@ -5,6 +5,8 @@ The case command, the study, the benchmarks and the ROS nodes build their
 models here, by name:
 
 - ``'python'``: the exact R1C1 (:class:`~mshoot_core.models.r1c1.R1C1Model`);
+- ``'r2c2'``: the exact two-node R2C2 (:class:`~mshoot_core.models.r2c2.R2C2Model`: air
+  ``T`` and envelope ``Tw`` [K], the R1C1's inputs; only ``T`` measured);
 - ``'fmu'``: the built-in R1C1 FMU as Model Exchange (integrated at the given
   relative tolerance); ``'fmu-cs'``: the same FMU as Co-Simulation;
 - a path ending in ``.fmu``: an FMU with the R1C1 zone's variables (inputs
@@ -50,7 +52,7 @@ CONTROL_TOLERANCE = 1e-6
 #: Relative tolerance of an FMU integrator for an emulated building [-].
 EMULATOR_TOLERANCE = 1e-10
 #: The built-in single-zone models.
-BUILTIN = ('python', 'fmu', 'fmu-cs')
+BUILTIN = ('python', 'fmu', 'fmu-cs', 'r2c2')
 #: The built-in multi-zone models: name -> number of independent R1C1 zones.
 MULTIZONE = {'r1c1x2': 2}
 #: Offset of a zone temperature state [K] over the comfort band [degC].
@@ -143,6 +145,9 @@ def build_model(name: str, tolerance: float = CONTROL_TOLERANCE,
     if name == 'python':
         from mshoot_core.models.r1c1 import R1C1Model
         return R1C1Model()
+    if name == 'r2c2':
+        from mshoot_core.models.r2c2 import R2C2Model
+        return R2C2Model()
     if name in MULTIZONE:
         from mshoot_core.models.multizone import MultiZoneModel
         return MultiZoneModel(MULTIZONE[name], seed=0)
@@ -237,7 +242,8 @@ class ModelSettings(SettingsGroup):
     """Which model, and how it is integrated."""
 
     model: str = setting('python', "zone model: 'python' (exact R1C1), 'fmu' (the R1C1 FMU, "
-                         "Model Exchange), 'fmu-cs' (Co-Simulation), 'r1c1x2' (two R1C1 "
+                         "Model Exchange), 'fmu-cs' (Co-Simulation), 'r2c2' (exact air + "
+                         "envelope R2C2, only the air measured), 'r1c1x2' (two R1C1 "
                          'zones, controls q_0, q_1), a path to an .fmu with the R1C1 zone '
                          'interface, or a path to a model card (.yaml)', apply='fixed')
     fmu_tolerance: float = setting(CONTROL_TOLERANCE, 'relative tolerance of the FMU '
