@@ -11,6 +11,8 @@ Stable API (other modules build on it)::
         plant.time_s, plant.outputs               # now, and the outputs now (dict)
         table = plant.records()                   # DataFrame: 'time' [s] + RECORDED + overwrites
     heat_pump_starts(table, start_s, end_s)       # -> (count, per day)
+    run = run_period(case, 'peak_heat_day', controller=None)   # baseline; PeriodRun
+    run = run_period(case, 'peak_heat_day', lambda t_s, outputs: {'oveTSet_u': 294.15})
 
 FMU time is seconds from 1 January (the clock of the test case's data). :meth:`advance` steps
 ``fmi2DoStep`` every ``sample_s`` (default 60 s, at most 60 s: BOPTEST's KPIs need a fine grid)
@@ -33,7 +35,8 @@ import dataclasses
 import logging
 import math
 import threading
-from typing import Mapping, Sequence
+import time
+from typing import Callable, Mapping, Optional, Sequence
 
 import numpy as np
 import pandas as pd
@@ -426,3 +429,83 @@ def heat_pump_starts(records: pd.DataFrame, start_s: float | None = None,
     inside = (times > t0 + _EPS_S) & (times <= t1 + _EPS_S)
     count = int(np.count_nonzero(rising & inside))
     return count, count / ((t1 - t0) / 86400.0)
+
+
+#: A controller of :func:`run_period`: (time [s], outputs now) -> overwrites over the next
+#: control step (None: the building's own control).
+Controller = Callable[[float, Mapping[str, float]], Optional[Mapping[str, float]]]
+
+
+@dataclasses.dataclass
+class PeriodRun:
+    """
+    One run of :func:`run_period`.
+
+    Attributes
+    ----------
+    records : pd.DataFrame
+        The whole record table, warm-up included (:meth:`BoptestPlant.records`).
+    warmup_start_s, start_s, end_s : float
+        The period [s from 1 January].
+    step_wall_s : list of float
+        The controller's wall time at each control step of the test period [s].
+    wall_s : float
+        Wall time of the whole run [s].
+
+    """
+
+    records: pd.DataFrame
+    warmup_start_s: float
+    start_s: float
+    end_s: float
+    step_wall_s: list[float]
+    wall_s: float
+
+
+def run_period(case: TestCase, period: str, controller: Controller | None = None,
+               warmup_days: float = 7.0, length_days: float = 14.0,
+               control_step_s: float | None = None,
+               sample_s: float = MAX_SAMPLE_S) -> PeriodRun:
+    """
+    Run a test period in this process: warm-up under baseline control, then ``controller``.
+
+    Parameters
+    ----------
+    case : TestCase
+        The test case.
+    period : str
+        A test period (:meth:`TestCase.test_period`).
+    controller : callable, optional
+        ``controller(t_s, outputs) -> overwrites`` called at every control step of the test
+        period (see :data:`Controller`); None: the baseline (no overwrite).
+    warmup_days, length_days : float
+        Warm-up and test period lengths [days] (BOPTEST: 7 and 14).
+    control_step_s : float, optional
+        Control step [s]; default the test case's (3600 s).
+    sample_s : float
+        Record step [s], <= 60.
+
+    Returns
+    -------
+    PeriodRun
+
+    """
+    warmup_start, start, end = case.test_period(period, warmup_days, length_days)
+    step = case.control_step_s if control_step_s is None else float(control_step_s)
+    if not step > 0:
+        raise ValueError(f'expected a positive control step, got {control_step_s!r}')
+    walls: list[float] = []
+    began = time.perf_counter()
+    with BoptestPlant(case) as plant:
+        plant.start(warmup_start)
+        plant.advance(start, sample_s=sample_s)
+        k = 0
+        while plant.time_s < end - _EPS_S:
+            t_next = min(start + (k + 1) * step, end)
+            tic = time.perf_counter()
+            overwrites = controller(plant.time_s, plant.outputs) if controller else None
+            walls.append(time.perf_counter() - tic)
+            plant.advance(t_next, overwrites, sample_s=sample_s)
+            k += 1
+        records = plant.records()
+    return PeriodRun(records, warmup_start, start, end, walls, time.perf_counter() - began)
