@@ -231,20 +231,7 @@ class TestCase:
     # -- data ----------------------------------------------------------------------------------
     @functools.cached_property
     def _resources(self) -> dict[str, pd.DataFrame]:
-        frames = {}
-        for file in RESOURCE_FILES:
-            path = self.directory / 'Resources' / file
-            if not path.is_file():
-                raise FileNotFoundError(f'BOPTEST resource missing: {path}')
-            frame = pd.read_csv(path)
-            if 'time' not in frame.columns:
-                raise ValueError(f'{path}: no "time" column')
-            times = frame['time'].to_numpy(dtype=float)
-            if times.size == 0 or np.any(np.diff(times) <= 0):
-                raise ValueError(f'{path}: "time" must increase strictly')
-            frames[file] = frame.set_index('time')
-            frames[file].index = times
-        return frames
+        return _read_resources(str(self.directory))
 
     @functools.cached_property
     def _column_file(self) -> dict[str, str]:
@@ -323,6 +310,25 @@ class TestCase:
             raise ValueError(f'unknown price scenario {scenario!r}: expected one of '
                              f'{list(PRICE_SCENARIOS)}')
         return PRICE_SCENARIOS[scenario]
+
+
+@functools.lru_cache(maxsize=4)
+def _read_resources(directory: str) -> dict[str, pd.DataFrame]:
+    """Read the resource CSVs of a test case once per process (they are read-only)."""
+    frames = {}
+    for file in RESOURCE_FILES:
+        path = pathlib.Path(directory) / 'Resources' / file
+        if not path.is_file():
+            raise FileNotFoundError(f'BOPTEST resource missing: {path}')
+        frame = pd.read_csv(path)
+        if 'time' not in frame.columns:
+            raise ValueError(f'{path}: no "time" column')
+        times = frame['time'].to_numpy(dtype=float)
+        if times.size == 0 or np.any(np.diff(times) <= 0):
+            raise ValueError(f'{path}: "time" must increase strictly')
+        frames[file] = frame.set_index('time')
+        frames[file].index = times
+    return frames
 
 
 # -- the libgfortran.so.4 stand-in ------------------------------------------------------------
