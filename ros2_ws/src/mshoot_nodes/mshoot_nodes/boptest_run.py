@@ -318,6 +318,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help='write <docs>/boptest.md and <docs>/boptest/*.png')
     parser.add_argument('--timeout', type=float, default=3600.0,
                         help='wall-clock limit of one ROS run [s]')
+    parser.add_argument('--docs-only', action='store_true',
+                        help='only write the docs again from <out>/kpis.json and runs.json')
     return parser
 
 
@@ -387,8 +389,36 @@ def run_benchmark(args: argparse.Namespace, context: Context,
 PUBLISHED_BASELINE = {'peak_heat_day': {'tdis_tot': 8.4, 'ener_tot': 3.48}}
 
 
+def _tuning_lines(tunings: dict, periods: Sequence[str]) -> list[str]:
+    """Return the rule's tuning grids (tdis [K h] / cost [EUR/m2], constant price) as tables."""
+    lines = ["## The rule's tuning grids", '',
+             'Each cell: `tdis_tot` [K h] / `cost_tot` [EUR/m2] at the constant price, one full '
+             'run of the period in core; **bold** the chosen point (constant price).', '']
+    for period in periods:
+        entry = tunings.get(period)
+        if entry is None:
+            continue
+        grid = pd.DataFrame(entry['grid'])
+        grid = grid[grid['price'] == 'constant']
+        best = entry['best'].get('constant', {})
+        margins = sorted(grid['margin_k'].unique())
+        lines += [f'{period} (tuning: {entry["wall_s"] / 60:.1f} min wall):', '',
+                  '| lead [h] | ' + ' | '.join(f'margin {m:g} K' for m in margins) + ' |',
+                  '|---|' + '---|' * len(margins)]
+        for lead, rows in grid.groupby('lead_h'):
+            cells = []
+            for margin in margins:
+                row = rows[rows['margin_k'] == margin].iloc[0]
+                text = f'{row["tdis_tot"]:.2f} / {row["cost_tot"]:.3f}'
+                chosen = (lead, margin) == (best.get('lead_h'), best.get('margin_k'))
+                cells.append(f'**{text}**' if chosen else text)
+            lines.append(f'| {lead:g} | ' + ' | '.join(cells) + ' |')
+        lines.append('')
+    return lines
+
+
 def write_docs(args: argparse.Namespace, records: list[dict], runs: list[dict],
-               wall_s: float) -> pathlib.Path:
+               wall_s: float | None) -> pathlib.Path:
     """Write ``<docs>/boptest.md`` and its figures from the benchmark's records and runs."""
     from mshoot_core.boptest.report import kpi_table, plot_kpi_bars, plot_run
     case = TestCase.load(args.test_case or None)
@@ -408,9 +438,10 @@ def write_docs(args: argparse.Namespace, records: list[dict], runs: list[dict],
              '(emulator with one persistent FMU instance and a `boptest` model card, '
              'forecaster, controller node) in lockstep, in one process; KPIs from the '
              "emulator's outputs sampled every 60 s (`mshoot_core.boptest.kpis`).", '',
-             f'Run time of this benchmark: {wall_s / 60:.1f} min wall on this machine '
-             "(2 cores shared with other work), the rule's tuning included when it was not "
-             'cached.', '',
+             (f'Run time of this benchmark: {wall_s / 60:.1f} min wall on this machine '
+              "(2 cores shared with other work), the rule's tuning included when it was not "
+              'cached.' if wall_s is not None else
+              "Run time: see the runs' wall times below."), '',
              '## Controllers', '',
              "- `baseline`: the building's own controller (no overwrite: the card maps the "
              'setpoint without its `oveTSet_activate` switch).',
@@ -444,6 +475,9 @@ def write_docs(args: argparse.Namespace, records: list[dict], runs: list[dict],
                          f'{pub.get("tdis_tot", "-")} | {record["ener_tot"]:.3f} | '
                          f'{pub.get("ener_tot", "-")} |')
         lines.append('')
+    tuning_file = args.out / 'rule_tuning.json'
+    if tuning_file.is_file() and any(r['controller'] == 'rule' for r in records):
+        lines += _tuning_lines(json.loads(tuning_file.read_text()), args.periods)
     bars = plot_kpi_bars(records, figures / 'kpi_bars.png')
     lines += ['## Figures', '', f'![KPI bars](boptest/{bars.name})', '']
     for run in runs:
@@ -472,6 +506,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     def say(line: str) -> None:
         print(f'[boptest {time.perf_counter() - began:6.0f} s] {line}', flush=True)
 
+    if args.docs_only:
+        if args.docs is None:
+            print('boptest: error: --docs-only needs --docs', file=sys.stderr)
+            return 2
+        records = json.loads((args.out / 'kpis.json').read_text())
+        runs = json.loads((args.out / 'runs.json').read_text())
+        timing = args.out / 'run_time.json'
+        wall = json.loads(timing.read_text())['wall_s'] if timing.is_file() else None
+        say(f'wrote {write_docs(args, records, runs, wall)}')
+        return 0
     context = Context()
     rclpy.init(args=['--ros-args', '--log-level', 'warn'], context=context)
     try:
@@ -487,6 +531,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / 'kpis.json').write_text(json.dumps(records, indent=1) + '\n')
     (args.out / 'runs.json').write_text(json.dumps(runs, indent=1) + '\n')
+    (args.out / 'run_time.json').write_text(json.dumps(
+        {'wall_s': time.perf_counter() - began}) + '\n')
     say(f'wrote {args.out / "kpis.json"} ({len(records)} records)')
     if args.docs is not None:
         path = write_docs(args, records, runs, time.perf_counter() - began)
