@@ -438,6 +438,12 @@ def write_docs(args: argparse.Namespace, records: list[dict], runs: list[dict],
              '(emulator with one persistent FMU instance and a `boptest` model card, '
              'forecaster, controller node) in lockstep, in one process; KPIs from the '
              "emulator's outputs sampled every 60 s (`mshoot_core.boptest.kpis`).", '',
+             "Checked by the tests: the KPIs computed by mshoot equal the README's definitions "
+             'written out independently (raw CSVs, pandas, explicit sums) on the same stored '
+             'outputs of a real baseline run, to 1e-9 '
+             '(`tests/test_boptest_kpis.py::test_short_baseline_kpis_by_hand`); a ROS run '
+             '(baseline, rule) equals the core run of the same controller to 1e-9 '
+             '(`tests/test_boptest_ros.py`).', '',
              (f'Run time of this benchmark: {wall_s / 60:.1f} min wall on this machine '
               "(2 cores shared with other work), the rule's tuning included when it was not "
               'cached.' if wall_s is not None else

@@ -129,7 +129,8 @@ def plot_kpi_bars(records: Sequence[Mapping[str, object]], path: pathlib.Path,
             rows = frame[frame['controller'] == controller].set_index(['period', 'price'])
             values = [float(rows.loc[g, key]) if g in rows.index else np.nan for g in groups]
             ax.bar(x + (k - (len(present) - 1) / 2) * width, values, width, label=controller)
-        ax.set_xticks(x, [f'{p.replace("_heat_day", "")}\n{q}' for p, q in groups], fontsize=7)
+        ax.set_xticks(x, [f'{p.replace("_heat_day", "")}\n{q.replace("_", " ")}'
+                          for p, q in groups], fontsize=7)
         ax.set_title(label, fontsize=10)
     axes[0].legend(fontsize=8)
     fig.tight_layout()
