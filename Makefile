@@ -57,3 +57,12 @@ SOAK_ARGS ?=
 soak: setup  ## soak: SOAK_DAYS (30) simulated days over ROS 2 with seeded random faults -> out/soak/
 	@$(RUN) cd $(ROOT) && python bench/soak.py --days $(SOAK_DAYS) --seed $(SOAK_SEED) \
 		--out out/soak $(SOAK_ARGS)
+
+# -- BOPTEST (issue 15): baseline, tuned rule and mshoot on bestest_hydronic_heat_pump ---------
+BOPTEST_OUT ?= out/boptest
+BOPTEST_ARGS ?=
+
+.PHONY: boptest
+boptest: setup  ## BOPTEST: baseline, rule (tuned) and mshoot over ROS 2, 2 periods x 3 prices -> out/boptest/kpis.json, docs/boptest.md
+	@$(RUN) cd $(ROOT) && python -m mshoot_nodes.boptest_run --out $(BOPTEST_OUT) --docs docs \
+		$(BOPTEST_ARGS)

@@ -408,7 +408,7 @@ def test_card_problems_without_a_model(tmp_path):
     with pytest.raises(CardError) as caught:
         load_card(path)
     problems = caught.value.problems
-    for text in ("give only one of 'fmu' (path of an FMU, relative to the card) or 'builtin'",
+    for text in ("give only one of 'fmu' (path of an FMU, relative to the card), 'builtin'",
                  "fmi_type must be one of ['auto', 'model-exchange', 'co-simulation'], got "
                  "'model exchange'", 'tolerance: 2.0 is greater than or equal to the maximum',
                  'controls: needs at least one entry', "states: name '1T' must be an identifier",
@@ -507,7 +507,8 @@ def test_schema_and_builtin_cards_ship_with_the_package():
     setup_py = (pathlib.Path(cards.__file__).resolve().parents[2] / 'setup.py').read_text()
     assert "'cards/*.yaml'" in setup_py and "'schema/*.json'" in setup_py
     assert sorted(p.name for p in cards.CARDS_DIR.glob('*.yaml')) == [
-        'r1c1.yaml', 'r1c1_fmu.yaml', 'r1c1_fmu_cs.yaml', 'r2c2.yaml']
+        'boptest_baseline.yaml', 'boptest_tset.yaml', 'r1c1.yaml', 'r1c1_fmu.yaml',
+        'r1c1_fmu_cs.yaml', 'r2c2.yaml']
 
 
 def test_readme_cards_follow_the_schema():

@@ -78,6 +78,7 @@ from typing import Any
 
 from mshoot_core.emulation import Emulator, initial_state, StepRecord
 from mshoot_core.estimation import Sensors
+from mshoot_core.models.card import time_origin_seconds
 from mshoot_core.models.registry import (control_interface, ControlInterface,
                                          EMULATOR_TOLERANCE)
 from mshoot_core.safety import (check_setpoint, check_stamp_fields, Rejection, reorder,
@@ -100,10 +101,12 @@ from mshoot_nodes.validation import RejectionLog
 logger = logging.getLogger(__name__)
 PARAMS = (
     ParamSpec('scenario', 'synthetic', "the scenario: 'synthetic' (built in, no files), 'ou44' "
-              '(the OU44 classroom data, see data) or a path to a CSV in the OU44 format',
+              "(the OU44 classroom data, see data), 'boptest:<period>[:<price>]' (a BOPTEST "
+              'test period, with a boptest model card) or a path to a CSV in the OU44 format',
               read_only=True),
-    ParamSpec('data', '', "path of the OU44 measurements.csv for scenario 'ou44' "
-              "('' = the default shared data folder)", read_only=True),
+    ParamSpec('data', '', "path of the OU44 measurements.csv for scenario 'ou44', of the "
+              "test case folder for a BOPTEST scenario ('' = the default shared data folder)",
+              read_only=True),
     ParamSpec('hours', 72, 'number of control steps to simulate [-]', low=1, high=1_000_000,
               read_only=True),
     ParamSpec('start_time', '', 'ROS time of the first scenario row, ISO date-time read as UTC '
@@ -215,7 +218,13 @@ def build_emulator(p: dict[str, Any]) -> Emulator:
     """
     scenario = sources.load_scenario(p['scenario'], p['data'], p['hours'])
     model = sources.build_model(p['model'], p['fmu_tolerance'], role='emulator')
+    card = getattr(model, 'card', None)  # a plant built from a card (a BOPTEST test case)
+    if card is not None:
+        model.time_origin_s = time_origin_seconds(card, scenario.attrs.get('start'))
     controls = control_interface(model).control_names
+    limits = getattr(model, 'control_limits', None)  # the card's limits, where it has them
+    bounds = (tuple(limits) if limits is not None
+              else ((p['heat_rate_min_w'], p['heat_rate_max_w']),) * len(controls))
     start = p.get('start_step', 0)
     saved = p.get('plant_state_file', '')
     plant_state = None
@@ -224,8 +233,7 @@ def build_emulator(p: dict[str, Any]) -> Emulator:
         logger.info('resuming the plant at step %d from %s', start, saved)
     return Emulator(model, scenario, initial_state(
         model.state_names, p['initial_temperature_c'], p.get('initial_states', '')),
-        control_names=controls,
-        control_bounds=((p['heat_rate_min_w'], p['heat_rate_max_w']),) * len(controls),
+        control_names=controls, control_bounds=bounds,
         step_s=p['step_s'], fine_step_s=p['fine_step_s'], start_index=start,
         plant_state=plant_state)
 
@@ -259,6 +267,9 @@ class EmulatorNode(ManagedNode):
         Times a step was published again because its setpoint had not come.
     lockstep_timeouts : int
         Steps that went on without their setpoint (on_lockstep_timeout 'hold').
+    setpoint_waits_s : list of float
+        Lockstep: wall time from the start of each step (its publication) to its accepted
+        setpoint [s]: the controller's time between two advances (BOPTEST's ``time_rat``).
     gate : ReadinessGate or None
         The start gate while it waits.
     diagnostics : DiagnosticsPublisher
@@ -297,6 +308,7 @@ class EmulatorNode(ManagedNode):
         self.applied_sources: list[str] = []
         self.lockstep_waits = 0
         self.lockstep_timeouts = 0
+        self.setpoint_waits_s: list[float] = []
         self._reported_rejections = 0
         self._hold = SetpointHold(self._safe_controls(), p['hold_s'])
         self._setpoint_gate = StampGate(self.step_ns, max_age_ns=(
@@ -328,9 +340,9 @@ class EmulatorNode(ManagedNode):
         self.get_logger().info(
             f"{p['scenario']} scenario, {p['hours']} steps of {p['step_s']:.0f} s from "
             f"{pd.Timestamp(self.epoch_ns, tz='UTC').isoformat()}, model {p['model']}, "
-            f"{p['mode']} mode; T0 = {p['initial_temperature_c']:.2f} degC, controls "
-            f"{list(self.emulator.control_names)} within [{p['heat_rate_min_w']:.0f}, "
-            f"{p['heat_rate_max_w']:.0f}] W")
+            f"{p['mode']} mode; T0 = {p['initial_temperature_c']:.2f} degC, controls: "
+            + ', '.join(f'{name} within [{low:g}, {high:g}]' for name, (low, high) in zip(
+                self.emulator.control_names, self.emulator.control_bounds)))
 
     def activate(self) -> None:
         """Take setpoints; open the start gate, or resume a paused run."""
@@ -560,6 +572,7 @@ class EmulatorNode(ManagedNode):
         applied = reorder(msg.control_names, msg.control_values, controls)
         self._hold.offer(self._scenario_s(stamp), applied)
         if lockstep:
+            self.setpoint_waits_s.append((self._steady_ns() - self._step_started_ns) / NS_PER_S)
             self._advance(applied, 'setpoint')
 
     def _reject(self, stamp_ns: int, rejection: Rejection) -> None:
@@ -699,10 +712,13 @@ class EmulatorNode(ManagedNode):
                 for name in self.interface.temperature_names}
 
     def write_outputs(self, out: pathlib.Path) -> None:
-        """Write trajectories.csv, applied.csv and run.json to ``out``."""
+        """Write trajectories.csv, applied.csv, run.json (and boptest_records.csv) to ``out``."""
         out.mkdir(parents=True, exist_ok=True)
         self.fine_frame().to_csv(out / 'trajectories.csv', index_label='time_s')
         self.applied_frame().to_csv(out / 'applied.csv', index_label='time_s')
+        boptest_records = getattr(self.emulator.model, 'boptest_records', None)
+        if boptest_records is not None:  # a BOPTEST plant: its 60 s outputs, for the KPIs
+            boptest_records().to_csv(out / 'boptest_records.csv', index=False)
         keys = ('scenario', 'data', 'hours', 'model', 'mode', 'initial_temperature_c', 'step_s')
         run = {key: self.params[key] for key in keys}
         run.update(epoch_ns=self.epoch_ns, steps=self.steps_done, wall_s=self.wall_s,

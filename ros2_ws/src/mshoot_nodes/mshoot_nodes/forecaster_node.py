@@ -9,7 +9,8 @@ loop see the same forecasts: the scenario columns named by ``series`` (by
 default Tout, solrad, occ: what the control model needs besides the
 ventilation it assumes) as named series, the comfort band and, with
 ``send_price``, an energy price series (``price_per_kwh``: flat or by hour of
-the day). By default the forecasts are perfect; the ``random_walk`` error
+the day; a scenario with its own ``price`` column, e.g. a BOPTEST test period, sends that
+one instead). By default the forecasts are perfect; the ``random_walk`` error
 model adds seeded errors to Tout and solrad that grow with the lead time (the
 current step stays exact: it is measured).
 
@@ -35,10 +36,12 @@ from mshoot_nodes.params import declare, ParamSpec, values
 from mshoot_nodes.startup import run_node
 
 PARAMS = (
-    ParamSpec('scenario', 'synthetic', "the scenario: 'synthetic', 'ou44' or a path to a CSV "
-              'in the OU44 format (the same as the emulator)', read_only=True),
-    ParamSpec('data', '', "path of the OU44 measurements.csv for scenario 'ou44' "
-              "('' = the default shared data folder)", read_only=True),
+    ParamSpec('scenario', 'synthetic', "the scenario: 'synthetic', 'ou44', "
+              "'boptest:<period>[:<price>]' or a path to a CSV in the OU44 format (the same as "
+              'the emulator)', read_only=True),
+    ParamSpec('data', '', "path of the OU44 measurements.csv for scenario 'ou44', of the "
+              "test case folder for a BOPTEST scenario ('' = the default shared data folder)",
+              read_only=True),
     ParamSpec('hours', 72, 'control steps of the scenario [-]', low=1, high=1_000_000,
               read_only=True),
     ParamSpec('start_time', '', 'ROS time of the first scenario row, ISO date-time read as UTC '
@@ -219,7 +222,7 @@ class ForecasterNode(Node):
             window = window.copy()
             window['Tout'] = window['Tout'].to_numpy() + tout_err
             window['solrad'] = np.clip(window['solrad'].to_numpy() + solrad_err, 0.0, None)
-        if p['send_price']:
+        if p['send_price'] and PRICE_SERIES not in self.scenario.columns:
             window = window.copy()
             window[PRICE_SERIES] = self.prices(window.index.to_numpy(dtype=float))
         stamp = self.epoch_ns + index * self.step_ns

@@ -22,8 +22,36 @@ from mshoot_nodes.conversions import NS_PER_S
 
 logger = logging.getLogger(__name__)
 
-#: Scenario names understood besides a CSV path.
+#: Scenario names understood besides a CSV path (and ``boptest:<period>[:<price>]``).
 SCENARIOS = ('synthetic', 'ou44')
+#: Prefix of a BOPTEST test period scenario (see mshoot_core.boptest.emulation).
+BOPTEST_PREFIX = 'boptest:'
+
+
+def parse_boptest(name: str) -> tuple[str, str]:
+    """Return (period, price scenario) of ``boptest:<period>[:<price>]`` (default constant)."""
+    parts = name[len(BOPTEST_PREFIX):].split(':')
+    if len(parts) > 2 or not parts[0]:
+        raise ValueError(f"a BOPTEST scenario is 'boptest:<period>[:<price>]', got {name!r}")
+    return parts[0], parts[1] if len(parts) == 2 else 'constant'
+
+
+def _boptest_reason(name: str, data: str) -> str | None:
+    from mshoot_core.boptest.testcase import PRICE_SCENARIOS, TestCase
+    try:
+        period, price = parse_boptest(name)
+        case = TestCase.load(data or None)
+    except (ValueError, FileNotFoundError) as exc:
+        return f'scenario {name!r}: {exc}'
+    if period not in case.days:
+        return f'scenario {name!r}: unknown test period {period!r}; expected one of ' \
+               f'{sorted(case.days)}'
+    if price not in PRICE_SCENARIOS:
+        return f'scenario {name!r}: unknown price scenario {price!r}; expected one of ' \
+               f'{list(PRICE_SCENARIOS)}'
+    return None
+
+
 #: First row of the OU44 reference case (5 April 2018, local time).
 #: Used when a scenario carries no start time in ``attrs['start']``.
 DEFAULT_START = '2018-04-05T00:00:00'
@@ -31,14 +59,16 @@ DEFAULT_START = '2018-04-05T00:00:00'
 
 def check_scenario(name: str, data: str) -> str | None:
     """Reason why scenario parameters are invalid, or None."""
+    if name.startswith(BOPTEST_PREFIX):
+        return _boptest_reason(name, data)
     if name in SCENARIOS:
         if name == 'ou44' and data and not pathlib.Path(data).is_file():
             return f'data must be the OU44 measurements.csv, got {data!r} (no such file)'
         return None
     if name.endswith('.csv'):
         return None if pathlib.Path(name).is_file() else f'scenario file {name!r} not found'
-    return f'scenario must be one of {list(SCENARIOS)} or a path to an OU44-format CSV, ' \
-           f'got {name!r}'
+    return f'scenario must be one of {list(SCENARIOS)}, boptest:<period>[:<price>] or a path ' \
+           f'to an OU44-format CSV, got {name!r}'
 
 
 def load_scenario(name: str, data: str = '', hours: int = 72) -> pd.DataFrame:
@@ -49,10 +79,12 @@ def load_scenario(name: str, data: str = '', hours: int = 72) -> pd.DataFrame:
     ----------
     name : str
         'synthetic' (built in, no files), 'ou44' (the reference case, ventilation
-        off; data from ``data`` or the default path), or a path to a CSV in the
-        OU44 format.
+        off; data from ``data`` or the default path), ``boptest:<period>[:<price>]`` (a
+        BOPTEST test period from its start, with the price scenario's ``price`` column), or
+        a path to a CSV in the OU44 format.
     data : str
-        Path of the OU44 ``measurements.csv`` for 'ou44' ('' = default).
+        Path of the OU44 ``measurements.csv`` for 'ou44', of the BOPTEST test case folder for
+        a BOPTEST scenario ('' = default).
     hours : int
         Control steps.
 
@@ -62,6 +94,11 @@ def load_scenario(name: str, data: str = '', hours: int = 72) -> pd.DataFrame:
         Missing data or a scenario that does not cover ``hours``.
 
     """
+    if name.startswith(BOPTEST_PREFIX):
+        from mshoot_core.boptest.emulation import boptest_scenario
+        from mshoot_core.boptest.testcase import TestCase
+        period, price = parse_boptest(name)
+        return boptest_scenario(TestCase.load(data or None), period, hours, price)
     return reference_scenario(name, data or None, hours)
 
 

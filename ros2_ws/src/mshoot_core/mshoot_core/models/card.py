@@ -211,6 +211,8 @@ class ModelCard:
         Canonical name -> mapped variable, in the card's order.
     description : str
         Free text.
+    boptest : dict or None
+        For a card of kind ``boptest``: ``test_case_dir`` (absolute) and ``warmup_days``.
 
     """
 
@@ -227,10 +229,13 @@ class ModelCard:
     states: dict[str, CardVariable]
     outputs: dict[str, CardVariable]
     description: str = ''
+    boptest: dict[str, Any] | None = None
 
     @property
     def source(self) -> str:
-        """'fmu' (an FMU file named by the card) or 'builtin'."""
+        """'fmu' (an FMU file named by the card), 'builtin' or 'boptest'."""
+        if self.boptest is not None:
+            return 'boptest'
         return 'builtin' if self.builtin is not None else 'fmu'
 
     @property
@@ -506,9 +511,12 @@ def schema_problems(document: Any) -> list[str]:
         kind = error.validator
         if kind == 'oneOf' and not error.path:
             both = isinstance(document, dict) and 'fmu' in document and 'builtin' in document
+            both = both or (isinstance(document, dict) and 'boptest' in document
+                            and ('fmu' in document or 'builtin' in document))
             problems.append(f"give {'only ' if both else ''}one of 'fmu' (path of an FMU, "
-                            f"relative to the card) or 'builtin' (one of "
-                            f'{list(BUILTIN_SOURCES)})' + (', not both' if both else ''))
+                            f"relative to the card), 'builtin' (one of "
+                            f"{list(BUILTIN_SOURCES)}) or 'boptest' (a BOPTEST test case)"
+                            + (', not several' if both else ''))
         elif kind == 'additionalProperties':
             allowed = sorted(error.schema.get('properties', {}))
             extra = sorted(set(error.instance) - set(allowed))
@@ -608,7 +616,18 @@ def load_card(path: str | pathlib.Path) -> ModelCard:
     parameters = document.get('parameters') or {}
     if not isinstance(parameters, dict):
         parameters = {}
+    boptest = None
+    if isinstance(document.get('boptest'), dict):
+        boptest, fmu_name = _boptest_spec(path, document['boptest'], problems)
+        if fmu_name is not None:
+            document = {**document, 'fmu': fmu_name, 'fmi_type': 'co-simulation'}
+            fmi_type = 'co-simulation'
     catalogue, fmu, interface = _catalogue(path, document, fmi_type, problems)
+    if catalogue is not None and boptest is not None:
+        # a BOPTEST plant's states are measured: its outputs
+        catalogue = dataclasses.replace(
+            catalogue, states=list(catalogue.outputs),
+            state_kind='outputs (the states of a BOPTEST plant are measured)')
     variables = {}
     if catalogue is not None:
         variables = _check_variables(catalogue, sections, problems)
@@ -619,7 +638,26 @@ def load_card(path: str | pathlib.Path) -> ModelCard:
         path=path, fmu=fmu, builtin=document.get('builtin'), fmi_type=fmi_type,
         interface=interface, tolerance=None if tolerance is None else float(tolerance),
         time_origin=time_origin, parameters=dict(parameters),
-        description=document.get('description', ''), **variables)
+        description=document.get('description', ''), boptest=boptest, **variables)
+
+
+def _boptest_spec(path: pathlib.Path, spec: dict,
+                  problems: list[str]) -> tuple[dict[str, Any] | None, str | None]:
+    """Resolve a card's ``boptest`` entry: (spec with the absolute folder, its FMU) or Nones."""
+    from mshoot_core.boptest.testcase import default_directory
+    folder = spec.get('test_case')
+    directory = ((path.parent / pathlib.Path(folder).expanduser()).resolve()
+                 if isinstance(folder, str) else default_directory())
+    fmu = directory / 'wrapped.fmu'
+    if not fmu.is_file():
+        problems.append(f'boptest.test_case: no BOPTEST test case (wrapped.fmu) in {directory}'
+                        + ('' if isinstance(folder, str) else
+                           ' (the default folder; set $MSHOOT_BOPTEST_DIR or test_case)'))
+        return None, None
+    warmup = spec.get('warmup_days', 7.0)
+    if isinstance(warmup, bool) or not isinstance(warmup, (int, float)) or warmup < 0:
+        return None, None  # the schema reported it
+    return {'test_case_dir': str(directory), 'warmup_days': float(warmup)}, str(fmu)
 
 
 def _time_origin_problem(value: str) -> str | None:
@@ -908,6 +946,14 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
         default if tolerance is None else tolerance)
     if isinstance(tol, bool) or not 0.0 < float(tol) < 1.0:
         raise ValueError(f'tolerance must be in (0, 1), got {tol!r}')
+    if card.boptest is not None:
+        from mshoot_core.boptest.emulation import BoptestPlantModel
+        if role != 'emulator':
+            raise ValueError(f'model card {card.path}: a BOPTEST test case is an emulator '
+                             f'(a plant), not a {role} model')
+        model = BoptestPlantModel(card, instance_name=f'mshoot-{role}')
+        model.time_origin_s = float(time_origin_s)
+        return model
     if card.builtin == 'r1c1':
         from mshoot_core.models.r1c1 import R1C1Model, R1C1Parameters
         return R1C1Model(R1C1Parameters(**card.parameters))

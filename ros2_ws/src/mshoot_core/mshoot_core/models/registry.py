@@ -36,6 +36,7 @@ applies (control ``q``, zone temperature ``T`` [K]).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import pathlib
 from typing import Callable
@@ -92,6 +93,17 @@ def is_card_path(name: str) -> bool:
     return str(name).lower().endswith(('.yaml', '.yml'))
 
 
+@functools.lru_cache(maxsize=16)
+def _card_problem(path: str, version: tuple[int, int] | None) -> str | None:
+    """Check a card once per file version (nodes validate all parameters at each declaration)."""
+    from mshoot_core.models.card import CardError, load_card
+    try:
+        load_card(path)
+    except CardError as exc:
+        return str(exc)
+    return None
+
+
 def check_model(name: str) -> str | None:
     """
     Say why ``name`` does not name a model, or return None.
@@ -103,12 +115,12 @@ def check_model(name: str) -> str | None:
     if name.endswith('.fmu'):
         return None if pathlib.Path(name).is_file() else f'FMU file {name!r} not found'
     if is_card_path(name):
-        from mshoot_core.models.card import CardError, load_card
+        path = pathlib.Path(name).expanduser()
         try:
-            load_card(name)
-        except CardError as exc:
-            return str(exc)
-        return None
+            stat = path.stat()
+        except OSError:
+            return _card_problem(name, None)
+        return _card_problem(name, (stat.st_mtime_ns, stat.st_size))
     return (f'model must be one of {list(model_names())}, a path to an .fmu file or a model '
             f'card (.yaml), got {name!r}')
 

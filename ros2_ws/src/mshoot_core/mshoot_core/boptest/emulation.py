@@ -1,0 +1,221 @@
+"""
+The BOPTEST test case as mshoot's emulated building: its scenario and a plant model for a card.
+
+- :func:`boptest_scenario`: the scenario of a test period, hourly rows from its start (index:
+  seconds since the start, the scenario convention; ``attrs['start']`` the ISO date-time of the
+  start in :data:`YEAR`): ``Tout`` [degC] and ``solrad`` [W/m2] from ``weather.csv`` (what the
+  building sees), ``occ`` [persons], ``dpos`` 0, the band ``comfort_min``/``comfort_max``
+  [degC] from ``LowerSetp[1]``/``UpperSetp[1]`` (each row: the band at its time), the
+  electricity price ``price`` [EUR/kWh] of the chosen scenario, and ``fmu_time_s`` (the FMU
+  clock, seconds from 1 January).
+- :class:`BoptestPlantModel`: what :func:`mshoot_core.models.card.build_model` makes of a card
+  of kind ``boptest``: the test case's FMU as one persistent
+  :class:`~mshoot_core.boptest.plant.BoptestPlant` with the plant interface the emulator drives
+  (``plant_start``, ``plant_step``). ``plant_start`` runs the warm-up under the building's own
+  control (``warmup_days`` of the card) up to the scenario's first time; every ``plant_step``
+  applies the controls as overwrites (the card's canonical units converted to the FMU's; a
+  control with ``activate`` overwrites, one without leaves the building's own controller in
+  charge: the baseline) and advances in steps of <= 60 s, recording BOPTEST's outputs
+  (:meth:`BoptestPlantModel.boptest_records`) for the KPIs.
+
+FMU time = scenario time - ``time_origin_s`` (the card's ``time_origin``, e.g. 1 January of
+:data:`YEAR`, against the scenario's start; see
+:func:`~mshoot_core.models.card.time_origin_seconds`).
+"""
+from __future__ import annotations
+
+import logging
+from typing import Any, Sequence
+
+import numpy as np
+import pandas as pd
+
+from mshoot_core.boptest.plant import BoptestPlant, MAX_SAMPLE_S, RECORDED
+from mshoot_core.boptest.testcase import LOWER_SETPOINT, TestCase, UPPER_SETPOINT
+
+logger = logging.getLogger(__name__)
+
+#: The calendar year the scenario dates are placed in (a non-leap year; the data are a
+#: typical year without a date).
+YEAR = 2023
+#: Kelvin at 0 degC.
+KELVIN = 273.15
+
+
+def year_start() -> pd.Timestamp:
+    """Return 1 January of :data:`YEAR` (FMU time 0), naive."""
+    return pd.Timestamp(year=YEAR, month=1, day=1)
+
+
+def boptest_scenario(case: TestCase, period: str, hours: int | None = None,
+                     price: str = 'constant', step_s: float | None = None) -> pd.DataFrame:
+    """
+    Return the scenario of a test period (module docstring): ``hours`` steps, ``hours + 1`` rows.
+
+    Parameters
+    ----------
+    case : TestCase
+        The test case.
+    period : str
+        A test period (its start is the first row).
+    hours : int, optional
+        Control steps (default: the whole 14-day period).
+    price : str
+        Price scenario of the ``price`` column.
+    step_s : float, optional
+        Row spacing [s] (default the test case's control step).
+
+    Raises
+    ------
+    ValueError
+        For an unknown period or price scenario, or a bad length.
+
+    """
+    _, start, end = case.test_period(period)
+    step = case.control_step_s if step_s is None else float(step_s)
+    steps = int(round((end - start) / step)) if hours is None else int(hours)
+    if steps < 1:
+        raise ValueError(f'hours must be >= 1, got {hours!r}')
+    fmu_times = start + np.arange(steps + 1) * step
+    data = case.lookup_frame(['TDryBul', 'HGloHor', 'Occupancy[1]', LOWER_SETPOINT,
+                              UPPER_SETPOINT, case.price_column(price)], fmu_times)
+    scenario = pd.DataFrame({
+        'solrad': data['HGloHor'].to_numpy(), 'Tout': data['TDryBul'].to_numpy() - KELVIN,
+        'occ': data['Occupancy[1]'].to_numpy(), 'dpos': np.zeros(fmu_times.size),
+        'comfort_min': data[LOWER_SETPOINT].to_numpy() - KELVIN,
+        'comfort_max': data[UPPER_SETPOINT].to_numpy() - KELVIN,
+        'price': data[case.price_column(price)].to_numpy(), 'fmu_time_s': fmu_times,
+    }, index=pd.Index(fmu_times - start, name='time_s'))
+    scenario.attrs['start'] = (year_start() + pd.Timedelta(seconds=start)).isoformat()
+    scenario.attrs['boptest'] = {'test_case': str(case.directory), 'period': period,
+                                 'price': price, 'start_s': start}
+    return scenario
+
+
+class BoptestPlantModel:
+    """
+    A card's BOPTEST test case as a persistent plant (module docstring).
+
+    Parameters
+    ----------
+    card : ModelCard
+        A card of kind ``boptest`` (:func:`mshoot_core.models.card.load_card`).
+    instance_name : str
+        For messages.
+
+    Attributes
+    ----------
+    input_names, control_names, state_names, output_names : tuple of str
+        The card's canonical names (inputs = controls: the building reads its own weather).
+    comfort_states : tuple of str
+        The zone temperature states (``T``, ``T_<zone>``).
+    control_limits : tuple of (float, float)
+        The card's control limits [canonical units] (+-inf where it gives none).
+    time_origin_s : float
+        Scenario time of FMU time 0 [s], set by the emulator from the card's ``time_origin``.
+    warmup_s : float
+        Warm-up before the first step under the building's own control [s].
+
+    """
+
+    def __init__(self, card: Any, instance_name: str = 'mshoot-emulator') -> None:
+        spec = dict(card.boptest or {})
+        self.card = card
+        self.case = TestCase.load(spec.get('test_case_dir'))
+        self.warmup_s = float(spec.get('warmup_days', 7.0)) * 86400.0
+        self.control_names = tuple(card.control_names)
+        self.input_names = self.control_names
+        self.state_names = tuple(card.state_names)
+        self.output_names = tuple(card.output_names)
+        self.comfort_states = tuple(n for n in self.state_names if n == 'T' or n.startswith('T_'))
+        self.control_limits = card.control_bounds((-np.inf, np.inf))
+        self.time_origin_s = 0.0
+        self.instance_name = instance_name
+        variables = [*card.states.values(), *card.outputs.values()]
+        extra = [v.variable for v in variables]
+        self.plant = BoptestPlant(self.case, record=list(dict.fromkeys([*RECORDED, *extra])))
+        self._controls = [card.controls[n] for n in self.control_names]
+        self._states = list(card.states.values())
+        self._outputs = list(card.outputs.values())
+
+    # -- conversions ---------------------------------------------------------------------------
+    def overwrites(self, u: Sequence[float]) -> dict[str, float]:
+        """
+        Return the FMU overwrites of controls ``u`` [canonical units].
+
+        Controls without ``activate`` in the card are not sent: the building's own control.
+        """
+        values = np.asarray(u, dtype=float).reshape(-1)
+        if values.size != len(self._controls) or not np.all(np.isfinite(values)):
+            raise ValueError(f'expected {len(self._controls)} finite controls '
+                             f'{list(self.control_names)}, got {u}')
+        out = {}
+        for variable, value in zip(self._controls, values):
+            if variable.activate is None:
+                continue
+            scale, offset = variable.conversion()
+            out[variable.variable] = scale * float(value) + offset
+        return out
+
+    def _read(self) -> tuple[np.ndarray, np.ndarray]:
+        now = self.plant.read([v.variable for v in (*self._states, *self._outputs)])
+        x = np.array([(now[v.variable] - v.conversion()[1]) / v.conversion()[0]
+                      for v in self._states])
+        y = np.array([(now[v.variable] - v.conversion()[1]) / v.conversion()[0]
+                      for v in self._outputs])
+        return x, y
+
+    # -- the plant -----------------------------------------------------------------------------
+    @property
+    def plant_time_s(self) -> float | None:
+        """Return the plant's time in the caller's (scenario) time base [s], or None."""
+        t = self.plant.time_s
+        return None if t is None else t + self.time_origin_s
+
+    def fmu_time(self, t_s: float) -> float:
+        """Return the FMU time [s from 1 January] of a scenario time [s]."""
+        return float(t_s) - self.time_origin_s
+
+    def plant_start(self, x0: Sequence[float], t_s: float,
+                    u: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+        """
+        Start the FMU ``warmup_s`` before ``t_s`` and warm it up under its own control.
+
+        ``x0`` is not used (the FMU starts from its built-in state: hence the warm-up); ``u``
+        is checked and applied from the first step on.
+
+        Returns
+        -------
+        (x, y) : the states and outputs at ``t_s`` [canonical units].
+
+        """
+        self.overwrites(u)
+        start = self.fmu_time(t_s)
+        if self.plant.running:
+            self.plant.close()
+        self.plant.start(start - self.warmup_s)
+        self.plant.advance(start)
+        logger.info('%s warmed up under its own control from %g s to %g s (FMU time)',
+                    self.case.name, start - self.warmup_s, start)
+        return self._read()
+
+    def plant_step(self, u: Sequence[float], dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Apply controls ``u`` [canonical units] over ``dt_s`` [s]; return states and outputs."""
+        if not self.plant.running:
+            raise RuntimeError('the BOPTEST plant is not running: plant_start first')
+        self.plant.advance(self.plant.time_s + float(dt_s), self.overwrites(u),
+                           sample_s=min(MAX_SAMPLE_S, float(dt_s)))
+        return self._read()
+
+    def boptest_records(self) -> pd.DataFrame:
+        """Return the plant's record table (:meth:`BoptestPlant.records`, FMU time)."""
+        return self.plant.records()
+
+    def close(self) -> None:
+        """Free the FMU instance (the records stay)."""
+        self.plant.close()
+
+    def __repr__(self) -> str:
+        """Return a short description."""
+        return (f'BoptestPlantModel({self.case.name}, controls {list(self.control_names)}, '
+                f'warm-up {self.warmup_s / 86400:g} d)')

@@ -1,0 +1,214 @@
+"""
+A rule-based supervisory controller for BOPTEST: pre-heating ahead of the comfort band.
+
+The rule sends the zone temperature setpoint ``oveTSet_u`` every control step (1 h): the highest
+lower bound of the comfort band over the coming step and the ``lead`` after it, plus a
+``margin``::
+
+    setpoint(t) = max { LowerSetp(s) : t <= s < t + step + lead } + margin    [K]
+
+clipped to the input's range. With a lead the building starts heating for the occupied band
+(21 degC) ``lead`` hours before it begins, and it holds that level until the band's end (the
+max over the window, rather than the bound ``lead`` ahead alone, which would drop the setpoint
+``lead`` before the occupied hours end). The band is read from the test case's data
+(``dataFromModel.csv``, forward-filled, at its 900 s rows in the window).
+
+:func:`tune_rule` runs a grid of leads and margins on a test period (each a full run of the FMU:
+:func:`~mshoot_core.boptest.plant.run_period`) and picks, for each price scenario, the point
+with the smallest score ``cost_tot + weight * tdis_tot`` [EUR/m2], with ``weight`` the price
+given to one Kelvin-hour of discomfort [EUR/m2 per K h] (default :data:`DISCOMFORT_WEIGHT`
+= 0.1: about the cost of heating the house for 1.5 days in January). Only the cost depends on
+the price scenario, so one run per grid point serves the three scenarios.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from mshoot_core.boptest.kpis import kpi_records
+from mshoot_core.boptest.plant import run_period
+from mshoot_core.boptest.testcase import LOWER_SETPOINT, PRICE_SCENARIOS, TestCase
+
+logger = logging.getLogger(__name__)
+
+#: Default grid of :func:`tune_rule`: leads [h] and margins [K].
+LEADS_H = (0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0)
+MARGINS_K = (0.0, 0.25, 0.5, 0.75, 1.0)
+#: Price of one Kelvin-hour of discomfort in the tuning score [EUR/m2 per K h].
+DISCOMFORT_WEIGHT = 0.1
+#: The input the rule writes.
+SETPOINT_INPUT = 'oveTSet_u'
+#: Range of ``oveTSet_u`` [K] (the FMU's declared min/max).
+SETPOINT_RANGE_K = (278.15, 308.15)
+#: Row interval of the band data [s].
+DATA_STEP_S = 900.0
+
+
+@dataclasses.dataclass(frozen=True)
+class PreheatRule:
+    """
+    The pre-heating rule (module docstring).
+
+    Parameters
+    ----------
+    case : TestCase
+        The test case (its band).
+    lead_h : float
+        How far beyond the coming step the band is looked at [h], >= 0.
+    margin_k : float
+        Added to the band's lower bound [K], >= 0.
+    step_s : float
+        The control step [s] (the setpoint is held over it).
+
+    """
+
+    case: TestCase
+    lead_h: float = 0.0
+    margin_k: float = 0.0
+    step_s: float = 3600.0
+
+    def __post_init__(self) -> None:
+        """Check the parameters."""
+        for name in ('lead_h', 'margin_k'):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f'expected {name} >= 0, got {value!r}')
+        if not self.step_s > 0:
+            raise ValueError(f'expected a positive step_s, got {self.step_s!r}')
+
+    def setpoint(self, t_s: float) -> float:
+        """
+        Return the setpoint [K] over the control step starting at ``t_s`` [s from 1 January].
+
+        The band is looked up at ``t_s`` and at every data row time in the window
+        ``(t_s, t_s + step + lead)``.
+        """
+        end = t_s + self.step_s + self.lead_h * 3600.0
+        first_row = math.floor(t_s / DATA_STEP_S) + 1
+        rows = np.arange(first_row, math.ceil(end / DATA_STEP_S)) * DATA_STEP_S
+        times = np.concatenate([[t_s], rows[rows < end]])
+        lower = float(np.max(self.case.lookup(LOWER_SETPOINT, times)))
+        low, high = SETPOINT_RANGE_K
+        return float(min(max(lower + self.margin_k, low), high))
+
+    def __call__(self, t_s: float, outputs: Mapping[str, float] | None = None
+                 ) -> dict[str, float]:
+        """Return the overwrites over the step from ``t_s`` (a plant controller)."""
+        return {SETPOINT_INPUT: self.setpoint(t_s)}
+
+
+@dataclasses.dataclass
+class RuleTuning:
+    """
+    The result of :func:`tune_rule` on one period.
+
+    Attributes
+    ----------
+    period : str
+        The test period.
+    grid : pd.DataFrame
+        One row per grid point and price scenario: ``lead_h``, ``margin_k``, ``price``, the
+        KPIs (:func:`~mshoot_core.boptest.kpis.compute_kpis`), ``score`` and ``wall_s``.
+    best : dict of str to dict
+        Price scenario -> the chosen row (as a dict).
+    weight : float
+        The discomfort weight of the score [EUR/m2 per K h].
+
+    """
+
+    period: str
+    grid: pd.DataFrame
+    best: dict[str, dict]
+    weight: float
+
+    def parameters(self, price: str) -> tuple[float, float]:
+        """Return the tuned ``(lead_h, margin_k)`` of a price scenario."""
+        if price not in self.best:
+            raise ValueError(f'no tuning for the price scenario {price!r}: have '
+                             f'{sorted(self.best)}')
+        row = self.best[price]
+        return float(row['lead_h']), float(row['margin_k'])
+
+
+def choose(grid: pd.DataFrame, weight: float = DISCOMFORT_WEIGHT) -> dict[str, dict]:
+    """
+    Pick the best grid point per price scenario: smallest ``cost_tot + weight * tdis_tot``.
+
+    Ties go to the smaller lead, then the smaller margin.
+
+    Parameters
+    ----------
+    grid : pd.DataFrame
+        Columns ``price``, ``lead_h``, ``margin_k``, ``cost_tot``, ``tdis_tot``.
+    weight : float
+        Discomfort weight [EUR/m2 per K h], >= 0.
+
+    Returns
+    -------
+    dict of str to dict
+        Price -> the chosen row (with its ``score``).
+
+    """
+    if not weight >= 0:
+        raise ValueError(f'expected a weight >= 0, got {weight!r}')
+    scored = grid.assign(score=grid['cost_tot'] + weight * grid['tdis_tot'])
+    best = {}
+    for price, rows in scored.groupby('price', sort=False):
+        ordered = rows.sort_values(['score', 'lead_h', 'margin_k'], kind='stable')
+        best[str(price)] = ordered.iloc[0].to_dict()
+    return best
+
+
+def tune_rule(case: TestCase, period: str, leads_h: Sequence[float] = LEADS_H,
+              margins_k: Sequence[float] = MARGINS_K, weight: float = DISCOMFORT_WEIGHT,
+              prices: Sequence[str] = tuple(PRICE_SCENARIOS), warmup_days: float = 7.0,
+              length_days: float = 14.0,
+              progress: Callable[[str], None] | None = None) -> RuleTuning:
+    """
+    Tune the rule's lead and margin on a test period by a grid of full runs (module docstring).
+
+    Parameters
+    ----------
+    case : TestCase
+        The test case.
+    period : str
+        The test period.
+    leads_h, margins_k : sequence of float
+        The grid [h], [K].
+    weight : float
+        Discomfort weight of the score [EUR/m2 per K h].
+    prices : sequence of str
+        Price scenarios to choose for.
+    warmup_days, length_days : float
+        Run lengths [days] (BOPTEST: 7 and 14).
+    progress : callable, optional
+        Called with one line per run done.
+
+    Returns
+    -------
+    RuleTuning
+
+    """
+    if not leads_h or not margins_k:
+        raise ValueError('the tuning grid needs at least one lead and one margin')
+    rows = []
+    points = [(float(lead), float(margin)) for lead in leads_h for margin in margins_k]
+    for n, (lead, margin) in enumerate(points, 1):
+        rule = PreheatRule(case, lead, margin, case.control_step_s)
+        run = run_period(case, period, rule, warmup_days, length_days)
+        for record in kpi_records(run.records, case, run.start_s, run.end_s, prices,
+                                  run.step_wall_s, lead_h=lead, margin_k=margin):
+            rows.append({**record, 'wall_s': run.wall_s})
+        message = (f'rule tuning {period} {n}/{len(points)}: lead {lead:g} h, margin '
+                   f'{margin:g} K: tdis {rows[-1]["tdis_tot"]:.3f} K h, ener '
+                   f'{rows[-1]["ener_tot"]:.3f} kWh/m2 ({run.wall_s:.1f} s)')
+        logger.info(message)
+        if progress is not None:
+            progress(message)
+    grid = pd.DataFrame(rows)
+    return RuleTuning(period, grid, choose(grid, weight), weight)

@@ -1,0 +1,550 @@
+"""
+BOPTEST over ROS 2: the baseline, the tuned rule and mshoot on the test periods and prices.
+
+    boptest --out out/boptest --docs docs                      # make boptest: the benchmark
+    boptest --periods peak_heat_day --controllers baseline rule --warmup-days 1 --days 2
+
+Every run goes over the ROS nodes in one process (one executor, a private context, discovery
+off): the emulator runs the test case from a ``boptest`` model card (one persistent FMU
+instance, FMU time = seconds of the year, the warm-up under the building's own control, outputs
+recorded every 60 s), the forecaster serves the test case's data (weather, band, occupancy, the
+price scenario) and the controller answers each step:
+
+- ``baseline``: the card ``boptest_baseline.yaml`` maps the setpoint without its overwrite
+  switch, so the building's own controller is in charge; the rule node (mode ``baseline``) only
+  clocks the lockstep emulator;
+- ``rule``: the rule node with the lead and margin tuned offline, in core, beforehand
+  (:func:`mshoot_core.boptest.rule.tune_rule` over the full period; cached in
+  ``<out>/rule_tuning.json``), on the card ``boptest_tset.yaml``;
+- ``mshoot``: the MPC node with the economic MPC's settings from
+  :func:`mshoot_params` (TODO: provided by ``mshoot_core.boptest.economic``; until it lands
+  the runner reports mshoot as not available and goes on).
+
+The baseline's and the rule's trajectories do not depend on the price scenario (they never
+read it): each is simulated once per period (the rule once per distinct tuned lead/margin) and
+its KPIs are computed for every price scenario it stands for; only ``cost_tot`` differs.
+
+Writes ``<out>/kpis.json`` (records: controller, period, price, BOPTEST's KPIs,
+starts_per_day, wall_s), ``<out>/runs/<controller>_<period>[_<price>]/`` (the emulator's files
+with ``boptest_records.csv``) and, with ``--docs``, ``<docs>/boptest.md`` and
+``<docs>/boptest/*.png``.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import logging
+import os
+import pathlib
+import sys
+import time
+from typing import Any, Callable, Sequence
+
+from mshoot_core.boptest.kpis import kpi_records
+from mshoot_core.boptest.rule import LEADS_H, MARGINS_K, RuleTuning, tune_rule
+from mshoot_core.boptest.testcase import PRICE_SCENARIOS, TestCase
+from mshoot_core.models.card import builtin_card
+import pandas as pd
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+import yaml
+
+from mshoot_nodes import contract
+from mshoot_nodes.emulator_node import EmulatorNode
+from mshoot_nodes.forecaster_node import ForecasterNode
+from mshoot_nodes.rule_node import RuleNode
+from mshoot_nodes.startup import EXIT_CONFIG, startup_reason, StartupError
+
+logger = logging.getLogger(__name__)
+
+CONTROLLERS = ('baseline', 'rule', 'mshoot')
+PERIODS = ('peak_heat_day', 'typical_heat_day')
+
+
+class MshootUnavailable(RuntimeError):
+    """The economic MPC (issue 15 items 4-5) is not in this tree yet."""
+
+
+def mshoot_params(case: TestCase, period: str, price: str, warmup_days: float,
+                  hours: int) -> dict[str, dict[str, Any]]:
+    """
+    Return the node parameters of an mshoot run: ``{'mpc': {...}, 'emulator': {...}, ...}``.
+
+    TODO(issue 15, items 4-5): the economic MPC lives in ``mshoot_core.boptest.economic`` (the
+    other helper's branch). It is expected to provide ``ros_params(case, period, price,
+    warmup_days, hours) -> dict`` with the MPC node's parameters (its control model card,
+    horizon, cost, ...) and, where it needs them, the emulator's (e.g. its card) and the
+    forecaster's. Until then this raises :class:`MshootUnavailable`.
+    """
+    try:
+        from mshoot_core.boptest import economic  # noqa: F401 (the other helper's module)
+    except ImportError as exc:
+        raise MshootUnavailable('the economic MPC (mshoot_core.boptest.economic) is not in '
+                                'this tree yet') from exc
+    provider = getattr(economic, 'ros_params', None)
+    if provider is None:
+        raise MshootUnavailable('mshoot_core.boptest.economic has no ros_params(case, period, '
+                                'price, warmup_days, hours) yet')
+    return provider(case, period, price, warmup_days, hours)
+
+
+def write_card(kind: str, folder: pathlib.Path, case: TestCase,
+               warmup_days: float) -> pathlib.Path:
+    """
+    Write a copy of a built-in BOPTEST card for this test case and warm-up; return its path.
+
+    Parameters
+    ----------
+    kind : {'baseline', 'tset'}
+        ``boptest_baseline.yaml`` or ``boptest_tset.yaml``.
+    folder : pathlib.Path
+        Where the card is written.
+    case : TestCase
+        The test case (its folder goes into the card).
+    warmup_days : float
+        The warm-up [days].
+
+    """
+    document = yaml.safe_load(builtin_card(f'boptest_{kind}').read_text())
+    document['boptest'] = {'test_case': str(case.directory), 'warmup_days': float(warmup_days)}
+    path = folder / f'boptest_{kind}_warmup{warmup_days:g}d.yaml'
+    folder.mkdir(parents=True, exist_ok=True)
+    path.write_text(yaml.safe_dump(document, sort_keys=False))
+    return path
+
+
+@dataclasses.dataclass
+class BoptestRun:
+    """One ROS run: what the emulator recorded and how long it took."""
+
+    controller: str
+    period: str
+    records: pd.DataFrame
+    start_s: float
+    end_s: float
+    setpoint_waits_s: list[float]
+    wall_s: float
+    steps: int
+    failed: str
+
+
+def _overrides(values: dict[str, Any]) -> list[Parameter]:
+    return [Parameter(name, value=value) for name, value in values.items() if value is not None]
+
+
+def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
+            price: str = 'constant', warmup_days: float = 7.0, length_days: float = 14.0,
+            lead_h: float = 0.0, margin_k: float = 0.0, out: pathlib.Path | None = None,
+            cards: pathlib.Path | None = None, timeout_s: float = 3600.0,
+            progress: Callable[[str], None] | None = None) -> BoptestRun:
+    """
+    Run one controller on one test period over ROS, in this process (module docstring).
+
+    Parameters
+    ----------
+    context : Context
+        An initialised rclpy context.
+    controller : {'baseline', 'rule', 'mshoot'}
+        The controller.
+    period : str
+        The test period.
+    case : TestCase
+        The test case.
+    price : str
+        The price scenario the forecaster serves.
+    warmup_days, length_days : float
+        Warm-up and test period [days].
+    lead_h, margin_k : float
+        The rule's parameters.
+    out : pathlib.Path, optional
+        The emulator's output folder.
+    cards : pathlib.Path, optional
+        Folder for the cards written (default ``out/cards`` or a temporary one).
+    timeout_s : float
+        Wall-clock guard [s].
+    progress : callable, optional
+        Called with a line every simulated day.
+
+    Raises
+    ------
+    StartupError
+        A node could not start.
+    TimeoutError
+        The run took longer than ``timeout_s``.
+    MshootUnavailable
+        ``mshoot`` without the economic MPC.
+
+    """
+    if controller not in CONTROLLERS:
+        raise ValueError(f'controller must be one of {CONTROLLERS}, got {controller!r}')
+    hours = int(round(length_days * 24))
+    if abs(hours - length_days * 24) > 1e-9 or hours < 1:
+        raise ValueError(f'length_days must be a positive whole number of hours, got '
+                         f'{length_days!r}')
+    cards = cards or ((out / 'cards') if out is not None else pathlib.Path('out/boptest/cards'))
+    common = {'scenario': f'boptest:{period}:{price}', 'data': str(case.directory),
+              'hours': hours}
+    params: dict[str, dict[str, Any]] = {
+        'emulator': {**common, 'output_dir': str(out) if out is not None else '',
+                     'model': str(write_card('baseline' if controller == 'baseline' else 'tset',
+                                             cards, case, warmup_days)),
+                     'ready_endpoints': [f'{contract.ZONE_STATE} subscribers>=1',
+                                         f'{contract.SETPOINT} publishers>=1',
+                                         f'{contract.FORECAST} publishers>=1'],
+                     'initial_temperature_c': 21.0, 'lockstep_timeout_s': 600.0},
+        'forecaster': {**common, 'use_sim_time': True, 'horizon_steps': 24},
+        'controller': {**common, 'mode': 'baseline' if controller == 'baseline' else 'rule',
+                       'lead_h': float(lead_h), 'margin_k': float(margin_k)},
+    }
+    controller_cls: type = RuleNode
+    if controller == 'mshoot':
+        from mshoot_nodes.mpc_node import MpcNode
+        extra = mshoot_params(case, period, price, warmup_days, hours)
+        params['controller'] = {'use_sim_time': True, **extra.get('mpc', {})}
+        for name in ('emulator', 'forecaster'):
+            params[name].update(extra.get(name, {}))
+        controller_cls = MpcNode
+    nodes: list[Any] = []
+    executor = SingleThreadedExecutor(context=context)
+
+    def make(cls: type, name: str) -> Any:
+        try:
+            node = cls(context=context, parameter_overrides=_overrides(params[name]))
+        except Exception as exc:  # noqa: BLE001 - whatever fails at start-up: one clear line
+            raise StartupError(f'{name}: cannot start: {startup_reason(exc)}') from exc
+        nodes.append(node)
+        executor.add_node(node)
+        return node
+
+    emulator = None
+    began = time.perf_counter()
+    try:
+        make(ForecasterNode, 'forecaster')
+        make(controller_cls, 'controller')
+        emulator = make(EmulatorNode, 'emulator')
+        day = 0
+        while not emulator.done:
+            executor.spin_once(timeout_sec=0.1)
+            if progress is not None and emulator.steps_done // 24 > day:
+                day = emulator.steps_done // 24
+                progress(f'{controller} {period}: day {day}/{hours // 24} '
+                         f'({time.perf_counter() - began:.0f} s)')
+            if time.perf_counter() - began > timeout_s:
+                raise TimeoutError(f'the ROS run did not finish within {timeout_s:.0f} s '
+                                   f'({emulator.steps_done} steps done)')
+        wall = time.perf_counter() - began
+        model = emulator.emulator.model
+        records = model.boptest_records()
+        _, start, end = case.test_period(period, warmup_days, length_days)
+        return BoptestRun(controller, period, records, start, end,
+                          list(emulator.setpoint_waits_s), wall, emulator.steps_done,
+                          emulator.failed)
+    finally:
+        if emulator is not None and emulator.emulator is not None:
+            emulator.emulator.model.close()  # one FMU instance per process: free it now
+        executor.shutdown()
+        for node in nodes:
+            node.destroy_node()
+
+
+# -- the benchmark ----------------------------------------------------------------------------
+def load_or_tune(case: TestCase, periods: Sequence[str], path: pathlib.Path, *,
+                 warmup_days: float, length_days: float, leads_h: Sequence[float],
+                 margins_k: Sequence[float], retune: bool,
+                 progress: Callable[[str], None]) -> dict[str, dict]:
+    """
+    Return the rule's tuning per period: cached in ``path`` when made with the same grid.
+
+    Returns
+    -------
+    dict
+        Period -> ``{'best': {price: {'lead_h', 'margin_k', ...}}, 'grid': [...], ...}``.
+
+    """
+    key = {'warmup_days': warmup_days, 'length_days': length_days,
+           'leads_h': [float(v) for v in leads_h], 'margins_k': [float(v) for v in margins_k]}
+    cached = json.loads(path.read_text()) if path.is_file() and not retune else {}
+    out = {}
+    for period in periods:
+        entry = cached.get(period)
+        if entry is not None and entry.get('settings') == key:
+            progress(f'rule tuning {period}: from {path}')
+            out[period] = entry
+            continue
+        began = time.perf_counter()
+        tuning: RuleTuning = tune_rule(case, period, leads_h, margins_k,
+                                       warmup_days=warmup_days, length_days=length_days,
+                                       progress=progress)
+        out[period] = {'settings': key, 'weight': tuning.weight,
+                       'wall_s': time.perf_counter() - began,
+                       'best': {price: {k: _plain(v) for k, v in row.items()}
+                                for price, row in tuning.best.items()},
+                       'grid': [{k: _plain(v) for k, v in row.items()}
+                                for row in tuning.grid.to_dict('records')]}
+        cached[period] = out[period]
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(cached, indent=1) + '\n')
+    return out
+
+
+def _plain(value: Any) -> Any:
+    if hasattr(value, 'item'):
+        return value.item()
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog='boptest', description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('--test-case', default='', help='the BOPTEST test case folder '
+                        '(default $MSHOOT_BOPTEST_DIR or ../shared/boptest/...)')
+    parser.add_argument('--periods', nargs='+', default=list(PERIODS))
+    parser.add_argument('--prices', nargs='+', default=list(PRICE_SCENARIOS),
+                        choices=list(PRICE_SCENARIOS))
+    parser.add_argument('--controllers', nargs='+', default=list(CONTROLLERS),
+                        choices=list(CONTROLLERS))
+    parser.add_argument('--warmup-days', type=float, default=7.0)
+    parser.add_argument('--days', type=float, default=14.0, help='test period length [days]')
+    parser.add_argument('--leads', type=float, nargs='+', default=list(LEADS_H),
+                        help='rule tuning grid: leads [h]')
+    parser.add_argument('--margins', type=float, nargs='+', default=list(MARGINS_K),
+                        help='rule tuning grid: margins [K]')
+    parser.add_argument('--retune', action='store_true', help='tune the rule again')
+    parser.add_argument('--out', type=pathlib.Path, default=pathlib.Path('out/boptest'))
+    parser.add_argument('--docs', type=pathlib.Path, default=None,
+                        help='write <docs>/boptest.md and <docs>/boptest/*.png')
+    parser.add_argument('--timeout', type=float, default=3600.0,
+                        help='wall-clock limit of one ROS run [s]')
+    parser.add_argument('--docs-only', action='store_true',
+                        help='only write the docs again from <out>/kpis.json and runs.json')
+    return parser
+
+
+def run_benchmark(args: argparse.Namespace, context: Context,
+                  say: Callable[[str], None]) -> tuple[list[dict], list[dict]]:
+    """Run every requested run; return the KPI records and the run descriptions."""
+    case = TestCase.load(args.test_case or None)
+    for period in args.periods:
+        case.test_period(period, args.warmup_days, args.days)  # bad names fail here
+    tunings = {}
+    if 'rule' in args.controllers:
+        tunings = load_or_tune(case, args.periods, args.out / 'rule_tuning.json',
+                               warmup_days=args.warmup_days, length_days=args.days,
+                               leads_h=args.leads, margins_k=args.margins, retune=args.retune,
+                               progress=say)
+    records: list[dict] = []
+    runs: list[dict] = []
+    for period in args.periods:
+        for controller in args.controllers:
+            if controller == 'baseline':
+                groups = {(0.0, 0.0): list(args.prices)}
+            elif controller == 'rule':
+                groups: dict[tuple[float, float], list[str]] = {}
+                for price in args.prices:
+                    best = tunings[period]['best'][price]
+                    groups.setdefault((best['lead_h'], best['margin_k']), []).append(price)
+            else:  # mshoot: one run per price scenario (keys only tell the runs apart)
+                groups = {(float(k), 0.0): [p] for k, p in enumerate(args.prices)}
+            for (lead, margin), prices in groups.items():
+                suffix = {'mshoot': f'_{prices[0]}', 'baseline': '',
+                          'rule': f'_lead{lead:g}_margin{margin:g}'}[controller]
+                name = f'{controller}_{period}{suffix}'
+                say(f'{name}: starting ({", ".join(prices)})')
+                try:
+                    run = run_ros(context, controller, period, case, price=prices[0],
+                                  warmup_days=args.warmup_days, length_days=args.days,
+                                  lead_h=lead if controller == 'rule' else 0.0,
+                                  margin_k=margin if controller == 'rule' else 0.0,
+                                  out=args.out / 'runs' / name, cards=args.out / 'cards',
+                                  timeout_s=args.timeout, progress=say)
+                except MshootUnavailable as exc:
+                    say(f'{name}: skipped: {exc}')
+                    continue
+                if run.failed:
+                    raise RuntimeError(f'{name}: the run failed: {run.failed}')
+                # time_rat: the controller's wall time between two advances over the step;
+                # the baseline has no controller (its node only clocks the lockstep)
+                waits = run.setpoint_waits_s if controller != 'baseline' else None
+                new = kpi_records(run.records, case, run.start_s, run.end_s, prices, waits,
+                                  controller=controller, period=period)
+                for record in new:
+                    record['wall_s'] = run.wall_s
+                    if controller == 'rule':
+                        record.update(lead_h=lead, margin_k=margin)
+                records += new
+                runs.append({'name': name, 'controller': controller, 'period': period,
+                             'prices': prices, 'start_s': run.start_s, 'end_s': run.end_s,
+                             'wall_s': run.wall_s, 'steps': run.steps})
+                first = new[0]
+                say(f'{name}: {run.steps} steps in {run.wall_s:.1f} s: tdis '
+                    f'{first["tdis_tot"]:.2f} K h, ener {first["ener_tot"]:.3f} kWh/m2, cost '
+                    + ', '.join(f'{r["price"]} {r["cost_tot"]:.4f}' for r in new) + ' EUR/m2')
+    return records, runs
+
+
+#: BOPTEST's published baseline of this test case on the peak heat period (issue 15).
+PUBLISHED_BASELINE = {'peak_heat_day': {'tdis_tot': 8.4, 'ener_tot': 3.48}}
+
+
+def _tuning_lines(tunings: dict, periods: Sequence[str]) -> list[str]:
+    """Return the rule's tuning grids (tdis [K h] / cost [EUR/m2], constant price) as tables."""
+    lines = ["## The rule's tuning grids", '',
+             'Each cell: `tdis_tot` [K h] / `cost_tot` [EUR/m2] at the constant price, one full '
+             'run of the period in core; **bold** the chosen point (constant price).', '']
+    for period in periods:
+        entry = tunings.get(period)
+        if entry is None:
+            continue
+        grid = pd.DataFrame(entry['grid'])
+        grid = grid[grid['price'] == 'constant']
+        best = entry['best'].get('constant', {})
+        margins = sorted(grid['margin_k'].unique())
+        lines += [f'{period} (tuning: {entry["wall_s"] / 60:.1f} min wall):', '',
+                  '| lead [h] | ' + ' | '.join(f'margin {m:g} K' for m in margins) + ' |',
+                  '|---|' + '---|' * len(margins)]
+        for lead, rows in grid.groupby('lead_h'):
+            cells = []
+            for margin in margins:
+                row = rows[rows['margin_k'] == margin].iloc[0]
+                text = f'{row["tdis_tot"]:.2f} / {row["cost_tot"]:.3f}'
+                chosen = (lead, margin) == (best.get('lead_h'), best.get('margin_k'))
+                cells.append(f'**{text}**' if chosen else text)
+            lines.append(f'| {lead:g} | ' + ' | '.join(cells) + ' |')
+        lines.append('')
+    return lines
+
+
+def write_docs(args: argparse.Namespace, records: list[dict], runs: list[dict],
+               wall_s: float | None) -> pathlib.Path:
+    """Write ``<docs>/boptest.md`` and its figures from the benchmark's records and runs."""
+    from mshoot_core.boptest.report import kpi_table, plot_kpi_bars, plot_run
+    case = TestCase.load(args.test_case or None)
+    docs = args.docs
+    figures = docs / 'boptest'
+    figures.mkdir(parents=True, exist_ok=True)
+    shortened = args.warmup_days != 7.0 or args.days != 14.0
+    lines = ['# BOPTEST `bestest_hydronic_heat_pump`: baseline, rule and mshoot', '',
+             'Generated by `make boptest` (`python -m mshoot_nodes.boptest_run --out out/boptest '
+             '--docs docs`); the records are in `out/boptest/kpis.json`. The test case, its '
+             'test periods and its KPI definitions: '
+             '`../shared/boptest/bestest_hydronic_heat_pump/README.md`.', '',
+             f'Test periods: {", ".join(args.periods)}, {args.warmup_days:g} days of warm-up '
+             f"under the building's own control, then {args.days:g} days"
+             + (" (SHORTENED: not BOPTEST's periods)" if shortened else '') + '; price '
+             f'scenarios: {", ".join(args.prices)}. Every run goes over the ROS 2 nodes '
+             '(emulator with one persistent FMU instance and a `boptest` model card, '
+             'forecaster, controller node) in lockstep, in one process; KPIs from the '
+             "emulator's outputs sampled every 60 s (`mshoot_core.boptest.kpis`).", '',
+             "Checked by the tests: the KPIs computed by mshoot equal the README's definitions "
+             'written out independently (raw CSVs, pandas, explicit sums) on the same stored '
+             'outputs of a real baseline run, to 1e-9 '
+             '(`tests/test_boptest_kpis.py::test_short_baseline_kpis_by_hand`); a ROS run '
+             '(baseline, rule) equals the core run of the same controller to 1e-9 '
+             '(`tests/test_boptest_ros.py`).', '',
+             (f'Run time of this benchmark: {wall_s / 60:.1f} min wall on this machine '
+              "(2 cores shared with other work), the rule's tuning included when it was not "
+              'cached.' if wall_s is not None else
+              "Run time: see the runs' wall times below."), '',
+             '## Controllers', '',
+             "- `baseline`: the building's own controller (no overwrite: the card maps the "
+             'setpoint without its `oveTSet_activate` switch).',
+             '- `rule`: the zone setpoint `oveTSet_u` every hour = the highest lower bound of '
+             'the comfort band over the coming hour and the `lead` after it, plus a `margin` '
+             '(`mshoot_core.boptest.rule`). Lead and margin tuned per period and price on a '
+             'grid (leads ' + ', '.join(f'{v:g}' for v in args.leads) + ' h; margins '
+             + ', '.join(f'{v:g}' for v in args.margins) + ' K), each a full run of the period '
+             'in core, for the smallest `cost_tot + 0.1 EUR/m2 per K h x tdis_tot`.',
+             '- `mshoot`: the economic MPC (issue 15 items 4-5).', '',
+             'The baseline and the rule never read the price: each is simulated once per '
+             'period (the rule once per distinct tuned lead/margin) and its KPIs computed for '
+             'each price scenario it stands for; only `cost_tot` differs.', '']
+    if not any(r['controller'] == 'mshoot' for r in records) and 'mshoot' in args.controllers:
+        lines += ['**mshoot was not run**: the economic MPC '
+                  '(`mshoot_core.boptest.economic.ros_params`) is not in this tree yet '
+                  '(see `mshoot_nodes.boptest_run.mshoot_params`).', '']
+    extra = (('lead_h', 'lead [h]', '{:g}'), ('margin_k', 'margin [K]', '{:g}'),
+             ('wall_s', 'run wall [s]', '{:.0f}'))
+    lines += ['## KPIs', '', kpi_table(records, extra)]
+    baseline = {r['period']: r for r in records
+                if r['controller'] == 'baseline' and r['price'] == args.prices[0]}
+    rows = [(p, baseline[p], PUBLISHED_BASELINE.get(p)) for p in args.periods if p in baseline]
+    if rows and not shortened:
+        lines += ["Baseline against BOPTEST's published figures:", '',
+                  '| period | tdis [K h] mshoot | published | ener [kWh/m2] mshoot | published |',
+                  '|---|---|---|---|---|']
+        for period, record, published in rows:
+            pub = published or {}
+            lines.append(f'| {period} | {record["tdis_tot"]:.2f} | '
+                         f'{pub.get("tdis_tot", "-")} | {record["ener_tot"]:.3f} | '
+                         f'{pub.get("ener_tot", "-")} |')
+        lines.append('')
+    tuning_file = args.out / 'rule_tuning.json'
+    if tuning_file.is_file() and any(r['controller'] == 'rule' for r in records):
+        lines += _tuning_lines(json.loads(tuning_file.read_text()), args.periods)
+    bars = plot_kpi_bars(records, figures / 'kpi_bars.png')
+    lines += ['## Figures', '', f'![KPI bars](boptest/{bars.name})', '']
+    for run in runs:
+        path = args.out / 'runs' / run['name'] / 'boptest_records.csv'
+        if not path.is_file():
+            continue
+        table = pd.read_csv(path)
+        figure = plot_run(table, case, run['start_s'], run['end_s'],
+                          f'{run["name"]} (prices: {", ".join(run["prices"])})',
+                          figures / f'{run["name"]}.png',
+                          prices=run['prices'] if run['controller'] == 'mshoot'
+                          else tuple(args.prices))
+        lines += [f'### {run["name"]}', '', f'![{run["name"]}](boptest/{figure.name})', '']
+    path = docs / 'boptest.md'
+    path.write_text('\n'.join(lines))
+    return path
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``boptest``: run the benchmark (module docstring); exit 2 on bad arguments."""
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format='%(levelname)s %(name)s: %(message)s')
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'OFF'
+    began = time.perf_counter()
+
+    def say(line: str) -> None:
+        print(f'[boptest {time.perf_counter() - began:6.0f} s] {line}', flush=True)
+
+    if args.docs_only:
+        if args.docs is None:
+            print('boptest: error: --docs-only needs --docs', file=sys.stderr)
+            return 2
+        records = json.loads((args.out / 'kpis.json').read_text())
+        runs = json.loads((args.out / 'runs.json').read_text())
+        timing = args.out / 'run_time.json'
+        wall = json.loads(timing.read_text())['wall_s'] if timing.is_file() else None
+        say(f'wrote {write_docs(args, records, runs, wall)}')
+        return 0
+    context = Context()
+    rclpy.init(args=['--ros-args', '--log-level', 'warn'], context=context)
+    try:
+        records, runs = run_benchmark(args, context, say)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f'boptest: error: {exc}', file=sys.stderr)
+        return 2
+    except StartupError as exc:
+        print(f'boptest: error: {exc}', file=sys.stderr)
+        return EXIT_CONFIG
+    finally:
+        context.try_shutdown()
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / 'kpis.json').write_text(json.dumps(records, indent=1) + '\n')
+    (args.out / 'runs.json').write_text(json.dumps(runs, indent=1) + '\n')
+    (args.out / 'run_time.json').write_text(json.dumps(
+        {'wall_s': time.perf_counter() - began}) + '\n')
+    say(f'wrote {args.out / "kpis.json"} ({len(records)} records)')
+    if args.docs is not None:
+        path = write_docs(args, records, runs, time.perf_counter() - began)
+        say(f'wrote {path}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

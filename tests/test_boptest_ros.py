@@ -1,0 +1,135 @@
+"""BOPTEST over ROS: a shortened baseline and rule run equal the core runs; cards, scenario."""
+import pathlib
+
+from mshoot_core.boptest.emulation import boptest_scenario
+from mshoot_core.boptest.kpis import compute_kpis
+from mshoot_core.boptest.plant import run_period
+from mshoot_core.boptest.rule import PreheatRule
+from mshoot_core.boptest.testcase import TestCase
+from mshoot_core.models.card import build_model, builtin_card, CardError, load_card
+import numpy as np
+import pytest
+import yaml
+
+from conftest import private_context
+
+pytestmark = pytest.mark.ros
+
+LEAD_H, MARGIN_K = 3.0, 0.5
+
+
+@pytest.fixture(scope='module')
+def ros_runs(boptest_case: TestCase, tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """Run baseline and rule over ROS: peak_heat_day, 1 day of warm-up, 2 days of test."""
+    import rclpy
+    from mshoot_nodes.boptest_run import run_ros
+    out = tmp_path_factory.mktemp('boptest_ros')
+    context = private_context()
+    try:
+        runs = {controller: run_ros(context, controller, 'peak_heat_day', boptest_case,
+                                    price='dynamic', warmup_days=1, length_days=2,
+                                    lead_h=LEAD_H, margin_k=MARGIN_K, out=out / controller,
+                                    timeout_s=600.0)
+                for controller in ('baseline', 'rule')}
+    finally:
+        rclpy.try_shutdown(context=context)
+    return {'runs': runs, 'out': out}
+
+
+@pytest.mark.parametrize('controller', ['baseline', 'rule'])
+def test_ros_run_equals_the_core_run(boptest_case: TestCase, ros_runs: dict,
+                                     controller: str) -> None:
+    """The emulator node steps the FMU exactly as the core loop does: same outputs, same KPIs."""
+    run = ros_runs['runs'][controller]
+    assert not run.failed and run.steps == 48
+    rule = PreheatRule(boptest_case, LEAD_H, MARGIN_K) if controller == 'rule' else None
+    core = run_period(boptest_case, 'peak_heat_day', rule, warmup_days=1, length_days=2)
+    assert (run.start_s, run.end_s) == (core.start_s, core.end_s)
+    columns = ['time', 'reaTZon_y', 'reaPHeaPum_y', 'reaPFan_y', 'reaPPumEmi_y', 'reaTSet_y',
+               'oveTSet_u']
+    ros, ref = run.records[columns], core.records[columns]
+    assert len(ros) == len(ref)
+    np.testing.assert_allclose(ros.to_numpy(), ref.to_numpy(), rtol=1e-9, atol=1e-9)
+    ours = compute_kpis(run.records, boptest_case, run.start_s, run.end_s, 'dynamic')
+    theirs = compute_kpis(core.records, boptest_case, core.start_s, core.end_s, 'dynamic')
+    for key in ('tdis_tot', 'ener_tot', 'cost_tot', 'pele_tot'):
+        assert ours[key] == pytest.approx(theirs[key], rel=1e-9)
+    # the controller answered every step (the lockstep waits time_rat is made of)
+    assert len(run.setpoint_waits_s) == 48 and min(run.setpoint_waits_s) >= 0
+    written = ros_runs['out'] / controller / 'boptest_records.csv'
+    assert written.is_file()
+
+
+def test_baseline_leaves_the_building_alone_and_the_rule_preheats(ros_runs: dict) -> None:
+    baseline, rule = ros_runs['runs']['baseline'], ros_runs['runs']['rule']
+    test = baseline.records['time'] > baseline.start_s
+    assert baseline.records.loc[test, 'oveTSet_u'].isna().all()
+    applied = rule.records.loc[rule.records['time'] > rule.start_s, 'oveTSet_u']
+    assert applied.notna().all()
+    # 21 degC + 0.5 K while the band's lower bound is 21 degC within the next 4 h, else 15.5
+    assert set(np.round(applied.unique(), 6)) == {294.65, 288.65}
+
+
+def test_forecaster_serves_the_test_case_data(boptest_case: TestCase, context) -> None:
+    from mshoot_nodes.conversions import forecast_series
+    from mshoot_nodes.forecaster_node import ForecasterNode
+    from rclpy.parameter import Parameter
+    node = ForecasterNode(context=context, parameter_overrides=[
+        Parameter('scenario', value='boptest:typical_heat_day:highly_dynamic'),
+        Parameter('hours', value=48), Parameter('horizon_steps', value=6)])
+    try:
+        msg = node.publish_forecast(5)
+    finally:
+        node.destroy_node()
+    _, start, _ = boptest_case.test_period('typical_heat_day')
+    times = start + (5 + np.arange(7)) * 3600.0
+    series, rejection = forecast_series(msg)
+    assert rejection is None
+    np.testing.assert_allclose(series['Tout'], boptest_case.lookup('TDryBul', times) - 273.15)
+    np.testing.assert_allclose(series['solrad'], boptest_case.lookup('HGloHor', times))
+    np.testing.assert_allclose(series['occ'], boptest_case.lookup('Occupancy[1]', times))
+    np.testing.assert_allclose(msg.comfort_min_c,
+                               boptest_case.lookup('LowerSetp[1]', times) - 273.15)
+    np.testing.assert_allclose(msg.comfort_max_c,
+                               boptest_case.lookup('UpperSetp[1]', times) - 273.15)
+    np.testing.assert_allclose(msg.price_per_kwh,
+                               boptest_case.lookup('PriceElectricPowerHighlyDynamic', times))
+
+
+def test_scenario_rows_and_clock(boptest_case: TestCase) -> None:
+    scenario = boptest_scenario(boptest_case, 'typical_heat_day', hours=3, price='dynamic')
+    assert scenario.index.tolist() == [0.0, 3600.0, 7200.0, 10800.0]
+    assert scenario.attrs['start'] == '2023-04-19T00:00:00'  # 108 d after 1 January
+    assert scenario['fmu_time_s'].iloc[0] == 108 * 86400.0
+    assert len(boptest_scenario(boptest_case, 'peak_heat_day')) == 14 * 24 + 1
+
+
+def test_boptest_cards(tmp_path: pathlib.Path, boptest_case: TestCase) -> None:
+    card = load_card(builtin_card('boptest_tset'))
+    assert card.source == 'boptest' and card.controls['TSet'].activate == 'oveTSet_activate'
+    assert card.boptest == {'test_case_dir': str(boptest_case.directory), 'warmup_days': 7.0}
+    assert load_card(builtin_card('boptest_baseline')).controls['TSet'].activate is None
+    with pytest.raises(ValueError, match='emulator'):
+        build_model(card, role='control')
+    document = yaml.safe_load(builtin_card('boptest_tset').read_text())
+    both = tmp_path / 'both.yaml'
+    both.write_text(yaml.safe_dump({**document, 'fmu': 'x.fmu'}))
+    with pytest.raises(CardError, match="one of 'fmu'"):
+        load_card(both)
+    nowhere = tmp_path / 'nowhere.yaml'
+    nowhere.write_text(yaml.safe_dump({**document, 'boptest': {'test_case': 'no/such'}}))
+    with pytest.raises(CardError, match='no BOPTEST test case'):
+        load_card(nowhere)
+    wrong = tmp_path / 'wrong.yaml'
+    wrong.write_text(yaml.safe_dump({**document, 'outputs': {'T': {'variable': 'TZon'}}}))
+    with pytest.raises(CardError, match="'TZon' is not"):
+        load_card(wrong)
+
+
+def test_runner_refuses_bad_arguments(capsys) -> None:
+    from mshoot_nodes.boptest_run import main
+    assert main(['--periods', 'peak_cool_day', '--controllers', 'baseline']) == 2
+    assert 'unknown test period' in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_info:
+        main(['--prices', 'cheap'])
+    assert exit_info.value.code == 2

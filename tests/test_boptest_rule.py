@@ -1,0 +1,58 @@
+"""The BOPTEST pre-heating rule: its setpoints from the band, the choice, a short real tuning."""
+from mshoot_core.boptest.rule import choose, PreheatRule, tune_rule
+from mshoot_core.boptest.testcase import TestCase
+import numpy as np
+import pandas as pd
+import pytest
+
+HOUR = 3600.0
+
+
+def test_setpoint_is_the_band_ahead(boptest_case: TestCase) -> None:
+    _, start, _ = boptest_case.test_period('peak_heat_day')
+    # the band's lower bound over that day, on a 60 s grid: 21 degC until 7:15, 15 degC until
+    # 20:00, 21 degC after (the occupied evening and night of the house)
+    fine = np.arange(start, start + 2 * 24 * HOUR, 60.0)
+    lower = boptest_case.lookup('LowerSetp[1]', fine)
+    rule = PreheatRule(boptest_case, lead_h=2.0, margin_k=0.5)
+    for hour in range(24):
+        t = start + hour * HOUR
+        window = (fine >= t) & (fine < t + 3 * HOUR)
+        assert rule.setpoint(t) == pytest.approx(lower[window].max() + 0.5), hour
+    # around the morning drop at 7:15 and the evening rise at 20:00, 2 h ahead
+    assert rule(start + 7 * HOUR) == {'oveTSet_u': pytest.approx(294.65)}
+    assert rule.setpoint(start + 8 * HOUR) == pytest.approx(288.65)
+    assert rule.setpoint(start + 17 * HOUR) == pytest.approx(288.65)
+    assert rule.setpoint(start + 18 * HOUR) == pytest.approx(294.65)
+    assert PreheatRule(boptest_case).setpoint(start + 19 * HOUR) == pytest.approx(288.15)
+    with pytest.raises(ValueError, match='lead_h >= 0'):
+        PreheatRule(boptest_case, lead_h=-1.0)
+    with pytest.raises(ValueError, match='margin_k'):
+        PreheatRule(boptest_case, margin_k=float('nan'))
+
+
+def test_choose_by_score() -> None:
+    grid = pd.DataFrame({
+        'price': ['constant'] * 3 + ['dynamic'] * 3,
+        'lead_h': [0.0, 2.0, 4.0] * 2, 'margin_k': [0.0, 0.5, 0.5] * 2,
+        'cost_tot': [0.50, 0.60, 0.70, 0.50, 0.90, 0.70],
+        'tdis_tot': [5.0, 1.0, 0.0, 5.0, 1.0, 0.0]})
+    # scores with weight 0.1: constant 1.0, 0.7, 0.7 (tie: smaller lead); dynamic 1.0, 1.0, 0.7
+    best = choose(grid, weight=0.1)
+    assert (best['constant']['lead_h'], best['dynamic']['lead_h']) == (2.0, 4.0)
+    assert best['constant']['score'] == pytest.approx(0.7)
+    assert choose(grid, weight=0.0)['dynamic']['lead_h'] == 0.0
+
+
+def test_short_tuning_on_the_fmu(boptest_case: TestCase) -> None:
+    """Pre-heating 3 h ahead with a margin beats no lead on a cold short period, by the KPIs."""
+    tuning = tune_rule(boptest_case, 'peak_heat_day', leads_h=(0.0, 3.0), margins_k=(0.5,),
+                       warmup_days=1, length_days=2)
+    assert len(tuning.grid) == 2 * 3
+    by_lead = tuning.grid[tuning.grid['price'] == 'constant'].set_index('lead_h')
+    assert by_lead.loc[3.0, 'tdis_tot'] < by_lead.loc[0.0, 'tdis_tot']
+    for price in ('constant', 'dynamic', 'highly_dynamic'):
+        rows = tuning.grid[tuning.grid['price'] == price]
+        scores = rows['cost_tot'] + tuning.weight * rows['tdis_tot']
+        assert tuning.best[price]['score'] == pytest.approx(scores.min())
+        assert tuning.parameters(price) == (tuning.best[price]['lead_h'], 0.5)
