@@ -373,6 +373,15 @@ def test_ros_estimates_and_decides_as_the_core(context):
                                core[['T_estimate', 'Tw_estimate']], rtol=0, atol=1e-9)
     np.testing.assert_allclose([s.state_std for s in statuses],
                                core[['T_std', 'Tw_std']], rtol=0, atol=1e-12)
+    # the recorder's per-step frame shows the estimate as the core's steps do
+    from mshoot_nodes.conversions import mpc_records_frame
+    records = mpc_records_frame([sp for sp, _ in history], statuses,
+                                history[0][1].header.stamp.sec * 10 ** 9
+                                + history[0][1].header.stamp.nanosec)
+    columns = ['T_estimate', 'Tw_estimate', 'T_std', 'Tw_std']
+    np.testing.assert_allclose(records[columns].to_numpy(), core[columns].to_numpy(), rtol=0,
+                               atol=1e-9)
+    np.testing.assert_allclose(records.index.to_numpy(), core.index.to_numpy() - core.index[0])
     error = core['Tw_estimate'] - core['Tw_start']
     assert abs(error.iloc[0]) > 2.5 and error.iloc[CONVERGED_STEPS:].abs().max() < ERROR_BOUND_K
     assert health.values['measured_states'] == 'T'
