@@ -111,6 +111,7 @@ def expm2(a: np.ndarray) -> np.ndarray:
     Parameters
     ----------
     a : ndarray, shape (B, 2, 2)
+        The matrices [-] (``A dt``).
 
     Returns
     -------
