@@ -148,6 +148,13 @@ def test_records_carry_the_estimated_state_like_the_core_steps():
     assert records['T_std'].iloc[0] == 0.05 and np.isnan(records['Tw_std'].iloc[0])
     # a state taken as measured is no estimate (as in the core's steps.csv)
     assert records[['T_estimate', 'Tw_estimate', 'T_std', 'Tw_std']].iloc[1].isna().all()
+    # the steps.csv of a ROS run has them
+    from mshoot_nodes.results import steps_frame
+    applied = pd.DataFrame({'q': [100.0, 0.0], 'T_start': [294.0, 294.3],
+                            'T_end': [294.3, 294.4]}, index=pd.Index([0.0, 3600.0],
+                                                                     name='time_s'))
+    steps = steps_frame(applied, records)
+    assert steps['Tw_estimate'].iloc[0] == 291.5 and steps['T_std'].iloc[0] == 0.05
 
 
 def test_scenarios_equal_the_core_reference_scenarios(ou44_csv):
