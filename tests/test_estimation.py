@@ -97,6 +97,30 @@ def test_r2c2_is_the_exact_solution_of_its_ode_with_exact_jacobians():
     assert ydf['Qr'].iloc[-1] == pytest.approx(u[0, 4] * HOUR)
 
 
+def test_r2c2_closed_form_exponentials_equal_scipys():
+    """expm2 and expm_frechet_batch against scipy over RC networks from 1 min to 1 day."""
+    import scipy.linalg
+    from mshoot_core.models.r2c2 import expm2, expm_frechet_batch
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        cap, res = rng.uniform(1e5, 1e8, 2), 10 ** rng.uniform(-4, 0, 3)
+        model = R2C2Model(R2C2Parameters(Cair=cap[0], Cwall=cap[1], Raw=res[0], Rwa=res[1],
+                                         Rwin=res[2]))
+        a, b = model.system(np.array([[300.0, 5.0, 10.0, rng.uniform(0, 100), 500.0]]))
+        dt = float(rng.choice([60.0, 900.0, 3600.0, 86400.0]))
+        np.testing.assert_allclose(expm2(a * dt)[0], scipy.linalg.expm(a[0] * dt), rtol=0,
+                                   atol=1e-12)
+        m = np.zeros((1, 3, 3))
+        m[0, :2, :2], m[0, :2, 2] = a[0] * dt, b[0] * dt
+        e = np.zeros((1, 1, 3, 3))
+        e[0, 0, :2, :] = rng.normal(size=(2, 3)) * np.abs(m[0, :2, :]).max()
+        exp, frechet = expm_frechet_batch(m, e)
+        ref_exp, ref_frechet = scipy.linalg.expm_frechet(m[0], e[0, 0])
+        np.testing.assert_allclose(exp[0], ref_exp, rtol=0, atol=1e-10 * np.abs(ref_exp).max())
+        np.testing.assert_allclose(frechet[0, 0], ref_frechet, rtol=0,
+                                   atol=1e-9 * np.abs(ref_frechet).max())
+
+
 def test_r2c2_matches_the_r2c2_fmu(r2c2_fmu):
     """No ventilation nor occupants: the Python R2C2 is the test FMU with Qsun = shgc*solrad."""
     from mshoot_core.models.fmi import FmiModel
@@ -181,20 +205,59 @@ def test_estimate_converges_from_an_envelope_3k_off(air_only_noisy):
 
 
 def test_closed_loop_kpis_within_2_percent_of_the_fully_measured_run(fully_measured):
-    """Exact sensors: estimating the envelope (3 K off at the start) costs under 2 %."""
+    """
+    Exact sensors: estimating the envelope (3 K off at the start) costs under 2 % of energy.
+
+    Discomfort: both runs keep to the band (0.000 K h: the MPC plans the air temperature onto
+    the bound and exact sensors leave no error below it), so it is compared with an absolute
+    1e-6 K h; the capped case below has discomfort to compare relatively.
+    """
     _, reference, _ = fully_measured
     _, kpis, _ = closed_loop(('T',), 0.0)
+    assert reference['discomfort_kh'] < 1e-6
     assert kpis['energy_kwh'] == pytest.approx(reference['energy_kwh'], rel=0.02)
-    assert abs(kpis['discomfort_kh'] - reference['discomfort_kh']) <= (
-        0.02 * reference['discomfort_kh'] + 1e-6)
+    assert abs(kpis['discomfort_kh'] - reference['discomfort_kh']) <= 1e-6
+
+
+#: Heating capped so that discomfort is unavoidable (0.76 K h with exact, complete sensors).
+CAP_W = 1000.0
+SEEDS = (0, 1, 2)
+
+
+def test_closed_loop_kpis_against_the_fully_measured_run_with_the_same_sensors():
+    """
+    The fair comparison: the same 0.1 K noise on T (seeded), Tw measured or not.
+
+    Heating capped at 1000 W, so discomfort is unavoidable and a relative comparison means
+    something. The fully measured run reads Tw with the same noise and filters too (estimation
+    'ekf'); the only difference is whether Tw is measured. Means over seeds 0-2: energy -0.5 %
+    (each seed within 2 %); discomfort +5.6 % (0.951 vs 0.901 K h; 10 seeds: +7.6 %), not
+    within 2 %: about 2 points are the first step, planned from the envelope 3 K off (exact
+    sensors: +2.1 %), the rest is the air temperature estimate, better with the envelope
+    measured (0.040 vs 0.053 K rms), on a band the MPC plans onto. Stated bound: 10 %.
+    """
+    kpis = {}
+    for label, measured in (('air', ('T',)), ('full', ('T', 'Tw'))):
+        kpis[label] = [closed_loop(measured, NOISE_K, seed=seed, estimation='ekf',
+                                   heat_rate_max_w=CAP_W)[1] for seed in SEEDS]
+    mean = {label: {k: float(np.mean([run[k] for run in runs]))
+                    for k in ('energy_kwh', 'discomfort_kh')} for label, runs in kpis.items()}
+    assert mean['full']['discomfort_kh'] > 0.5  # unavoidable discomfort: 2 % is meaningful
+    for air, full in zip(kpis['air'], kpis['full']):
+        assert air['energy_kwh'] == pytest.approx(full['energy_kwh'], rel=0.02)
+    assert mean['air']['energy_kwh'] == pytest.approx(mean['full']['energy_kwh'], rel=0.02)
+    # the unmeasured envelope costs some comfort, within the stated 10 %
+    assert mean['full']['discomfort_kh'] <= mean['air']['discomfort_kh'] <= (
+        1.10 * mean['full']['discomfort_kh'])
 
 
 def test_closed_loop_kpis_with_a_noisy_sensor(fully_measured, air_only_noisy):
     """
-    0.1 K sensor noise: energy within 2 %; discomfort below a stated 0.5 K h over 72 h.
+    0.1 K noise against the exact, fully measured run: energy within 2 %; discomfort <= 0.5 K h.
 
-    The MPC plans the air temperature onto the comfort bound, so every residual error of the
-    estimate below the bound is a violation (the fully measured, noise-free run has none).
+    Discomfort below a stated 0.5 K h over 72 h. The MPC plans the air temperature onto the
+    comfort bound, so every residual error of the estimate below the bound is a violation (the
+    fully measured, noise-free run has none).
     """
     _, reference, _ = fully_measured
     _, kpis, _ = air_only_noisy
@@ -373,6 +436,15 @@ def test_ros_estimates_and_decides_as_the_core(context):
                                core[['T_estimate', 'Tw_estimate']], rtol=0, atol=1e-9)
     np.testing.assert_allclose([s.state_std for s in statuses],
                                core[['T_std', 'Tw_std']], rtol=0, atol=1e-12)
+    # the recorder's per-step frame shows the estimate as the core's steps do
+    from mshoot_nodes.conversions import mpc_records_frame
+    records = mpc_records_frame([sp for sp, _ in history], statuses,
+                                history[0][1].header.stamp.sec * 10 ** 9
+                                + history[0][1].header.stamp.nanosec)
+    columns = ['T_estimate', 'Tw_estimate', 'T_std', 'Tw_std']
+    np.testing.assert_allclose(records[columns].to_numpy(), core[columns].to_numpy(), rtol=0,
+                               atol=1e-9)
+    np.testing.assert_allclose(records.index.to_numpy(), core.index.to_numpy() - core.index[0])
     error = core['Tw_estimate'] - core['Tw_start']
     assert abs(error.iloc[0]) > 2.5 and error.iloc[CONVERGED_STEPS:].abs().max() < ERROR_BOUND_K
     assert health.values['measured_states'] == 'T'

@@ -130,6 +130,31 @@ def test_setpoint_and_status_from_an_mpc_result():
     assert records['q_setpoint'].iloc[0] == result.controls[0, 0]
     assert records['T_predicted_c'].iloc[0] == setpoint.temperature_setpoints_c[0]
     assert bool(records['success'].iloc[0]) == bool(result.success)
+    assert not [c for c in records.columns if c.endswith(('_estimate', '_std'))]
+
+
+def test_records_carry_the_estimated_state_like_the_core_steps():
+    """A status with an estimated state: {state}_estimate and {state}_std columns [K]."""
+    decision = _decision([100.0], [[294.0]], np.empty((0, 1)), np.empty((0, 1)))
+    estimated = cv.decision_status_msg(5, decision, None, solve_time_s=0.1,
+                                       state={'T': 294.2, 'Tw': 291.5},
+                                       state_std=[0.05, np.nan])
+    measured = cv.decision_status_msg(3600 * cv.NS_PER_S + 5, decision, None, solve_time_s=0.1,
+                                      state={'T': 294.4, 'Tw': 291.6})
+    assert list(estimated.state_std) == [0.05, -1.0] and list(measured.state_std) == []
+    records = cv.mpc_records_frame([], [estimated, measured], epoch_ns=5)
+    assert list(records.index) == [0.0, 3600.0]
+    assert records['T_estimate'].iloc[0] == 294.2 and records['Tw_estimate'].iloc[0] == 291.5
+    assert records['T_std'].iloc[0] == 0.05 and np.isnan(records['Tw_std'].iloc[0])
+    # a state taken as measured is no estimate (as in the core's steps.csv)
+    assert records[['T_estimate', 'Tw_estimate', 'T_std', 'Tw_std']].iloc[1].isna().all()
+    # the steps.csv of a ROS run has them
+    from mshoot_nodes.results import steps_frame
+    applied = pd.DataFrame({'q': [100.0, 0.0], 'T_start': [294.0, 294.3],
+                            'T_end': [294.3, 294.4]}, index=pd.Index([0.0, 3600.0],
+                                                                     name='time_s'))
+    steps = steps_frame(applied, records)
+    assert steps['Tw_estimate'].iloc[0] == 291.5 and steps['T_std'].iloc[0] == 0.05
 
 
 def test_scenarios_equal_the_core_reference_scenarios(ou44_csv):

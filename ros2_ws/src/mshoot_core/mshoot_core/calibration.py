@@ -13,7 +13,8 @@ the Jacobian at the optimum (covariance ``s^2 (J^T J)^-1``), and warnings for
 parameters at a bound or strongly correlated.
 
 The model is rebuilt for every parameter vector by a ``build(parameters)``
-callable: :func:`r1c1_builder` for the Python R1C1, :func:`model_builder` for
+callable: :func:`r1c1_builder` for the Python R1C1, :func:`r2c2_builder` for the
+Python R2C2 (analytic Jacobian too), :func:`model_builder` for
 any Python model built from a parameters dataclass, :func:`card_builder` for
 the model of a card and :func:`fmi_builder` for any FMU model (an FMU's
 parameters are set before every initialisation), :func:`registry_builder`
@@ -49,7 +50,7 @@ __all__ = ['calibrate', 'CalibrationResult', 'card_builder', 'cross_validate', '
            'FreeParameter', 'JACOBIANS', 'LOSSES', 'metrics', 'model_builder', 'ModelBuilder',
            'OU44_FIXED', 'OU44_FREE', 'OU44_MAX_HEAT_W', 'OU44_STUDY_BOUNDS', 'OU44_STUDY_FREE',
            'OU44_TRAIN', 'OU44_VALIDATION', 'ou44_periods', 'Period', 'r1c1_builder',
-           'registry_builder', 'simulate_period']
+           'r2c2_builder', 'registry_builder', 'simulate_period']
 
 logger = logging.getLogger(__name__)
 
@@ -402,6 +403,25 @@ def r1c1_builder(fixed: Mapping[str, float] | None = None) -> ModelBuilder:
     return ModelBuilder(R1C1Model, R1C1Parameters, fixed, label='R1C1')
 
 
+def r2c2_builder(fixed: Mapping[str, float] | None = None) -> ModelBuilder:
+    """
+    Return a builder of the Python R2C2 with ``fixed`` parameters and the free ones given.
+
+    The Jacobian of a fit is analytic (the R2C2's exact
+    ``parameter_sensitivities``); only the air temperature ``T`` is compared,
+    the envelope ``Tw`` starts where the period's ``x0`` says.
+
+    Parameters
+    ----------
+    fixed : mapping, optional
+        Fields of :class:`~mshoot_core.models.r2c2.R2C2Parameters` held fixed
+        (the others keep their defaults unless fitted).
+
+    """
+    from mshoot_core.models.r2c2 import R2C2Model, R2C2Parameters
+    return ModelBuilder(R2C2Model, R2C2Parameters, fixed, label='R2C2')
+
+
 def fmi_builder(model: Any, fixed: Mapping[str, float] | None = None) -> Builder:
     """
     Return a builder of an FMU model (:class:`~mshoot_core.models.fmi.FmiModel`).
@@ -445,7 +465,7 @@ def card_builder(card: Any, tolerance: float | None = None,
     Return a builder of a model card's model with the given parameters.
 
     For an FMU the model is built once and its parameters replaced before
-    each simulation (:func:`fmi_builder`); the Python R1C1 is rebuilt.
+    each simulation (:func:`fmi_builder`); the Python R1C1 and R2C2 are rebuilt.
 
     Parameters
     ----------
@@ -464,6 +484,8 @@ def card_builder(card: Any, tolerance: float | None = None,
         card = cards.load_card(card)
     if card.builtin == 'r1c1':
         return r1c1_builder({**card.parameters, **dict(fixed or {})})
+    if card.builtin == 'r2c2':
+        return r2c2_builder({**card.parameters, **dict(fixed or {})})
     model = cards.build_model(card, role='control', tolerance=tolerance)
     return fmi_builder(model, fixed)
 
@@ -476,7 +498,8 @@ def registry_builder(name: str, fixed: Mapping[str, float] | None = None,
     Parameters
     ----------
     name : str
-        'python' (the exact R1C1, analytic Jacobian), 'fmu' or 'fmu-cs' (the
+        'python' (the exact R1C1, analytic Jacobian), 'r2c2' (the exact
+        R2C2, analytic Jacobian), 'fmu' or 'fmu-cs' (the
         built-in R1C1 FMU), a path to an .fmu file with the R1C1's variables,
         or a model card (.yaml).
     fixed : mapping, optional
@@ -494,6 +517,8 @@ def registry_builder(name: str, fixed: Mapping[str, float] | None = None,
     from mshoot_core.models import registry
     if name == 'python':
         return r1c1_builder(fixed)
+    if name == 'r2c2':
+        return r2c2_builder(fixed)
     if registry.is_card_path(name):
         return card_builder(name, tolerance, fixed)
     if name in ('fmu', 'fmu-cs') or str(name).endswith('.fmu'):

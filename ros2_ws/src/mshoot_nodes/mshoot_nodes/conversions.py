@@ -421,7 +421,11 @@ def mpc_records_frame(setpoints: Iterable[Setpoint], statuses: Iterable[MpcStatu
         ``<zone>_predicted_c`` for every zone temperature (``T_predicted_c``
         [degC]), ``success``, ``fallback``, ``iterations``, ``solve_time_s``,
         ``objective``, ``max_defect``, ``message``, ``source``,
-        ``fallback_reason``.
+        ``fallback_reason``; where a status carries an estimated state (its
+        ``state_std``), ``<state>_estimate`` (the state the step was planned
+        from [K]) and ``<state>_std`` (its standard deviation [K], NaN where
+        the status reports -1), as in the core's per-step records
+        (:func:`mshoot_core.closed_loop.step_row`).
 
     """
     rows: dict[int, dict] = {}
@@ -441,6 +445,11 @@ def mpc_records_frame(setpoints: Iterable[Setpoint], statuses: Iterable[MpcStatu
                        objective=msg.objective, max_defect=msg.max_defect,
                        message=msg.message, source=msg.source,
                        fallback_reason=msg.fallback_reason)
+            if len(msg.state_std) and len(msg.state_std) == len(msg.state_names) \
+                    == len(msg.state_values):
+                for name, value, std in zip(msg.state_names, msg.state_values, msg.state_std):
+                    row[f'{name}_estimate'] = float(value)
+                    row[f'{name}_std'] = float(std) if std >= 0 else np.nan
     frame = pd.DataFrame.from_dict(rows, orient='index').sort_index()
     frame = frame.drop(columns=['setpoint'], errors='ignore')
     frame.index = pd.Index((frame.index.to_numpy(dtype=np.int64) - int(epoch_ns)) / NS_PER_S,

@@ -22,7 +22,8 @@ import numpy as np
 import pandas as pd
 
 #: Columns of the per-step MPC records that go into steps.csv (besides every
-#: ``<control>_setpoint`` and ``<zone>_predicted_c``).
+#: ``<control>_setpoint``, ``<zone>_predicted_c`` and, with an estimated state,
+#: ``<state>_estimate`` and ``<state>_std``).
 MPC_COLUMNS = ('solve_time_s', 'success', 'fallback', 'iterations', 'objective',
                'max_defect', 'message')
 #: The zone temperatures of a single-zone (R1C1) run: state -> column of the fine trajectory.
@@ -45,13 +46,16 @@ def steps_frame(applied: pd.DataFrame, mpc_records: pd.DataFrame) -> pd.DataFram
     Returns
     -------
     DataFrame
-        ``applied`` joined with the MPC columns, plus ``<zone>_predicted`` [K]
+        ``applied`` joined with the MPC columns (with an estimated state its
+        ``<state>_estimate`` and ``<state>_std`` [K], as the core's steps.csv),
+        plus ``<zone>_predicted`` [K]
         for every ``<zone>_predicted_c`` (``T_predicted``); steps without an
         MPC record (should not happen in lockstep) get ``success`` False and
         ``solve_time_s`` 0.
 
     """
-    named = [c for c in mpc_records.columns if c.endswith(('_setpoint', '_predicted_c'))]
+    named = [c for c in mpc_records.columns
+             if c.endswith(('_setpoint', '_predicted_c', '_estimate', '_std'))]
     steps = applied.drop(columns=['stamp_ns'], errors='ignore').join(
         mpc_records.reindex(columns=[*MPC_COLUMNS[:-1], *named, MPC_COLUMNS[-1]]), how='left')
     steps['mpc_record'] = steps['success'].notna()

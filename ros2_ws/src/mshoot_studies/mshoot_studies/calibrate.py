@@ -23,6 +23,12 @@ of the published parameters computed the same way, warnings, wall time),
 parameters, for ``mshoot case --control``) and ``calibration.png`` (measured
 vs simulated over both periods). ``--cv-folds N`` adds a blocked
 cross-validation inside the training period (no validation data).
+
+``--model r2c2`` calibrates the Python R2C2 instead (air and envelope nodes,
+analytic Jacobian; free by default Cair, Cwall, Raw, Rwa, Rwin, shgc, fsun,
+occheff within :data:`R2C2_BOUNDS`, Tve and maxVent fixed as above): only the
+air temperature is compared, the envelope starts at the measured air
+temperature of each period's first row; writes ``r2c2_calibrated.yaml``.
 """
 from __future__ import annotations
 
@@ -37,6 +43,7 @@ from typing import Any, Sequence
 from mshoot_core import calibration
 from mshoot_core.models import card as cards
 from mshoot_core.models.r1c1 import OCC_HEAT_W, R1C1Parameters
+from mshoot_core.models.r2c2 import R2C2Parameters
 from mshoot_core.scenario import DEFAULT_DATA
 import numpy as np
 import yaml
@@ -47,6 +54,13 @@ logger = logging.getLogger(__name__)
 BOUNDS = {'tmass': (1.0, 250.0), 'shgc': (0.0, 20.0), 'occheff': (0.0, 10.0),
           'RExt': (0.1, 40.0), 'Tve': (10.0, 30.0), 'Vi': (50.0, 5000.0),
           'maxVent': (0.0, 20000.0)}
+#: Bounds of every R2C2 parameter that may be freed (``--model r2c2``; no study bounds).
+R2C2_BOUNDS = {'Cair': (1.0e5, 1.0e8), 'Cwall': (1.0e6, 1.0e9), 'Raw': (1.0e-4, 0.1),
+               'Rwa': (1.0e-3, 1.0), 'Rwin': (1.0e-3, 1.0), 'shgc': (0.0, 20.0),
+               'fsun': (0.0, 1.0), 'occheff': (0.0, 10.0), 'Tve': (10.0, 30.0),
+               'maxVent': (0.0, 20000.0)}
+#: R2C2 parameters freed by default.
+R2C2_FREE = ('Cair', 'Cwall', 'Raw', 'Rwa', 'Rwin', 'shgc', 'fsun', 'occheff')
 #: Bounds by ``--bounds`` choice: the study's own (the default) or the wide ones.
 BOUND_SETS = {'study': {**BOUNDS, **calibration.OU44_STUDY_BOUNDS}, 'wide': BOUNDS}
 #: What calibration.json says of each choice of bounds.
@@ -62,11 +76,15 @@ BOUND_SOURCES = {
 FREE = ('tmass', 'shgc', 'occheff', 'RExt')
 #: The published (calibrated) parameters of the reference case.
 PUBLISHED = dataclasses.asdict(R1C1Parameters())
+#: Default parameters of the Python R2C2 (its start values), Tve and maxVent the OU44's.
+R2C2_DEFAULTS = {**dataclasses.asdict(R2C2Parameters()), 'Tve': calibration.OU44_FIXED['Tve'],
+                 'maxVent': calibration.OU44_FIXED['maxVent']}
 #: Floor area of the OU44 classroom [m2] (the data's README; the study's Vi = 139 m2 * 3.5 m).
 FLOOR_AREA_M2 = 139.0
 #: Files written to ``--out``.
 JSON_NAME = 'calibration.json'
 CARD_NAME = 'r1c1_calibrated.yaml'
+R2C2_CARD_NAME = 'r2c2_calibrated.yaml'
 FIGURE_NAME = 'calibration.png'
 
 
@@ -93,11 +111,12 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                         help='validation period, inclusive (default: %(default)s)')
     parser.add_argument('--model', type=pathlib.Path, default=None, metavar='CARD',
                         help='model card of the model to calibrate (e.g. the built-in R1C1 FMU '
-                             'card); default: the Python R1C1')
-    parser.add_argument('--free', default=','.join(FREE),
+                             "card), or 'r2c2' (the Python R2C2); default: the Python R1C1")
+    parser.add_argument('--free', default=None,
                         help='comma-separated parameters to fit, from '
-                             f'{list(BOUNDS)} (default: %(default)s); the others are fixed '
-                             'at their published values')
+                             f'{list(BOUNDS)} (default: {",".join(FREE)}; R2C2: from '
+                             f'{list(R2C2_BOUNDS)}, default {",".join(R2C2_FREE)}); the '
+                             'others are fixed at their published (R2C2: default) values')
     parser.add_argument('--bounds', choices=sorted(BOUND_SETS), default='study',
                         help="default bounds: the reference study's (prior knowledge; tmass "
                              '1:50, shgc 0:10, occheff 0.5:3, RExt 0.5:4) or wide ones (tmass '
@@ -149,9 +168,13 @@ def _pair(text: str, option: str) -> tuple[str, float, float]:
         raise ValueError(f'{option} {text!r}: expected NAME=A:B with numbers A and B') from None
 
 
-def free_parameters(args: argparse.Namespace) -> list[calibration.FreeParameter]:
+def free_parameters(args: argparse.Namespace,
+                    structure: str = 'r1c1') -> list[calibration.FreeParameter]:
     """
     Return the free parameters of the command line (names, bounds, priors).
+
+    ``structure`` is 'r1c1' (the R1C1's parameters, :data:`BOUND_SETS`) or
+    'r2c2' (the R2C2's, :data:`R2C2_BOUNDS`, started at their defaults).
 
     Raises
     ------
@@ -159,13 +182,17 @@ def free_parameters(args: argparse.Namespace) -> list[calibration.FreeParameter]
         For an unknown or repeated name, bad bounds or priors.
 
     """
-    names = [n.strip() for n in args.free.split(',') if n.strip()]
-    unknown = [n for n in names if n not in BOUNDS]
+    r2c2 = structure == 'r2c2'
+    table = R2C2_BOUNDS if r2c2 else BOUND_SETS[getattr(args, 'bounds', 'wide')]
+    text = args.free if args.free is not None else ','.join(R2C2_FREE if r2c2 else FREE)
+    names = [n.strip() for n in text.split(',') if n.strip()]
+    unknown = [n for n in names if n not in table]
     if not names or unknown:
-        raise ValueError(f'--free {args.free!r}: expected names from {list(BOUNDS)}')
+        raise ValueError(f'--free {text!r}: expected names from {list(table)}')
     if len(set(names)) != len(names):
-        raise ValueError(f'--free {args.free!r}: a parameter is named twice')
-    bounds = {n: BOUND_SETS[getattr(args, 'bounds', 'wide')][n] for n in names}
+        raise ValueError(f'--free {text!r}: a parameter is named twice')
+    starts = R2C2_DEFAULTS if r2c2 else PUBLISHED
+    bounds = {n: table[n] for n in names}
     for text in args.bound:
         name, lo, hi = _pair(text, '--bound')
         if name not in bounds:
@@ -179,7 +206,7 @@ def free_parameters(args: argparse.Namespace) -> list[calibration.FreeParameter]
         priors[name] = (mean, sd)
     free = []
     for name, (lo, hi) in bounds.items():
-        start = min(max(PUBLISHED[name], lo), hi) if lo < hi else PUBLISHED[name]
+        start = min(max(starts[name], lo), hi) if lo < hi else starts[name]
         mean, sd = priors.get(name, (None, None))
         free.append(calibration.FreeParameter(name, start, lo, hi, mean, sd))
     return free
@@ -206,6 +233,22 @@ def physical(parameters: dict[str, float]) -> dict[str, float]:
             'envelope_time_constant_h': capacity * values.resistance_k_w / 3600.0}
 
 
+def physical_r2c2(parameters: dict[str, float]) -> dict[str, float]:
+    """
+    Return the physical quantities of R2C2 parameters, to judge their plausibility.
+
+    ``capacity_kj_m2k``: both capacities per floor area [kJ/(m2 K)];
+    ``air_capacity_mj_k``, ``envelope_capacity_mj_k`` [MJ/K];
+    ``envelope_ua_w_k``: steady conductance to the outdoors 1/Rwin +
+    1/(Raw + Rwa) [W/K]; ``occupant_heat_w`` [W]; ``shgc_m2`` [m2].
+    """
+    p = R2C2Parameters(**{**R2C2_DEFAULTS, **parameters})
+    return {'air_capacity_mj_k': p.Cair / 1e6, 'envelope_capacity_mj_k': p.Cwall / 1e6,
+            'capacity_kj_m2k': (p.Cair + p.Cwall) / FLOOR_AREA_M2 / 1e3,
+            'envelope_ua_w_k': 1.0 / p.Rwin + 1.0 / (p.Raw + p.Rwa),
+            'occupant_heat_w': p.occheff * OCC_HEAT_W, 'shgc_m2': p.shgc}
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Parse ``argv`` (default: the process arguments) and run; the exit code."""
     return run(build_parser().parse_args(argv))
@@ -226,11 +269,21 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f'--f-scale must be a positive residual [K], got {args.f_scale}')
         if args.cv_folds < 0 or args.cv_folds == 1:
             raise ValueError(f'--cv-folds must be 0 (none) or >= 2, got {args.cv_folds}')
-        free = free_parameters(args)
+        model_arg = args.model
+        if model_arg is not None and str(model_arg) == 'r2c2':
+            model_arg = cards.builtin_card('r2c2')
+        card = None if model_arg is None else cards.load_card(model_arg)
+        r2c2 = card is not None and card.builtin == 'r2c2'
+        free = free_parameters(args, 'r2c2' if r2c2 else 'r1c1')
         train, validation = calibration.ou44_periods(data, tuple(args.train),
                                                      tuple(args.validation), args.max_heat)
-        card = None if args.model is None else cards.load_card(args.model)
-        if card is None or card.builtin == 'r1c1':
+        if r2c2:  # the envelope starts at the measured air temperature
+            fixed = {k: v for k, v in {**R2C2_DEFAULTS, **card.parameters}.items()
+                     if k not in {p.name for p in free}}
+            build = calibration.r2c2_builder(fixed)
+            train, validation = (dataclasses.replace(p, x0=np.array([p.x0[0], p.x0[0]]))
+                                 for p in (train, validation))
+        elif card is None or card.builtin == 'r1c1':
             fixed = {k: v for k, v in PUBLISHED.items() if k not in {p.name for p in free}}
             build = calibration.r1c1_builder(fixed)
         else:
@@ -255,13 +308,14 @@ def run(args: argparse.Namespace) -> int:
     published_model = calibration.r1c1_builder()({})
     published = {'parameters': PUBLISHED, 'physical': physical(PUBLISHED)}
     published_sim = {}
-    for period in (train, validation):
-        published_sim[period.name] = calibration.simulate_period(published_model, period)
+    for period in (train, validation):  # the R1C1 from the measured temperature
+        published_sim[period.name] = calibration.simulate_period(
+            published_model, dataclasses.replace(period, x0=period.x0[:1]))
         scores = calibration.metrics(published_sim[period.name], period.measured)
         published[f'rmse_{period.name}_k'] = scores['rmse_k']
         published[f'mae_{period.name}_k'] = scores['mae_k']
     comparison, compared_sim = {}, None
-    if args.bounds == 'study' and not args.no_compare:
+    if args.bounds == 'study' and not args.no_compare and not r2c2:
         wide = [dataclasses.replace(p, lower=BOUNDS[p.name][0], upper=BOUNDS[p.name][1])
                 for p in free]
         logger.info('comparison: the same fit within the wide bounds')
@@ -284,17 +338,20 @@ def run(args: argparse.Namespace) -> int:
                 build, wide, train, args.cv_folds, **options)['rmse_k']
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    card_path = write_card(out / CARD_NAME, {**fixed, **result.parameters}, result, card)
+    card_path = write_card(out / (R2C2_CARD_NAME if r2c2 else CARD_NAME),
+                           {**fixed, **result.parameters}, result, card)
     figure = None
     if not args.no_figure:
         figure = draw(out / FIGURE_NAME, [train, validation], result.simulated, published_sim,
-                      compared_sim, f'calibrated ({args.bounds} bounds)')
+                      compared_sim, 'calibrated R2C2' if r2c2 else
+                      f'calibrated ({args.bounds} bounds)',
+                      'R2C2' if r2c2 else 'R1C1')
     overridden = {p.name for p in free} & {_pair(t, '--bound')[0] for t in args.bound}
     report = {
         'case': args.case, 'data': str(data),
         'model': 'python r1c1' if card is None else str(card.path),
         'parameters': result.parameters,
-        'physical': physical({**fixed, **result.parameters}),
+        'physical': (physical_r2c2 if r2c2 else physical)({**fixed, **result.parameters}),
         'fixed': fixed,
         'rmse_train_k': result.metrics['train']['rmse_k'],
         'rmse_validation_k': result.metrics['validation']['rmse_k'],
@@ -302,7 +359,8 @@ def run(args: argparse.Namespace) -> int:
         'mae_validation_k': result.metrics['validation']['mae_k'],
         'published': published, 'wall_s': result.wall_s,
         'total_wall_s': None,
-        'bounds_source': BOUND_SOURCES[args.bounds] + (
+        'bounds_source': ('R2C2 bounds of mshoot_studies.calibrate.R2C2_BOUNDS (no study '
+                          'bounds for this structure)' if r2c2 else BOUND_SOURCES[args.bounds]) + (
             f'; overridden by --bound for {sorted(overridden)}' if overridden else ''),
         'setup': {'train': list(args.train), 'validation': list(args.validation),
                   'rows': {p.name: len(p.measured) for p in (train, validation)},
@@ -366,7 +424,7 @@ def write_card(path: pathlib.Path, parameters: dict[str, float],
 def draw(path: pathlib.Path, periods: Sequence[calibration.Period],
          simulated: dict[str, np.ndarray], published: dict[str, np.ndarray],
          wide: dict[str, np.ndarray] | None = None,
-         label: str = 'calibrated') -> pathlib.Path:
+         label: str = 'calibrated', structure: str = 'R1C1') -> pathlib.Path:
     """Draw measured vs simulated (fitted, published, wide-bounds fit) over the periods."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -382,7 +440,7 @@ def draw(path: pathlib.Path, periods: Sequence[calibration.Period],
         ax_t.plot(when, simulated[period.name], color='tab:red', lw=1.4,
                   label=label if first else None)
         ax_t.plot(when, published[period.name], color='tab:blue', lw=1.0, ls='--',
-                  label='published parameters' if first else None)
+                  label='published R1C1 parameters' if first else None)
         ax_e.plot(when, simulated[period.name] - period.measured, color='tab:red', lw=1.2)
         ax_e.plot(when, published[period.name] - period.measured, color='tab:blue', lw=1.0,
                   ls='--')
@@ -402,7 +460,8 @@ def draw(path: pathlib.Path, periods: Sequence[calibration.Period],
     ax_e.axhline(0.0, color='k', lw=0.5)
     ax_e.set_ylabel('simulated − measured [K]')
     ax_e.grid(alpha=0.3)
-    fig.suptitle('R1C1 calibration: free simulation of each period from its first measurement')
+    fig.suptitle(f'{structure} calibration: free simulation of each period from its first '
+                 'measurement')
     fig.autofmt_xdate()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=DPI, pil_kwargs={'compress_level': PNG_COMPRESSION})
