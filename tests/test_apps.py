@@ -117,7 +117,9 @@ def test_mshoot_case_loads_only_what_the_case_uses(tmp_path):
     """
     ``mshoot case`` imports neither the study (nor its cluster client) nor matplotlib.
 
-    Matplotlib is imported by its plot worker.
+    Matplotlib is imported by its plot worker. Nor, with an FMU control model and SLSQP, the
+    SciPy optimisers (SLSQP's core is loaded on its own), SciPy's sparse matrices, or the
+    model cards' YAML and JSON Schema.
     """
     probe = ('import json, sys\n'
              'from mshoot_studies import cli\n'
@@ -130,8 +132,10 @@ def test_mshoot_case_loads_only_what_the_case_uses(tmp_path):
     assert done.returncode == 0, done.stderr
     code, modules = json.loads(done.stdout.splitlines()[-1])
     assert code == 0 and 'mshoot_studies.case' in modules and 'mshoot_core.mpc' in modules
-    assert not [m for m in modules if m.split('.')[0] in ('matplotlib', 'dask', 'distributed')
-                or m == 'mshoot_studies.study']
+    assert not [m for m in modules if m.split('.')[0] in ('matplotlib', 'dask', 'distributed',
+                                                          'yaml', 'jsonschema')
+                or m in ('mshoot_studies.study', 'scipy.optimize', 'scipy.sparse')]
+    assert 'scipy.optimize._slsqplib' in modules
     assert (tmp_path / 'case' / 'plot.png').stat().st_size > 10_000
 
 

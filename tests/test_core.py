@@ -222,6 +222,54 @@ def test_energy_cost_spends_less_energy_than_quadratic():
     assert energies['energy'] < energies['quadratic'] * 0.999
 
 
+class _RecordingSlsqp(SlsqpSolver):
+    """SLSQP that keeps every NLP it solves, with its start point, and its results."""
+
+    def __init__(self, **options):
+        super().__init__(**options)
+        self.solved = []
+
+    def solve(self, nlp, z0, deadline=None):
+        res = super().solve(nlp, z0, deadline)
+        self.solved.append((nlp, np.array(z0, dtype=float), res))
+        return res
+
+
+@pytest.mark.parametrize('soft', [False, True])
+@pytest.mark.parametrize('x0', [293.6, 297.0])
+def test_slsqp_driver_takes_scipys_iterates(soft, x0):
+    """
+    The SLSQP driver (:mod:`mshoot_core.slsqp`) is ``scipy.optimize.minimize(method='SLSQP')``.
+
+    Hard and soft bounds, a reachable band (x0 = 293.6 K) and one that needs the least-violation
+    phase (297 K in a crowded room): the same iterates to the last bit (x, nit, nfev,
+    status, message).
+    """
+    problem, dist, lower, upper = _ou_like_problem(n=6, soft=soft)
+    dist[:, 2] = 60.0 if x0 > 295 else dist[:, 2]
+    solver = _RecordingSlsqp(max_iter=100, tol=1e-10)
+    problem.solve([x0], dist, lower, upper, solver)
+    assert solver.solved and (soft or x0 < 295 or len(solver.solved) == 2)
+    for nlp, z0, ours in solver.solved:
+        constraints = [{'type': 'eq', 'fun': nlp.eq_fun, 'jac': nlp.eq_jac.dense}]
+        if nlp.ineq_fun is not None:
+            constraints.append({'type': 'ineq', 'fun': nlp.ineq_fun, 'jac': nlp.ineq_jac.dense})
+        scipys = optimize.minimize(nlp.fun, np.clip(z0, nlp.lb, nlp.ub), jac=nlp.grad,
+                                   bounds=optimize.Bounds(nlp.lb, nlp.ub),
+                                   constraints=constraints, method='SLSQP',
+                                   options={'maxiter': 100, 'ftol': 1e-10})
+        np.testing.assert_array_equal(ours.x, scipys.x)
+        assert (ours.nit, ours.nfev, ours.njev, ours.status, ours.message, ours.success) == (
+            scipys.nit, scipys.nfev, scipys.njev, scipys.status, scipys.message, scipys.success)
+        assert ours.fun == scipys.fun
+
+
+def test_slsqp_driver_stops_at_its_deadline_as_scipy_reports_a_callback_stop():
+    problem, dist, lower, upper = _ou_like_problem(n=6)
+    res = problem.solve([293.6], dist, lower, upper, SlsqpSolver(), deadline=0.0)
+    assert res.budget_exceeded and not res.success and res.nit <= 1
+
+
 def test_nlp_index_named_views():
     idx = NlpIndex(3, 2, 1, soft=True)
     z = np.arange(idx.size, dtype=float)

@@ -207,8 +207,12 @@ class Model(abc.ABC):
             On a wrong shape or a non-finite value, naming the model's variables.
 
         """
-        x_start = np.atleast_2d(np.asarray(x_start, dtype=float))
-        u = np.atleast_2d(np.asarray(u, dtype=float))
+        x_start = np.asarray(x_start, dtype=float)
+        if x_start.ndim != 2:
+            x_start = np.atleast_2d(x_start)
+        u = np.asarray(u, dtype=float)
+        if u.ndim != 2:
+            u = np.atleast_2d(u)
         nx, nu = len(self.state_names), len(self.input_names)
         if x_start.ndim != 2 or x_start.shape[1] != nx:
             raise ValueError(f'x_start must have shape (B, {nx}) for states '
@@ -216,7 +220,10 @@ class Model(abc.ABC):
         if u.ndim != 2 or u.shape != (x_start.shape[0], nu):
             raise ValueError(f'u must have shape ({x_start.shape[0]}, {nu}) for inputs '
                              f'{list(self.input_names)}, got {u.shape}')
-        if not (np.all(np.isfinite(x_start)) and np.all(np.isfinite(u))):
+        # one sum for the usual case; element-wise only when it is not finite (a sum of
+        # finite values can overflow)
+        if not math.isfinite(np.add.reduce(x_start, None) + np.add.reduce(u, None)) and not (
+                np.all(np.isfinite(x_start)) and np.all(np.isfinite(u))):
             raise ValueError('x_start and u must be finite')
         return x_start, u
 

@@ -258,6 +258,7 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         self._solver: Any = None
         self._sensitivity_solvers: dict[tuple[int, ...], tuple[Any, Any]] = {}
         self._sensitivity_requests: dict[tuple[int, ...], Any] = {}
+        self._jacobian_plans: dict[tuple, Any] = {}  # (fmi_sensitivities)
         if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float)) \
                 or not 0.0 < float(tolerance) < 1.0:
             raise ValueError(f'tolerance must be a float in (0, 1), got {tolerance!r}')
@@ -415,6 +416,7 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         self._cs_driver = None
         self._me_driver = None
         self._me_problems: dict[tuple, tuple[MeProblem, list]] = {}
+        self._me_bound: dict[tuple, Any] = {}  # BoundMeBatch by problem and size
         self._bind_drivers()
         logger.debug('instantiated %s as %s', self.fmu_path.name, self.fmi_type)
 
@@ -439,6 +441,7 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         self._solver = None
         self._sensitivity_solvers = {}
         self._me_problems = {}
+        self._me_bound = {}
         self._cs_driver = self._me_driver = None  # bound to the instance's library
         self._plant = None
         if fmu is not None:

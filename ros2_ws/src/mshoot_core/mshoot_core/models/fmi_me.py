@@ -233,7 +233,9 @@ class ModelExchangeIntegration:
         :class:`~mshoot_core.models.fmi_values.FmuValueError`, found by
         integrating that interval with CVode), which is raised and leaves
         the driver on. Interval b starts at FMU time ``t_start[b]`` (None:
-        every interval at 0).
+        every interval at 0). The batch runs on buffers bound once per batch size
+        (:class:`~mshoot_core.models.fmi_drivers.BoundMeBatch`): the returned ``S``
+        and partials are those buffers, valid until the next batch.
 
         Raises
         ------
@@ -258,18 +260,23 @@ class ModelExchangeIntegration:
             if len(self._me_problems) >= 16:
                 self._me_problems.clear()
             self._me_problems[key] = self._me_problem(dt_s, sensitivities)
-        problem, _ = self._me_problems[key]
-        batch, n = x_start.shape[0], self._n_continuous
-        m = len(sensitivities.input_refs) if sensitivities is not None else 0
-        columns = len(self._state_vars) + m
-        s_end = np.zeros((batch, n, columns)) if sensitivities is not None else np.zeros(1)
-        dyo = np.zeros((batch, problem.n_yo, n + m)) if sensitivities is not None \
-            else np.zeros(1)
-        starts = np.ascontiguousarray(x_start, dtype=float)
-        inputs = np.ascontiguousarray(u, dtype=float)
+        entry = self._me_problems[key]
+        bound_key = (key, x_start.shape[0], t_start is None)
+        bound = self._me_bound.get(bound_key)
+        if bound is None or bound.problem is not entry or bound.driver is not self._me_driver \
+                or bound.component is not self._fmu.component:
+            if len(self._me_bound) >= 16:
+                self._me_bound.clear()
+            bound = self._me_driver.bind(self._fmu.component, entry, x_start.shape[0],
+                                         x_start.shape[1], u.shape[1], y_end.shape[1],
+                                         t_start is not None)
+            self._me_bound[bound_key] = bound
+        np.copyto(bound.starts, x_start)
+        np.copyto(bound.inputs, u)
+        if t_start is not None:
+            np.copyto(bound.times, t_start)
         try:
-            self._me_driver.run(self._fmu.component, problem, starts, inputs, x_end, y_end,
-                                s_end, dyo, t_start=t_start)
+            bound.run()
         except DriverGaveUp as gave_up:
             self._non_finite_interval(x_start, u, dt_s, t_start, gave_up)
             logger.warning('%s: the batched Model Exchange driver stopped at interval %d (%s); '
@@ -277,7 +284,9 @@ class ModelExchangeIntegration:
                            gave_up.interval, gave_up.reason)
             self._me_driver = False
             return False
-        return (s_end, dyo) if sensitivities is not None else True
+        np.copyto(x_end, bound.x_end)
+        np.copyto(y_end, bound.y_end)
+        return (bound.s_end, bound.dyo) if sensitivities is not None else True
 
     def _non_finite_interval(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                              t_start: np.ndarray | None, gave_up: DriverGaveUp) -> None:
