@@ -256,6 +256,7 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         self._fmu_time: float | None = None
         self._non_finite_seen: tuple | None = None
         self._solver: Any = None
+        self._solver_start = 0.0  # (re)start time of CVode, while not created
         self._sensitivity_solvers: dict[tuple[int, ...], tuple[Any, Any]] = {}
         self._sensitivity_requests: dict[tuple[int, ...], Any] = {}
         self._jacobian_plans: dict[tuple, Any] = {}  # (fmi_sensitivities)

@@ -26,6 +26,7 @@ inside the FMU see the interval's own time.
 from __future__ import annotations
 
 import logging
+from typing import Any
 
 import numpy as np
 
@@ -84,7 +85,22 @@ class ModelExchangeIntegration:
         fmu.setContinuousStates(double_pointer(self._x_full), n)
 
     def _ensure_solver(self, t0: float) -> None:
-        """Create the CVode solver on first use, else re-start it at ``t0``."""
+        """
+        (Re)start the CVode solver at ``t0`` from the FMU's current states.
+
+        Before the first CVode integration the solver is not created here but when
+        :meth:`_integrate` first needs it, at the last start time given: created there
+        from the same states (nothing changes them in between), it starts as a re-start
+        here would. A model whose intervals all go to the compiled driver never loads
+        CVode.
+        """
+        if self._solver is None:
+            self._solver_start = t0
+        else:
+            self._solver.reset(t0)
+
+    def _cvode(self) -> Any:
+        """Return the CVode solver, created at the pending start time if it is not yet."""
         if self._solver is None:
             from fmpy.sundials import CVodeSolver
             fmu = self._fmu
@@ -93,10 +109,9 @@ class ModelExchangeIntegration:
                 get_x=fmu.getContinuousStates, set_x=fmu.setContinuousStates,
                 get_dx=self._derivatives_checked, get_z=fmu.getEventIndicators,
                 get_nominals=fmu.getNominalsOfContinuousStates, set_time=self._record_time,
-                input=HeldInputs(), startTime=t0, relativeTolerance=self.tolerance,
-                maxNumSteps=MAX_SOLVER_STEPS)
-        else:
-            self._solver.reset(t0)
+                input=HeldInputs(), startTime=self._solver_start,
+                relativeTolerance=self.tolerance, maxNumSteps=MAX_SOLVER_STEPS)
+        return self._solver
 
     def _enter_continuous_time(self, t0: float, x0: np.ndarray) -> None:
         """After initialisation: settle the events, enter continuous time, write ``x0``."""
@@ -112,11 +127,12 @@ class ModelExchangeIntegration:
         self._set_inputs(u)
         self._event_iteration()
         fmu.enterContinuousTimeMode()
-        self._solver.reset(t)
+        self._ensure_solver(t)
 
     def _integrate(self, t: float, t_end: float) -> None:
         """Integrate from ``t`` to ``t_end`` with CVode, handling the FMU's events."""
         fmu = self._fmu
+        solver = self._cvode()
         needs_step_call = bool(self._interface.needsCompletedIntegratorStep)
         eps = 1e-12 * max(1.0, abs(t_end))
         while t_end - t > eps:
@@ -124,7 +140,7 @@ class ModelExchangeIntegration:
             event_time = self._next_event_time
             if event_time is not None and t + eps < event_time < t_end - eps:
                 t_next = event_time
-            state_event, _, t = self._solver.step(t, t_next)
+            state_event, _, t = solver.step(t, t_next)
             fmu.setTime(t)
             step_event = False
             if needs_step_call:
@@ -136,7 +152,7 @@ class ModelExchangeIntegration:
                 fmu.enterEventMode()
                 self._event_iteration()
                 fmu.enterContinuousTimeMode()
-                self._solver.reset(t)
+                solver.reset(t)
 
     def _restore_snapshot(self, x0: np.ndarray, u: np.ndarray, t0: float = 0.0) -> None:
         """
