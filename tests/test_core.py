@@ -433,6 +433,22 @@ def _small_run():
     return result, closed_loop_kpis(result.steps, result.fine, 3600.0, result.wall_s)
 
 
+def test_write_csv_writes_pandas_bytes(tmp_path):
+    """The fast writer of float frames writes what ``to_csv`` writes; other frames go to it."""
+    from mshoot_core.outputs import write_csv
+    rng = np.random.default_rng(3)
+    values = rng.normal(size=(400, 5)) * 10.0 ** rng.integers(-20, 20, size=(400, 5))
+    values[0] = [0.0, -0.0, np.inf, -np.inf, np.nan]
+    values[1] = [1e16, 1e-5, 1e-4, 5e-324, 0.1]
+    frame = pd.DataFrame(values, columns=['x_T', 'y_T', 'y_Qr', 'comfort_min', 'q'],
+                         index=pd.Index(np.arange(400) * 60.0, name='time_s'))
+    odd = frame.rename(columns={'q': 'q, heat'}).assign(ok=True)
+    for table in (frame, odd, frame.astype({'q': 'float32'})):
+        write_csv(table, tmp_path / 'ours.csv', index_label='time_s')
+        table.to_csv(tmp_path / 'pandas.csv', index_label='time_s')
+        assert (tmp_path / 'ours.csv').read_bytes() == (tmp_path / 'pandas.csv').read_bytes()
+
+
 def test_plot_worker_draws_the_figure_of_this_process(tmp_path):
     """
     The worker process writes the PNG this process would, pixel for pixel.
