@@ -87,10 +87,17 @@ def test_mshoot_verbs_use_their_modules_parsers():
 
 
 def test_mshoot_command_is_on_the_path_with_help_per_verb():
-    """The console script of the colcon install, as a shell that sourced env.sh finds it."""
+    """
+    The command of the colcon install, as a shell that sourced env.sh finds it.
+
+    A plain script (a symlink into the sources) in the install's ``bin``, not a generated
+    console-script launcher: that one reads the installed packages' metadata at every command.
+    """
     path = shutil.which('mshoot')
     assert path is not None, 'mshoot not on PATH: source env.sh'
-    assert pathlib.Path(path).resolve().is_relative_to((ROOT / 'ros2_ws' / 'install').resolve())
+    install = (ROOT / 'ros2_ws' / 'install').resolve()
+    assert pathlib.Path(path).parent.resolve() == install / 'mshoot_studies' / 'bin'
+    assert 'load_entry_point' not in pathlib.Path(path).read_text()
     expected = {(): ['case', 'study'], ('case',): ['--control', '--horizon', 'ou44'],
                 ('study',): ['--jobs', '--dask', '--timeout', '--parts']}
     for verb, words in expected.items():
