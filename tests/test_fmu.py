@@ -13,6 +13,7 @@ from fmpy.fmi2 import FMU2Model, FMU2Slave
 from fmpy.validation import validate_fmu
 from mshoot_core import fmu_build, fmu_cache
 from mshoot_core.models import fmi_me
+from mshoot_core.models.base import Model
 from mshoot_core.models.fmi import FmiModel, r1c1_fmi_model, R1C1_VARIABLES
 from mshoot_core.models.r1c1 import R1C1Model, R1C1Parameters
 import numpy as np
@@ -518,6 +519,27 @@ def test_batched_model_exchange_sensitivities_match_cvode(which):
         assert a.shape == b.shape
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-9 * np.abs(b).max(), err_msg=name)
     np.testing.assert_allclose(jac.x_end, ref.x_end, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize('which', ['r1c1', 'r2c2'])  # with / without FMU state snapshots
+def test_chained_model_exchange_batch_equals_consecutive_batches(which):
+    """
+    Trajectories of consecutive intervals in one chained batch: the numbers of one batch each.
+
+    :meth:`FmiModel.simulate_chains` hands the end states on inside the driver; the default
+    (:meth:`Model.simulate_chains`) makes N calls of ``simulate_intervals``. Bit for bit,
+    with interval start times.
+    """
+    x, u = _me_batch_cases(which, 3 * 5, seed=24)
+    x0, inputs = x[:3], u.reshape(5, 3, -1)
+    times = HOUR * (np.arange(5)[:, None] + np.zeros((1, 3)))
+    with _me_model(which, tolerance=1e-6) as chained, _me_model(which, tolerance=1e-6) as steps:
+        x_end, y_end = chained.simulate_chains(x0, inputs, HOUR, t_start_s=times)
+        assert chained._me_driver and any(key[-1] == 3 for key in chained._me_problems)
+        x_ref, y_ref = Model.simulate_chains(steps, x0, inputs, HOUR, t_start_s=times)
+    assert x_end.shape == (5, 3, x0.shape[1]) and y_end.shape == y_ref.shape
+    np.testing.assert_array_equal(x_end, x_ref)
+    np.testing.assert_array_equal(y_end, y_ref)
 
 
 def test_event_indicators_keep_model_exchange_on_cvode(monkeypatch):

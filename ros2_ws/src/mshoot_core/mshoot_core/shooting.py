@@ -327,14 +327,10 @@ class ShootingProblem:
         sides = [self._full_inputs(np.tile(self.control_bounds[:, side], (n, 1)), disturbances)
                  for side in (0, 1)]
         u = np.stack(sides, axis=1)  # (N, 2, nu): interval k of the lower and upper sides
-        x = np.tile(x0, (2, 1))
-        ends = np.empty((n, 2, x0.size))
         times = self._t_start_s
-        for k in range(n):
-            x, _ = self.model.simulate_intervals(
-                x, u[k], self.step_s, **self._times(None if times is None
-                                                    else np.repeat(times[k], 2)))
-            ends[k] = x
+        ends, _ = self.model.simulate_chains(
+            np.tile(x0, (2, 1)), u, self.step_s,
+            **self._times(None if times is None else np.repeat(times[:, None], 2, axis=1)))
         self.model_evaluations += 2 * n
         return np.minimum(ends[:, 0], ends[:, 1]), np.maximum(ends[:, 0], ends[:, 1])
 

@@ -271,6 +271,44 @@ class Model(abc.ABC):
             y_end[b] = ydf.to_numpy()[-1]
         return x_end, y_end
 
+    def simulate_chains(self, x0: np.ndarray, u: np.ndarray, dt_s: float,
+                        t_start_s: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """
+        Simulate C trajectories of N consecutive intervals of ``dt_s`` [s] each.
+
+        Interval k of trajectory c starts from the end state of its interval k - 1 (from
+        ``x0[c]`` for k = 0), with its own inputs ``u[k, c]``: what N calls of
+        :meth:`simulate_intervals` on C intervals give, which is this default. Models
+        that can run the whole set in one batch override it (an FMU's compiled driver).
+
+        Parameters
+        ----------
+        x0 : ndarray, shape (C, nx)
+            Start state of each trajectory.
+        u : ndarray, shape (N, C, nu)
+            Inputs of interval k of trajectory c, columns in :attr:`input_names` order.
+        dt_s : float
+            Interval length [s].
+        t_start_s : ndarray, shape (N, C), optional
+            Start time of each interval [s] (see :meth:`simulate_intervals`; only passed
+            to a model whose batch methods take it).
+
+        Returns
+        -------
+        x_end : ndarray, shape (N, C, nx)
+        y_end : ndarray, shape (N, C, ny)
+
+        """
+        x = np.atleast_2d(np.asarray(x0, dtype=float))
+        u = np.asarray(u, dtype=float)
+        x_end = np.empty((u.shape[0], *x.shape))
+        y_end = np.empty((u.shape[0], x.shape[0], len(self.output_names)))
+        for k in range(u.shape[0]):
+            times = {} if t_start_s is None else {'t_start_s': np.asarray(t_start_s)[k]}
+            x, y_end[k] = self.simulate_intervals(x, u[k], dt_s, **times)
+            x_end[k] = x
+        return x_end, y_end
+
     def interval_jacobians(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                            wrt_inputs: Sequence[int],
                            t_start_s: np.ndarray | None = None) -> IntervalJacobians | None:

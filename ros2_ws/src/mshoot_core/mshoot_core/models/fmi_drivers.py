@@ -204,7 +204,7 @@ class MeProblem(ctypes.Structure):
                 ('start_idx', SIZE_P),
                 ('n_su', ctypes.c_size_t), ('su_vr', VR_P), ('su_nominal', DOUBLE_P),
                 ('sensitivity_factor', ctypes.c_double), ('sensitivities', ctypes.c_int),
-                ('n_yo', ctypes.c_size_t), ('yo_vr', VR_P)]
+                ('n_yo', ctypes.c_size_t), ('yo_vr', VR_P), ('chain', ctypes.c_size_t)]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -270,13 +270,16 @@ def me_problem(*, snapshot: int | None, needs_completed_step: bool, tolerance: f
                input_refs: Sequence[int], par_refs: Sequence[int],
                par_values: Sequence[float], start_refs: Sequence[int],
                start_index: Sequence[int], fmu_output_refs: Sequence[int],
-               sensitivities: SensitivityRequest | None) -> tuple[MeProblem, list]:
+               sensitivities: SensitivityRequest | None,
+               chain: int = 0) -> tuple[MeProblem, list]:
     """
     Describe a Model Exchange batch for the driver.
 
     Returns the structure and the arrays it points to: keep both alive while
     the structure is used. ``fmu_output_refs`` are the model outputs that are
-    FMU outputs (their partials are evaluated with sensitivities).
+    FMU outputs (their partials are evaluated with sensitivities). ``chain`` C > 0:
+    interval b >= C starts from the end states of interval b - C (C trajectories of
+    consecutive intervals, interleaved), not from its own start states.
     """
     keep: list[Any] = []
 
@@ -309,7 +312,7 @@ def me_problem(*, snapshot: int | None, needs_completed_step: bool, tolerance: f
         n_start=len(start_refs), start_vr=refs(start_refs), start_idx=sizes(start_index),
         n_su=len(su_refs), su_vr=refs(su_refs), su_nominal=reals(su_nominals),
         sensitivity_factor=factor, sensitivities=int(sensitivities is not None),
-        n_yo=len(fmu_output_refs), yo_vr=refs(fmu_output_refs))
+        n_yo=len(fmu_output_refs), yo_vr=refs(fmu_output_refs), chain=int(chain))
     return problem, keep
 
 

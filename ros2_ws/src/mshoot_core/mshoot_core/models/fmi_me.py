@@ -203,8 +203,8 @@ class ModelExchangeIntegration:
             return 'non-Real parameters on an FMU without FMU states'
         return None
 
-    def _me_problem(self, dt_s: float,
-                    sensitivities: SensitivityRequest | None) -> tuple[MeProblem, list]:
+    def _me_problem(self, dt_s: float, sensitivities: SensitivityRequest | None,
+                    chain: int = 0) -> tuple[MeProblem, list]:
         """Return the driver's description of a batch, and the arrays it points to (keep both)."""
         par_refs, par_values = self._parameter_groups.get('Real', ([], []))
         fmu_outputs = {o.variable.name for o in self.model_description.outputs}
@@ -223,12 +223,12 @@ class ModelExchangeIntegration:
             start_index=self._start_state_index,
             fmu_output_refs=[v.valueReference for v in self._output_vars
                              if v.name in fmu_outputs],
-            sensitivities=sensitivities)
+            sensitivities=sensitivities, chain=chain)
 
     def _me_batch_in_c(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                        x_end: np.ndarray, y_end: np.ndarray,
                        sensitivities: SensitivityRequest | None = None,
-                       t_start: np.ndarray | None = None
+                       t_start: np.ndarray | None = None, chain: int = 0
                        ) -> tuple[np.ndarray, np.ndarray] | bool:
         """
         Run a Model Exchange batch in the compiled driver; False where it does not apply.
@@ -249,7 +249,10 @@ class ModelExchangeIntegration:
         :class:`~mshoot_core.models.fmi_values.FmuValueError`, found by
         integrating that interval with CVode), which is raised and leaves
         the driver on. Interval b starts at FMU time ``t_start[b]`` (None:
-        every interval at 0). The batch runs on buffers bound once per batch size
+        every interval at 0). With ``chain`` C > 0 the intervals are C trajectories
+        of consecutive intervals, interleaved: interval b >= C starts from the end
+        states of interval b - C (its row of ``x_start`` is not read). The batch runs on
+        buffers bound once per batch size
         (:class:`~mshoot_core.models.fmi_drivers.BoundMeBatch`): the returned ``S``
         and partials are those buffers, valid until the next batch.
 
@@ -271,11 +274,11 @@ class ModelExchangeIntegration:
             return False
         # a model's requests differ by their inputs only (their nominals follow)
         key = (dt_s, None if sensitivities is None else sensitivities.input_refs,
-               None if self._snapshot is None else self._snapshot.value)
+               None if self._snapshot is None else self._snapshot.value, chain)
         if key not in self._me_problems:  # built once per interval length and request
             if len(self._me_problems) >= 16:
                 self._me_problems.clear()
-            self._me_problems[key] = self._me_problem(dt_s, sensitivities)
+            self._me_problems[key] = self._me_problem(dt_s, sensitivities, chain)
         entry = self._me_problems[key]
         bound_key = (key, x_start.shape[0], t_start is None)
         bound = self._me_bound.get(bound_key)
@@ -294,7 +297,8 @@ class ModelExchangeIntegration:
         try:
             bound.run()
         except DriverGaveUp as gave_up:
-            self._non_finite_interval(x_start, u, dt_s, t_start, gave_up)
+            if not chain:  # (a chained interval's start is not its row of x_start)
+                self._non_finite_interval(x_start, u, dt_s, t_start, gave_up)
             logger.warning('%s: the batched Model Exchange driver stopped at interval %d (%s); '
                            'this model integrates with CVode from now on', self.fmu_path.name,
                            gave_up.interval, gave_up.reason)
