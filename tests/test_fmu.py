@@ -542,6 +542,33 @@ def test_chained_model_exchange_batch_equals_consecutive_batches(which):
     np.testing.assert_array_equal(y_end, y_ref)
 
 
+@pytest.mark.parametrize('which', ['r1c1', 'r2c2'])  # with / without FMU state snapshots
+def test_interval_batch_gives_what_interval_jacobians_gives(which):
+    """
+    An FMU's interval batch (bound to the driver after its first evaluation): the call's numbers.
+
+    Bit for bit, at new starts and inputs written into its buffers each time, with start
+    times; non-finite inputs are refused as the call refuses them.
+    """
+    x, u = _me_batch_cases(which, 3 * 6, seed=25)
+    wrt = [1, 0, 2] if which == 'r2c2' else [4, 0]
+    times = HOUR * np.arange(6)
+    with _me_model(which, tolerance=1e-6) as model, _me_model(which, tolerance=1e-6) as ref:
+        batch = model.interval_batch(6, HOUR, wrt, times)
+        for k in range(3):
+            batch.x_start[:] = x[6 * k:6 * k + 6]
+            batch.u[:] = u[6 * k:6 * k + 6]
+            ours = batch.jacobians()
+            theirs = ref.interval_jacobians(x[6 * k:6 * k + 6], u[6 * k:6 * k + 6], HOUR, wrt,
+                                            t_start_s=times)
+            for name in ('x_end', 'y_end', 'dx_dx0', 'dx_du', 'dy_dx0', 'dy_du'):
+                np.testing.assert_array_equal(getattr(ours, name), getattr(theirs, name))
+        assert batch._bound is not None, 'the batch did not bind to the driver'
+        batch.u[2, 0] = np.nan
+        with pytest.raises(ValueError, match='finite'):
+            batch.jacobians()
+
+
 def test_event_indicators_keep_model_exchange_on_cvode(monkeypatch):
     """Event indicators keep Model Exchange off the explicit driver (dispatch decision)."""
     x, u = _me_batch_cases('r1c1', 3, seed=23)

@@ -81,8 +81,8 @@ def write_csv(frame: pd.DataFrame, path: pathlib.Path, index_label: str) -> None
     labels = [index_label, *frame.columns]
     plain = all(isinstance(label, str) and label and not (_QUOTED & set(label))
                 and label == label.strip() for label in labels)
-    floats = frame.index.dtype == np.float64 and all(dtype == np.float64
-                                                      for dtype in frame.dtypes)
+    floats = frame.index.dtype == np.float64 and all(
+        dtype == np.float64 for dtype in frame.dtypes)
     if not (plain and floats) or frame.columns.nlevels > 1 or frame.index.nlevels > 1:
         frame.to_csv(path, index_label=index_label)
         return

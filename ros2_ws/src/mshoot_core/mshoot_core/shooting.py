@@ -499,23 +499,31 @@ class ShootingProblem:
         u_hi = us.to_hat(self.control_bounds[:, 1])
 
         cache: dict[bytes, IntervalJacobians] = {}
-        # what every evaluation shares: the inputs with the disturbances in place, the
-        # views' slices, the times
+        # the intervals of every evaluation: one batch of the model, its buffers written in
+        # place (the start state of interval 0 and the disturbances once, here)
         u_slice, x_slice = idx.u_slice, idx.x_slice
-        inputs = self._full_inputs(np.zeros((n, idx.n_controls)), disturbances)
         t_start_s = self._t_start_s
+        batch = self.model.interval_batch(n, self.step_s, self.control_cols,
+                                          t_start_s if self._takes_times else None)
+        batch.x_start[0] = x0
+        batch.u[:] = self._full_inputs(np.zeros((n, idx.n_controls)), disturbances)
+        analytic = True  # (until the model returns no analytic derivatives)
 
         def evaluate(z: np.ndarray) -> IntervalJacobians:
+            nonlocal analytic
             key = z.tobytes()
             jac = cache.get(key)
             if jac is None:
-                x_end_hat = z[x_slice].reshape(n, nx)
-                x_start = np.empty((n, nx))
-                x_start[0] = x0
-                x_start[1:] = xs.from_hat(x_end_hat[:-1])
-                u = inputs.copy()
-                u[:, self._control_index] = us.from_hat(z[u_slice].reshape(n, idx.n_controls))
-                jac = self._interval_jacobians(x_start, u, t_start_s)
+                batch.x_start[1:] = xs.from_hat(z[x_slice].reshape(n, nx)[:-1])
+                batch.u[:, self._control_index] = us.from_hat(
+                    z[u_slice].reshape(n, idx.n_controls))
+                jac = batch.jacobians() if analytic else None
+                if jac is None:  # finite differences (_interval_jacobians asks again)
+                    analytic = False
+                    jac = self._interval_jacobians(batch.x_start.copy(), batch.u.copy(),
+                                                   t_start_s)
+                else:
+                    self.model_evaluations += n
                 cache.clear()
                 cache[key] = jac
             return jac

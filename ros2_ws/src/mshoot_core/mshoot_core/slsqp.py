@@ -100,10 +100,11 @@ def core() -> Any:
     if module is None:
         scipy_spec = importlib.util.find_spec('scipy')  # finds the package, runs nothing
         folder = pathlib.Path(next(iter(scipy_spec.submodule_search_locations))) / 'optimize'
-        paths = [folder / f'_slsqplib{suffix}' for suffix in importlib.machinery.EXTENSION_SUFFIXES]
+        paths = [folder / f'_slsqplib{suffix}'
+                 for suffix in importlib.machinery.EXTENSION_SUFFIXES]
         path = next((p for p in paths if p.is_file()), None)
         if path is None:
-            raise ImportError(f'SciPy\'s SLSQP core not found in {folder}')
+            raise ImportError(f"SciPy's SLSQP core not found in {folder}")
         spec = importlib.util.spec_from_file_location(CORE_MODULE, path)
         module = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)

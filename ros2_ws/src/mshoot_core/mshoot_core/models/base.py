@@ -122,6 +122,49 @@ class IntervalJacobians:
     dy_du: np.ndarray
 
 
+class IntervalBatch:
+    """
+    B intervals of a model evaluated again and again with new start states and inputs.
+
+    The optimiser's inner loop: it writes the start states into :attr:`x_start`
+    (B, nx) and the inputs into :attr:`u` (B, nu, columns in the model's
+    :attr:`~Model.input_names` order) in place, then calls :meth:`jacobians`; the
+    interval length, the columns differentiated and the start times stay those given
+    here. This default calls :meth:`Model.interval_jacobians` (on copies of the
+    buffers); a model whose batch has work to do only once (an FMU's compiled driver
+    bound to its buffers) returns its own from :meth:`Model.interval_batch`.
+
+    Parameters
+    ----------
+    model : Model
+    batch : int
+        B, the intervals.
+    dt_s : float
+        Interval length [s].
+    wrt_inputs : sequence of int
+        Columns of ``u`` to differentiate with respect to.
+    t_start_s : ndarray, shape (B,), optional
+        Start time of each interval [s] (passed to models whose batch methods take it).
+
+    """
+
+    def __init__(self, model: 'Model', batch: int, dt_s: float, wrt_inputs: Sequence[int],
+                 t_start_s: np.ndarray | None = None) -> None:
+        self.model = model
+        self.dt_s = float(dt_s)
+        self.wrt_inputs = list(wrt_inputs)
+        self.x_start = np.zeros((int(batch), len(model.state_names)))
+        self.u = np.zeros((int(batch), len(model.input_names)))
+        self.t_start_s = interval_start_times(t_start_s, int(batch))
+        self._times = ({'t_start_s': self.t_start_s}
+                       if self.t_start_s is not None and accepts_start_times(model) else {})
+
+    def jacobians(self) -> IntervalJacobians | None:
+        """End values and derivatives at the buffers' starts and inputs (None: no analytic)."""
+        return self.model.interval_jacobians(self.x_start.copy(), self.u.copy(), self.dt_s,
+                                             self.wrt_inputs, **self._times)
+
+
 class Model(abc.ABC):
     """
     A dynamic zone model with named inputs, states and outputs.
@@ -334,6 +377,16 @@ class Model(abc.ABC):
 
         """
         return None
+
+    def interval_batch(self, batch: int, dt_s: float, wrt_inputs: Sequence[int],
+                       t_start_s: np.ndarray | None = None) -> IntervalBatch:
+        """
+        Return an :class:`IntervalBatch` of ``batch`` intervals of this model.
+
+        For the optimiser's inner loop: buffers written in place, evaluated many times
+        (:meth:`IntervalBatch.jacobians` gives what :meth:`interval_jacobians` gives).
+        """
+        return IntervalBatch(self, batch, dt_s, wrt_inputs, t_start_s)
 
     def jacobian_sparsity(self, wrt_inputs: Sequence[int]) -> np.ndarray | None:
         """
