@@ -270,6 +270,27 @@ def test_slsqp_driver_stops_at_its_deadline_as_scipy_reports_a_callback_stop():
     assert res.budget_exceeded and not res.success and res.nit <= 1
 
 
+def test_slsqp_core_is_loaded_with_its_solver_before_the_blas_pools_are_limited():
+    """
+    Building the SLSQP solver loads its core and the OpenBLAS it links.
+
+    The MPC limits the BLAS thread pools loaded when it first solves: a pool loaded later,
+    by the first solve, would keep its default threads and round the core's BLAS sums
+    differently (a ROS run and the core loop then differ by ~1e-7 K).
+    """
+    import subprocess
+    import sys
+    probe = ('import sys\n'
+             'from mshoot_core.solvers import SlsqpSolver\n'
+             'before = "scipy.optimize._slsqplib" in sys.modules\n'
+             'SlsqpSolver()\n'
+             'print(before, "scipy.optimize._slsqplib" in sys.modules)\n')
+    done = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ['False', 'True']
+
+
 def test_nlp_index_named_views():
     idx = NlpIndex(3, 2, 1, soft=True)
     z = np.arange(idx.size, dtype=float)

@@ -28,7 +28,7 @@ from typing import Any, Callable, TYPE_CHECKING
 
 import numpy as np
 
-from mshoot_core.slsqp import ConstraintBlock, minimize_slsqp, SolverResult
+from mshoot_core.slsqp import ConstraintBlock, core, minimize_slsqp, SolverResult
 
 if TYPE_CHECKING:
     from scipy import sparse
@@ -179,6 +179,14 @@ class SlsqpSolver(Solver):
     """
 
     name = 'slsqp'
+
+    def __init__(self, max_iter: int = 200, tol: float = 1e-10) -> None:
+        super().__init__(max_iter, tol)
+        # Load the core (and the OpenBLAS it links) now, before any solve: the MPC limits
+        # the BLAS thread pools loaded when it first solves (mpc.blas_threads), and a pool
+        # loaded later would run the core's BLAS calls with its default threads, whose
+        # rounding differs.
+        core()
 
     def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None) -> SolverResult:
         derivatives = nlp.grad is not None and nlp.eq_jac is not None and (

@@ -716,7 +716,9 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         x0 = np.atleast_2d(np.asarray(x0, dtype=float))
         u = np.asarray(u, dtype=float)
         n, chains = u.shape[0], x0.shape[0]
-        if n > 1 and u.ndim == 3 and u.shape[1] == chains and self.me_batch_plan() is None:
+        # (a subclass with its own simulate_intervals, a card's unit conversions: its batches)
+        if n > 1 and u.ndim == 3 and u.shape[1] == chains and self.me_batch_plan() is None \
+                and type(self).simulate_intervals is FmiModel.simulate_intervals:
             # rows >= chains of the starts are not read: the driver chains the end states
             x_start, inputs, dt_s = self._check_batch(np.tile(x0, (n, 1)),
                                                       u.reshape(n * chains, -1), dt_s)

@@ -241,8 +241,12 @@ class ForwardSensitivities:
         Return an :class:`~mshoot_core.models.base.IntervalBatch` of ``batch`` intervals.
 
         Bound to the compiled driver's buffers after its first evaluation where the driver
-        integrates the sensitivities (:class:`_DriverBatch`); else the default.
+        integrates the sensitivities (:class:`_DriverBatch`); else, and for a subclass with
+        its own :meth:`interval_jacobians` (a card's unit conversions), the default.
         """
+        if type(self).interval_jacobians is not ForwardSensitivities.interval_jacobians:
+            # a subclass that converts values (a card's units): its own interval_jacobians
+            return IntervalBatch(self, batch, dt_s, wrt_inputs, t_start_s)
         plan = self._jacobian_plans.get(tuple(wrt_inputs))
         if plan is None:
             plan = self._jacobian_plan(wrt_inputs)
