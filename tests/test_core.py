@@ -264,6 +264,18 @@ def test_slsqp_driver_takes_scipys_iterates(soft, x0):
         assert ours.fun == scipys.fun
 
 
+def test_slsqp_without_a_core_it_can_drive_uses_scipys_minimize(monkeypatch):
+    """With a SciPy whose SLSQP core the driver does not follow, SciPy's minimize: one plan."""
+    from mshoot_core import slsqp
+    problem, dist, lower, upper = _ou_like_problem(n=6)
+    driven = problem.solve([293.6], dist, lower, upper, SlsqpSolver())
+    monkeypatch.setattr(slsqp, '_core', False)  # as core() leaves it for another SciPy
+    assert slsqp.core() is None
+    fallback = problem.solve([293.6], dist, lower, upper, SlsqpSolver())
+    np.testing.assert_array_equal(driven.x, fallback.x)
+    assert (driven.nit, driven.nfev) == (fallback.nit, fallback.nfev)
+
+
 def test_slsqp_driver_stops_at_its_deadline_as_scipy_reports_a_callback_stop():
     problem, dist, lower, upper = _ou_like_problem(n=6)
     res = problem.solve([293.6], dist, lower, upper, SlsqpSolver(), deadline=0.0)

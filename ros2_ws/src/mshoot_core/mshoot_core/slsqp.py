@@ -27,6 +27,7 @@ import importlib.machinery
 import importlib.util
 import logging
 import pathlib
+import re
 import sys
 import time
 from typing import Any, Callable
@@ -80,37 +81,55 @@ class SolverResult(dict):
         return f'{type(self).__name__}({fields})'
 
 
+#: The SciPy release whose SLSQP loop :func:`minimize_slsqp` follows (``requirements.txt`` pins
+#: it); with another SciPy, :func:`core` gives None and the solver calls SciPy's ``minimize``.
+SCIPY_RELEASE = '1.17.'
+
 _core: Any = None
 
 
 def core() -> Any:
     """
-    Return SciPy's SLSQP core function ``slsqp``.
+    Return SciPy's SLSQP core function ``slsqp``, or None where this module cannot drive it.
 
     From the loaded ``scipy.optimize`` if it is, else its extension module
     loaded on its own from SciPy's folder (and registered under its name, so
-    that a later ``import scipy.optimize`` uses the same module).
+    that a later ``import scipy.optimize`` uses the same module). None with a SciPy
+    other than :data:`SCIPY_RELEASE` (its core's interface may differ: an apt-installed
+    SciPy, say) or without the core.
     """
     global _core
     if _core is not None:
-        return _core
+        return _core or None
+    _core = False
+    scipy_spec = importlib.util.find_spec('scipy')  # finds the package, runs nothing
+    if scipy_spec is None or not scipy_spec.submodule_search_locations:
+        return None
+    folder = pathlib.Path(next(iter(scipy_spec.submodule_search_locations)))
+    try:
+        text = (folder / 'version.py').read_text()
+        release = re.search(r'^version\s*=\s*[\'"]([^\'"]+)', text, re.MULTILINE)
+    except OSError:
+        release = None
+    if release is None or not release.group(1).startswith(SCIPY_RELEASE):
+        logger.debug('SciPy %s: SLSQP through scipy.optimize.minimize',
+                     release.group(1) if release else '(version unknown)')
+        return None
     module = sys.modules.get(CORE_MODULE)
     if module is None and 'scipy.optimize' in sys.modules:
         import scipy.optimize._slsqplib as module
     if module is None:
-        scipy_spec = importlib.util.find_spec('scipy')  # finds the package, runs nothing
-        folder = pathlib.Path(next(iter(scipy_spec.submodule_search_locations))) / 'optimize'
-        paths = [folder / f'_slsqplib{suffix}'
+        paths = [folder / 'optimize' / f'_slsqplib{suffix}'
                  for suffix in importlib.machinery.EXTENSION_SUFFIXES]
         path = next((p for p in paths if p.is_file()), None)
         if path is None:
-            raise ImportError(f"SciPy's SLSQP core not found in {folder}")
+            return None
         spec = importlib.util.spec_from_file_location(CORE_MODULE, path)
         module = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)
         sys.modules[CORE_MODULE] = module
-    _core = module.slsqp
-    return _core
+    _core = getattr(module, 'slsqp', None) or False
+    return _core or None
 
 
 class ConstraintBlock:
@@ -162,6 +181,8 @@ def minimize_slsqp(fun: Callable[[np.ndarray], float], grad: Callable[[np.ndarra
 
     """
     slsqp = core()
+    if slsqp is None:
+        raise RuntimeError("SciPy's SLSQP core cannot be driven here (see core())")
     lb = np.asarray(lb, dtype=float)
     ub = np.asarray(ub, dtype=float)
     x = np.clip(np.asarray(x0, dtype=float).reshape(-1), lb, ub)

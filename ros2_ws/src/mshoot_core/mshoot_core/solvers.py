@@ -175,7 +175,8 @@ class SlsqpSolver(Solver):
     With every derivative given, its compiled core is driven by
     :func:`mshoot_core.slsqp.minimize_slsqp` (the iterates of
     ``scipy.optimize.minimize``, without importing ``scipy.optimize``); a problem
-    whose derivatives SciPy estimates goes through ``scipy.optimize.minimize``.
+    whose derivatives SciPy estimates, or a SciPy whose core this does not drive
+    (:func:`mshoot_core.slsqp.core`), goes through ``scipy.optimize.minimize``.
     """
 
     name = 'slsqp'
@@ -191,7 +192,8 @@ class SlsqpSolver(Solver):
     def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None) -> SolverResult:
         derivatives = nlp.grad is not None and nlp.eq_jac is not None and (
             nlp.ineq_fun is None or nlp.ineq_jac is not None)
-        if derivatives and np.any(np.asarray(nlp.lb) != np.asarray(nlp.ub)):
+        fixed = np.all(np.asarray(nlp.lb) == np.asarray(nlp.ub))  # (SciPy's own case)
+        if derivatives and core() is not None and not fixed:
             res = minimize_slsqp(
                 nlp.fun, nlp.grad, z0, nlp.lb, nlp.ub, ConstraintBlock(nlp.eq_fun, nlp.eq_jac),
                 None if nlp.ineq_fun is None else ConstraintBlock(nlp.ineq_fun, nlp.ineq_jac),
