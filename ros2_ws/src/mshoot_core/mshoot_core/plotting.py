@@ -247,18 +247,23 @@ class PlotWorker:
         series, path, title = self._request
         process, self._process = self._process, None
         if process is not None:
+            # a blocking wait, returning the moment the worker ends (Popen.wait with a timeout
+            # polls, sleeping up to 50 ms between looks); a timer kills a worker that hangs
+            watchdog = threading.Timer(WORKER_TIMEOUT_S, process.kill)
+            watchdog.daemon = True
+            watchdog.start()
             try:
                 self._sender.join(WORKER_TIMEOUT_S)
-                code = process.wait(WORKER_TIMEOUT_S)
-                if code == 0 and path.is_file():
+                code = process.wait()
+                timed_out = not watchdog.is_alive()
+                watchdog.cancel()
+                if code == 0 and path.is_file() and not timed_out:
                     return path
                 self._errors.seek(0)
-                reason = f'exit code {code}: {self._errors.read().decode(errors="replace")}'
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait()
-                reason = f'no figure after {WORKER_TIMEOUT_S:g} s'
+                reason = (f'no figure after {WORKER_TIMEOUT_S:g} s' if timed_out else
+                          f'exit code {code}: {self._errors.read().decode(errors="replace")}')
             finally:
+                watchdog.cancel()
                 self._errors.close()
             logger.warning('plot worker failed (%s): the figure is drawn in this process',
                            reason.strip())
