@@ -180,6 +180,17 @@ def timed_drivers(timers: Timers) -> None:
         cls.__init__ = bound
 
 
+def batch_classes() -> list[type]:
+    """Return the interval-batch classes whose ``jacobians`` evaluate a model's batch."""
+    classes = []
+    for module, name in (('mshoot_core.models.base', 'IntervalBatch'),
+                         ('mshoot_core.models.fmi_sensitivities', '_DriverBatch')):
+        cls = getattr(importlib.import_module(module), name, None)
+        if cls is not None:
+            classes.append(cls)
+    return classes
+
+
 def instrumented_case(argv: list[str], report: pathlib.Path, profile: bool) -> int:
     """
     Run our case command as ``mshoot case`` runs it, with timers or cProfile.
@@ -219,8 +230,11 @@ def instrumented_case(argv: list[str], report: pathlib.Path, profile: bool) -> i
             ('run_case', 'loop'), ('write_outputs', 'output'))}
         timers.patch(MPC, 'solve', 'solves')
         timers.patch(Emulator, 'advance', 'plant')
-        for name in ('simulate_intervals', 'interval_jacobians'):  # the FMU control model's
-            timers.patch(fmi.FmiModel, name, 'simulations')        # (inherited ones too)
+        for name in ('simulate_intervals', 'interval_jacobians',  # the FMU control model's
+                     'simulate_chains'):                           # (inherited ones too)
+            timers.patch(fmi.FmiModel, name, 'simulations')
+        for batch in batch_classes():  # its interval batches (Model.interval_batch)
+            timers.patch(batch, 'jacobians', 'simulations')
         timed_drivers(timers)
     started = time.perf_counter()
     code = (cli.main(['case', *argv], plot_worker=worker) if worker is not None
@@ -254,14 +268,15 @@ def profile_figures(stats: pstats.Stats, top: int = 12) -> dict:
         path, line, name = key
         return f'{pathlib.Path(path).name}:{line}({name})' if line else name
 
-    batch = {'simulate_intervals', 'interval_jacobians'}
+    batch = {'simulate_intervals', 'interval_jacobians', 'simulate_chains', 'jacobians'}
     totals = {'solves_s': 0.0, 'simulations_s': 0.0, 'simulation_calls': 0}
     rows = []
     for key, (calls, primitive, tottime, cumtime, _) in stats.stats.items():
         path, _, name = key
         if name == 'solve' and path.endswith('mpc.py'):
             totals['solves_s'] += cumtime
-        if name in batch and path.endswith(('fmi.py', 'r1c1.py', 'multizone.py')):
+        if name in batch and path.endswith(('fmi.py', 'fmi_sensitivities.py', 'base.py',
+                                            'r1c1.py', 'multizone.py')):
             totals['simulations_s'] += cumtime
             totals['simulation_calls'] += primitive
         rows.append((tottime, calls, cumtime, label(key)))

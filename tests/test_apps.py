@@ -87,10 +87,17 @@ def test_mshoot_verbs_use_their_modules_parsers():
 
 
 def test_mshoot_command_is_on_the_path_with_help_per_verb():
-    """The console script of the colcon install, as a shell that sourced env.sh finds it."""
+    """
+    The command of the colcon install, as a shell that sourced env.sh finds it.
+
+    A plain script (a symlink into the sources) in the install's ``bin``, not a generated
+    console-script launcher: that one reads the installed packages' metadata at every command.
+    """
     path = shutil.which('mshoot')
     assert path is not None, 'mshoot not on PATH: source env.sh'
-    assert pathlib.Path(path).resolve().is_relative_to((ROOT / 'ros2_ws' / 'install').resolve())
+    install = (ROOT / 'ros2_ws' / 'install').resolve()
+    assert pathlib.Path(path).parent.resolve() == install / 'mshoot_studies' / 'bin'
+    assert 'load_entry_point' not in pathlib.Path(path).read_text()
     expected = {(): ['case', 'study'], ('case',): ['--control', '--horizon', 'ou44'],
                 ('study',): ['--jobs', '--dask', '--timeout', '--parts']}
     for verb, words in expected.items():
@@ -117,7 +124,9 @@ def test_mshoot_case_loads_only_what_the_case_uses(tmp_path):
     """
     ``mshoot case`` imports neither the study (nor its cluster client) nor matplotlib.
 
-    Matplotlib is imported by its plot worker.
+    Matplotlib is imported by its plot worker. Nor, with an FMU control model and SLSQP, the
+    SciPy optimisers (SLSQP's core is loaded on its own), SciPy's sparse matrices, or the
+    model cards' YAML and JSON Schema.
     """
     probe = ('import json, sys\n'
              'from mshoot_studies import cli\n'
@@ -130,8 +139,10 @@ def test_mshoot_case_loads_only_what_the_case_uses(tmp_path):
     assert done.returncode == 0, done.stderr
     code, modules = json.loads(done.stdout.splitlines()[-1])
     assert code == 0 and 'mshoot_studies.case' in modules and 'mshoot_core.mpc' in modules
-    assert not [m for m in modules if m.split('.')[0] in ('matplotlib', 'dask', 'distributed')
-                or m == 'mshoot_studies.study']
+    assert not [m for m in modules if m.split('.')[0] in ('matplotlib', 'dask', 'distributed',
+                                                          'yaml', 'jsonschema')
+                or m in ('mshoot_studies.study', 'scipy.optimize', 'scipy.sparse')]
+    assert 'scipy.optimize._slsqplib' in modules
     assert (tmp_path / 'case' / 'plot.png').stat().st_size > 10_000
 
 

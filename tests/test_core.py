@@ -222,6 +222,87 @@ def test_energy_cost_spends_less_energy_than_quadratic():
     assert energies['energy'] < energies['quadratic'] * 0.999
 
 
+class _RecordingSlsqp(SlsqpSolver):
+    """SLSQP that keeps every NLP it solves, with its start point, and its results."""
+
+    def __init__(self, **options):
+        super().__init__(**options)
+        self.solved = []
+
+    def solve(self, nlp, z0, deadline=None):
+        res = super().solve(nlp, z0, deadline)
+        self.solved.append((nlp, np.array(z0, dtype=float), res))
+        return res
+
+
+@pytest.mark.parametrize('soft', [False, True])
+@pytest.mark.parametrize('x0', [293.6, 297.0])
+def test_slsqp_driver_takes_scipys_iterates(soft, x0):
+    """
+    The SLSQP driver (:mod:`mshoot_core.slsqp`) is ``scipy.optimize.minimize(method='SLSQP')``.
+
+    Hard and soft bounds, a reachable band (x0 = 293.6 K) and one that needs the least-violation
+    phase (297 K in a crowded room): the same iterates to the last bit (x, nit, nfev,
+    status, message).
+    """
+    problem, dist, lower, upper = _ou_like_problem(n=6, soft=soft)
+    dist[:, 2] = 60.0 if x0 > 295 else dist[:, 2]
+    solver = _RecordingSlsqp(max_iter=100, tol=1e-10)
+    problem.solve([x0], dist, lower, upper, solver)
+    assert solver.solved and (soft or x0 < 295 or len(solver.solved) == 2)
+    for nlp, z0, ours in solver.solved:
+        constraints = [{'type': 'eq', 'fun': nlp.eq_fun, 'jac': nlp.eq_jac.dense}]
+        if nlp.ineq_fun is not None:
+            constraints.append({'type': 'ineq', 'fun': nlp.ineq_fun, 'jac': nlp.ineq_jac.dense})
+        scipys = optimize.minimize(nlp.fun, np.clip(z0, nlp.lb, nlp.ub), jac=nlp.grad,
+                                   bounds=optimize.Bounds(nlp.lb, nlp.ub),
+                                   constraints=constraints, method='SLSQP',
+                                   options={'maxiter': 100, 'ftol': 1e-10})
+        np.testing.assert_array_equal(ours.x, scipys.x)
+        assert (ours.nit, ours.nfev, ours.njev, ours.status, ours.message, ours.success) == (
+            scipys.nit, scipys.nfev, scipys.njev, scipys.status, scipys.message, scipys.success)
+        assert ours.fun == scipys.fun
+
+
+def test_slsqp_without_a_core_it_can_drive_uses_scipys_minimize(monkeypatch):
+    """With a SciPy whose SLSQP core the driver does not follow, SciPy's minimize: one plan."""
+    from mshoot_core import slsqp
+    problem, dist, lower, upper = _ou_like_problem(n=6)
+    driven = problem.solve([293.6], dist, lower, upper, SlsqpSolver())
+    monkeypatch.setattr(slsqp, '_core', False)  # as core() leaves it for another SciPy
+    assert slsqp.core() is None
+    fallback = problem.solve([293.6], dist, lower, upper, SlsqpSolver())
+    np.testing.assert_array_equal(driven.x, fallback.x)
+    assert (driven.nit, driven.nfev) == (fallback.nit, fallback.nfev)
+
+
+def test_slsqp_driver_stops_at_its_deadline_as_scipy_reports_a_callback_stop():
+    problem, dist, lower, upper = _ou_like_problem(n=6)
+    res = problem.solve([293.6], dist, lower, upper, SlsqpSolver(), deadline=0.0)
+    assert res.budget_exceeded and not res.success and res.nit <= 1
+
+
+def test_slsqp_core_is_loaded_with_its_solver_before_the_blas_pools_are_limited():
+    """
+    Building the SLSQP solver loads its core and the OpenBLAS it links.
+
+    The MPC limits the BLAS thread pools loaded when it first solves: a pool loaded later,
+    by the first solve, would keep its default threads and round the core's BLAS sums
+    differently (a ROS run and the core loop then differ by ~1e-7 K).
+    """
+    import subprocess
+    import sys
+    probe = ('import sys\n'
+             'from mshoot_core.solvers import SlsqpSolver\n'
+             'before = "scipy.optimize._slsqplib" in sys.modules\n'
+             'SlsqpSolver()\n'
+             'print(before, "scipy.optimize._slsqplib" in sys.modules)\n')
+    done = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ['False', 'True']
+
+
 def test_nlp_index_named_views():
     idx = NlpIndex(3, 2, 1, soft=True)
     z = np.arange(idx.size, dtype=float)
@@ -383,6 +464,22 @@ def _small_run():
     result = run_closed_loop(MPC(R1C1Model(), horizon_steps=3),
                              Emulator(R1C1Model(), scenario, [20.0 + KELVIN]), log_every=0)
     return result, closed_loop_kpis(result.steps, result.fine, 3600.0, result.wall_s)
+
+
+def test_write_csv_writes_pandas_bytes(tmp_path):
+    """The fast writer of float frames writes what ``to_csv`` writes; other frames go to it."""
+    from mshoot_core.outputs import write_csv
+    rng = np.random.default_rng(3)
+    values = rng.normal(size=(400, 5)) * 10.0 ** rng.integers(-20, 20, size=(400, 5))
+    values[0] = [0.0, -0.0, np.inf, -np.inf, np.nan]
+    values[1] = [1e16, 1e-5, 1e-4, 5e-324, 0.1]
+    frame = pd.DataFrame(values, columns=['x_T', 'y_T', 'y_Qr', 'comfort_min', 'q'],
+                         index=pd.Index(np.arange(400) * 60.0, name='time_s'))
+    odd = frame.rename(columns={'q': 'q, heat'}).assign(ok=True)
+    for table in (frame, odd, frame.astype({'q': 'float32'})):
+        write_csv(table, tmp_path / 'ours.csv', index_label='time_s')
+        table.to_csv(tmp_path / 'pandas.csv', index_label='time_s')
+        assert (tmp_path / 'ours.csv').read_bytes() == (tmp_path / 'pandas.csv').read_bytes()
 
 
 def test_plot_worker_draws_the_figure_of_this_process(tmp_path):

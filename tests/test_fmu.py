@@ -13,6 +13,7 @@ from fmpy.fmi2 import FMU2Model, FMU2Slave
 from fmpy.validation import validate_fmu
 from mshoot_core import fmu_build, fmu_cache
 from mshoot_core.models import fmi_me
+from mshoot_core.models.base import Model
 from mshoot_core.models.fmi import FmiModel, r1c1_fmi_model, R1C1_VARIABLES
 from mshoot_core.models.r1c1 import R1C1Model, R1C1Parameters
 import numpy as np
@@ -518,6 +519,54 @@ def test_batched_model_exchange_sensitivities_match_cvode(which):
         assert a.shape == b.shape
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-9 * np.abs(b).max(), err_msg=name)
     np.testing.assert_allclose(jac.x_end, ref.x_end, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize('which', ['r1c1', 'r2c2'])  # with / without FMU state snapshots
+def test_chained_model_exchange_batch_equals_consecutive_batches(which):
+    """
+    Trajectories of consecutive intervals in one chained batch: the numbers of one batch each.
+
+    :meth:`FmiModel.simulate_chains` hands the end states on inside the driver; the default
+    (:meth:`Model.simulate_chains`) makes N calls of ``simulate_intervals``. Bit for bit,
+    with interval start times.
+    """
+    x, u = _me_batch_cases(which, 3 * 5, seed=24)
+    x0, inputs = x[:3], u.reshape(5, 3, -1)
+    times = HOUR * (np.arange(5)[:, None] + np.zeros((1, 3)))
+    with _me_model(which, tolerance=1e-6) as chained, _me_model(which, tolerance=1e-6) as steps:
+        x_end, y_end = chained.simulate_chains(x0, inputs, HOUR, t_start_s=times)
+        assert chained._me_driver and any(key[-1] == 3 for key in chained._me_problems)
+        x_ref, y_ref = Model.simulate_chains(steps, x0, inputs, HOUR, t_start_s=times)
+    assert x_end.shape == (5, 3, x0.shape[1]) and y_end.shape == y_ref.shape
+    np.testing.assert_array_equal(x_end, x_ref)
+    np.testing.assert_array_equal(y_end, y_ref)
+
+
+@pytest.mark.parametrize('which', ['r1c1', 'r2c2'])  # with / without FMU state snapshots
+def test_interval_batch_gives_what_interval_jacobians_gives(which):
+    """
+    An FMU's interval batch (bound to the driver after its first evaluation): the call's numbers.
+
+    Bit for bit, at new starts and inputs written into its buffers each time, with start
+    times; non-finite inputs are refused as the call refuses them.
+    """
+    x, u = _me_batch_cases(which, 3 * 6, seed=25)
+    wrt = [1, 0, 2] if which == 'r2c2' else [4, 0]
+    times = HOUR * np.arange(6)
+    with _me_model(which, tolerance=1e-6) as model, _me_model(which, tolerance=1e-6) as ref:
+        batch = model.interval_batch(6, HOUR, wrt, times)
+        for k in range(3):
+            batch.x_start[:] = x[6 * k:6 * k + 6]
+            batch.u[:] = u[6 * k:6 * k + 6]
+            ours = batch.jacobians()
+            theirs = ref.interval_jacobians(x[6 * k:6 * k + 6], u[6 * k:6 * k + 6], HOUR, wrt,
+                                            t_start_s=times)
+            for name in ('x_end', 'y_end', 'dx_dx0', 'dx_du', 'dy_dx0', 'dy_du'):
+                np.testing.assert_array_equal(getattr(ours, name), getattr(theirs, name))
+        assert batch._bound is not None, 'the batch did not bind to the driver'
+        batch.u[2, 0] = np.nan
+        with pytest.raises(ValueError, match='finite'):
+            batch.jacobians()
 
 
 def test_event_indicators_keep_model_exchange_on_cvode(monkeypatch):

@@ -50,6 +50,10 @@ if [ "$(cat "$venv/.stamp-workspace" 2>/dev/null)" != "$ws_hash" ] || [ ! -d ros
     export VIRTUAL_ENV="$venv" PATH="$venv/bin:$PATH"
     export AMENT_PREFIX_PATH="$venv" CMAKE_PREFIX_PATH="$venv"
     cd ros2_ws
+    # the mshoot command was a generated console-script launcher; it is now a plain script
+    # (a symlink to ros2_ws/src/mshoot_studies/scripts/mshoot) that cannot replace the old file
+    launcher=install/mshoot_studies/bin/mshoot
+    if [ -f "$launcher" ] && [ ! -L "$launcher" ]; then rm -f "$launcher"; fi
     colcon --log-base log build --symlink-install --event-handlers console_cohesion- \
       --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE="$venv/bin/python" \
       > build.log 2>&1 || { tail -40 build.log >&2; echo "[setup] error: colcon build failed, see ros2_ws/build.log" >&2; exit 1; }

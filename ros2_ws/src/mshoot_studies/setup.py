@@ -9,6 +9,9 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
+        # the mshoot command: a plain script (a console-script entry point's launcher reads
+        # the installed packages' metadata first, at every command)
+        ('bin', ['scripts/mshoot']),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
@@ -18,9 +21,4 @@ setup(
                 'mshoot command.',
     license='BSD-3-Clause',
     extras_require={'test': ['pytest']},
-    entry_points={
-        'console_scripts': [
-            'mshoot = mshoot_studies.cli:console_main',
-        ],
-    },
 )

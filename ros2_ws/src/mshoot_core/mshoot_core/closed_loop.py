@@ -15,6 +15,7 @@ from mshoot_core.estimation import Sensors
 from mshoot_core.models.base import ModelValueError
 from mshoot_core.mpc import MPC
 from mshoot_core.safety import NS_PER_S
+from mshoot_core.scenario import forecast_rows
 from mshoot_core.scenario import forecast_window  # noqa: F401 (API: used by the nodes)
 
 logger = logging.getLogger(__name__)
@@ -122,25 +123,47 @@ def offer_scenario_inputs(controller: Controller, emulator: Emulator, now_ns: in
     what they read (the measured states, with their noise) and the controls ``applied`` over the
     last step, by name, as the emulator node publishes them.
     """
-    window = forecast_window(emulator.scenario, emulator.index, controller.mpc.horizon_steps)
-    known = controller.forecast_known
-    values = window.to_numpy(dtype=float)
-    series = {name: values[:, j] for j, name in enumerate(window.columns) if name in known}
-    if sensors is None:
-        state = controller.offer_state(now_ns, emulator.x, now_ns)
-    else:
-        readings = sensors.read(emulator.x, emulator.index)
-        controls = () if applied is None else emulator.control_names
-        state = controller.offer_named_state(
-            now_ns, list(readings), list(readings.values()), now_ns,
-            control_names=list(controls), control_values=[] if applied is None else
-            [float(v) for v in applied])
-    for stream, rejection in (
-            ('state', state),
-            ('forecast', controller.offer_forecast(now_ns, emulator.step_s, series, now_ns))):
-        if rejection:
-            logger.warning('%s at %.0f s rejected [%s]: %s', stream, now_ns / NS_PER_S,
-                           rejection.kind, rejection.reason)
+    _ScenarioInputs(controller, emulator).offer(now_ns, sensors, applied)
+
+
+class _ScenarioInputs:
+    """
+    :func:`offer_scenario_inputs` for a whole run: the scenario's known series read once.
+
+    The forecast of a step is rows ``index .. index + N`` of the scenario (the last row
+    repeated past its end, as :func:`~mshoot_core.scenario.forecast_window`), taken from the
+    series as arrays rather than through a frame per step.
+    """
+
+    def __init__(self, controller: Controller, emulator: Emulator) -> None:
+        self.controller, self.emulator = controller, emulator
+        known = controller.forecast_known
+        scenario = emulator.scenario
+        columns = [j for j, name in enumerate(scenario.columns) if name in known]
+        self.names = [scenario.columns[j] for j in columns]
+        self.table = scenario.to_numpy(dtype=float)[:, columns]
+
+    def offer(self, now_ns: int, sensors: Sensors | None = None,
+              applied: np.ndarray | None = None) -> None:
+        controller, emulator = self.controller, self.emulator
+        rows = forecast_rows(emulator.index, controller.mpc.horizon_steps, len(self.table))
+        values = self.table[rows]
+        series = {name: values[:, j] for j, name in enumerate(self.names)}
+        if sensors is None:
+            state = controller.offer_state(now_ns, emulator.x, now_ns)
+        else:
+            readings = sensors.read(emulator.x, emulator.index)
+            controls = () if applied is None else emulator.control_names
+            state = controller.offer_named_state(
+                now_ns, list(readings), list(readings.values()), now_ns,
+                control_names=list(controls), control_values=[] if applied is None else
+                [float(v) for v in applied])
+        for stream, rejection in (
+                ('state', state),
+                ('forecast', controller.offer_forecast(now_ns, emulator.step_s, series, now_ns))):
+            if rejection:
+                logger.warning('%s at %.0f s rejected [%s]: %s', stream, now_ns / NS_PER_S,
+                               rejection.kind, rejection.reason)
 
 
 def run_closed_loop(controller: Controller | MPC, emulator: Emulator, steps: int | None = None,
@@ -200,13 +223,14 @@ def run_closed_loop(controller: Controller | MPC, emulator: Emulator, steps: int
         raise ValueError(f'steps must be in [1, {emulator.steps_left}], got {steps}')
     rows, fines, plans = [], [], []
     started = time.perf_counter()
+    inputs = _ScenarioInputs(controller, emulator)
     for k in range(total):
         if k and budget_s is not None and time.perf_counter() - started > budget_s:
             logger.info('budget of %.0f s spent after %d/%d steps', budget_s, k, total)
             break
         now_ns = int(round(emulator.t_s * NS_PER_S))
         applied = (np.array([rows[-1][n] for n in emulator.control_names]) if rows else None)
-        offer_scenario_inputs(controller, emulator, now_ns, sensors, applied)
+        inputs.offer(now_ns, sensors, applied)
         outcomes = controller.poll(now_ns)
         if len(outcomes) != 1 or outcomes[0].step_ns != now_ns:
             raise RuntimeError(f'the controller decided {[o.step_ns for o in outcomes]} at '

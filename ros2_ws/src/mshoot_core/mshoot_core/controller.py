@@ -63,7 +63,7 @@ from mshoot_core.safety import (check_forecast, check_named, check_series, check
                                 COMFORT_SERIES, Decision, InputWait, LIMITS, NS_PER_S,
                                 PRICE_SERIES, Rejection, RejectionCounter, reorder,
                                 SetpointSupervisor, StampGate)
-from mshoot_core.scenario import forecast_window
+from mshoot_core.scenario import column_labels, forecast_window
 from mshoot_core.settings import BY_NAME, MpcSettings
 
 logger = logging.getLogger(__name__)
@@ -529,7 +529,7 @@ class Controller:
         if extra:
             values = np.column_stack([values] + [np.full(n, float(self.assumed_inputs[name]))
                                                  for name in extra])
-        frame = pd.DataFrame(values, columns=names + extra, index=pd.Index(
+        frame = pd.DataFrame(values, columns=column_labels((*names, *extra)), index=pd.Index(
             stamp_ns / NS_PER_S + np.arange(n) * float(step_s), name='time_s'))
         self._forecast_gate.accept(stamp_ns, now_ns)
         self._forecasts[int(stamp_ns)] = frame

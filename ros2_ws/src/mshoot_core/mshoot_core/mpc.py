@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from mshoot_core.models.base import Model
+from mshoot_core.scenario import column_labels
 from mshoot_core.settings import BY_NAME, MpcSettings
 from mshoot_core.shooting import CostFunction, Scaling, ShootingProblem, ShootingResult
 from mshoot_core.solvers import make_solver, Solver
@@ -289,7 +290,8 @@ class MPC:
         times = float(t_s) + np.arange(n) * self.step_s
         out.plan = pd.DataFrame(  # one block: a column per state would fragment the frame
             np.hstack([result.controls, result.states[1:]]),
-            columns=[*self.problem.control_names, *(f'{name}_end' for name in names)],
+            columns=column_labels((*self.problem.control_names,
+                                   *(f'{name}_end' for name in names))),
             index=pd.Index(times, name='time_s'))
         if not result.success:
             logger.warning('MPC step at t=%.0f s: solver %s did not converge (%s); returning '

@@ -10,6 +10,9 @@ import json
 import pathlib
 from typing import TYPE_CHECKING
 
+import numpy as np
+import pandas as pd
+
 from mshoot_core.closed_loop import ClosedLoopResult
 
 if TYPE_CHECKING:  # matplotlib only where plots are made
@@ -51,7 +54,7 @@ def write_outputs(out: pathlib.Path, result: ClosedLoopResult, kpis: dict,
         plotter.send(result.fine, result.steps, out / 'plot.png', f'{title}\n{subtitle}',
                      temperature_column, control)
     (out / 'kpis.json').write_text(json.dumps(kpis, indent=2, sort_keys=True) + '\n')
-    result.fine.to_csv(out / 'trajectories.csv', index_label='time_s')
+    write_csv(result.fine, out / 'trajectories.csv', index_label='time_s')
     result.steps.to_csv(out / 'steps.csv', index_label='time_s')
     if plotter is not None:
         plotter.wait()
@@ -59,3 +62,36 @@ def write_outputs(out: pathlib.Path, result: ClosedLoopResult, kpis: dict,
         from mshoot_core.plotting import plot_closed_loop
         plot_closed_loop(result.fine, result.steps, out / 'plot.png', f'{title}\n{subtitle}',
                          temperature_column=temperature_column, control=control)
+
+
+#: Characters that make the csv module quote a field (QUOTE_MINIMAL), or that a label must not
+#: start or end with for the fast writer.
+_QUOTED = frozenset(',"\r\n')
+
+
+def write_csv(frame: pd.DataFrame, path: pathlib.Path, index_label: str) -> None:
+    """
+    Write ``frame`` as ``frame.to_csv(path, index_label=index_label)`` does, faster when it can.
+
+    A frame of floats (index and columns) with plain labels is written by formatting
+    each value as pandas does (``repr`` of the float, NaN as an empty field): the same
+    bytes, several times faster than pandas' writer for the fine grid of a run. Any other
+    frame goes to ``to_csv``.
+    """
+    labels = [index_label, *frame.columns]
+    plain = all(isinstance(label, str) and label and not (_QUOTED & set(label))
+                and label == label.strip() for label in labels)
+    floats = frame.index.dtype == np.float64 and all(
+        dtype == np.float64 for dtype in frame.dtypes)
+    if not (plain and floats) or frame.columns.nlevels > 1 or frame.index.nlevels > 1:
+        frame.to_csv(path, index_label=index_label)
+        return
+
+    def text(value: float) -> str:
+        return repr(value) if value == value else ''  # NaN: empty, as pandas' na_rep
+
+    lines = [','.join(labels)]
+    for time_s, row in zip(frame.index.tolist(), frame.to_numpy().tolist()):
+        lines.append(','.join([text(time_s), *map(text, row)]))
+    lines.append('')
+    pathlib.Path(path).write_text('\n'.join(lines), encoding='utf-8')

@@ -94,12 +94,9 @@ def _figure() -> tuple[Any, Any, Any]:
     return fig, ax_t, ax_q
 
 
-def _finish(figure: tuple[Any, Any, Any], series: dict[str, np.ndarray],
-            path: str | pathlib.Path, title: str) -> pathlib.Path:
-    """Add the run's data and title to a :func:`_figure` and write the PNG."""
+def _draw_data(figure: tuple[Any, Any, Any], series: dict[str, np.ndarray], title: str) -> None:
+    """Add the run's data and title to a :func:`_figure`."""
     fig, ax_t, ax_q = figure
-    path = pathlib.Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     hours = series['hours']
     ax_t.fill_between(hours, series['comfort_min'], series['comfort_max'], step='post',
                       color='tab:green', alpha=0.15, label='comfort band')
@@ -108,8 +105,45 @@ def _finish(figure: tuple[Any, Any, Any], series: dict[str, np.ndarray],
     ax_q.step(series['step_hours'], series['q_kw'], where='post', color='tab:blue', lw=1.5)
     if title:
         fig.suptitle(title)
-    fig.savefig(path, dpi=DPI, pil_kwargs={'compress_level': PNG_COMPRESSION})
+
+
+def _finish(figure: tuple[Any, Any, Any], series: dict[str, np.ndarray],
+            path: str | pathlib.Path, title: str) -> pathlib.Path:
+    """Add the run's data and title to a :func:`_figure` and write the PNG."""
+    path = pathlib.Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    _draw_data(figure, series, title)
+    figure[0].savefig(path, dpi=DPI, pil_kwargs={'compress_level': PNG_COMPRESSION})
     return path
+
+
+def _rehearse(figure: tuple[Any, Any, Any]) -> None:
+    """
+    Draw a :func:`_figure` once with made-up data of a typical run, then take the data away.
+
+    What that first draw makes stays for the real one: the tick marks and labels of a 72 h
+    run's axes, the text layouts of their labels, of the legend and of a two-line title,
+    the fonts' glyphs. The figure is left as :func:`_figure` made it (no data, limits
+    automatic again), so the real data draws the same figure as without the rehearsal.
+    """
+    import numpy as np  # (this module loads with the standard library only)
+    fig, ax_t, ax_q = figure
+    hours = np.arange(73.0)
+    band = np.where((hours % 24 >= 8) & (hours % 24 < 17), 1.0, 0.0)
+    _draw_data(figure, {'hours': hours, 'comfort_min': 21.0 - 2.0 * band,
+                        'comfort_max': 22.0 + 2.0 * band,
+                        'temperature': 21.0 + 2.5 * np.sin(hours / 6.0),
+                        'step_hours': hours[:-1], 'q_kw': 2.0 * np.cos(hours[:-1] / 5.0)},
+               '49.9 kWh, 8.5 Kh (8.1 Kh hourly), wall 1.0 s\nou44: H = 10 h, control fmu')
+    fig.canvas.draw()
+    for axes in (ax_t, ax_q):
+        for artist in [*axes.collections, *axes.lines[1 if axes is ax_q else 0:]]:
+            artist.remove()  # (ax_q keeps its zero line)
+        if axes.get_legend() is not None:
+            axes.get_legend().remove()
+        axes.relim()
+        axes.set_autoscale_on(True)
+    fig.suptitle('')
 
 
 def draw_closed_loop(series: dict[str, np.ndarray], path: str | pathlib.Path,
@@ -213,18 +247,23 @@ class PlotWorker:
         series, path, title = self._request
         process, self._process = self._process, None
         if process is not None:
+            # a blocking wait, returning the moment the worker ends (Popen.wait with a timeout
+            # polls, sleeping up to 50 ms between looks); a timer kills a worker that hangs
+            watchdog = threading.Timer(WORKER_TIMEOUT_S, process.kill)
+            watchdog.daemon = True
+            watchdog.start()
             try:
                 self._sender.join(WORKER_TIMEOUT_S)
-                code = process.wait(WORKER_TIMEOUT_S)
-                if code == 0 and path.is_file():
+                code = process.wait()
+                timed_out = not watchdog.is_alive()
+                watchdog.cancel()
+                if code == 0 and path.is_file() and not timed_out:
                     return path
                 self._errors.seek(0)
-                reason = f'exit code {code}: {self._errors.read().decode(errors="replace")}'
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait()
-                reason = f'no figure after {WORKER_TIMEOUT_S:g} s'
+                reason = (f'no figure after {WORKER_TIMEOUT_S:g} s' if timed_out else
+                          f'exit code {code}: {self._errors.read().decode(errors="replace")}')
             finally:
+                watchdog.cancel()
                 self._errors.close()
             logger.warning('plot worker failed (%s): the figure is drawn in this process',
                            reason.strip())
@@ -260,13 +299,14 @@ def _serve() -> None:
     """
     Run the plot worker: lay out the figure, draw it once, add the data, write the PNG.
 
-    Import matplotlib, lay out the figure and draw it once (fonts and text are cached on that first
-    draw), then add the data read from stdin (a pickle) and write the PNG.
+    Import matplotlib, lay out the figure and draw it once with made-up data
+    (:func:`_rehearse`: the ticks, text layouts and glyphs of that draw are kept), then add
+    the data read from stdin (a pickle) and write the PNG.
     """
     import matplotlib
     matplotlib.use('Agg')
     figure = _figure()
-    figure[0].canvas.draw()
+    _rehearse(figure)
     data = sys.stdin.buffer.read()
     if not data:  # the run ended without a figure
         return

@@ -150,6 +150,9 @@ def check_series(name: str, values: Sequence[float], low: float = -math.inf,
                  high: float = math.inf) -> Rejection | None:
     """Finite values within [low, high], else the rejection naming the first bad sample."""
     x = np.asarray(values, dtype=float).reshape(-1)
+    if x.size and math.isfinite(np.add.reduce(x)) and low <= np.minimum.reduce(x) \
+            and np.maximum.reduce(x) <= high:
+        return None  # (all finite and within: the usual case, in three reductions)
     bad = np.flatnonzero(~np.isfinite(x))
     if bad.size:
         return Rejection('non_finite', f'{name}[{bad[0]}] = {x[bad[0]]} is not finite '

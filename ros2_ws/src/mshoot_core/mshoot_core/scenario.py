@@ -13,6 +13,7 @@ string) so that the hour of day of each row is known.
 """
 from __future__ import annotations
 
+import functools
 import logging
 import pathlib
 
@@ -236,6 +237,24 @@ def reference_scenario(name: str, data: str | pathlib.Path | None = None,
     return scenario
 
 
+@functools.lru_cache(maxsize=256)
+def column_labels(names: tuple[str, ...]) -> pd.Index:
+    """
+    Return the column labels ``names`` as one (immutable) pandas Index, built once.
+
+    A frame built every control step with the same columns takes this Index instead of a list
+    (pandas infers the labels' type from a list at every frame: tens of microseconds).
+    """
+    return pd.Index(list(names))
+
+
+def forecast_rows(index: int, horizon_steps: int, length: int) -> np.ndarray:
+    """Return the rows of :func:`forecast_window`: ``index .. index + horizon_steps``, clipped."""
+    if not 0 <= index < length:
+        raise ValueError(f'index must be in [0, {length - 1}], got {index}')
+    return np.minimum(np.arange(index, index + horizon_steps + 1), length - 1)
+
+
 def forecast_window(scenario: pd.DataFrame, index: int, horizon_steps: int) -> pd.DataFrame:
     """
     Rows ``index .. index + horizon_steps`` of ``scenario`` (N+1 rows).
@@ -243,9 +262,7 @@ def forecast_window(scenario: pd.DataFrame, index: int, horizon_steps: int) -> p
     Past the end of the scenario the last row is repeated (a persistence
     forecast), so the controller can plan the final hours of a run.
     """
-    if not 0 <= index < len(scenario):
-        raise ValueError(f'index must be in [0, {len(scenario) - 1}], got {index}')
-    rows = np.minimum(np.arange(index, index + horizon_steps + 1), len(scenario) - 1)
+    rows = forecast_rows(index, horizon_steps, len(scenario))
     window = scenario.iloc[rows].copy()
     step = float(scenario.index[1] - scenario.index[0]) if len(scenario) > 1 else 3600.0
     window.index = pd.Index(float(scenario.index[index]) + np.arange(horizon_steps + 1) * step,

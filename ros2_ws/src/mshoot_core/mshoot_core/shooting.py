@@ -20,19 +20,22 @@ and the evaluation at a point is shared between cost and constraints.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import time
-from typing import Callable, Sequence
+from typing import Callable, Sequence, TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
-from scipy import optimize, sparse
 
 from mshoot_core.models.base import (accepts_start_times, IntervalJacobians, Model,
                                      ModelValueError)
 from mshoot_core.sensitivities import finite_difference_jacobians
 from mshoot_core.settings import ComfortSettings, ProblemSettings, SettingsError
-from mshoot_core.solvers import Nlp, Solver, SparseJacobian
+from mshoot_core.solvers import Nlp, Solver, SolverResult, SparseJacobian
+
+if TYPE_CHECKING:
+    from scipy import sparse
 
 logger = logging.getLogger(__name__)
 
@@ -57,21 +60,22 @@ class NlpIndex:
     n_states: int
     soft: bool = False
 
-    @property
+    # (computed once per layout: the optimiser's callbacks take these views thousands of times)
+    @functools.cached_property
     def size(self) -> int:
         """Length of the NLP vector."""
         return self.n_intervals * (self.n_controls + self.n_states * (2 if self.soft else 1))
 
-    @property
+    @functools.cached_property
     def u_slice(self) -> slice:
         return slice(0, self.n_intervals * self.n_controls)
 
-    @property
+    @functools.cached_property
     def x_slice(self) -> slice:
         start = self.u_slice.stop
         return slice(start, start + self.n_intervals * self.n_states)
 
-    @property
+    @functools.cached_property
     def s_slice(self) -> slice:
         start = self.x_slice.stop
         return slice(start, start + (self.n_intervals * self.n_states if self.soft else 0))
@@ -116,9 +120,12 @@ class Scaling:
         return v_hat * self.scale + self.offset
 
 
-class ShootingResult(optimize.OptimizeResult):
+class ShootingResult(SolverResult):
     """
-    Result of one multiple-shooting solve (extends :class:`scipy.optimize.OptimizeResult`).
+    Result of one multiple-shooting solve (a :class:`~mshoot_core.slsqp.SolverResult`).
+
+    The fields of :class:`scipy.optimize.OptimizeResult`, as a dict whose keys are attributes
+    (not a subclass of SciPy's: ``scipy.optimize`` is not imported for it).
 
     Keys beyond SciPy's (success, status, message, fun, nit, nfev, x):
     ``controls`` (N, nc) physical plan; ``states`` (N+1, nx) predicted states
@@ -272,18 +279,22 @@ class ShootingProblem:
         ``t_start_s`` (B,): the intervals' start times [s] (None: time 0).
         """
         u = self._full_inputs(controls, disturbances)
-        times = self._times(t_start_s)
         if sensitivities:
-            jac = self.model.interval_jacobians(x_start, u, self.step_s, self.control_cols,
-                                                **times)
-            if jac is not None:
-                self.model_evaluations += x_start.shape[0]
-                return jac
-        if not sensitivities:
-            x_end, y_end = self.model.simulate_intervals(x_start, u, self.step_s, **times)
+            return self._interval_jacobians(x_start, u, t_start_s)
+        times = self._times(t_start_s)
+        x_end, y_end = self.model.simulate_intervals(x_start, u, self.step_s, **times)
+        self.model_evaluations += x_start.shape[0]
+        empty = np.zeros((x_start.shape[0], 0, 0))
+        return IntervalJacobians(x_end, y_end, empty, empty, empty, empty)
+
+    def _interval_jacobians(self, x_start: np.ndarray, u: np.ndarray,
+                            t_start_s: np.ndarray | None) -> IntervalJacobians:
+        """:meth:`evaluate_intervals` with sensitivities, from the full inputs ``u`` (B, nu)."""
+        times = self._times(t_start_s)
+        jac = self.model.interval_jacobians(x_start, u, self.step_s, self.control_cols, **times)
+        if jac is not None:
             self.model_evaluations += x_start.shape[0]
-            empty = np.zeros((x_start.shape[0], 0, 0))
-            return IntervalJacobians(x_end, y_end, empty, empty, empty, empty)
+            return jac
         jac, spent = finite_difference_jacobians(
             self.model, x_start, u, self.step_s, self.control_cols,
             self.fd_step * self._x_scaling.scale, self.fd_step * self.control_scaling.scale,
@@ -316,14 +327,10 @@ class ShootingProblem:
         sides = [self._full_inputs(np.tile(self.control_bounds[:, side], (n, 1)), disturbances)
                  for side in (0, 1)]
         u = np.stack(sides, axis=1)  # (N, 2, nu): interval k of the lower and upper sides
-        x = np.tile(x0, (2, 1))
-        ends = np.empty((n, 2, x0.size))
         times = self._t_start_s
-        for k in range(n):
-            x, _ = self.model.simulate_intervals(
-                x, u[k], self.step_s, **self._times(None if times is None
-                                                    else np.repeat(times[k], 2)))
-            ends[k] = x
+        ends, _ = self.model.simulate_chains(
+            np.tile(x0, (2, 1)), u, self.step_s,
+            **self._times(None if times is None else np.repeat(times[:, None], 2, axis=1)))
         self.model_evaluations += 2 * n
         return np.minimum(ends[:, 0], ends[:, 1]), np.maximum(ends[:, 0], ends[:, 1])
 
@@ -492,30 +499,46 @@ class ShootingProblem:
         u_lo = us.to_hat(self.control_bounds[:, 0])
         u_hi = us.to_hat(self.control_bounds[:, 1])
 
-        cache: dict[bytes, tuple[np.ndarray, IntervalJacobians]] = {}
+        cache: dict[bytes, IntervalJacobians] = {}
+        # the intervals of every evaluation: one batch of the model, its buffers written in
+        # place (the start state of interval 0 and the disturbances once, here)
+        u_slice, x_slice = idx.u_slice, idx.x_slice
+        t_start_s = self._t_start_s
+        batch = self.model.interval_batch(n, self.step_s, self.control_cols,
+                                          t_start_s if self._takes_times else None)
+        batch.x_start[0] = x0
+        batch.u[:] = self._full_inputs(np.zeros((n, idx.n_controls)), disturbances)
+        analytic = True  # (until the model returns no analytic derivatives)
 
         def evaluate(z: np.ndarray) -> IntervalJacobians:
+            nonlocal analytic
             key = z.tobytes()
-            hit = cache.get(key)
-            if hit is None:
-                x_end_hat = idx.x(z)
-                x_start = np.vstack([x0[None, :], xs.from_hat(x_end_hat[:-1])])
-                jac = self.evaluate_intervals(x_start, us.from_hat(idx.u(z)), disturbances,
-                                              t_start_s=self._t_start_s)
+            jac = cache.get(key)
+            if jac is None:
+                batch.x_start[1:] = xs.from_hat(z[x_slice].reshape(n, nx)[:-1])
+                batch.u[:, self._control_index] = us.from_hat(
+                    z[u_slice].reshape(n, idx.n_controls))
+                jac = batch.jacobians() if analytic else None
+                if jac is None:  # finite differences (_interval_jacobians asks again)
+                    analytic = False
+                    jac = self._interval_jacobians(batch.x_start.copy(), batch.u.copy(),
+                                                   t_start_s)
+                else:
+                    self.model_evaluations += n
                 cache.clear()
-                cache[key] = (z.copy(), jac)
-                return jac
-            return hit[1]
+                cache[key] = jac
+            return jac
 
         def eq_fun(z: np.ndarray) -> np.ndarray:
             jac = evaluate(z)
-            return (xs.to_hat(jac.x_end) - idx.x(z)).reshape(-1)
+            return (xs.to_hat(jac.x_end) - z[x_slice].reshape(n, nx)).reshape(-1)
 
         structure = self._continuity_structure(idx)
+        factors = structure.factors(xs.scale, us.scale)
 
         def eq_jac_values(z: np.ndarray) -> np.ndarray:
             jac = evaluate(z)
-            return structure.values(jac.dx_du, jac.dx_dx0, xs.scale, us.scale)
+            return structure.scaled_values(jac.dx_du, jac.dx_dx0, factors)
 
         eq_jac = SparseJacobian(structure.rows, structure.cols, structure.shape, eq_jac_values)
 
@@ -531,9 +554,9 @@ class ShootingProblem:
         def fun(z: np.ndarray) -> float:
             value = cost_fun(z)
             if idx.soft:
-                slack = idx.s(z)
-                value += (penalty_quadratic * float(np.sum(slack ** 2))
-                          + penalty_linear * float(np.sum(slack)))
+                slack = idx.s(z)  # (np.add.reduce: np.sum without its wrapper)
+                value += (penalty_quadratic * float(np.add.reduce(slack ** 2, None))
+                          + penalty_linear * float(np.add.reduce(slack, None)))
             return value
 
         def grad(z: np.ndarray) -> np.ndarray:
@@ -550,12 +573,18 @@ class ShootingProblem:
             lb[idx.s_slice] = 0.0
             finite_lo = np.isfinite(lower_hat).reshape(-1)
             finite_hi = np.isfinite(upper_hat).reshape(-1)
+            lower_flat, upper_flat, s_slice = lower_hat.reshape(-1), upper_hat.reshape(-1), \
+                idx.s_slice
+            everywhere = bool(finite_lo.all() and finite_hi.all())
 
             def ineq_fun(z: np.ndarray) -> np.ndarray:
-                x_hat = z[idx.x_slice]
-                s_hat = z[idx.s_slice]
-                return np.concatenate([(x_hat - lower_hat.reshape(-1) + s_hat)[finite_lo],
-                                       (upper_hat.reshape(-1) - x_hat + s_hat)[finite_hi]])
+                x_hat = z[x_slice]
+                s_hat = z[s_slice]
+                if everywhere:  # (a band bounded at every interval end: nothing to select)
+                    return np.concatenate([x_hat - lower_flat + s_hat,
+                                           upper_flat - x_hat + s_hat])
+                return np.concatenate([(x_hat - lower_flat + s_hat)[finite_lo],
+                                       (upper_flat - x_hat + s_hat)[finite_hi]])
 
             ineq_jac = _band_jacobian(idx, finite_lo, finite_hi)
         else:
@@ -676,7 +705,7 @@ class ShootingProblem:
                                                 Callable[[np.ndarray], np.ndarray]]:
         if self.cost == 'quadratic':
             def cost(z: np.ndarray) -> float:
-                return float(np.sum(idx.u(z) ** 2))
+                return float(np.add.reduce(idx.u(z) ** 2, None))  # np.sum, without its wrapper
 
             def grad(z: np.ndarray) -> np.ndarray:
                 g = np.zeros(idx.size)
@@ -687,7 +716,7 @@ class ShootingProblem:
             eps = self.energy_epsilon
 
             def cost(z: np.ndarray) -> float:
-                return float(np.sum(np.sqrt(idx.u(z) ** 2 + eps ** 2) - eps))
+                return float(np.add.reduce(np.sqrt(idx.u(z) ** 2 + eps ** 2) - eps, None))
 
             def grad(z: np.ndarray) -> np.ndarray:
                 g = np.zeros(idx.size)
@@ -779,14 +808,25 @@ class ContinuityStructure:
     def values(self, dx_du: np.ndarray, dx_dx0: np.ndarray, x_scale: np.ndarray,
                u_scale: np.ndarray) -> np.ndarray:
         """Return the entries at (:attr:`rows`, :attr:`cols`) from the interval sensitivities."""
-        du = dx_du[:, self.u_rows, self.u_cols] * (u_scale[self.u_cols] / x_scale[self.u_rows])
-        dx = dx_dx0[1:, self.x_rows, self.x_cols] * (x_scale[self.x_cols]
-                                                     / x_scale[self.x_rows])
+        return self.scaled_values(dx_du, dx_dx0, self.factors(x_scale, u_scale))
+
+    def factors(self, x_scale: np.ndarray,
+                u_scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Return the normalisation of the d x/d u and d x/d x0 entries (fixed for a solve)."""
+        return (u_scale[self.u_cols] / x_scale[self.u_rows],
+                x_scale[self.x_cols] / x_scale[self.x_rows])
+
+    def scaled_values(self, dx_du: np.ndarray, dx_dx0: np.ndarray,
+                      factors: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """Return :meth:`values` with the :meth:`factors` of the solve's scalings."""
+        du = dx_du[:, self.u_rows, self.u_cols] * factors[0]
+        dx = dx_dx0[1:, self.x_rows, self.x_cols] * factors[1]
         return np.concatenate([du.ravel(), self.minus_ones, dx.ravel()])
 
     def matrix(self, dx_du: np.ndarray, dx_dx0: np.ndarray, x_scale: np.ndarray,
                u_scale: np.ndarray) -> sparse.coo_array:
         """Return the Jacobian (normalised variables) from the interval sensitivities."""
+        from scipy import sparse
         return sparse.coo_array((self.values(dx_du, dx_dx0, x_scale, u_scale),
                                  (self.rows, self.cols)), shape=self.shape)
 
@@ -808,7 +848,7 @@ def _band_jacobian(idx: NlpIndex, finite_lo: np.ndarray,
     cols = np.concatenate([np.column_stack([x, s]).ravel() for x, s, _ in parts])
     data = np.concatenate([np.column_stack([np.full(x.size, sign), np.ones(x.size)]).ravel()
                            for x, _, sign in parts])
-    return SparseJacobian(rows, cols, (m, idx.size), lambda z: data)
+    return SparseJacobian(rows, cols, (m, idx.size), lambda z: data, constant=True)
 
 
 def _block(part: slice, k: int, width: int) -> slice:

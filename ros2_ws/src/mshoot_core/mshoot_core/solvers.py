@@ -7,8 +7,11 @@ A :class:`Nlp` is the smooth problem
 
 with callables for values and (dense) Jacobians plus an optional sparsity
 pattern of the constraint Jacobian. A solver takes an :class:`Nlp` and a start
-point and returns a :class:`scipy.optimize.OptimizeResult`; non-convergence is
-a status (``success=False``), never an exception.
+point and returns a :class:`~mshoot_core.slsqp.SolverResult` (the fields of
+``scipy.optimize.OptimizeResult``); non-convergence is a status
+(``success=False``), never an exception. ``scipy.optimize`` and ``scipy.sparse``
+are imported where a solver needs them (SLSQP with every derivative given needs
+neither: :mod:`mshoot_core.slsqp`).
 
 A solve can be given a wall-clock deadline (:func:`time.perf_counter` seconds):
 the solver itself stops at its first iteration past it (SciPy's methods
@@ -21,10 +24,14 @@ import abc
 import dataclasses
 import logging
 import time
-from typing import Any, Callable
+from typing import Any, Callable, TYPE_CHECKING
 
 import numpy as np
-from scipy import optimize, sparse
+
+from mshoot_core.slsqp import ConstraintBlock, core, minimize_slsqp, SolverResult
+
+if TYPE_CHECKING:
+    from scipy import sparse
 
 logger = logging.getLogger(__name__)
 
@@ -87,11 +94,13 @@ class SparseJacobian:
         (m, n).
     values : callable
         ``values(z) -> (nnz,)`` the entries at z.
+    constant : bool
+        Whether the entries are the same at every z (``values`` is then called with None too).
 
     """
 
     def __init__(self, rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int],
-                 values: Callable[[Vector], Vector]) -> None:
+                 values: Callable[[Vector], Vector], constant: bool = False) -> None:
         self.rows = np.asarray(rows, dtype=np.intp)
         self.cols = np.asarray(cols, dtype=np.intp)
         if self.rows.shape != self.cols.shape or self.rows.ndim != 1:
@@ -99,9 +108,11 @@ class SparseJacobian:
                              f'{self.rows.shape} and {self.cols.shape}')
         self.shape = (int(shape[0]), int(shape[1]))
         self.values = values
+        self.constant = bool(constant)
         self._flat = self.rows * self.shape[1] + self.cols
 
     def __call__(self, z: Vector) -> sparse.coo_array:
+        from scipy import sparse
         return sparse.coo_array((self.values(z), (self.rows, self.cols)), shape=self.shape)
 
     def dense(self, z: Vector) -> Matrix:
@@ -126,12 +137,11 @@ class Solver(abc.ABC):
         self.tol = float(tol)
 
     @abc.abstractmethod
-    def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None
-              ) -> optimize.OptimizeResult:
+    def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None) -> SolverResult:
         """
         Solve ``nlp`` from ``z0``.
 
-        Return an OptimizeResult (x, fun, success, status, message, nit, nfev, budget_exceeded).
+        Return a SolverResult (x, fun, success, status, message, nit, nfev, budget_exceeded).
 
         ``deadline`` is a :func:`time.perf_counter` time [s]: the solver stops at
         its first iteration past it (``success=False``, ``budget_exceeded=True``).
@@ -143,13 +153,13 @@ def _deadline_callback(deadline: float | None) -> Callable | None:
     if deadline is None:
         return None
 
-    def callback(intermediate_result: optimize.OptimizeResult) -> None:
+    def callback(intermediate_result: SolverResult) -> None:
         if time.perf_counter() > deadline:
             raise StopIteration
     return callback
 
 
-def _mark_budget(res: optimize.OptimizeResult, deadline: float | None) -> None:
+def _mark_budget(res: SolverResult, deadline: float | None) -> None:
     """Flag a result stopped by its deadline (SciPy reports it as status 99)."""
     stopped = deadline is not None and time.perf_counter() > deadline and not res.success
     res.budget_exceeded = bool(stopped)
@@ -159,21 +169,45 @@ def _mark_budget(res: optimize.OptimizeResult, deadline: float | None) -> None:
 
 
 class SlsqpSolver(Solver):
-    """SciPy's SLSQP (dense; fine for short horizons and few zones)."""
+    """
+    SciPy's SLSQP (dense; fine for short horizons and few zones).
+
+    With every derivative given, its compiled core is driven by
+    :func:`mshoot_core.slsqp.minimize_slsqp` (the iterates of
+    ``scipy.optimize.minimize``, without importing ``scipy.optimize``); a problem
+    whose derivatives SciPy estimates, or a SciPy whose core this does not drive
+    (:func:`mshoot_core.slsqp.core`), goes through ``scipy.optimize.minimize``.
+    """
 
     name = 'slsqp'
 
-    def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None
-              ) -> optimize.OptimizeResult:
-        constraints = [_scipy_constraint('eq', nlp.eq_fun, nlp.eq_jac)]
-        if nlp.ineq_fun is not None:
-            constraints.append(_scipy_constraint('ineq', nlp.ineq_fun, nlp.ineq_jac))
-        bounds = optimize.Bounds(nlp.lb, nlp.ub)
-        z0 = np.clip(z0, nlp.lb, nlp.ub)
-        res = optimize.minimize(nlp.fun, z0, jac=nlp.grad, bounds=bounds,
-                                constraints=constraints, method='SLSQP',
-                                options={'maxiter': self.max_iter, 'ftol': self.tol},
-                                callback=_deadline_callback(deadline))
+    def __init__(self, max_iter: int = 200, tol: float = 1e-10) -> None:
+        super().__init__(max_iter, tol)
+        # Load the core (and the OpenBLAS it links) now, before any solve: the MPC limits
+        # the BLAS thread pools loaded when it first solves (mpc.blas_threads), and a pool
+        # loaded later would run the core's BLAS calls with its default threads, whose
+        # rounding differs.
+        core()
+
+    def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None) -> SolverResult:
+        derivatives = nlp.grad is not None and nlp.eq_jac is not None and (
+            nlp.ineq_fun is None or nlp.ineq_jac is not None)
+        fixed = np.all(np.asarray(nlp.lb) == np.asarray(nlp.ub))  # (SciPy's own case)
+        if derivatives and core() is not None and not fixed:
+            res = minimize_slsqp(
+                nlp.fun, nlp.grad, z0, nlp.lb, nlp.ub, ConstraintBlock(nlp.eq_fun, nlp.eq_jac),
+                None if nlp.ineq_fun is None else ConstraintBlock(nlp.ineq_fun, nlp.ineq_jac),
+                self.max_iter, self.tol, deadline)
+        else:
+            from scipy import optimize
+            constraints = [_scipy_constraint('eq', nlp.eq_fun, nlp.eq_jac)]
+            if nlp.ineq_fun is not None:
+                constraints.append(_scipy_constraint('ineq', nlp.ineq_fun, nlp.ineq_jac))
+            res = optimize.minimize(nlp.fun, np.clip(z0, nlp.lb, nlp.ub), jac=nlp.grad,
+                                    bounds=optimize.Bounds(nlp.lb, nlp.ub),
+                                    constraints=constraints, method='SLSQP',
+                                    options={'maxiter': self.max_iter, 'ftol': self.tol},
+                                    callback=_deadline_callback(deadline))
         res.nit = int(getattr(res, 'nit', 0))
         _mark_budget(res, deadline)
         return res
@@ -198,8 +232,8 @@ class TrustConstrSolver(Solver):
 
     name = 'trust-constr'
 
-    def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None
-              ) -> optimize.OptimizeResult:
+    def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None) -> SolverResult:
+        from scipy import optimize, sparse
         n_eq = nlp.eq_fun(z0).size
 
         def sparse_jac(jac: Callable | None) -> Callable | str:
@@ -263,8 +297,7 @@ class IpoptSolver(Solver):
         if cyipopt_logger.getEffectiveLevel() < logging.WARNING:
             cyipopt_logger.setLevel(logging.WARNING)
 
-    def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None
-              ) -> optimize.OptimizeResult:
+    def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None) -> SolverResult:
         if nlp.grad is None or nlp.eq_jac is None:
             raise ValueError('IPOPT needs derivatives: use mode "fast" or the slsqp solver')
         import cyipopt
@@ -341,7 +374,7 @@ class IpoptSolver(Solver):
         start = time.perf_counter()
         z, info = problem.solve(z_start)
         status = int(info['status'])
-        res = optimize.OptimizeResult(
+        res = SolverResult(
             x=z, fun=float(info['obj_val']), success=status in (0, 1), status=status,
             message=info['status_msg'].decode() if isinstance(info['status_msg'], bytes)
             else str(info['status_msg']),

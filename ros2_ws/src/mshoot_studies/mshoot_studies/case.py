@@ -32,7 +32,6 @@ from mshoot_core.closed_loop import ClosedLoopResult, EmulationStopped, run_clos
 from mshoot_core.controller import Controller
 from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis
-from mshoot_core.models import card as cards
 from mshoot_core.models.base import Model
 from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.models.registry import (build_model, BUILTIN, check_model, CONTROL_TOLERANCE,
@@ -109,6 +108,7 @@ def card_model(path: str | pathlib.Path, role: str, tolerance: float,
         A :class:`~mshoot_core.models.card.CardError` with every problem of the card.
 
     """
+    from mshoot_core.models import card as cards  # (YAML, JSON Schema: cards only)
     card = cards.load_card(path)
     return cards.build_model(card, role, cards.time_origin_seconds(card, scenario_start),
                              tolerance=tolerance)
@@ -399,8 +399,12 @@ def card_setup(args: argparse.Namespace, settings: MpcSettings, control: Model,
 
     """
     problems: list[str] = []
-    control_card = cards.load_card(args.control) if is_card_path(args.control) else None
-    emulator_card = cards.load_card(args.emulator) if is_card_path(args.emulator) else None
+    control_card = emulator_card = None
+    if is_card_path(args.control) or is_card_path(args.emulator):
+        from mshoot_core.models import card as cards  # (YAML, JSON Schema: cards only)
+        control_card = cards.load_card(args.control) if is_card_path(args.control) else None
+        emulator_card = (cards.load_card(args.emulator) if is_card_path(args.emulator)
+                         else None)
     names = control_card.control_names if control_card else settings.problem.control_names
     changes: dict[str, Any] = {'control_names': names}
     if control_card:

@@ -79,6 +79,9 @@ typedef struct {
     int sensitivities;              /* integrate S and evaluate output partials */
     size_t n_yo;                    /* outputs that are FMU outputs (output partials) */
     const fmi2ValueReference *yo_vr;
+    /* chains: 0, the intervals are independent; C > 0, interval b >= C starts from the end
+     * states of interval b - C (C trajectories of consecutive intervals, interleaved) */
+    size_t chain;
 } mshoot_me_problem;
 
 /* Return codes besides 0 (success): > 0 an FMI call failed, 16 * interval + stage + 1;
@@ -209,7 +212,9 @@ long mshoot_me_batch(const mshoot_me_api *api, fmi2Component c, const mshoot_me_
     memcpy(knowns, p->cstate_vr, n * sizeof(fmi2ValueReference));
 
     for (b = 0; b < n_batch; b++) {
-        const double *xb = x0 + b * nx, *ub = u + b * p->n_in;
+        const double *xb = (p->chain && b >= p->chain) ? x_end + (b - p->chain) * nx
+                                                       : x0 + b * nx;
+        const double *ub = u + b * p->n_in;
         /* t runs over [0, dt]; the FMU sees t0 + t (t0 = 0: the same numbers as before) */
         const double t0 = t_start ? t_start[b] : 0.0;
         double t = 0.0, h, e, eps = 1e-12 * (dt > 1.0 ? dt : 1.0);

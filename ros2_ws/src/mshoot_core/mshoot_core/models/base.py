@@ -122,6 +122,49 @@ class IntervalJacobians:
     dy_du: np.ndarray
 
 
+class IntervalBatch:
+    """
+    B intervals of a model evaluated again and again with new start states and inputs.
+
+    The optimiser's inner loop: it writes the start states into :attr:`x_start`
+    (B, nx) and the inputs into :attr:`u` (B, nu, columns in the model's
+    :attr:`~Model.input_names` order) in place, then calls :meth:`jacobians`; the
+    interval length, the columns differentiated and the start times stay those given
+    here. This default calls :meth:`Model.interval_jacobians` (on copies of the
+    buffers); a model whose batch has work to do only once (an FMU's compiled driver
+    bound to its buffers) returns its own from :meth:`Model.interval_batch`.
+
+    Parameters
+    ----------
+    model : Model
+    batch : int
+        B, the intervals.
+    dt_s : float
+        Interval length [s].
+    wrt_inputs : sequence of int
+        Columns of ``u`` to differentiate with respect to.
+    t_start_s : ndarray, shape (B,), optional
+        Start time of each interval [s] (passed to models whose batch methods take it).
+
+    """
+
+    def __init__(self, model: 'Model', batch: int, dt_s: float, wrt_inputs: Sequence[int],
+                 t_start_s: np.ndarray | None = None) -> None:
+        self.model = model
+        self.dt_s = float(dt_s)
+        self.wrt_inputs = list(wrt_inputs)
+        self.x_start = np.zeros((int(batch), len(model.state_names)))
+        self.u = np.zeros((int(batch), len(model.input_names)))
+        self.t_start_s = interval_start_times(t_start_s, int(batch))
+        self._times = ({'t_start_s': self.t_start_s}
+                       if self.t_start_s is not None and accepts_start_times(model) else {})
+
+    def jacobians(self) -> IntervalJacobians | None:
+        """End values and derivatives at the buffers' starts and inputs (None: no analytic)."""
+        return self.model.interval_jacobians(self.x_start.copy(), self.u.copy(), self.dt_s,
+                                             self.wrt_inputs, **self._times)
+
+
 class Model(abc.ABC):
     """
     A dynamic zone model with named inputs, states and outputs.
@@ -207,8 +250,12 @@ class Model(abc.ABC):
             On a wrong shape or a non-finite value, naming the model's variables.
 
         """
-        x_start = np.atleast_2d(np.asarray(x_start, dtype=float))
-        u = np.atleast_2d(np.asarray(u, dtype=float))
+        x_start = np.asarray(x_start, dtype=float)
+        if x_start.ndim != 2:
+            x_start = np.atleast_2d(x_start)
+        u = np.asarray(u, dtype=float)
+        if u.ndim != 2:
+            u = np.atleast_2d(u)
         nx, nu = len(self.state_names), len(self.input_names)
         if x_start.ndim != 2 or x_start.shape[1] != nx:
             raise ValueError(f'x_start must have shape (B, {nx}) for states '
@@ -216,7 +263,10 @@ class Model(abc.ABC):
         if u.ndim != 2 or u.shape != (x_start.shape[0], nu):
             raise ValueError(f'u must have shape ({x_start.shape[0]}, {nu}) for inputs '
                              f'{list(self.input_names)}, got {u.shape}')
-        if not (np.all(np.isfinite(x_start)) and np.all(np.isfinite(u))):
+        # one sum for the usual case; element-wise only when it is not finite (a sum of
+        # finite values can overflow)
+        if not math.isfinite(np.add.reduce(x_start, None) + np.add.reduce(u, None)) and not (
+                np.all(np.isfinite(x_start)) and np.all(np.isfinite(u))):
             raise ValueError('x_start and u must be finite')
         return x_start, u
 
@@ -264,6 +314,44 @@ class Model(abc.ABC):
             y_end[b] = ydf.to_numpy()[-1]
         return x_end, y_end
 
+    def simulate_chains(self, x0: np.ndarray, u: np.ndarray, dt_s: float,
+                        t_start_s: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """
+        Simulate C trajectories of N consecutive intervals of ``dt_s`` [s] each.
+
+        Interval k of trajectory c starts from the end state of its interval k - 1 (from
+        ``x0[c]`` for k = 0), with its own inputs ``u[k, c]``: what N calls of
+        :meth:`simulate_intervals` on C intervals give, which is this default. Models
+        that can run the whole set in one batch override it (an FMU's compiled driver).
+
+        Parameters
+        ----------
+        x0 : ndarray, shape (C, nx)
+            Start state of each trajectory.
+        u : ndarray, shape (N, C, nu)
+            Inputs of interval k of trajectory c, columns in :attr:`input_names` order.
+        dt_s : float
+            Interval length [s].
+        t_start_s : ndarray, shape (N, C), optional
+            Start time of each interval [s] (see :meth:`simulate_intervals`; only passed
+            to a model whose batch methods take it).
+
+        Returns
+        -------
+        x_end : ndarray, shape (N, C, nx)
+        y_end : ndarray, shape (N, C, ny)
+
+        """
+        x = np.atleast_2d(np.asarray(x0, dtype=float))
+        u = np.asarray(u, dtype=float)
+        x_end = np.empty((u.shape[0], *x.shape))
+        y_end = np.empty((u.shape[0], x.shape[0], len(self.output_names)))
+        for k in range(u.shape[0]):
+            times = {} if t_start_s is None else {'t_start_s': np.asarray(t_start_s)[k]}
+            x, y_end[k] = self.simulate_intervals(x, u[k], dt_s, **times)
+            x_end[k] = x
+        return x_end, y_end
+
     def interval_jacobians(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                            wrt_inputs: Sequence[int],
                            t_start_s: np.ndarray | None = None) -> IntervalJacobians | None:
@@ -289,6 +377,16 @@ class Model(abc.ABC):
 
         """
         return None
+
+    def interval_batch(self, batch: int, dt_s: float, wrt_inputs: Sequence[int],
+                       t_start_s: np.ndarray | None = None) -> IntervalBatch:
+        """
+        Return an :class:`IntervalBatch` of ``batch`` intervals of this model.
+
+        For the optimiser's inner loop: buffers written in place, evaluated many times
+        (:meth:`IntervalBatch.jacobians` gives what :meth:`interval_jacobians` gives).
+        """
+        return IntervalBatch(self, batch, dt_s, wrt_inputs, t_start_s)
 
     def jacobian_sparsity(self, wrt_inputs: Sequence[int]) -> np.ndarray | None:
         """

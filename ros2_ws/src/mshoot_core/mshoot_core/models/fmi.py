@@ -256,8 +256,10 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         self._fmu_time: float | None = None
         self._non_finite_seen: tuple | None = None
         self._solver: Any = None
+        self._solver_start = 0.0  # (re)start time of CVode, while not created
         self._sensitivity_solvers: dict[tuple[int, ...], tuple[Any, Any]] = {}
         self._sensitivity_requests: dict[tuple[int, ...], Any] = {}
+        self._jacobian_plans: dict[tuple, Any] = {}  # (fmi_sensitivities)
         if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float)) \
                 or not 0.0 < float(tolerance) < 1.0:
             raise ValueError(f'tolerance must be a float in (0, 1), got {tolerance!r}')
@@ -415,6 +417,7 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         self._cs_driver = None
         self._me_driver = None
         self._me_problems: dict[tuple, tuple[MeProblem, list]] = {}
+        self._me_bound: dict[tuple, Any] = {}  # BoundMeBatch by problem and size
         self._bind_drivers()
         logger.debug('instantiated %s as %s', self.fmu_path.name, self.fmi_type)
 
@@ -439,6 +442,7 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         self._solver = None
         self._sensitivity_solvers = {}
         self._me_problems = {}
+        self._me_bound = {}
         self._cs_driver = self._me_driver = None  # bound to the instance's library
         self._plant = None
         if fmu is not None:
@@ -697,6 +701,42 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         if not math.isfinite(np.add.reduce(x_end, None) + np.add.reduce(y_end, None)):
             self._check_finite(x_end, y_end, dt_s if t0 is None else t0 + dt_s)
         return x_end, y_end
+
+    def simulate_chains(self, x0: np.ndarray, u: np.ndarray, dt_s: float,
+                        t_start_s: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """
+        Simulate C trajectories of N consecutive intervals (see :meth:`Model.simulate_chains`).
+
+        In one batch of the compiled Model Exchange driver where it applies (each interval
+        as in :meth:`simulate_intervals`, its start states the end states of the previous
+        interval of its trajectory, handed on inside the driver); else, or if the batch
+        fails or gives non-finite values, as N batches of :meth:`simulate_intervals`
+        (which report the failure as they would).
+        """
+        x0 = np.atleast_2d(np.asarray(x0, dtype=float))
+        u = np.asarray(u, dtype=float)
+        n, chains = u.shape[0], x0.shape[0]
+        # (a subclass with its own simulate_intervals, a card's unit conversions: its batches)
+        if n > 1 and u.ndim == 3 and u.shape[1] == chains and self.me_batch_plan() is None \
+                and type(self).simulate_intervals is FmiModel.simulate_intervals:
+            # rows >= chains of the starts are not read: the driver chains the end states
+            x_start, inputs, dt_s = self._check_batch(np.tile(x0, (n, 1)),
+                                                      u.reshape(n * chains, -1), dt_s)
+            times = None if t_start_s is None else np.asarray(t_start_s, dtype=float)
+            t0 = self._fmu_start_times(None if times is None else times.reshape(-1),
+                                       n * chains)
+            self._plant = None  # the instance is re-initialised: a plant run ends here
+            x_end = np.empty(x_start.shape)
+            y_end = np.empty((n * chains, len(self.output_names)))
+            try:
+                done = self._me_batch_in_c(x_start, inputs, dt_s, x_end, y_end, t_start=t0,
+                                           chain=chains)
+            except RuntimeError:  # an FMI call failed: the batches below say where
+                done = False
+            if done is not False and math.isfinite(np.add.reduce(x_end, None)
+                                                   + np.add.reduce(y_end, None)):
+                return x_end.reshape(n, chains, -1), y_end.reshape(n, chains, -1)
+        return super().simulate_chains(x0, u, dt_s, t_start_s)
 
     def _batch_in_c(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                     x_end: np.ndarray, y_end: np.ndarray,

@@ -204,7 +204,7 @@ class MeProblem(ctypes.Structure):
                 ('start_idx', SIZE_P),
                 ('n_su', ctypes.c_size_t), ('su_vr', VR_P), ('su_nominal', DOUBLE_P),
                 ('sensitivity_factor', ctypes.c_double), ('sensitivities', ctypes.c_int),
-                ('n_yo', ctypes.c_size_t), ('yo_vr', VR_P)]
+                ('n_yo', ctypes.c_size_t), ('yo_vr', VR_P), ('chain', ctypes.c_size_t)]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -270,13 +270,16 @@ def me_problem(*, snapshot: int | None, needs_completed_step: bool, tolerance: f
                input_refs: Sequence[int], par_refs: Sequence[int],
                par_values: Sequence[float], start_refs: Sequence[int],
                start_index: Sequence[int], fmu_output_refs: Sequence[int],
-               sensitivities: SensitivityRequest | None) -> tuple[MeProblem, list]:
+               sensitivities: SensitivityRequest | None,
+               chain: int = 0) -> tuple[MeProblem, list]:
     """
     Describe a Model Exchange batch for the driver.
 
     Returns the structure and the arrays it points to: keep both alive while
     the structure is used. ``fmu_output_refs`` are the model outputs that are
-    FMU outputs (their partials are evaluated with sensitivities).
+    FMU outputs (their partials are evaluated with sensitivities). ``chain`` C > 0:
+    interval b >= C starts from the end states of interval b - C (C trajectories of
+    consecutive intervals, interleaved), not from its own start states.
     """
     keep: list[Any] = []
 
@@ -309,7 +312,7 @@ def me_problem(*, snapshot: int | None, needs_completed_step: bool, tolerance: f
         n_start=len(start_refs), start_vr=refs(start_refs), start_idx=sizes(start_index),
         n_su=len(su_refs), su_vr=refs(su_refs), su_nominal=reals(su_nominals),
         sensitivity_factor=factor, sensitivities=int(sensitivities is not None),
-        n_yo=len(fmu_output_refs), yo_vr=refs(fmu_output_refs))
+        n_yo=len(fmu_output_refs), yo_vr=refs(fmu_output_refs), chain=int(chain))
     return problem, keep
 
 
@@ -369,21 +372,105 @@ class MeBatchDriver:
 
         """
         batch = starts.shape[0]
-        stats = self._stats
         code = self._batch(
             self._api_address, component, ctypes.addressof(problem), batch,
             _address(starts), _address(inputs), _address(x_end), _address(y_end),
-            _address(s_end), _address(dyo), stats, address(t_start))
+            _address(s_end), _address(dyo), self._stats, address(t_start))
+        self.check(code, problem, batch)
+
+    def check(self, code: int, problem: MeProblem, batch: int) -> None:
+        """
+        Raise for the return ``code`` of a batch of ``batch`` intervals (log its statistics).
+
+        Raises
+        ------
+        DriverGaveUp
+            For an interval the driver does not do (an event, too many steps).
+        RuntimeError
+            If an FMI call fails or the FMU requests termination.
+
+        """
+        stats = self._stats
         if logger.isEnabledFor(logging.DEBUG):
             logger.debug('ME batch of %d: %d steps, %d rejected, %d evaluations', batch,
                          stats[0], stats[1], stats[2])
+        if not code:
+            return
         if code == ME_TERMINATE:
             raise RuntimeError(f'{self.label} requested termination in interval '
                                f'{stats[3]} of a Model Exchange batch')
         if code < 0:
             raise DriverGaveUp(ME_GAVE_UP.get(code, f'code {code}').format(
                 max_steps=problem.max_steps), stats[3])
-        if code:
-            raise RuntimeError(f'{self.label}: FMI call ({ME_STAGES[code % 16 - 1]}) '
-                               f'of interval {code // 16} failed in the batched Model Exchange '
-                               f'driver')
+        raise RuntimeError(f'{self.label}: FMI call ({ME_STAGES[code % 16 - 1]}) '
+                           f'of interval {code // 16} failed in the batched Model Exchange '
+                           f'driver')
+
+    def bind(self, component: Any, problem: tuple[MeProblem, list], batch: int, nx: int,
+             nu: int, ny: int, times: bool) -> 'BoundMeBatch':
+        """Return a batch of ``batch`` intervals of ``problem`` bound to buffers of its own."""
+        return BoundMeBatch(self, component, problem, batch, nx, nu, ny, times)
+
+
+class BoundMeBatch:
+    """
+    A Model Exchange batch of one size bound to buffers of its own: the driver's arguments once.
+
+    The per-call cost of :meth:`MeBatchDriver.run` is mostly its arguments (the
+    addresses of the arrays, a ctypes conversion each): here the caller copies
+    the starts, inputs and start times into :attr:`starts`, :attr:`inputs` and
+    :attr:`times`, :meth:`run` calls the driver with arguments prepared once, and
+    the results are in :attr:`x_end`, :attr:`y_end`, :attr:`s_end` and :attr:`dyo`
+    until the next run (shapes as :meth:`MeBatchDriver.run`'s).
+
+    Parameters
+    ----------
+    driver : MeBatchDriver
+    component : the FMU instance's component
+    problem : (MeProblem, list)
+        The batch's description and the arrays it points to (kept alive here).
+    batch, nx, nu, ny : int
+        Intervals, model states, inputs, outputs.
+    times : bool
+        Whether the intervals have start times (:attr:`times`, else all at FMU time 0).
+
+    """
+
+    def __init__(self, driver: MeBatchDriver, component: Any, problem: tuple[MeProblem, list],
+                 batch: int, nx: int, nu: int, ny: int, times: bool) -> None:
+        description = problem[0]
+        self.driver = driver
+        self.component = component
+        self.problem = problem
+        self.batch = batch
+        self.starts = np.zeros((batch, nx))
+        self.inputs = np.zeros((batch, nu))
+        self.times = np.zeros(batch) if times else None
+        self.x_end = np.zeros((batch, nx))
+        self.y_end = np.zeros((batch, ny))
+        n, m = description.n, description.n_su
+        if description.sensitivities:
+            self.s_end = np.zeros((batch, n, nx + m))
+            self.dyo = np.zeros((batch, description.n_yo, n + m))
+        else:
+            self.s_end = self.dyo = np.zeros(1)
+        self._call = driver._batch
+        self._arguments = (driver._api_address, component, ctypes.addressof(description),
+                           batch, _address(self.starts), _address(self.inputs),
+                           _address(self.x_end), _address(self.y_end), _address(self.s_end),
+                           _address(self.dyo), driver._stats,
+                           None if self.times is None else _address(self.times))
+
+    def run(self) -> None:
+        """
+        Integrate the batch from the buffers' starts, inputs and times.
+
+        Raises
+        ------
+        DriverGaveUp, RuntimeError
+            As :meth:`MeBatchDriver.run`.
+
+        """
+        code = self._call(*self._arguments)
+        if code or logger.isEnabledFor(logging.DEBUG):
+            self.driver.check(code, self.problem[0], self.batch)

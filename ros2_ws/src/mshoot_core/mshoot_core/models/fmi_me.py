@@ -26,6 +26,7 @@ inside the FMU see the interval's own time.
 from __future__ import annotations
 
 import logging
+from typing import Any
 
 import numpy as np
 
@@ -84,7 +85,22 @@ class ModelExchangeIntegration:
         fmu.setContinuousStates(double_pointer(self._x_full), n)
 
     def _ensure_solver(self, t0: float) -> None:
-        """Create the CVode solver on first use, else re-start it at ``t0``."""
+        """
+        (Re)start the CVode solver at ``t0`` from the FMU's current states.
+
+        Before the first CVode integration the solver is not created here but when
+        :meth:`_integrate` first needs it, at the last start time given: created there
+        from the same states (nothing changes them in between), it starts as a re-start
+        here would. A model whose intervals all go to the compiled driver never loads
+        CVode.
+        """
+        if self._solver is None:
+            self._solver_start = t0
+        else:
+            self._solver.reset(t0)
+
+    def _cvode(self) -> Any:
+        """Return the CVode solver, created at the pending start time if it is not yet."""
         if self._solver is None:
             from fmpy.sundials import CVodeSolver
             fmu = self._fmu
@@ -93,10 +109,9 @@ class ModelExchangeIntegration:
                 get_x=fmu.getContinuousStates, set_x=fmu.setContinuousStates,
                 get_dx=self._derivatives_checked, get_z=fmu.getEventIndicators,
                 get_nominals=fmu.getNominalsOfContinuousStates, set_time=self._record_time,
-                input=HeldInputs(), startTime=t0, relativeTolerance=self.tolerance,
-                maxNumSteps=MAX_SOLVER_STEPS)
-        else:
-            self._solver.reset(t0)
+                input=HeldInputs(), startTime=self._solver_start,
+                relativeTolerance=self.tolerance, maxNumSteps=MAX_SOLVER_STEPS)
+        return self._solver
 
     def _enter_continuous_time(self, t0: float, x0: np.ndarray) -> None:
         """After initialisation: settle the events, enter continuous time, write ``x0``."""
@@ -112,11 +127,12 @@ class ModelExchangeIntegration:
         self._set_inputs(u)
         self._event_iteration()
         fmu.enterContinuousTimeMode()
-        self._solver.reset(t)
+        self._ensure_solver(t)
 
     def _integrate(self, t: float, t_end: float) -> None:
         """Integrate from ``t`` to ``t_end`` with CVode, handling the FMU's events."""
         fmu = self._fmu
+        solver = self._cvode()
         needs_step_call = bool(self._interface.needsCompletedIntegratorStep)
         eps = 1e-12 * max(1.0, abs(t_end))
         while t_end - t > eps:
@@ -124,7 +140,7 @@ class ModelExchangeIntegration:
             event_time = self._next_event_time
             if event_time is not None and t + eps < event_time < t_end - eps:
                 t_next = event_time
-            state_event, _, t = self._solver.step(t, t_next)
+            state_event, _, t = solver.step(t, t_next)
             fmu.setTime(t)
             step_event = False
             if needs_step_call:
@@ -136,7 +152,7 @@ class ModelExchangeIntegration:
                 fmu.enterEventMode()
                 self._event_iteration()
                 fmu.enterContinuousTimeMode()
-                self._solver.reset(t)
+                solver.reset(t)
 
     def _restore_snapshot(self, x0: np.ndarray, u: np.ndarray, t0: float = 0.0) -> None:
         """
@@ -187,8 +203,8 @@ class ModelExchangeIntegration:
             return 'non-Real parameters on an FMU without FMU states'
         return None
 
-    def _me_problem(self, dt_s: float,
-                    sensitivities: SensitivityRequest | None) -> tuple[MeProblem, list]:
+    def _me_problem(self, dt_s: float, sensitivities: SensitivityRequest | None,
+                    chain: int = 0) -> tuple[MeProblem, list]:
         """Return the driver's description of a batch, and the arrays it points to (keep both)."""
         par_refs, par_values = self._parameter_groups.get('Real', ([], []))
         fmu_outputs = {o.variable.name for o in self.model_description.outputs}
@@ -207,12 +223,12 @@ class ModelExchangeIntegration:
             start_index=self._start_state_index,
             fmu_output_refs=[v.valueReference for v in self._output_vars
                              if v.name in fmu_outputs],
-            sensitivities=sensitivities)
+            sensitivities=sensitivities, chain=chain)
 
     def _me_batch_in_c(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                        x_end: np.ndarray, y_end: np.ndarray,
                        sensitivities: SensitivityRequest | None = None,
-                       t_start: np.ndarray | None = None
+                       t_start: np.ndarray | None = None, chain: int = 0
                        ) -> tuple[np.ndarray, np.ndarray] | bool:
         """
         Run a Model Exchange batch in the compiled driver; False where it does not apply.
@@ -233,7 +249,12 @@ class ModelExchangeIntegration:
         :class:`~mshoot_core.models.fmi_values.FmuValueError`, found by
         integrating that interval with CVode), which is raised and leaves
         the driver on. Interval b starts at FMU time ``t_start[b]`` (None:
-        every interval at 0).
+        every interval at 0). With ``chain`` C > 0 the intervals are C trajectories
+        of consecutive intervals, interleaved: interval b >= C starts from the end
+        states of interval b - C (its row of ``x_start`` is not read). The batch runs on
+        buffers bound once per batch size
+        (:class:`~mshoot_core.models.fmi_drivers.BoundMeBatch`): the returned ``S``
+        and partials are those buffers, valid until the next batch.
 
         Raises
         ------
@@ -253,31 +274,39 @@ class ModelExchangeIntegration:
             return False
         # a model's requests differ by their inputs only (their nominals follow)
         key = (dt_s, None if sensitivities is None else sensitivities.input_refs,
-               None if self._snapshot is None else self._snapshot.value)
+               None if self._snapshot is None else self._snapshot.value, chain)
         if key not in self._me_problems:  # built once per interval length and request
             if len(self._me_problems) >= 16:
                 self._me_problems.clear()
-            self._me_problems[key] = self._me_problem(dt_s, sensitivities)
-        problem, _ = self._me_problems[key]
-        batch, n = x_start.shape[0], self._n_continuous
-        m = len(sensitivities.input_refs) if sensitivities is not None else 0
-        columns = len(self._state_vars) + m
-        s_end = np.zeros((batch, n, columns)) if sensitivities is not None else np.zeros(1)
-        dyo = np.zeros((batch, problem.n_yo, n + m)) if sensitivities is not None \
-            else np.zeros(1)
-        starts = np.ascontiguousarray(x_start, dtype=float)
-        inputs = np.ascontiguousarray(u, dtype=float)
+            self._me_problems[key] = self._me_problem(dt_s, sensitivities, chain)
+        entry = self._me_problems[key]
+        bound_key = (key, x_start.shape[0], t_start is None)
+        bound = self._me_bound.get(bound_key)
+        if bound is None or bound.problem is not entry or bound.driver is not self._me_driver \
+                or bound.component is not self._fmu.component:
+            if len(self._me_bound) >= 16:
+                self._me_bound.clear()
+            bound = self._me_driver.bind(self._fmu.component, entry, x_start.shape[0],
+                                         x_start.shape[1], u.shape[1], y_end.shape[1],
+                                         t_start is not None)
+            self._me_bound[bound_key] = bound
+        np.copyto(bound.starts, x_start)
+        np.copyto(bound.inputs, u)
+        if t_start is not None:
+            np.copyto(bound.times, t_start)
         try:
-            self._me_driver.run(self._fmu.component, problem, starts, inputs, x_end, y_end,
-                                s_end, dyo, t_start=t_start)
+            bound.run()
         except DriverGaveUp as gave_up:
-            self._non_finite_interval(x_start, u, dt_s, t_start, gave_up)
+            if not chain:  # (a chained interval's start is not its row of x_start)
+                self._non_finite_interval(x_start, u, dt_s, t_start, gave_up)
             logger.warning('%s: the batched Model Exchange driver stopped at interval %d (%s); '
                            'this model integrates with CVode from now on', self.fmu_path.name,
                            gave_up.interval, gave_up.reason)
             self._me_driver = False
             return False
-        return (s_end, dyo) if sensitivities is not None else True
+        np.copyto(x_end, bound.x_end)
+        np.copyto(y_end, bound.y_end)
+        return (bound.s_end, bound.dyo) if sensitivities is not None else True
 
     def _non_finite_interval(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                              t_start: np.ndarray | None, gave_up: DriverGaveUp) -> None:

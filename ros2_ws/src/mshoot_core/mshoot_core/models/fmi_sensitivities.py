@@ -21,8 +21,9 @@ from typing import Any, Sequence
 from fmpy.fmi2 import FMU2Model
 import numpy as np
 
-from mshoot_core.models.base import IntervalJacobians
-from mshoot_core.models.fmi_drivers import double_pointer, SensitivityRequest, vr_array
+from mshoot_core.models.base import IntervalBatch, IntervalJacobians
+from mshoot_core.models.fmi_drivers import (double_pointer, DriverGaveUp, SensitivityRequest,
+                                            vr_array)
 from mshoot_core.models.fmi_me import HeldInputs, MAX_SOLVER_STEPS
 
 logger = logging.getLogger(__name__)
@@ -123,6 +124,89 @@ class _Sensitivities:
         """No event indicators (FMUs with events get no sensitivities)."""
 
 
+class _JacobianPlan:
+    """
+    What the interval Jacobians of one set of input columns need, found once per model.
+
+    ``wrt`` the input columns; ``reason`` why sensitivities are unavailable (None when they
+    are); ``request`` the driver's :class:`SensitivityRequest`; ``output_rows`` the model
+    outputs that are FMU outputs (their partials come from the driver); ``state_outputs``
+    (ny, n) the ones of the outputs that are continuous states read as outputs;
+    ``all_outputs`` whether every model output is an FMU output, in order; ``positions``
+    the model states among the FMU's continuous states (a slice where they are contiguous).
+    """
+
+    def __init__(self, wrt: list[int], reason: str | None) -> None:
+        self.wrt = wrt
+        self.reason = reason
+        self.request: SensitivityRequest | None = None
+        self.output_rows = np.zeros(0, dtype=np.intp)
+        self.state_outputs = np.zeros((0, 0))
+        self.all_outputs = False
+        self.positions: slice | np.ndarray = slice(0, 0)
+
+
+class _DriverBatch(IntervalBatch):
+    """
+    An FMU's interval batch on the compiled Model Exchange driver, with sensitivities.
+
+    An :class:`~mshoot_core.models.base.IntervalBatch`. The first :meth:`jacobians` goes
+    through :meth:`ForwardSensitivities.interval_jacobians` (the first initialisation,
+    the batch's description, its bound buffers); later ones,
+    while that binding holds (the same driver, instance and snapshot, no time events),
+    copy the buffers into the driver's and run it: the same numbers without the checks
+    and look-ups of a call. Starts or inputs that are not finite, a driver that gives up
+    or fails, go through ``interval_jacobians``, which reports them as it does.
+    """
+
+    def __init__(self, model: Any, batch: int, dt_s: float, wrt_inputs: Sequence[int],
+                 t_start_s: np.ndarray | None, plan: _JacobianPlan) -> None:
+        super().__init__(model, batch, dt_s, wrt_inputs, t_start_s)
+        self._plan = plan
+        self._fmu_times = model._fmu_start_times(self.t_start_s, int(batch))
+        self._t_end = (self.dt_s if self._fmu_times is None else self._fmu_times + self.dt_s)
+        self._bound: Any = None
+        self._snapshot: Any = None
+
+    def jacobians(self) -> IntervalJacobians | None:
+        model, bound = self.model, self._bound
+        x_start, u = self.x_start, self.u
+        if bound is None or not (
+                model._me_driver is bound.driver and model._snapshot is self._snapshot
+                and model._fmu is not None and model._fmu.component is bound.component
+                and model._next_event_time is None
+                and math.isfinite(np.add.reduce(x_start, None) + np.add.reduce(u, None))):
+            jac = super().jacobians()  # the whole call; then bind to its driver batch
+            self._bind()
+            return jac
+        np.copyto(bound.starts, x_start)
+        np.copyto(bound.inputs, u)
+        if bound.times is not None:
+            np.copyto(bound.times, self._fmu_times)
+        model._plant = None  # the instance is re-initialised: a plant run ends here
+        try:
+            bound.run()
+        except (DriverGaveUp, RuntimeError):
+            self._bound = None
+            return super().jacobians()  # the call handles it (CVode, or the error)
+        x_end, y_end = bound.x_end.copy(), bound.y_end.copy()
+        if not math.isfinite(np.add.reduce(x_end, None) + np.add.reduce(y_end, None)):
+            model._check_finite(x_end, y_end, self._t_end)
+        return model._driver_jacobians(self._plan, x_end, y_end, bound.s_end, bound.dyo)
+
+    def _bind(self) -> None:
+        """Take the driver batch the last call ran on, if it ran on the driver."""
+        model = self.model
+        self._bound = None
+        if not model._me_driver or model._next_event_time is not None:
+            return
+        key = (self.dt_s, self._plan.request.input_refs,
+               None if model._snapshot is None else model._snapshot.value, 0)
+        bound = model._me_bound.get((key, self.x_start.shape[0], self._fmu_times is None))
+        if bound is not None and bound.driver is model._me_driver:
+            self._bound, self._snapshot = bound, model._snapshot
+
+
 class ForwardSensitivities:
     """
     Forward-sensitivity part of :class:`~mshoot_core.models.fmi.FmiModel` (a mixin).
@@ -150,6 +234,82 @@ class ForwardSensitivities:
         if odd:
             return f'outputs {odd} are neither FMU outputs nor states'
         return None
+
+    def interval_batch(self, batch: int, dt_s: float, wrt_inputs: Sequence[int],
+                       t_start_s: np.ndarray | None = None) -> IntervalBatch:
+        """
+        Return an :class:`~mshoot_core.models.base.IntervalBatch` of ``batch`` intervals.
+
+        Bound to the compiled driver's buffers after its first evaluation where the driver
+        integrates the sensitivities (:class:`_DriverBatch`); else, and for a subclass with
+        its own :meth:`interval_jacobians` (a card's unit conversions), the default.
+        """
+        if type(self).interval_jacobians is not ForwardSensitivities.interval_jacobians:
+            # a subclass that converts values (a card's units): its own interval_jacobians
+            return IntervalBatch(self, batch, dt_s, wrt_inputs, t_start_s)
+        plan = self._jacobian_plans.get(tuple(wrt_inputs))
+        if plan is None:
+            plan = self._jacobian_plan(wrt_inputs)
+        if plan.reason is not None or self.me_batch_plan() is not None:
+            return IntervalBatch(self, batch, dt_s, wrt_inputs, t_start_s)
+        return _DriverBatch(self, batch, dt_s, wrt_inputs, t_start_s, plan)
+
+    def _driver_jacobians(self, plan: _JacobianPlan, x_end: np.ndarray, y_end: np.ndarray,
+                          s_end: np.ndarray, dyo: np.ndarray) -> IntervalJacobians:
+        """
+        Return the interval Jacobians of a driver batch from its end values and sensitivities.
+
+        ``s_end`` (B, n, nx + m) and the output partials ``dyo`` (B, n_yo, n + m) are the
+        driver's buffers: read here, not kept.
+        """
+        batch, nx, ny = x_end.shape[0], x_end.shape[1], y_end.shape[1]
+        sx, su = s_end[:, :, :nx], s_end[:, :, nx:]  # (B, n, nx), (B, n, m)
+        n = self._n_continuous
+        if plan.all_outputs:  # every output an FMU output: its partials as they are
+            dy_dx, dy_du_direct = dyo[:, :, :n], dyo[:, :, n:]
+        else:  # the FMU outputs' partials, ones for states read as outputs
+            dy_dx = np.empty((batch, ny, n))
+            dy_dx[:] = plan.state_outputs
+            dy_dx[:, plan.output_rows] = dyo[:, :, :n]
+            dy_du_direct = np.zeros((batch, ny, su.shape[2]))
+            dy_du_direct[:, plan.output_rows] = dyo[:, :, n:]
+        return IntervalJacobians(x_end, y_end, sx[:, plan.positions].copy(),
+                                 su[:, plan.positions].copy(), dy_dx @ sx,
+                                 dy_dx @ su + dy_du_direct)
+
+    def _jacobian_plan(self, wrt_inputs: Sequence[int]) -> _JacobianPlan:
+        """
+        Return what :meth:`interval_jacobians` needs for the inputs ``wrt_inputs``, built once.
+
+        Raises
+        ------
+        ValueError
+            If an index is not one of :attr:`input_names`.
+
+        """
+        key = tuple(wrt_inputs)
+        wrt = [int(j) for j in key]
+        bad = [j for j in wrt if not 0 <= j < len(self.input_names)]
+        if bad:
+            raise ValueError(f'wrt_inputs must index {list(self.input_names)}, got {wrt}')
+        reason = self._sensitivity_plan(wrt)
+        plan = _JacobianPlan(wrt, reason)
+        if reason is None:
+            plan.request = self._sensitivity_request(wrt)
+            fmu_outputs = {o.variable.name for o in self.model_description.outputs}
+            plan.output_rows = np.array([i for i, v in enumerate(self._output_vars)
+                                         if v.name in fmu_outputs], dtype=np.intp)
+            plan.state_outputs = np.zeros((len(self._output_vars), self._n_continuous))
+            for i, v in enumerate(self._output_vars):
+                if v.name not in fmu_outputs:  # a continuous state read as an output
+                    plan.state_outputs[i, self._continuous_states.index(v)] = 1.0
+            plan.all_outputs = plan.output_rows.tolist() == list(range(len(self._output_vars)))
+            pos = list(self._state_positions)
+            contiguous = pos == list(range(pos[0], pos[0] + len(pos))) if pos else False
+            plan.positions = slice(pos[0], pos[0] + len(pos)) if contiguous else np.array(
+                pos, dtype=np.intp)
+        self._jacobian_plans[key] = plan
+        return plan
 
     def _sensitivity_request(self, wrt: Sequence[int]) -> SensitivityRequest:
         """Return the inputs ``wrt`` (indices of :attr:`input_names`) with their nominals."""
@@ -241,14 +401,13 @@ class ForwardSensitivities:
             If a state or output is not finite (names it and the FMU time).
 
         """
-        wrt = [int(j) for j in wrt_inputs]
-        bad = [j for j in wrt if not 0 <= j < len(self.input_names)]
-        if bad:
-            raise ValueError(f'wrt_inputs must index {list(self.input_names)}, got {wrt}')
-        reason = self._sensitivity_plan(wrt)
-        if reason is not None:
-            logger.debug('interval_jacobians unavailable (%s): finite differences', reason)
+        plan = self._jacobian_plans.get(tuple(wrt_inputs))
+        if plan is None:
+            plan = self._jacobian_plan(wrt_inputs)
+        if plan.reason is not None:
+            logger.debug('interval_jacobians unavailable (%s): finite differences', plan.reason)
             return None
+        wrt = plan.wrt
         x_start, u, dt_s = self._check_batch(x_start, u, dt_s)
         t0 = self._fmu_start_times(t_start_s, x_start.shape[0])
         t_end = dt_s if t0 is None else t0 + dt_s  # (the end times, for messages)
@@ -258,30 +417,17 @@ class ForwardSensitivities:
         pos = self._state_positions
         x_end = np.empty((batch, nx))
         y_end = np.empty((batch, ny))
+        if self.me_batch_plan() is None:
+            done = self._me_batch_in_c(x_start, u, dt_s, x_end, y_end, plan.request,
+                                       t_start=t0)
+            if done is not False:
+                if not math.isfinite(np.add.reduce(x_end, None) + np.add.reduce(y_end, None)):
+                    self._check_finite(x_end, y_end, t_end)
+                return self._driver_jacobians(plan, x_end, y_end, *done)
         dx_dx0 = np.empty((batch, nx, nx))
         dx_du = np.empty((batch, nx, m))
         dy_dx0 = np.empty((batch, ny, nx))
         dy_du = np.empty((batch, ny, m))
-        if self.me_batch_plan() is None:
-            done = self._me_batch_in_c(x_start, u, dt_s, x_end, y_end,
-                                       self._sensitivity_request(wrt), t_start=t0)
-            if done is not False:
-                if not math.isfinite(np.add.reduce(x_end, None) + np.add.reduce(y_end, None)):
-                    self._check_finite(x_end, y_end, t_end)
-                s_end, dyo = done
-                sx, su = s_end[:, :, :nx], s_end[:, :, nx:]  # (B, n, nx), (B, n, m)
-                n = self._n_continuous
-                fmu_outputs = {o.variable.name for o in self.model_description.outputs}
-                rows = [i for i, v in enumerate(self._output_vars) if v.name in fmu_outputs]
-                dy_dx = np.zeros((batch, ny, n))
-                dy_du_direct = np.zeros((batch, ny, m))
-                dy_dx[:, rows] = dyo[:, :, :n]
-                dy_du_direct[:, rows] = dyo[:, :, n:]
-                for i, v in enumerate(self._output_vars):
-                    if v.name not in fmu_outputs:  # a continuous state read as an output
-                        dy_dx[:, i, self._continuous_states.index(v)] = 1.0
-                return IntervalJacobians(x_end, y_end, sx[:, pos], su[:, pos], dy_dx @ sx,
-                                         dy_dx @ su + dy_du_direct)
         wrt_refs = [self._input_vars[j].valueReference for j in wrt]
         for b in range(batch):
             start = 0.0 if t0 is None else float(t0[b])
