@@ -91,3 +91,15 @@ def timed_fmus(tmp_path_factory: pytest.TempPathFactory) -> dict[str, pathlib.Pa
     from timed_fmu import build_timed_fmu
     out = tmp_path_factory.mktemp('timed_fmu')
     return {'state': build_timed_fmu(out, True), 'nostate': build_timed_fmu(out, False)}
+
+
+@pytest.fixture(scope='session')
+def boptest_case() -> Any:
+    """Return the BOPTEST test case beside the repo; skip (fail under CI=true) when absent."""
+    from mshoot_core.boptest.testcase import default_directory, TestCase
+    folder = default_directory()
+    if not (folder / 'wrapped.fmu').is_file():
+        if os.environ.get('CI') == 'true':
+            pytest.fail(f'BOPTEST test case missing at {folder} (required under CI)')
+        pytest.skip(f'BOPTEST test case not found at {folder}')
+    return TestCase.load(folder)
