@@ -1,0 +1,232 @@
+"""
+BOPTEST's key performance indicators from a record table of a run.
+
+Stable API::
+
+    from mshoot_core.boptest.kpis import compute_kpis, kpi_records, KPI_NAMES
+    kpis = compute_kpis(table, case, start_s, end_s, price='dynamic', step_wall_s=walls)
+    # {'tdis_tot': K h, 'idis_tot': ppm h, 'ener_tot': kWh/m2, 'cost_tot': EUR/m2,
+    #  'emis_tot': kgCO2/m2, 'pele_tot': kW/m2, 'time_rat': -, 'starts_per_day': 1/d}
+
+The definitions are those of the test case's README (BOPTEST's KPI calculator), over the test
+period ``[start_s, end_s]``, from the outputs stored during the run (``table``: a ``time``
+column [s from 1 January] and the outputs named in the test case's ``kpis.json``, sampled at
+<= 60 s as :class:`~mshoot_core.boptest.plant.BoptestPlant` records them), with the test case's
+data (band, CO2 limit, prices, emissions) held constant between their rows (forward fill) and
+integrals by the trapezoid rule over the samples:
+
+- ``tdis_tot`` [K h]: ∫ (max(0, LowerSetp[z] - T_z) + max(0, T_z - UpperSetp[z])) dt / 3600,
+  averaged over the zones z (``OperativeZoneTemperature[z]`` of ``kpis.json``);
+- ``idis_tot`` [ppm h]: ∫ max(0, CO2_z - UpperCO2[z]) dt / 3600, averaged over the zones;
+- ``ener_tot`` [kWh/m2]: ∫ P dt / 3.6e6 / area, P [W] the sum of the ``ElectricPower`` outputs;
+- ``cost_tot`` [EUR/m2]: ∫ P * price dt / 3.6e6 / area (price [EUR/kWh] of the scenario);
+- ``emis_tot`` [kgCO2/m2]: ∫ P * EmissionsElectricPower dt / 3.6e6 / area;
+- ``pele_tot`` [kW/m2]: the largest 15-minute mean of P / area / 1000; the means are over the
+  samples in each 900 s bin [k 900, (k + 1) 900) of FMU time (as pandas' ``resample('15min')``
+  of BOPTEST), within the period;
+- ``time_rat`` [-]: the mean over control steps of the controller's wall time between two
+  emulator advances divided by the control step (None when no wall times are given);
+- ``starts_per_day`` [1/day]: not a BOPTEST KPI: the heat pump's off -> on transitions per day
+  (:func:`~mshoot_core.boptest.plant.heat_pump_starts`), when the table has ``reaHeaPumY_y``.
+"""
+from __future__ import annotations
+
+import logging
+import re
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+from mshoot_core.boptest.plant import heat_pump_starts
+from mshoot_core.boptest.testcase import EMISSIONS_COLUMN, PRICE_SCENARIOS, TestCase
+
+logger = logging.getLogger(__name__)
+
+#: BOPTEST's KPIs, in the order of its reports.
+KPI_NAMES = ('tdis_tot', 'idis_tot', 'ener_tot', 'cost_tot', 'emis_tot', 'pele_tot', 'time_rat')
+#: Joules per kWh.
+J_PER_KWH = 3.6e6
+#: Bin of the peak power KPI [s].
+PEAK_BIN_S = 900.0
+_ZONE = re.compile(r'\[(\w+)\]$')
+
+
+def _zone(key: str) -> str:
+    match = _ZONE.search(key)
+    if match is None:
+        raise ValueError(f'kpis.json key {key!r} names no zone ("...[z]")')
+    return match.group(1)
+
+
+def _window(table: pd.DataFrame, start_s: float, end_s: float) -> pd.DataFrame:
+    if 'time' not in table.columns:
+        raise ValueError('the record table lacks the column "time" [s]')
+    if not end_s > start_s:
+        raise ValueError(f'empty test period [{start_s:g}, {end_s:g}] s')
+    times = table['time'].to_numpy(dtype=float)
+    if np.any(np.diff(times) <= 0):
+        raise ValueError('the record table\'s "time" must increase strictly')
+    eps = 1e-6
+    if times.size == 0 or times[0] > start_s + eps or times[-1] < end_s - eps:
+        span = f'[{times[0]:g}, {times[-1]:g}]' if times.size else 'empty'
+        raise ValueError(f'the records ({span} s) do not cover the period [{start_s:g}, '
+                         f'{end_s:g}] s')
+    keep = (times >= start_s - eps) & (times <= end_s + eps)
+    return table[keep].reset_index(drop=True)
+
+
+def _columns(table: pd.DataFrame, names: Sequence[str]) -> np.ndarray:
+    missing = [n for n in names if n not in table.columns]
+    if missing:
+        raise ValueError(f'the record table lacks the KPI outputs {missing}')
+    values = table[list(names)].to_numpy(dtype=float)
+    if not np.all(np.isfinite(values)):
+        raise ValueError(f'non-finite values in the KPI outputs {list(names)}')
+    return values
+
+
+def electric_power(table: pd.DataFrame, case: TestCase) -> np.ndarray:
+    """Return the electric power P [W]: the sum of the ``ElectricPower`` outputs, per row."""
+    return _columns(table, case.power_outputs).sum(axis=1)
+
+
+def thermal_discomfort(table: pd.DataFrame, case: TestCase) -> np.ndarray:
+    """Return the band violation [K] per row, averaged over the zones (``tdis_tot`` integrand)."""
+    times = table['time'].to_numpy(dtype=float)
+    per_zone = []
+    for key, outputs in case.kpi_outputs.items():
+        if not key.startswith('OperativeZoneTemperature'):
+            continue
+        zone = _zone(key)
+        temperature = _columns(table, outputs)[:, 0]
+        lower = case.lookup(f'LowerSetp[{zone}]', times)
+        upper = case.lookup(f'UpperSetp[{zone}]', times)
+        per_zone.append(np.maximum(0.0, lower - temperature)
+                        + np.maximum(0.0, temperature - upper))
+    if not per_zone:
+        raise ValueError(f'{case.name}: kpis.json names no OperativeZoneTemperature')
+    return np.mean(per_zone, axis=0)
+
+
+def co2_discomfort(table: pd.DataFrame, case: TestCase) -> np.ndarray:
+    """Return the CO2 excess [ppm] per row, averaged over the zones (``idis_tot`` integrand)."""
+    times = table['time'].to_numpy(dtype=float)
+    per_zone = []
+    for key, outputs in case.kpi_outputs.items():
+        if not key.startswith('CO2Concentration'):
+            continue
+        zone = _zone(key)
+        co2 = _columns(table, outputs)[:, 0]
+        per_zone.append(np.maximum(0.0, co2 - case.lookup(f'UpperCO2[{zone}]', times)))
+    if not per_zone:
+        return np.zeros(len(table))
+    return np.mean(per_zone, axis=0)
+
+
+def peak_power(times_s: np.ndarray, power_w: np.ndarray) -> float:
+    """
+    Return the largest 15-minute mean of a power [W] (module docstring).
+
+    Parameters
+    ----------
+    times_s : np.ndarray
+        Sample times [s]; bins are [k 900, (k + 1) 900).
+    power_w : np.ndarray
+        The power at those times [W].
+
+    """
+    bins = np.floor(np.asarray(times_s, dtype=float) / PEAK_BIN_S + 1e-9).astype(np.int64)
+    means = pd.Series(np.asarray(power_w, dtype=float)).groupby(bins).mean()
+    return float(means.max())
+
+
+def compute_kpis(table: pd.DataFrame, case: TestCase, start_s: float, end_s: float,
+                 price: str = 'constant',
+                 step_wall_s: Sequence[float] | None = None,
+                 control_step_s: float | None = None) -> dict[str, float | None]:
+    """
+    Compute BOPTEST's KPIs of one run over a test period (module docstring).
+
+    Parameters
+    ----------
+    table : pd.DataFrame
+        Records: ``time`` [s from 1 January] increasing, covering [start_s, end_s], and the
+        test case's KPI outputs (FMU units: K, W, ppm); ``reaHeaPumY_y`` for the starts.
+    case : TestCase
+        The test case (area, KPI map, data).
+    start_s, end_s : float
+        The test period [s from 1 January].
+    price : str
+        Price scenario, a key of :data:`~mshoot_core.boptest.testcase.PRICE_SCENARIOS`.
+    step_wall_s : sequence of float, optional
+        The controller's wall time of each control step [s] (for ``time_rat``).
+    control_step_s : float, optional
+        The control step [s] (default the test case's).
+
+    Returns
+    -------
+    dict
+        :data:`KPI_NAMES` -> value (``time_rat`` None without wall times), plus
+        ``starts_per_day`` (None without ``reaHeaPumY_y``).
+
+    Raises
+    ------
+    ValueError
+        For missing columns, a period the records do not cover or an unknown price scenario.
+
+    """
+    price_column = case.price_column(price)
+    period = _window(table, start_s, end_s)
+    times = period['time'].to_numpy(dtype=float)
+    power = electric_power(period, case)
+    scale = J_PER_KWH * case.area_m2
+    kpis: dict[str, float | None] = {
+        'tdis_tot': float(np.trapezoid(thermal_discomfort(period, case), times) / 3600.0),
+        'idis_tot': float(np.trapezoid(co2_discomfort(period, case), times) / 3600.0),
+        'ener_tot': float(np.trapezoid(power, times) / scale),
+        'cost_tot': float(np.trapezoid(power * case.lookup(price_column, times), times) / scale),
+        'emis_tot': float(np.trapezoid(power * case.lookup(EMISSIONS_COLUMN, times), times)
+                          / scale),
+        'pele_tot': peak_power(times, power) / case.area_m2 / 1000.0,
+        'time_rat': None,
+    }
+    if step_wall_s is not None:
+        walls = np.asarray(step_wall_s, dtype=float)
+        step = case.control_step_s if control_step_s is None else float(control_step_s)
+        if walls.size == 0 or not np.all(np.isfinite(walls)) or not step > 0:
+            raise ValueError('time_rat needs finite wall times and a positive control step')
+        kpis['time_rat'] = float(walls.mean() / step)
+    kpis['starts_per_day'] = (heat_pump_starts(period, start_s, end_s)[1]
+                              if 'reaHeaPumY_y' in period.columns else None)
+    return kpis
+
+
+def kpi_records(table: pd.DataFrame, case: TestCase, start_s: float, end_s: float,
+                prices: Sequence[str] = tuple(PRICE_SCENARIOS),
+                step_wall_s: Sequence[float] | None = None,
+                control_step_s: float | None = None,
+                **keys: str) -> list[dict[str, float | str | None]]:
+    """
+    Return one KPI record per price scenario of the same run (only ``cost_tot`` differs).
+
+    Parameters
+    ----------
+    table, case, start_s, end_s, step_wall_s, control_step_s
+        As :func:`compute_kpis`.
+    prices : sequence of str
+        Price scenarios.
+    **keys : str
+        Added to every record first (e.g. ``controller='rule'``, ``period='peak_heat_day'``).
+
+    Returns
+    -------
+    list of dict
+        ``{**keys, 'price': name, **compute_kpis(...)}`` per scenario.
+
+    """
+    records = []
+    for price in prices:
+        kpis = compute_kpis(table, case, start_s, end_s, price, step_wall_s, control_step_s)
+        records.append({**keys, 'price': price, **kpis})
+    return records
