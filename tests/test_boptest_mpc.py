@@ -1,17 +1,17 @@
 """The BOPTEST control model, its identification, the economic MPC and its dispatch."""
 from __future__ import annotations
 
-import numpy as np
-import pandas as pd
-import pytest
-from scipy.integrate import solve_ivp
-
 from mshoot_core import calibration
 from mshoot_core.boptest import economic, identification as ident
 from mshoot_core.boptest.model import (HouseModel, HouseParameters, KELVIN, load_parameters,
                                        ZoneObserver)
 from mshoot_core.mpc import MPC
 from mshoot_core.settings import MpcSettings
+import numpy as np
+import pandas as pd
+import pytest
+from scipy.integrate import solve_ivp
+
 
 U = np.array([[2.0, 150.0, 300.0, 0.25, 0.4],
               [-3.0, 0.0, 0.0, 0.40, 1.0],

@@ -154,7 +154,7 @@ class ProblemSettings(SettingsGroup):
     cost: str = setting('quadratic', "'quadratic': sum (q/q_nom)^2; 'energy': sum |q/q_nom|; "
                         "'output': sum over the intervals of the model output cost_output",
                         choices=('quadratic', 'energy', 'output'))
-    cost_output: str = setting('cost', "model output summed over the horizon by the cost "
+    cost_output: str = setting('cost', 'model output summed over the horizon by the cost '
                                "'output' (e.g. an interval's electricity cost) [its unit]")
     heat_rate_min_w: float = setting(-2000.0, 'lower bound of every heat rate (largest '
                                      'cooling) [W]', low=-1e7, high=1e7, also=('supervisor',))

@@ -150,10 +150,10 @@ class ShootingProblem:
         at each interval's end (e.g. the interval's electricity cost: price x
         power, with the price a disturbance of the forecast), differentiated
         with the model's own output sensitivities (its Hessian taken as zero:
-        exact for outputs affine in states and controls). Relaxation 'two-phase' minimises the violation, relaxes the bounds
-        to it and solves the hard problem again; 'exact-penalty' always solves
-        once with slack and a large linear penalty on the violation (the same
-        plan up to the solver tolerance, in one solve; suits IPOPT on large
+        exact for outputs affine in states and controls). Relaxation
+        'two-phase' minimises the violation, relaxes the bounds to it and solves
+        the hard problem again; 'exact-penalty' always solves once with slack
+        and a large linear penalty on the violation (the same plan up to the solver tolerance, in one solve; suits IPOPT on large
         problems, where a failing hard solve costs as much as a solve). Mode
         'fast': batched, cached, structured sensitivities (analytic where the
         model has them); 'naive': the ancestor's algorithm, kept as a

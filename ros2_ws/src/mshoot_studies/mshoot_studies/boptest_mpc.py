@@ -76,7 +76,7 @@ def identify_command(args: argparse.Namespace) -> int:
 
 def _rule_run(case, period: str, lead_h: float, margin_k: float, warmup_days: float,
               length_days: float):
-    """The pre-heating rule: setpoint = highest lower band edge over the next lead_h + margin."""
+    """Run the pre-heating rule: setpoint = highest lower edge over lead_h ahead + margin."""
     from mshoot_core.boptest.plant import BoptestPlant
     warmup_start, start, end = case.test_period(period, warmup_days, length_days)
     with BoptestPlant(case) as plant:

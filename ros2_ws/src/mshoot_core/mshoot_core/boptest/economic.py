@@ -40,7 +40,7 @@ from typing import Any, Callable
 import numpy as np
 import pandas as pd
 
-from mshoot_core.boptest.model import HouseModel, house_model, KELVIN, ZoneObserver
+from mshoot_core.boptest.model import house_model, HouseModel, KELVIN, ZoneObserver
 from mshoot_core.boptest.testcase import PRICE_SCENARIOS, TestCase
 from mshoot_core.mpc import MPC
 from mshoot_core.settings import MpcSettings
@@ -361,6 +361,7 @@ def run_period(case: TestCase, period: str, price: str, mode: str = 'modulation'
     Parameters
     ----------
     case : TestCase
+        The test case.
     period : str
         ``peak_heat_day`` or ``typical_heat_day`` (a key of the test case's days).
     price, mode : str

@@ -74,6 +74,7 @@ def excite(case: TestCase, first_day: float, last_day: float, seed: int,
     Parameters
     ----------
     case : TestCase
+        The test case.
     first_day, last_day : float
         The excited days of the year (the plant starts ``lead_days`` earlier, under the
         building's own control).
@@ -144,9 +145,11 @@ def excitation_records(case: TestCase, cache: str | pathlib.Path | None = None,
     Parameters
     ----------
     case : TestCase
+        The test case.
     cache : path, optional
         Folder of the cached records (``excitation_<first>_<last>_<seed>.pkl``); None: no cache.
     runs : sequence of (first_day, last_day, seed)
+        The excitation runs (:func:`excite`).
 
     """
     out = []
@@ -325,7 +328,9 @@ def identify(tables: Sequence[pd.DataFrame], records: Sequence[pd.DataFrame],
         The records the tables came from (the heat pump fit; the power model's score on the
         validation days).
     train, validation : sequence of (first_day, last_day)
+        Days of the year fitted, and only scored.
     free : sequence of FreeParameter
+        The thermal parameters fitted (the heat pump's are fitted before, at full load).
     starts, max_evaluations : int
         See :func:`~mshoot_core.calibration.calibrate`.
 
@@ -349,4 +354,3 @@ def identify(tables: Sequence[pd.DataFrame], records: Sequence[pd.DataFrame],
                                    starts=starts, max_evaluations=max_evaluations)
     parameters = HouseParameters(**{**heat_pump, **result.parameters})
     return Identification(parameters, result, heat_pump, power)
-

@@ -320,8 +320,11 @@ def load_parameters(path: str | pathlib.Path | None = None) -> HouseParameters:
 
 
 def house_model(parameters: Any = None) -> HouseModel:
-    """Return the house model with ``parameters`` (a HouseParameters, a mapping, a JSON path,
-    or None for the packaged fit)."""
+    """
+    Return the house model with ``parameters``.
+
+    ``parameters``: a HouseParameters, a mapping, a JSON path, or None for the packaged fit.
+    """
     if parameters is None or isinstance(parameters, (str, pathlib.Path)):
         parameters = load_parameters(parameters)
     return HouseModel(parameters)
