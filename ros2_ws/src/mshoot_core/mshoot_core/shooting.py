@@ -153,7 +153,8 @@ class ShootingProblem:
         exact for outputs affine in states and controls). Relaxation
         'two-phase' minimises the violation, relaxes the bounds to it and solves
         the hard problem again; 'exact-penalty' always solves once with slack
-        and a large linear penalty on the violation (the same plan up to the solver tolerance, in one solve; suits IPOPT on large
+        and a large linear penalty on the violation (the same plan up to the
+        solver tolerance, in one solve; suits IPOPT on large
         problems, where a failing hard solve costs as much as a solve). Mode
         'fast': batched, cached, structured sensitivities (analytic where the
         model has them); 'naive': the ancestor's algorithm, kept as a
