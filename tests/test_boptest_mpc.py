@@ -210,11 +210,11 @@ def test_forecast_frame_from_the_data(boptest_case) -> None:
         case.lookup('PriceElectricPowerDynamic', sub).mean())
     assert frame['Tout'].iloc[3] == pytest.approx(case.lookup('TDryBul', sub).mean() - KELVIN)
     for k in range(1, 25):  # bound of interval k-1: the tightest band over it, with margin
-        inside = t0 + (k - 1) * 3600.0 + np.arange(1, 5) * 900.0 - 1e-3
+        inside = t0 + (k - 1) * 3600.0 + np.arange(1, 5) * 900.0  # (t_k-1, t_k]
         assert frame['comfort_min'].iloc[k] == pytest.approx(
             case.lookup('LowerSetp[1]', inside).max() - KELVIN + 0.3)
         assert frame['comfort_max'].iloc[k] == pytest.approx(
-            case.lookup('UpperSetp[1]', inside).min() - KELVIN - 0.3)
+            case.lookup('UpperSetp[1]', inside).min() - KELVIN)
     assert set(np.round(frame['comfort_min'], 2)) == {15.3, 21.3}
 
 

@@ -14,8 +14,8 @@ control step (the fraction of the step it runs at full load: its COP and the fan
 make full load the cheapest way to deliver heat), minimising the cost 'output' of
 :class:`~mshoot_core.shooting.ShootingProblem` (the sum of the model output ``cost`` =
 price x electric power x step) plus a soft comfort band: a linear and a small quadratic
-penalty on the zone temperature outside the test case's band (tightened by a margin, as the
-plan sees only the step ends while BOPTEST integrates discomfort continuously).
+penalty on the zone temperature outside the test case's band (its lower edge raised by a
+margin, as the plan sees only the step ends while BOPTEST integrates discomfort continuously).
 
 The plan's first duty is dispatched by :class:`DutyDispatcher` at the plant's 60 s sampling:
 a full-load burst of the planned length, joined to the previous step's burst (fewer starts),
@@ -85,7 +85,8 @@ class EconomicConfig:
     mode : str
         One of :data:`MODES`.
     margin_k : float
-        The band is tightened by this on both sides in the plan [K].
+        The band's lower edge is raised by this in the plan [K] (the upper edge is kept:
+        the heat pump cannot cool, a tighter upper edge would only withhold heat).
     min_run_s : float
         Minimum run time of the heat pump [s] (0: none).
     forecast_columns : tuple of str
@@ -138,7 +139,7 @@ def controller_settings(case: TestCase | None = None, price: str = 'constant',
         The control model's parameters (:func:`~mshoot_core.boptest.model.house_model`;
         default the packaged identification).
     margin_k : float
-        Tightening of the comfort band in the plan [K], >= 0.
+        Raise of the comfort band's lower edge in the plan [K], >= 0.
     min_run_h : float
         Minimum run time of the heat pump [h], >= 0 (0: none).
     **options
@@ -175,7 +176,7 @@ def _interval_means(case: TestCase, column: str, t_s: np.ndarray, step_s: float)
 
 
 def forecast_frame(case: TestCase, t_s: float, steps: int, step_s: float, price: str,
-                   margin_k: float = 0.0) -> pd.DataFrame:
+                   margin_k: float = 0.0, upper_margin_k: float = 0.0) -> pd.DataFrame:
     """
     Return the forecast of the control model from the test case's data.
 
@@ -183,7 +184,8 @@ def forecast_frame(case: TestCase, t_s: float, steps: int, step_s: float, price:
     interval: ``Tout`` [degC], ``solar`` global horizontal irradiance [W/m2], ``gains``
     convective and radiative internal gains [W], ``price`` [EUR/kWh]) and the comfort band
     [degC] at the row's time, as bounds of the interval ending there: the highest lower edge
-    and the lowest upper edge over the interval, tightened by ``margin_k``.
+    and the lowest upper edge over the interval (its end included), the lower edge raised by
+    ``margin_k``, the upper one lowered by ``upper_margin_k``.
     """
     times = float(t_s) + np.arange(steps + 1) * float(step_s)
     frame = pd.DataFrame(index=pd.Index(times, name='time_s'))
@@ -194,11 +196,11 @@ def forecast_frame(case: TestCase, t_s: float, steps: int, step_s: float, price:
     frame['price'] = _interval_means(case, case.price_column(price), times, step_s)
     n_sub = max(1, int(round(step_s / DATA_STEP_S)))
     ends = (times[:, None] - np.arange(n_sub)[None, :] * step_s / n_sub).reshape(-1)
-    ends = np.maximum(ends, times[0])
-    lower = case.lookup('LowerSetp[1]', ends - 1e-6 * (ends > times[0])).reshape(-1, n_sub)
-    upper = case.lookup('UpperSetp[1]', ends - 1e-6 * (ends > times[0])).reshape(-1, n_sub)
+    ends = np.maximum(ends, times[0])  # (t_k, t_k+1] on the data's grid, end included
+    lower = case.lookup('LowerSetp[1]', ends).reshape(-1, n_sub)
+    upper = case.lookup('UpperSetp[1]', ends).reshape(-1, n_sub)
     lo = lower.max(axis=1) - KELVIN + margin_k
-    hi = upper.min(axis=1) - KELVIN - margin_k
+    hi = upper.min(axis=1) - KELVIN - upper_margin_k
     frame['comfort_min'] = lo
     frame['comfort_max'] = np.maximum(hi, lo)
     return frame
