@@ -3,7 +3,7 @@ Economic MPC of the BOPTEST heat pump house: the price of electricity against co
 
 Stable API::
 
-    from mshoot_core.boptest.economic import controller_settings, run_period
+    from mshoot_core.boptest.economic import controller_settings, EconomicController, run_period
     config = controller_settings(case, price='dynamic', mode='modulation')
     config.settings, config.model, config.forecast_columns     # MpcSettings, HouseModel, names
     forecast = config.forecast(t_s)                            # N+1 rows from the test case data
@@ -348,6 +348,69 @@ def hourly_inputs(records: pd.DataFrame, case: TestCase, t0_s: float, t1_s: floa
     return np.array([tout, solar, gains, cost, max(duty, 0.0)])
 
 
+class EconomicController:
+    """
+    One run of the economic MPC: the observer, the MPC and the dispatcher, step by step.
+
+    Usage, every control step of length ``step_s`` starting at ``t``::
+
+        controller.start(tz_k)                                # once, at the plant's start
+        pieces, result = controller.decide(t)                 # the step's overwrites
+        ...advance the plant through the pieces...
+        controller.observe(records, t, t + step_s, tz_k)      # the step's measurements
+
+    Steps under the building's own control (the warm-up) are only observed.
+
+    Parameters
+    ----------
+    config : EconomicConfig
+        From :func:`controller_settings`.
+
+    """
+
+    def __init__(self, config: EconomicConfig) -> None:
+        self.config = config
+        self.step_s = config.settings.problem.step_s
+        self.observer = ZoneObserver(config.model, self.step_s)
+        self.mpc = config.mpc()
+        self.dispatcher = config.dispatcher()
+
+    def start(self, tz_k: float) -> None:
+        """Start the observer from the measured zone temperature [K]."""
+        self.observer.reset(float(tz_k))
+
+    @property
+    def state(self) -> np.ndarray:
+        """The estimated states (Tz, Tf, Te) [K]."""
+        if self.observer.x is None:
+            raise RuntimeError('call start() first')
+        return self.observer.x.copy()
+
+    def observe(self, records: pd.DataFrame, t0_s: float, t1_s: float,
+                tz_k: float) -> np.ndarray:
+        """
+        Update the state with the measurements of the step [t0, t1] (plant records).
+
+        Returns the measured model inputs of the step (:func:`hourly_inputs`).
+        """
+        c = self.config
+        u = hourly_inputs(records, c.case, t0_s, t1_s, c.price, c.model)
+        self.observer.update(u, float(tz_k))
+        return u
+
+    def decide(self, t_s: float) -> tuple[list[tuple[float, dict[str, float]]], Any]:
+        """
+        Plan from the estimated state at ``t_s``; return the step's overwrite pieces and plan.
+
+        The pieces are (end time [s], overwrites) in order (:meth:`DutyDispatcher.segments`);
+        the plan is the :class:`~mshoot_core.mpc.MpcResult`.
+        """
+        result = self.mpc.solve(self.state, t_s, self.config.forecast(t_s))
+        duty = float(result.controls[0, 0]) if np.all(np.isfinite(result.controls)) else 0.0
+        pieces = self.dispatcher.segments(t_s, duty, float(result.states[1, 0]))
+        return pieces, result
+
+
 def run_period(case: TestCase, period: str, price: str, mode: str = 'modulation',
                config: EconomicConfig | None = None, warmup_days: float = 7.0,
                length_days: float = 14.0, progress: Callable[[str], None] | None = None,
@@ -379,49 +442,41 @@ def run_period(case: TestCase, period: str, price: str, mode: str = 'modulation'
     from mshoot_core.boptest.plant import BoptestPlant
     config = config if config is not None else controller_settings(case, price, mode,
                                                                    **options)
-    model = config.model
     step = config.settings.problem.step_s
     warmup_start, start, end = case.test_period(period, warmup_days, length_days)
-    observer = ZoneObserver(model, step)
-    mpc = config.mpc()
-    dispatcher = config.dispatcher()
+    controller = EconomicController(config)
     rows = []
     wall0 = time.perf_counter()
     with BoptestPlant(case) as plant:
         out = plant.start(warmup_start)
-        observer.reset(out['reaTZon_y'])
+        controller.start(out['reaTZon_y'])
         t = warmup_start
         while t < start - 1e-6:  # the warm-up: the building's own control, observed
             plant.advance(t + step)
-            u = hourly_inputs(plant.records(t, t + step), case, t, t + step, price, model)
-            observer.update(u, plant.outputs['reaTZon_y'])
+            controller.observe(plant.records(t, t + step), t, t + step,
+                               plant.outputs['reaTZon_y'])
             t += step
         last_day = None
         while t < end - 1e-6:
             began = time.perf_counter()
-            x0 = observer.x.copy()
-            forecast = config.forecast(t)
-            result = mpc.solve(x0, t, forecast)
-            duty = float(result.controls[0, 0]) if np.all(np.isfinite(result.controls)) else 0.0
-            planned = float(result.states[1, 0])
-            pieces = dispatcher.segments(t, duty, planned)
+            x0 = controller.state
+            pieces, result = controller.decide(t)
             wall = time.perf_counter() - began
             for piece_end, overwrites in pieces:
                 plant.advance(piece_end, overwrites)
-            u = hourly_inputs(plant.records(t, t + step), case, t, t + step, price, model)
             measured = plant.outputs['reaTZon_y']
-            rows.append({'time_s': t, 'duty': duty, 'duty_run': u[4],
+            u = controller.observe(plant.records(t, t + step), t, t + step, measured)
+            rows.append({'time_s': t, 'duty': float(result.controls[0, 0]), 'duty_run': u[4],
                          'Tz_measured_end': measured - KELVIN,
-                         'Tz_planned_end': planned - KELVIN,
+                         'Tz_planned_end': float(result.states[1, 0]) - KELVIN,
                          'Tf_est': x0[1] - KELVIN, 'Te_est': x0[2] - KELVIN,
                          'solve_s': float(result.solve_time_s), 'wall_s': wall,
                          'success': bool(result.success), 'objective': float(result.fun)})
-            observer.update(u, measured)
             t += step
             day = int((t - start) // 86400.0)
             if progress is not None and day != last_day and (t - start) % 86400.0 < step:
                 last_day = day
-                progress(f'{period} {price} {mode}: day {day:g}/{length_days:g}, '
+                progress(f'{period} {price} {config.mode}: day {day:g}/{length_days:g}, '
                          f'zone {measured - KELVIN:.2f} degC, mean solve '
                          f'{np.mean([r["solve_s"] for r in rows]):.3f} s')
         records = plant.records()
