@@ -197,7 +197,7 @@ def parser() -> argparse.ArgumentParser:
     e.add_argument('--no-rule', dest='rule', action='store_false')
     e.add_argument('--parameters', default=None, help='house parameters JSON (default: the '
                    'packaged fit)')
-    e.add_argument('--margin', type=float, default=0.3,
+    e.add_argument('--margin', type=float, default=0.5,
                    help='raise of the lower edge of the band in the plan [K]')
     e.add_argument('--min-run-h', type=float, default=0.0, help='minimum run time [h]')
     e.add_argument('--horizon', type=int, default=36, help='horizon [h]')

@@ -122,7 +122,7 @@ class EconomicConfig:
 
 def controller_settings(case: TestCase | None = None, price: str = 'constant',
                         mode: str = 'modulation', parameters: Any = None,
-                        margin_k: float = 0.3, min_run_h: float = 0.0,
+                        margin_k: float = 0.5, min_run_h: float = 0.0,
                         **options: Any) -> EconomicConfig:
     """
     Return the economic MPC of the test case for a price scenario and a mode.
