@@ -193,6 +193,12 @@ def test_dispatcher_bursts_and_minimum_run(boptest_case) -> None:
     lengths = np.flatnonzero(edges < 0) - np.flatnonzero(edges > 0)
     assert lengths.min() >= 120 or np.flatnonzero(edges < 0)[-1] == on2.size  # last may run on
     assert int(np.sum(edges > 0)) < starts
+    waiting = economic.DutyDispatcher(boptest_case, 'modulation', 2 * 3600.0)
+    assert [p[1]['oveHeaPumY_u'] for p in waiting.segments(0.0, 0.3)] == [0.0]  # accumulates
+    starting = economic.DutyDispatcher(boptest_case, 'modulation', 2 * 3600.0)
+    pieces = starting.segments(0.0, 0.3, next_duty=0.5)  # the plan heats on: start now
+    assert [(end, p['oveHeaPumY_u']) for end, p in pieces] == [(2520.0, 0.0), (3600.0, 1.0)]
+    assert starting.segments(3600.0, 0.0) == [(7200.0, {'oveHeaPumY_u': 1.0})]  # min run
     setpoint = economic.DutyDispatcher(boptest_case, 'setpoint')
     pieces = setpoint.segments(3600.0 * 30, 0.5)
     assert [p[1]['oveTSet_u'] > 300 for p in pieces] == [False, True]

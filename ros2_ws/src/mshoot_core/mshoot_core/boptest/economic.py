@@ -213,9 +213,10 @@ class DutyDispatcher:
     A step with duty d asks for d x step seconds at full load. The request is added to a
     balance (what was asked and not yet run); a running heat pump keeps running from the start
     of the step while the balance lasts (and at least until its minimum run time is reached);
-    a stopped one starts when the balance reaches one sample (or the minimum run time, capped at
-    one step), at the end of the step, so that its run continues into the next step as one
-    burst. A plan of zero duty clears the balance.
+    a stopped one starts when the balance reaches one sample (with a minimum run time: the run
+    time, capped at one step, unless the plan heats in the next step too), at the end of the
+    step, so that its run continues into the next step as one burst. A plan of zero duty
+    clears the balance.
 
     Parameters
     ----------
@@ -252,8 +253,8 @@ class DutyDispatcher:
         lower = float(self.case.lookup('LowerSetp[1]', t_s))
         return {'oveTSet_u': max(lower - SETPOINT_OFF_BELOW_K, 283.15)}
 
-    def segments(self, t_s: float, duty: float,
-                 planned_tz_k: float | None = None) -> list[tuple[float, dict[str, float]]]:
+    def segments(self, t_s: float, duty: float, planned_tz_k: float | None = None,
+                 next_duty: float = 0.0) -> list[tuple[float, dict[str, float]]]:
         """
         Return the step's overwrites as (end time [s], overwrites) pieces, in order.
 
@@ -265,6 +266,10 @@ class DutyDispatcher:
             Planned duty of the step [-], clipped to [0, 1].
         planned_tz_k : float, optional
             The plan's zone temperature at the end of the step [K] (mode 'tracking').
+        next_duty : float
+            The plan's duty of the next step [-]: a stopped heat pump with a minimum run time
+            starts at once (at the end of the step) when the plan heats in this step and the
+            next, as its run would continue anyway.
 
         """
         end = t_s + self.step_s
@@ -289,6 +294,8 @@ class DutyDispatcher:
             pieces = [(t_s + run, self._overwrites(True, t_s))] if run > 0 else []
             return pieces + [(end, self._overwrites(False, t_s))]
         threshold = max(quantum, min(self.min_run_s, self.step_s))
+        if next_duty > 0.0:
+            threshold = quantum
         if self.balance_s < threshold - 1e-9:
             return [(end, self._overwrites(False, t_s))]
         run = min(self.step_s, quantum * math.floor(self.balance_s / quantum + 0.5))
@@ -407,7 +414,9 @@ class EconomicController:
         """
         result = self.mpc.solve(self.state, t_s, self.config.forecast(t_s))
         duty = float(result.controls[0, 0]) if np.all(np.isfinite(result.controls)) else 0.0
-        pieces = self.dispatcher.segments(t_s, duty, float(result.states[1, 0]))
+        following = float(result.controls[1, 0]) if len(result.controls) > 1 else 0.0
+        pieces = self.dispatcher.segments(t_s, duty, float(result.states[1, 0]),
+                                          following if np.isfinite(following) else 0.0)
         return pieces, result
 
 
