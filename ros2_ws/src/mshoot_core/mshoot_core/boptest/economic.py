@@ -388,7 +388,7 @@ class EconomicController:
 
     @property
     def state(self) -> np.ndarray:
-        """The estimated states (Tz, Tf, Te) [K]."""
+        """Return the estimated states (Tz, Tf, Te) [K]."""
         if self.observer.x is None:
             raise RuntimeError('call start() first')
         return self.observer.x.copy()
