@@ -299,7 +299,7 @@ def test_invalid_parameters_are_rejected_with_a_reason(context, tmp_path):
                                                       for k, v in params.items()])
         return str(info.value)
 
-    assert "cost must be one of ['quadratic', 'energy'], got 'cubic'" in rejected(
+    assert "cost must be one of ['quadratic', 'energy', 'output'], got 'cubic'" in rejected(
         MpcNode, cost='cubic')
     assert 'horizon_steps must be in [1, 1000], got 0' in rejected(MpcNode, horizon_steps=0)
     # every problem of the start-up values at once

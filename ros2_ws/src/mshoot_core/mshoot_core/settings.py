@@ -151,8 +151,11 @@ class ProblemSettings(SettingsGroup):
     horizon_steps: int = setting(10, 'horizon N in control steps [-]', low=1, high=1000,
                                  cli='--horizon')
     step_s: float = setting(3600.0, 'control step [s]', low=1.0, high=86400.0, apply='fixed')
-    cost: str = setting('quadratic', "'quadratic': sum (q/q_nom)^2; 'energy': sum |q/q_nom|",
-                        choices=('quadratic', 'energy'))
+    cost: str = setting('quadratic', "'quadratic': sum (q/q_nom)^2; 'energy': sum |q/q_nom|; "
+                        "'output': sum over the intervals of the model output cost_output",
+                        choices=('quadratic', 'energy', 'output'))
+    cost_output: str = setting('cost', 'model output summed over the horizon by the cost '
+                               "'output' (e.g. an interval's electricity cost) [its unit]")
     heat_rate_min_w: float = setting(-2000.0, 'lower bound of every heat rate (largest '
                                      'cooling) [W]', low=-1e7, high=1e7, also=('supervisor',))
     heat_rate_max_w: float = setting(2000.0, 'upper bound of every heat rate (largest '

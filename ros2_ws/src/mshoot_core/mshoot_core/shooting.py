@@ -153,10 +153,15 @@ class ShootingProblem:
         :class:`mshoot_core.settings.ProblemSettings`). The cost 'quadratic' is
         the sum over intervals of sum over controls (u/u_nom)^2 (the reference);
         'energy' the sum of |u/u_nom| made smooth as sqrt((u/u_nom)^2 + eps^2) -
-        eps. Relaxation 'two-phase' minimises the violation, relaxes the bounds
-        to it and solves the hard problem again; 'exact-penalty' always solves
-        once with slack and a large linear penalty on the violation (the same
-        plan up to the solver tolerance, in one solve; suits IPOPT on large
+        eps; 'output' the sum over intervals of the model output ``cost_output``
+        at each interval's end (e.g. the interval's electricity cost: price x
+        power, with the price a disturbance of the forecast), differentiated
+        with the model's own output sensitivities (its Hessian taken as zero:
+        exact for outputs affine in states and controls). Relaxation
+        'two-phase' minimises the violation, relaxes the bounds to it and solves
+        the hard problem again; 'exact-penalty' always solves once with slack
+        and a large linear penalty on the violation (the same plan up to the
+        solver tolerance, in one solve; suits IPOPT on large
         problems, where a failing hard solve costs as much as a solve). Mode
         'fast': batched, cached, structured sensitivities (analytic where the
         model has them); 'naive': the ancestor's algorithm, kept as a
@@ -176,7 +181,8 @@ class ShootingProblem:
     control_nominal : sequence of float, optional
         u_nom per control (default: the largest absolute bound).
     state_scaling : Scaling, optional
-        Normalisation of the states (default: offset and range of the bounds
+        Normalisation of the states (default: the model's ``state_scaling``
+        attribute when it declares one, else offset and range of the bounds
         passed at each solve, falling back to offset 0 and scale 1).
     output_nominal : sequence of float, optional
         Output nominal values for y_hat = y / y_nom (default 1).
@@ -230,7 +236,15 @@ class ShootingProblem:
         self.n_intervals = problem.horizon_steps
         self.step_s = problem.step_s
         self.cost: str | CostFunction = problem.cost if cost_function is None else cost_function
-        self.state_scaling = state_scaling
+        self.cost_output_index = -1
+        if self.cost == 'output':
+            if problem.cost_output not in model.output_names:
+                raise ValueError(f"cost 'output' sums a model output: cost_output must be one of "
+                                 f'{list(model.output_names)}, got {problem.cost_output!r}')
+            self.cost_output_index = model.output_names.index(problem.cost_output)
+        model_scaling = getattr(model, 'state_scaling', None)
+        self.state_scaling = (state_scaling if state_scaling is not None or not isinstance(
+            model_scaling, Scaling) else model_scaling)
         ny = len(model.output_names)
         self.output_nominal = (np.ones(ny) if output_nominal is None
                                else np.asarray(output_nominal, dtype=float))
@@ -690,6 +704,10 @@ class ShootingProblem:
                 h[idx.u_slice] = 2.0
                 return h
             return hess
+        if self.cost == 'output':
+            def hess(z: np.ndarray) -> np.ndarray:
+                return np.zeros(idx.size)  # exact for outputs affine in states and controls
+            return hess
         if self.cost == 'energy':
             eps = self.energy_epsilon
 
@@ -722,6 +740,24 @@ class ShootingProblem:
                 g = np.zeros(idx.size)
                 u = z[idx.u_slice]
                 g[idx.u_slice] = u / np.sqrt(u ** 2 + eps ** 2)
+                return g
+            return cost, grad
+
+        if self.cost == 'output':
+            j = self.cost_output_index
+            nx = idx.n_states
+
+            def cost(z: np.ndarray) -> float:
+                return float(np.sum(evaluate(z).y_end[:, j]))
+
+            def grad(z: np.ndarray) -> np.ndarray:
+                # interval k's output depends on its control and (k > 0) on x[k-1]
+                jac = evaluate(z)
+                g = np.zeros(idx.size)
+                g[idx.u_slice] = (jac.dy_du[:, j, :] * self.control_scaling.scale).reshape(-1)
+                start = idx.x_slice.start
+                g[start:start + (idx.n_intervals - 1) * nx] = (
+                    jac.dy_dx0[1:, j, :] * self._x_scaling.scale).reshape(-1)
                 return g
             return cost, grad
 

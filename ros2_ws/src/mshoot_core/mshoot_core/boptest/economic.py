@@ -1,0 +1,492 @@
+"""
+Economic MPC of the BOPTEST heat pump house: the price of electricity against comfort.
+
+Stable API::
+
+    from mshoot_core.boptest.economic import controller_settings, EconomicController, run_period
+    config = controller_settings(case, price='dynamic', mode='modulation')
+    config.settings, config.model, config.forecast_columns     # MpcSettings, HouseModel, names
+    forecast = config.forecast(t_s)                            # N+1 rows from the test case data
+    result = run_period(case, 'peak_heat_day', 'dynamic', mode='modulation')
+
+The control model (:mod:`mshoot_core.boptest.model`) plans the heat pump's duty ``d`` per
+control step (the fraction of the step it runs at full load: its COP and the fan's fixed power
+make full load the cheapest way to deliver heat), minimising the cost 'output' of
+:class:`~mshoot_core.shooting.ShootingProblem` (the sum of the model output ``cost`` =
+price x electric power x step) plus a soft comfort band: a linear and a small quadratic
+penalty on the zone temperature outside the test case's band (its lower edge raised by a
+margin, as the plan sees only the step ends while BOPTEST integrates discomfort continuously).
+
+The plan's first duty is dispatched by :class:`DutyDispatcher` at the plant's 60 s sampling:
+a full-load burst of the planned length, joined to the previous step's burst (fewer starts),
+with an optional minimum run time; the burst reaches the building either as the heat pump's
+modulation ``oveHeaPumY_u`` (mode ``'modulation'``, direct control) or through the local loop's
+zone setpoint ``oveTSet_u`` (mode ``'setpoint'``: a setpoint above the zone temperature while the
+burst runs, the band's lower edge otherwise). Mode ``'tracking'`` sends the plan's zone
+temperature at the end of the step as the setpoint (the supervisory setpoint of the design).
+
+The unmeasured floor and envelope temperatures are estimated by
+:class:`~mshoot_core.boptest.model.ZoneObserver` from the measured zone temperature and the
+measured heat of the heat pump, every control step (from the start of the warm-up).
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import time
+from typing import Any, Callable
+
+import numpy as np
+import pandas as pd
+
+from mshoot_core.boptest.model import house_model, HouseModel, KELVIN, ZoneObserver
+from mshoot_core.boptest.testcase import PRICE_SCENARIOS, TestCase
+from mshoot_core.mpc import MPC
+from mshoot_core.settings import MpcSettings
+
+logger = logging.getLogger(__name__)
+
+#: Ways of sending the plan to the building.
+MODES = ('modulation', 'setpoint', 'tracking')
+#: Disturbance columns of the control model, in its input order.
+DISTURBANCES = ('Tout', 'solar', 'gains', 'price')
+#: Comfort band columns [degC] of the forecast (the MPC's zone state bounds).
+BAND_COLUMNS = ('comfort_min', 'comfort_max')
+#: Step of the test case's data [s] (interval means of the forecast are taken on it).
+DATA_STEP_S = 900.0
+#: Setpoint sent while a burst runs in mode 'setpoint' [K] (the local loop then runs at full
+#: load), and the setpoint when off is the band's lower edge minus this [K].
+SETPOINT_ON_K = 308.15
+SETPOINT_OFF_BELOW_K = 3.0
+#: Defaults of the economic MPC.
+DEFAULTS: dict[str, Any] = {
+    'horizon_steps': 36, 'step_s': 3600.0, 'cost': 'output', 'cost_output': 'cost',
+    'heat_rate_min_w': 0.0, 'heat_rate_max_w': 1.0, 'comfort': 'soft',
+    'soft_penalty': 100.0, 'soft_penalty_linear': 200.0, 'solver': 'ipopt',
+    'solver_max_iter': 300, 'safe_heat_rate_w': 0.0, 'on_failure': 'plan'}
+
+
+@dataclasses.dataclass
+class EconomicConfig:
+    """
+    Everything an MPC (core or ROS node) needs to run the economic MPC on a test case.
+
+    Attributes
+    ----------
+    settings : MpcSettings
+        The MPC settings (control ``d`` in [0, 1], cost 'output' of the model output ``cost``,
+        soft comfort band).
+    model : HouseModel
+        The identified control model.
+    case : TestCase
+    price : str
+        The price scenario (``constant``, ``dynamic``, ``highly_dynamic``).
+    mode : str
+        One of :data:`MODES`.
+    margin_k : float
+        The band's lower edge is raised by this in the plan [K] (the upper edge is kept:
+        the heat pump cannot cool, a tighter upper edge would only withhold heat).
+    min_run_s : float
+        Minimum run time of the heat pump [s] (0: none).
+    forecast_columns : tuple of str
+        The forecast's columns: the disturbances, then the band [degC].
+
+    """
+
+    settings: MpcSettings
+    model: HouseModel
+    case: TestCase
+    price: str
+    mode: str
+    margin_k: float
+    min_run_s: float
+    forecast_columns: tuple[str, ...] = (*DISTURBANCES, *BAND_COLUMNS)
+
+    def forecast(self, t_s: float, steps: int | None = None) -> pd.DataFrame:
+        """Return the perfect forecast of ``steps`` (default: the horizon) steps from ``t_s``."""
+        p = self.settings.problem
+        return forecast_frame(self.case, t_s, p.horizon_steps if steps is None else steps,
+                              p.step_s, self.price, self.margin_k)
+
+    def mpc(self) -> MPC:
+        """Return a new MPC of the model with the settings."""
+        return MPC(self.model, self.settings,
+                   state_bounds={'Tz': ('comfort_min', 'comfort_max', KELVIN)})
+
+    def dispatcher(self) -> DutyDispatcher:
+        """Return a new dispatcher of the planned duties to the plant."""
+        return DutyDispatcher(self.case, self.mode, self.min_run_s,
+                              self.settings.problem.step_s)
+
+
+def controller_settings(case: TestCase | None = None, price: str = 'constant',
+                        mode: str = 'modulation', parameters: Any = None,
+                        margin_k: float = 0.5, min_run_h: float = 0.0,
+                        **options: Any) -> EconomicConfig:
+    """
+    Return the economic MPC of the test case for a price scenario and a mode.
+
+    Parameters
+    ----------
+    case : TestCase, optional
+        The test case (default :meth:`TestCase.load`).
+    price : str
+        A key of :data:`~mshoot_core.boptest.testcase.PRICE_SCENARIOS`.
+    mode : str
+        One of :data:`MODES`.
+    parameters : optional
+        The control model's parameters (:func:`~mshoot_core.boptest.model.house_model`;
+        default the packaged identification).
+    margin_k : float
+        Raise of the comfort band's lower edge in the plan [K], >= 0.
+    min_run_h : float
+        Minimum run time of the heat pump [h], >= 0 (0: none).
+    **options
+        Flat MPC settings over :data:`DEFAULTS` (e.g. ``horizon_steps=24``).
+
+    Raises
+    ------
+    ValueError
+        For an unknown price scenario or mode, a negative margin or run time, bad settings.
+
+    """
+    case = case if case is not None else TestCase.load()
+    if price not in PRICE_SCENARIOS:
+        raise ValueError(f'unknown price scenario {price!r}: expected one of '
+                         f'{list(PRICE_SCENARIOS)}')
+    if mode not in MODES:
+        raise ValueError(f'unknown mode {mode!r}: expected one of {list(MODES)}')
+    if not (math.isfinite(margin_k) and margin_k >= 0):
+        raise ValueError(f'margin_k must be >= 0 K, got {margin_k!r}')
+    if not (math.isfinite(min_run_h) and 0 <= min_run_h <= 24):
+        raise ValueError(f'min_run_h must be in [0, 24] h, got {min_run_h!r}')
+    model = house_model(parameters)
+    settings = MpcSettings.from_flat({**DEFAULTS, **options}, control_names=('d',))
+    return EconomicConfig(settings, model, case, price, mode, float(margin_k),
+                          float(min_run_h) * 3600.0)
+
+
+def _interval_means(case: TestCase, column: str, t_s: np.ndarray, step_s: float) -> np.ndarray:
+    """Mean of a forward-filled data column over [t, t + step) for every t (exact on its grid)."""
+    n_sub = max(1, int(round(step_s / DATA_STEP_S)))
+    offsets = (np.arange(n_sub) + 0.5) * step_s / n_sub
+    values = case.lookup(column, (t_s[:, None] + offsets[None, :]).reshape(-1))
+    return values.reshape(t_s.size, n_sub).mean(axis=1)
+
+
+def forecast_frame(case: TestCase, t_s: float, steps: int, step_s: float, price: str,
+                   margin_k: float = 0.0, upper_margin_k: float = 0.0) -> pd.DataFrame:
+    """
+    Return the forecast of the control model from the test case's data.
+
+    Row k (time t_s + k step_s, k = 0..steps): the disturbances of interval k (means over the
+    interval: ``Tout`` [degC], ``solar`` global horizontal irradiance [W/m2], ``gains``
+    convective and radiative internal gains [W], ``price`` [EUR/kWh]) and the comfort band
+    [degC] at the row's time, as bounds of the interval ending there: the highest lower edge
+    and the lowest upper edge over the interval (its end included), the lower edge raised by
+    ``margin_k``, the upper one lowered by ``upper_margin_k``.
+    """
+    times = float(t_s) + np.arange(steps + 1) * float(step_s)
+    frame = pd.DataFrame(index=pd.Index(times, name='time_s'))
+    frame['Tout'] = _interval_means(case, 'TDryBul', times, step_s) - KELVIN
+    frame['solar'] = _interval_means(case, 'HGloHor', times, step_s)
+    frame['gains'] = (_interval_means(case, 'InternalGainsCon[1]', times, step_s)
+                      + _interval_means(case, 'InternalGainsRad[1]', times, step_s))
+    frame['price'] = _interval_means(case, case.price_column(price), times, step_s)
+    n_sub = max(1, int(round(step_s / DATA_STEP_S)))
+    ends = (times[:, None] - np.arange(n_sub)[None, :] * step_s / n_sub).reshape(-1)
+    ends = np.maximum(ends, times[0])  # (t_k, t_k+1] on the data's grid, end included
+    lower = case.lookup('LowerSetp[1]', ends).reshape(-1, n_sub)
+    upper = case.lookup('UpperSetp[1]', ends).reshape(-1, n_sub)
+    lo = lower.max(axis=1) - KELVIN + margin_k
+    hi = upper.min(axis=1) - KELVIN - upper_margin_k
+    frame['comfort_min'] = lo
+    frame['comfort_max'] = np.maximum(hi, lo)
+    return frame
+
+
+class DutyDispatcher:
+    """
+    Turn the planned duty of each control step into heat pump bursts at the plant's sampling.
+
+    A step with duty d asks for d x step seconds at full load. The request is added to a
+    balance (what was asked and not yet run); a running heat pump keeps running from the start
+    of the step while the balance lasts (and at least until its minimum run time is reached);
+    a stopped one starts when the balance reaches one sample (with a minimum run time: the run
+    time, capped at one step, unless the plan heats in the next step too), at the end of the
+    step, so that its run continues into the next step as one burst. A plan of zero duty
+    clears the balance.
+
+    Parameters
+    ----------
+    case : TestCase
+    mode : str
+        One of :data:`MODES` (``'tracking'`` does not burst: see :meth:`segments`).
+    min_run_s : float
+        Minimum run time [s] (0: none).
+    step_s : float
+        Control step [s].
+    sample_s : float
+        Resolution of the bursts [s] (the plant's sampling).
+
+    """
+
+    def __init__(self, case: TestCase, mode: str, min_run_s: float = 0.0,
+                 step_s: float = 3600.0, sample_s: float = 60.0) -> None:
+        if mode not in MODES:
+            raise ValueError(f'unknown mode {mode!r}: expected one of {list(MODES)}')
+        self.case = case
+        self.mode = mode
+        self.min_run_s = float(min_run_s)
+        self.step_s = float(step_s)
+        self.sample_s = float(sample_s)
+        self.balance_s = 0.0
+        self.on = False
+        self.run_s = 0.0
+
+    def _overwrites(self, on: bool, t_s: float) -> dict[str, float]:
+        if self.mode == 'modulation':
+            return {'oveHeaPumY_u': 1.0 if on else 0.0}
+        if on:
+            return {'oveTSet_u': SETPOINT_ON_K}
+        lower = float(self.case.lookup('LowerSetp[1]', t_s))
+        return {'oveTSet_u': max(lower - SETPOINT_OFF_BELOW_K, 283.15)}
+
+    def segments(self, t_s: float, duty: float, planned_tz_k: float | None = None,
+                 next_duty: float = 0.0) -> list[tuple[float, dict[str, float]]]:
+        """
+        Return the step's overwrites as (end time [s], overwrites) pieces, in order.
+
+        Parameters
+        ----------
+        t_s : float
+            Start of the step [s].
+        duty : float
+            Planned duty of the step [-], clipped to [0, 1].
+        planned_tz_k : float, optional
+            The plan's zone temperature at the end of the step [K] (mode 'tracking').
+        next_duty : float
+            The plan's duty of the next step [-]: a stopped heat pump with a minimum run time
+            starts at once (at the end of the step) when the plan heats in this step and the
+            next, as its run would continue anyway.
+
+        """
+        end = t_s + self.step_s
+        if self.mode == 'tracking':
+            if planned_tz_k is None:
+                raise ValueError("mode 'tracking' needs the planned zone temperature")
+            return [(end, {'oveTSet_u': float(np.clip(planned_tz_k, 278.15, 308.15))})]
+        duty = float(np.clip(duty, 0.0, 1.0))
+        self.balance_s = 0.0 if duty <= 0.0 else min(self.balance_s + duty * self.step_s,
+                                                     2.0 * self.step_s)
+        quantum = self.sample_s
+        if self.on:
+            keep = max(self.balance_s, self.min_run_s - self.run_s)
+            run = min(self.step_s, quantum * math.floor(keep / quantum + 0.5))
+            if duty <= 0.0 and self.run_s >= self.min_run_s:
+                run = 0.0
+            self.balance_s = max(0.0, self.balance_s - run)
+            self.run_s += run
+            if run >= self.step_s:
+                return [(end, self._overwrites(True, t_s))]
+            self.on, self.run_s = False, 0.0
+            pieces = [(t_s + run, self._overwrites(True, t_s))] if run > 0 else []
+            return pieces + [(end, self._overwrites(False, t_s))]
+        threshold = max(quantum, min(self.min_run_s, self.step_s))
+        if next_duty > 0.0:
+            threshold = quantum
+        if self.balance_s < threshold - 1e-9:
+            return [(end, self._overwrites(False, t_s))]
+        run = min(self.step_s, quantum * math.floor(self.balance_s / quantum + 0.5))
+        self.balance_s = max(0.0, self.balance_s - run)
+        self.on, self.run_s = True, run
+        start = end - run
+        pieces = [(start, self._overwrites(False, t_s))] if start > t_s else []
+        return pieces + [(end, self._overwrites(True, start))]
+
+
+@dataclasses.dataclass
+class PeriodResult:
+    """
+    One closed-loop run of a test period.
+
+    Attributes
+    ----------
+    records : DataFrame
+        The plant's records from the warm-up's start (:meth:`BoptestPlant.records`).
+    steps : DataFrame
+        One row per control step: ``time_s``, ``duty``, ``Tz_measured`` [degC],
+        ``Tz_planned_end`` [degC], ``Tf_est``, ``Te_est`` [degC], ``solve_s``,
+        ``wall_s`` (controller wall time of the step), ``success``.
+    start_s, end_s : float
+        The test period [s].
+    wall_s : float
+        Wall time of the whole run [s].
+
+    """
+
+    records: pd.DataFrame
+    steps: pd.DataFrame
+    start_s: float
+    end_s: float
+    wall_s: float
+
+
+def hourly_inputs(records: pd.DataFrame, case: TestCase, t0_s: float, t1_s: float,
+                  price: str, model: HouseModel) -> np.ndarray:
+    """
+    Return the model inputs measured over [t0, t1): means of the plant's records.
+
+    Outdoor temperature and irradiance from the building's weather outputs, gains and price
+    from the data, and the duty equivalent of the measured condenser heat (mean heat over the
+    full-load heat at the mean outdoor temperature).
+    """
+    window = records[(records['time'] > t0_s) & (records['time'] <= t1_s + 1e-6)]
+    if window.empty:
+        raise ValueError(f'no records in ({t0_s:g}, {t1_s:g}] s')
+    tout = float(window['weaSta_reaWeaTDryBul_y'].mean()) - KELVIN
+    solar = float(window['weaSta_reaWeaHGloHor_y'].mean())
+    step = t1_s - t0_s
+    gains = float(_interval_means(case, 'InternalGainsCon[1]', np.array([t0_s]), step)[0]
+                  + _interval_means(case, 'InternalGainsRad[1]', np.array([t0_s]), step)[0])
+    cost = float(_interval_means(case, case.price_column(price), np.array([t0_s]), step)[0])
+    duty = float(window['reaQHeaPumCon_y'].mean()) / float(model.heat_full_w(tout))
+    return np.array([tout, solar, gains, cost, max(duty, 0.0)])
+
+
+class EconomicController:
+    """
+    One run of the economic MPC: the observer, the MPC and the dispatcher, step by step.
+
+    Usage, every control step of length ``step_s`` starting at ``t``::
+
+        controller.start(tz_k)                                # once, at the plant's start
+        pieces, result = controller.decide(t)                 # the step's overwrites
+        ...advance the plant through the pieces...
+        controller.observe(records, t, t + step_s, tz_k)      # the step's measurements
+
+    Steps under the building's own control (the warm-up) are only observed.
+
+    Parameters
+    ----------
+    config : EconomicConfig
+        From :func:`controller_settings`.
+
+    """
+
+    def __init__(self, config: EconomicConfig) -> None:
+        self.config = config
+        self.step_s = config.settings.problem.step_s
+        self.observer = ZoneObserver(config.model, self.step_s)
+        self.mpc = config.mpc()
+        self.dispatcher = config.dispatcher()
+
+    def start(self, tz_k: float) -> None:
+        """Start the observer from the measured zone temperature [K]."""
+        self.observer.reset(float(tz_k))
+
+    @property
+    def state(self) -> np.ndarray:
+        """Return the estimated states (Tz, Tf, Te) [K]."""
+        if self.observer.x is None:
+            raise RuntimeError('call start() first')
+        return self.observer.x.copy()
+
+    def observe(self, records: pd.DataFrame, t0_s: float, t1_s: float,
+                tz_k: float) -> np.ndarray:
+        """
+        Update the state with the measurements of the step [t0, t1] (plant records).
+
+        Returns the measured model inputs of the step (:func:`hourly_inputs`).
+        """
+        c = self.config
+        u = hourly_inputs(records, c.case, t0_s, t1_s, c.price, c.model)
+        self.observer.update(u, float(tz_k))
+        return u
+
+    def decide(self, t_s: float) -> tuple[list[tuple[float, dict[str, float]]], Any]:
+        """
+        Plan from the estimated state at ``t_s``; return the step's overwrite pieces and plan.
+
+        The pieces are (end time [s], overwrites) in order (:meth:`DutyDispatcher.segments`);
+        the plan is the :class:`~mshoot_core.mpc.MpcResult`.
+        """
+        result = self.mpc.solve(self.state, t_s, self.config.forecast(t_s))
+        duty = float(result.controls[0, 0]) if np.all(np.isfinite(result.controls)) else 0.0
+        following = float(result.controls[1, 0]) if len(result.controls) > 1 else 0.0
+        pieces = self.dispatcher.segments(t_s, duty, float(result.states[1, 0]),
+                                          following if np.isfinite(following) else 0.0)
+        return pieces, result
+
+
+def run_period(case: TestCase, period: str, price: str, mode: str = 'modulation',
+               config: EconomicConfig | None = None, warmup_days: float = 7.0,
+               length_days: float = 14.0, progress: Callable[[str], None] | None = None,
+               **options: Any) -> PeriodResult:
+    """
+    Run the economic MPC on a test period of the plant (core, no ROS).
+
+    The warm-up runs under the building's own control while the observer follows it; every
+    control step of the test period the observer's state and the perfect forecast from the
+    test case's data go to the MPC, and the plan's first duty to the plant through the
+    :class:`DutyDispatcher`.
+
+    Parameters
+    ----------
+    case : TestCase
+        The test case.
+    period : str
+        ``peak_heat_day`` or ``typical_heat_day`` (a key of the test case's days).
+    price, mode : str
+        See :func:`controller_settings`.
+    config : EconomicConfig, optional
+        Default ``controller_settings(case, price, mode, **options)``.
+    warmup_days, length_days : float
+        The warm-up and the length of the test period [days].
+    progress : callable, optional
+        Called with a line of progress once a simulated day.
+
+    """
+    from mshoot_core.boptest.plant import BoptestPlant
+    config = config if config is not None else controller_settings(case, price, mode,
+                                                                   **options)
+    step = config.settings.problem.step_s
+    warmup_start, start, end = case.test_period(period, warmup_days, length_days)
+    controller = EconomicController(config)
+    rows = []
+    wall0 = time.perf_counter()
+    with BoptestPlant(case) as plant:
+        out = plant.start(warmup_start)
+        controller.start(out['reaTZon_y'])
+        t = warmup_start
+        while t < start - 1e-6:  # the warm-up: the building's own control, observed
+            plant.advance(t + step)
+            controller.observe(plant.records(t, t + step), t, t + step,
+                               plant.outputs['reaTZon_y'])
+            t += step
+        last_day = None
+        while t < end - 1e-6:
+            began = time.perf_counter()
+            x0 = controller.state
+            pieces, result = controller.decide(t)
+            wall = time.perf_counter() - began
+            for piece_end, overwrites in pieces:
+                plant.advance(piece_end, overwrites)
+            measured = plant.outputs['reaTZon_y']
+            u = controller.observe(plant.records(t, t + step), t, t + step, measured)
+            rows.append({'time_s': t, 'duty': float(result.controls[0, 0]), 'duty_run': u[4],
+                         'Tz_measured_end': measured - KELVIN,
+                         'Tz_planned_end': float(result.states[1, 0]) - KELVIN,
+                         'Tf_est': x0[1] - KELVIN, 'Te_est': x0[2] - KELVIN,
+                         'solve_s': float(result.solve_time_s), 'wall_s': wall,
+                         'success': bool(result.success), 'objective': float(result.fun)})
+            t += step
+            day = int((t - start) // 86400.0)
+            if progress is not None and day != last_day and (t - start) % 86400.0 < step:
+                last_day = day
+                progress(f'{period} {price} {config.mode}: day {day:g}/{length_days:g}, '
+                         f'zone {measured - KELVIN:.2f} degC, mean solve '
+                         f'{np.mean([r["solve_s"] for r in rows]):.3f} s')
+        records = plant.records()
+    return PeriodResult(records, pd.DataFrame(rows), start, end, time.perf_counter() - wall0)

@@ -1,0 +1,229 @@
+"""
+The economic MPC on BOPTEST's heat pump house, in core (no ROS): identify, then evaluate.
+
+    python -m mshoot_studies.boptest_mpc identify [--cache DIR] [--out out/boptest/mpc]
+        excite the emulator outside the test periods (cached), fit the control model, write
+        identification.json (parameters, RMSE per period, power model) and, with --install,
+        the packaged fit mshoot_core/boptest/house_fit.json
+    python -m mshoot_studies.boptest_mpc evaluate [--periods ...] [--prices ...] [--modes ...]
+        run the MPC (and the baseline and a simple pre-heating rule for comparison) on the
+        test periods and write kpis.json and a markdown table (kpis.md) to --out
+
+Both print their progress; bad options exit with code 2 and one line.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import pathlib
+import sys
+import time
+from typing import Sequence
+
+import numpy as np
+
+logger = logging.getLogger('mshoot_studies.boptest_mpc')
+
+PERIODS = ('peak_heat_day', 'typical_heat_day')
+PRICES = ('constant', 'dynamic', 'highly_dynamic')
+#: Lead times [h] and margins [K] tried for the pre-heating rule.
+RULE_LEADS_H = (1.0, 2.0, 3.0)
+RULE_MARGINS_K = (0.2, 0.5)
+
+
+def _say(text: str) -> None:
+    print(text, flush=True)
+
+
+def _cache_default() -> pathlib.Path:
+    from mshoot_core.fmu_cache import cache_dir
+    return cache_dir().parent / 'boptest'
+
+
+def identify_command(args: argparse.Namespace) -> int:
+    from mshoot_core.boptest import identification as ident
+    from mshoot_core.boptest.testcase import TestCase
+    case = TestCase.load(args.case)
+    started = time.perf_counter()
+    records = ident.excitation_records(case, args.cache)
+    _say(f'excitation records ready ({time.perf_counter() - started:.1f} s): '
+         + ', '.join(f'days {r["time"].iloc[0] / 86400:.0f}-{r["time"].iloc[-1] / 86400:.0f}'
+                     for r in records))
+    tables = [ident.hourly_table(r, case) for r in records]
+    fit = ident.identify(tables, records, starts=args.starts)
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    summary = {'train_days': ident.TRAIN, 'validation_days': ident.VALIDATION,
+               'runs': ident.RUNS, **fit.to_dict()}
+    (out / 'identification.json').write_text(json.dumps(summary, indent=1))
+    for name, m in fit.result.metrics.items():
+        _say(f'{name}: RMSE {m["rmse_k"]:.3f} K, MAE {m["mae_k"]:.3f} K over {m["rows"]} h')
+    p = fit.power
+    _say(f'power at full load: RMSE {p["power_rmse_w"]:.0f} W of {p["power_mean_w"]:.0f} W '
+         f'(mean error {p["power_mean_error_w"]:+.0f} W); COP = {p["cop_a"]:.3f} + '
+         f'{p["cop_b"]:.4f} Tout (RMSE {p["cop_rmse"]:.3f})')
+    for warning in fit.result.warnings:
+        _say(f'warning: {warning}')
+    if args.install:
+        from mshoot_core.boptest import model
+        target = pathlib.Path(model.__file__).resolve().with_name('house_fit.json')
+        target.write_text(json.dumps({'parameters': fit.parameters.to_dict()}, indent=1) + '\n')
+        _say(f'wrote {target}')
+    _say(f'wrote {out / "identification.json"}')
+    return 0
+
+
+def _rule_run(case, period: str, lead_h: float, margin_k: float, warmup_days: float,
+              length_days: float):
+    """Run the pre-heating rule: setpoint = highest lower edge over lead_h ahead + margin."""
+    from mshoot_core.boptest.plant import BoptestPlant
+    warmup_start, start, end = case.test_period(period, warmup_days, length_days)
+    with BoptestPlant(case) as plant:
+        plant.start(warmup_start)
+        plant.advance(start)
+        t = start
+        while t < end - 1e-6:
+            ahead = t + np.arange(0.0, lead_h * 3600.0 + 3600.0 + 1.0, 900.0)
+            setpoint = float(case.lookup('LowerSetp[1]', ahead).max()) + margin_k
+            plant.advance(t + 3600.0, {'oveTSet_u': setpoint})
+            t += 3600.0
+        return plant.records(start, end), start, end
+
+
+def evaluate_command(args: argparse.Namespace) -> int:
+    from mshoot_core.boptest import economic
+    from mshoot_core.boptest.kpis import compute_kpis, kpi_records
+    from mshoot_core.boptest.plant import BoptestPlant
+    from mshoot_core.boptest.testcase import TestCase
+    case = TestCase.load(args.case)
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows: list[dict] = []
+
+    def keep(records: list[dict], wall_s: float) -> None:
+        for r in records:
+            r['wall_s'] = wall_s
+            rows.append(r)
+            _say(f'  {r["controller"]:>22} {r["period"]:>16} {r["price"]:>14}: tdis '
+                 f'{r["tdis_tot"]:7.3f} K h, cost {r["cost_tot"]:.4f} EUR/m2, ener '
+                 f'{r["ener_tot"]:.3f} kWh/m2, starts/day {r["starts_per_day"]:.1f}')
+        (out / 'kpis.json').write_text(json.dumps(rows, indent=1))
+
+    for period in args.periods:
+        if args.baseline:
+            began = time.perf_counter()
+            warmup_start, start, end = case.test_period(period, args.warmup_days, args.days)
+            with BoptestPlant(case) as plant:
+                plant.start(warmup_start)
+                plant.advance(end)
+                table = plant.records(start, end)
+            keep(kpi_records(table, case, start, end, args.prices, controller='baseline',
+                             period=period), time.perf_counter() - began)
+        if args.rule:
+            best = None
+            for lead in RULE_LEADS_H:
+                for margin in RULE_MARGINS_K:
+                    began = time.perf_counter()
+                    table, start, end = _rule_run(case, period, lead, margin, args.warmup_days,
+                                                  args.days)
+                    k = compute_kpis(table, case, start, end, 'constant')
+                    _say(f'  rule lead {lead:g} h margin {margin:g} K: tdis '
+                         f'{k["tdis_tot"]:.3f} K h, cost {k["cost_tot"]:.4f}')
+                    score = k['tdis_tot'] + 10.0 * k['cost_tot']
+                    if best is None or score < best[0]:
+                        best = (score, table, start, end, lead, margin,
+                                time.perf_counter() - began)
+            _, table, start, end, lead, margin, wall = best
+            keep(kpi_records(table, case, start, end, args.prices,
+                             controller=f'rule (lead {lead:g} h, +{margin:g} K)',
+                             period=period), wall)
+        for mode in args.modes:
+            for price in args.prices:
+                config = economic.controller_settings(
+                    case, price, mode, parameters=args.parameters, margin_k=args.margin,
+                    min_run_h=args.min_run_h, horizon_steps=args.horizon)
+                result = economic.run_period(case, period, price, mode, config=config,
+                                             warmup_days=args.warmup_days,
+                                             length_days=args.days,
+                                             progress=_say if args.verbose else None)
+                kpis = compute_kpis(result.records, case, result.start_s, result.end_s, price,
+                                    step_wall_s=result.steps['wall_s'].to_numpy(),
+                                    control_step_s=config.settings.problem.step_s)
+                name = f'mshoot ({mode}' + (f', min run {args.min_run_h:g} h'
+                                            if args.min_run_h else '') + ')'
+                keep([{'controller': name, 'period': period, 'price': price, **kpis,
+                       'mean_solve_s': float(result.steps['solve_s'].mean()),
+                       'max_solve_s': float(result.steps['solve_s'].max()),
+                       'solver_success': float(result.steps['success'].mean())}],
+                     result.wall_s)
+    (out / 'kpis.md').write_text(markdown_table(rows))
+    _say(f'wrote {out / "kpis.json"} and {out / "kpis.md"}')
+    return 0
+
+
+def markdown_table(rows: Sequence[dict]) -> str:
+    """Return the KPI records as a markdown table."""
+    lines = ['| controller | period | price | tdis_tot [K h] | cost_tot [EUR/m2] | '
+             'ener_tot [kWh/m2] | starts/day | time_rat | wall [s] |',
+             '|---|---|---|---:|---:|---:|---:|---:|---:|']
+    for r in rows:
+        ratio = '' if r.get('time_rat') is None else f'{r["time_rat"]:.2e}'
+        lines.append(f'| {r["controller"]} | {r["period"]} | {r["price"]} | '
+                     f'{r["tdis_tot"]:.3f} | {r["cost_tot"]:.4f} | {r["ener_tot"]:.3f} | '
+                     f'{r["starts_per_day"]:.1f} | {ratio} | {r["wall_s"]:.0f} |')
+    return '\n'.join(lines) + '\n'
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog='python -m mshoot_studies.boptest_mpc',
+                                description=__doc__.split('\n')[1])
+    p.add_argument('--case', default=None, help='test case folder (default: the shared one)')
+    p.add_argument('--out', default='out/boptest/mpc', help='output folder')
+    sub = p.add_subparsers(dest='command', required=True)
+    i = sub.add_parser('identify', help='excite the emulator and fit the control model')
+    i.add_argument('--cache', default=None, type=pathlib.Path,
+                   help='folder of the cached excitation records (default ~/.cache/mshoot/'
+                   'boptest)')
+    i.add_argument('--starts', type=int, default=1, help='starts of the fit')
+    i.add_argument('--install', action='store_true',
+                   help='write the packaged fit mshoot_core/boptest/house_fit.json')
+    e = sub.add_parser('evaluate', help='closed-loop KPIs on the test periods')
+    e.add_argument('--periods', nargs='+', default=list(PERIODS), choices=PERIODS)
+    e.add_argument('--prices', nargs='+', default=list(PRICES), choices=PRICES)
+    e.add_argument('--modes', nargs='*', default=['modulation'],
+                   choices=('modulation', 'setpoint', 'tracking'))
+    e.add_argument('--no-baseline', dest='baseline', action='store_false')
+    e.add_argument('--no-rule', dest='rule', action='store_false')
+    e.add_argument('--parameters', default=None, help='house parameters JSON (default: the '
+                   'packaged fit)')
+    e.add_argument('--margin', type=float, default=0.5,
+                   help='raise of the lower edge of the band in the plan [K]')
+    e.add_argument('--min-run-h', type=float, default=0.0, help='minimum run time [h]')
+    e.add_argument('--horizon', type=int, default=36, help='horizon [h]')
+    e.add_argument('--days', type=float, default=14.0, help='test period length [days]')
+    e.add_argument('--warmup-days', type=float, default=7.0, help='warm-up [days]')
+    e.add_argument('--verbose', action='store_true', help='progress every simulated day')
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format='%(levelname)s %(name)s: %(message)s')
+    try:
+        if args.command == 'identify':
+            if args.cache is None:
+                args.cache = _cache_default()
+            if args.starts < 1:
+                raise ValueError(f'--starts must be >= 1, got {args.starts}')
+            return identify_command(args)
+        if args.days <= 0 or args.warmup_days < 0 or args.horizon < 1:
+            raise ValueError('--days must be > 0, --warmup-days >= 0 and --horizon >= 1')
+        return evaluate_command(args)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f'boptest_mpc: {exc}', file=sys.stderr)
+        return 2
+
+
+if __name__ == '__main__':
+    sys.exit(main())

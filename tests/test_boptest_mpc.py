@@ -1,0 +1,272 @@
+"""The BOPTEST control model, its identification, the economic MPC and its dispatch."""
+from __future__ import annotations
+
+from mshoot_core import calibration
+from mshoot_core.boptest import economic, identification as ident
+from mshoot_core.boptest.model import (HouseModel, HouseParameters, KELVIN, load_parameters,
+                                       ZoneObserver)
+from mshoot_core.mpc import MPC
+from mshoot_core.settings import MpcSettings
+import numpy as np
+import pandas as pd
+import pytest
+from scipy.integrate import solve_ivp
+
+
+U = np.array([[2.0, 150.0, 300.0, 0.25, 0.4],
+              [-3.0, 0.0, 0.0, 0.40, 1.0],
+              [8.0, 400.0, 365.0, 0.10, 0.0]])
+X = np.array([[294.0, 297.0, 290.0], [291.0, 293.0, 285.0], [296.0, 300.0, 295.0]])
+
+
+def test_model_interval_is_the_exact_solution() -> None:
+    model = HouseModel()
+    x_end, y_end = model.simulate_intervals(X, U, 3600.0)
+    a, b = model.a, model.b
+    for k in range(3):
+        w = model._forcing(U[k:k + 1])[0]
+        sol = solve_ivp(lambda t, x: a @ x + b @ w, (0.0, 3600.0), X[k], rtol=1e-10,
+                        atol=1e-10)
+        np.testing.assert_allclose(x_end[k], sol.y[:, -1], atol=1e-6)
+        power = U[k, 4] * (model.parameters.pa + model.parameters.pb * U[k, 0]
+                           + model.parameters.paux)
+        np.testing.assert_allclose(y_end[k], [x_end[k, 0] - KELVIN, power,
+                                              U[k, 4] * model.heat_full_w(U[k, 0]),
+                                              U[k, 3] * power / 1000.0])
+    # simulate over a frame agrees with the batch path
+    udf = pd.DataFrame(np.vstack([U, U[-1]]), index=[0.0, 3600.0, 7200.0, 10800.0],
+                       columns=list(model.input_names))
+    ydf, xdf = model.simulate(udf, X[0])
+    x = X[0]
+    for k in range(3):
+        x, y = model.simulate_intervals(x[None, :], U[k:k + 1], 3600.0)
+        x = x[0]
+        np.testing.assert_allclose(xdf.to_numpy()[k + 1], x)
+        np.testing.assert_allclose(ydf.to_numpy()[k + 1], y[0])
+
+
+def test_model_jacobians_match_finite_differences() -> None:
+    model = HouseModel()
+    wrt = [0, 1, 2, 3, 4]
+    jac = model.interval_jacobians(X, U, 1800.0, wrt)
+    h = 1e-4
+    for j, col in enumerate(wrt):
+        up, down = U.copy(), U.copy()
+        up[:, col] += h
+        down[:, col] -= h
+        xu, yu = model.simulate_intervals(X, up, 1800.0)
+        xd, yd = model.simulate_intervals(X, down, 1800.0)
+        np.testing.assert_allclose(jac.dx_du[:, :, j], (xu - xd) / (2 * h), rtol=1e-5,
+                                   atol=1e-8)
+        np.testing.assert_allclose(jac.dy_du[:, :, j], (yu - yd) / (2 * h), rtol=1e-5,
+                                   atol=1e-8)
+    for i in range(3):
+        xp = X.copy()
+        xp[:, i] += h
+        xu, yu = model.simulate_intervals(xp, U, 1800.0)
+        np.testing.assert_allclose(jac.dx_dx0[:, :, i], (xu - jac.x_end) / h, rtol=1e-5,
+                                   atol=1e-8)
+        np.testing.assert_allclose(jac.dy_dx0[:, :, i], (yu - jac.y_end) / h, rtol=1e-5,
+                                   atol=1e-8)
+
+
+def test_model_parameters_checked(tmp_path) -> None:
+    with pytest.raises(ValueError, match='Cz'):
+        HouseParameters(Cz=-1.0)
+    path = tmp_path / 'p.json'
+    path.write_text('{"parameters": {"Cz": 1e6, "bogus": 1}}')
+    with pytest.raises(ValueError, match='bogus'):
+        load_parameters(path)
+    assert load_parameters().Cf > 0  # the packaged fit exists and loads
+
+
+def test_observer_recovers_unmeasured_states() -> None:
+    model = HouseModel()
+    rng = np.random.default_rng(3)
+    x = np.array([293.0, 298.0, 288.0])
+    observer = ZoneObserver(model, 3600.0)
+    observer.reset(x[0])  # floor and envelope wrong by 5 K
+    for _ in range(24 * 20):
+        u = np.array([rng.uniform(-5, 10), rng.uniform(0, 300), 300.0, 0.2,
+                      rng.uniform(0, 0.6)])
+        x = model.simulate_intervals(x[None, :], u[None, :], 3600.0)[0][0]
+        estimate = observer.update(u, x[0])
+    np.testing.assert_allclose(estimate, x, atol=0.05)
+
+
+def _synthetic_hourly(model: HouseModel, days: float, seed: int) -> pd.DataFrame:
+    rng = np.random.default_rng(seed)
+    n = int(days * 24)
+    t = np.arange(n + 1) * 3600.0
+    hours = t / 3600.0
+    tout = 5 + 5 * np.sin(2 * np.pi * hours / 24)
+    solar = np.maximum(0, 500 * np.sin(2 * np.pi * (hours - 6) / 24))
+    duty = np.repeat(rng.uniform(0, 0.8, size=n // 4 + 1), 4)[:n + 1]
+    udf = pd.DataFrame({'Tout': tout, 'solar': solar, 'gains': 300.0, 'price': 0.0, 'd': duty},
+                       index=t)
+    _, xdf = model.simulate(udf, [294.0, 294.0, 294.0])  # as periods() starts
+    return pd.DataFrame({'Tout': tout, 'solar': solar, 'gains': 300.0,
+                         'Q': duty * model.heat_full_w(tout), 'Tz': xdf['Tz'] - KELVIN},
+                        index=t)
+
+
+def test_identification_recovers_a_known_house() -> None:
+    truth = HouseParameters(Cz=2e6, Cf=4e7, Ce=1e8, Rzf=1e-3, Rze=4e-3, Rzo=1e-2, Reo=8e-3,
+                            gz=8.0, ge=3.0, gi=0.8)
+    table = _synthetic_hourly(HouseModel(truth), 12, 1)
+    hp = {k: getattr(truth, k) for k in ('qa', 'qb', 'pa', 'pb', 'paux')}
+    train = ident.periods(table, hp, [(0.0, 9.0)], 'train')
+    validation = ident.periods(table, hp, [(9.0, 12.0)], 'validation')
+    fixed = {k: getattr(truth, k) for k in ('Ce', 'Reo', 'ge', 'gi', 'Rzo', 'Rze')}
+    free = [calibration.FreeParameter('Cf', 2e7, 1e6, 1e9),
+            calibration.FreeParameter('Rzf', 3e-3, 1e-5, 1e-1),
+            calibration.FreeParameter('gz', 3.0, 0.0, 50.0)]
+    result = calibration.calibrate(
+        lambda v: HouseModel(HouseParameters(**{**hp, **fixed, 'Cz': truth.Cz, **v})),
+        free, train, validation)
+    assert result.parameters['Cf'] == pytest.approx(truth.Cf, rel=0.02)
+    assert result.parameters['Rzf'] == pytest.approx(truth.Rzf, rel=0.02)
+    assert result.parameters['gz'] == pytest.approx(truth.gz, rel=0.02)
+    assert result.metrics['train']['rmse_k'] < 0.01  # validation starts off steady state
+
+
+def test_fit_heat_pump_lines() -> None:
+    tout = np.linspace(-5, 10, 50)
+    records = pd.DataFrame({'reaHeaPumY_y': np.r_[np.ones(50), np.full(5, 0.5)],
+                            'weaSta_reaWeaTDryBul_y': np.r_[tout, np.zeros(5)] + KELVIN,
+                            'reaQHeaPumCon_y': np.r_[9000 + 300 * tout, np.zeros(5)],
+                            'reaPHeaPum_y': np.r_[3000 + 50 * tout, np.zeros(5)],
+                            'reaPFan_y': 510.0, 'reaPPumEmi_y': 20.0,
+                            'reaCOP_y': np.r_[3 + 0.05 * tout, np.ones(5)]})
+    hp = ident.fit_heat_pump(records)
+    assert hp == pytest.approx({'qa': 9000, 'qb': 300, 'pa': 3000, 'pb': 50, 'paux': 530})
+    errors = ident.power_errors(records, hp)
+    assert errors['power_rmse_w'] < 1e-6 and errors['cop_b'] == pytest.approx(0.05)
+    with pytest.raises(ValueError, match='too few'):
+        ident.fit_heat_pump(records.iloc[50:])
+
+
+def test_output_cost_moves_heat_to_cheap_hours() -> None:
+    """The cost 'output' (price x power) shifts the heat pump's runs to the cheap hours."""
+    model = HouseModel()
+    n = 12
+    settings = MpcSettings.from_flat(economic.DEFAULTS, horizon_steps=n,
+                                     control_names=('d',))
+    forecast = pd.DataFrame({'Tout': 0.0, 'solar': 0.0, 'gains': 300.0,
+                             'price': np.where(np.arange(n + 1) < 6, 0.10, 0.40),
+                             'comfort_min': np.where(np.arange(n + 1) >= 6, 21.0, 15.0),
+                             'comfort_max': 30.0}, index=np.arange(n + 1) * 3600.0)
+    bounds = {'Tz': ('comfort_min', 'comfort_max', KELVIN)}
+    x0 = [293.0, 294.0, 288.0]
+    result = MPC(model, settings, state_bounds=bounds).solve(x0, 0.0, forecast)
+    assert result.success
+    duty = result.controls[:, 0]
+    assert duty[:6].sum() > max(0.1, 3 * duty[6:].sum())  # pre-heats while cheap
+    assert np.all(result.states[7:, 0] >= 21.0 + KELVIN - 0.02)
+    flat = forecast.assign(price=0.25)
+    flat_duty = MPC(model, settings, state_bounds=bounds).solve(x0, 0.0, flat).controls[:, 0]
+    assert flat_duty[:6].sum() < duty[:6].sum()
+    with pytest.raises(ValueError, match='cost_output'):
+        MPC(model, settings.replace(cost_output='nope'), state_bounds=bounds)
+
+
+def test_dispatcher_bursts_and_minimum_run(boptest_case) -> None:
+    duties = [0.3, 0.3, 0.3, 0.0, 0.5, 0.5, 1.0, 0.2, 0.0, 0.0, 0.1, 0.1, 0.1, 0.1]
+
+    def run(min_run_s: float) -> tuple[np.ndarray, float]:
+        dispatcher = economic.DutyDispatcher(boptest_case, 'modulation', min_run_s)
+        minutes = []
+        for k, duty in enumerate(duties):
+            t = k * 3600.0
+            for end, overwrites in dispatcher.segments(t, duty):
+                minutes += [overwrites['oveHeaPumY_u']] * int(round((end - t) / 60.0))
+                t = end
+        on = np.array(minutes)
+        return on, float(on.sum() * 60.0)
+
+    on, run_s = run(0.0)
+    assert on.size == len(duties) * 60
+    assert run_s == pytest.approx(sum(duties) * 3600.0, abs=len(duties) * 60.0)
+    starts = int(np.sum(np.diff(np.r_[0.0, on]) > 0))
+    on2, run2_s = run(2 * 3600.0)
+    edges = np.diff(np.r_[0.0, on2, 0.0])
+    lengths = np.flatnonzero(edges < 0) - np.flatnonzero(edges > 0)
+    assert lengths.min() >= 120 or np.flatnonzero(edges < 0)[-1] == on2.size  # last may run on
+    assert int(np.sum(edges > 0)) < starts
+    waiting = economic.DutyDispatcher(boptest_case, 'modulation', 2 * 3600.0)
+    assert [p[1]['oveHeaPumY_u'] for p in waiting.segments(0.0, 0.3)] == [0.0]  # accumulates
+    starting = economic.DutyDispatcher(boptest_case, 'modulation', 2 * 3600.0)
+    pieces = starting.segments(0.0, 0.3, next_duty=0.5)  # the plan heats on: start now
+    assert [(end, p['oveHeaPumY_u']) for end, p in pieces] == [(2520.0, 0.0), (3600.0, 1.0)]
+    assert starting.segments(3600.0, 0.0) == [(7200.0, {'oveHeaPumY_u': 1.0})]  # min run
+    setpoint = economic.DutyDispatcher(boptest_case, 'setpoint')
+    pieces = setpoint.segments(3600.0 * 30, 0.5)
+    assert [p[1]['oveTSet_u'] > 300 for p in pieces] == [False, True]
+    assert pieces[0][0] == pytest.approx(3600.0 * 30 + 1800.0)
+
+
+def test_forecast_frame_from_the_data(boptest_case) -> None:
+    case = boptest_case
+    t0 = 16 * 86400.0
+    frame = economic.forecast_frame(case, t0, 24, 3600.0, 'dynamic', margin_k=0.3)
+    assert list(frame.columns) == list(economic.DISTURBANCES + economic.BAND_COLUMNS)
+    assert len(frame) == 25
+    sub = t0 + 3 * 3600.0 + np.arange(4) * 900.0 + 450.0
+    assert frame['price'].iloc[3] == pytest.approx(
+        case.lookup('PriceElectricPowerDynamic', sub).mean())
+    assert frame['Tout'].iloc[3] == pytest.approx(case.lookup('TDryBul', sub).mean() - KELVIN)
+    for k in range(1, 25):  # bound of interval k-1: the tightest band over it, with margin
+        inside = t0 + (k - 1) * 3600.0 + np.arange(1, 5) * 900.0  # (t_k-1, t_k]
+        assert frame['comfort_min'].iloc[k] == pytest.approx(
+            case.lookup('LowerSetp[1]', inside).max() - KELVIN + 0.3)
+        assert frame['comfort_max'].iloc[k] == pytest.approx(
+            case.lookup('UpperSetp[1]', inside).min() - KELVIN)
+    assert set(np.round(frame['comfort_min'], 2)) == {15.3, 21.3}
+
+
+def test_controller_settings_checked(boptest_case) -> None:
+    config = economic.controller_settings(boptest_case, 'highly_dynamic', 'setpoint',
+                                          horizon_steps=24, min_run_h=1.0)
+    assert config.settings.problem.control_names == ('d',)
+    assert config.settings.problem.horizon_steps == 24 and config.min_run_s == 3600.0
+    assert list(config.forecast(16 * 86400.0).columns) == list(config.forecast_columns)
+    assert config.mpc().forecast_columns == list(config.forecast_columns)
+    with pytest.raises(ValueError, match='price'):
+        economic.controller_settings(boptest_case, 'free')
+    with pytest.raises(ValueError, match='mode'):
+        economic.controller_settings(boptest_case, 'constant', 'fast')
+    with pytest.raises(ValueError, match='min_run_h'):
+        economic.controller_settings(boptest_case, min_run_h=-1.0)
+
+
+def test_short_closed_loop_beats_the_baseline(boptest_case) -> None:
+    """Two test days after one day of warm-up: less discomfort and cost than the baseline."""
+    from mshoot_core.boptest.kpis import compute_kpis
+    from mshoot_core.boptest.plant import BoptestPlant
+    case = boptest_case
+    result = economic.run_period(case, 'peak_heat_day', 'dynamic', 'modulation',
+                                 warmup_days=1.0, length_days=2.0, horizon_steps=24)
+    mpc = compute_kpis(result.records, case, result.start_s, result.end_s, 'dynamic')
+    assert len(result.steps) == 48 and result.steps['success'].all()
+    warmup_start, start, end = case.test_period('peak_heat_day', 1.0, 2.0)
+    with BoptestPlant(case) as plant:
+        plant.start(warmup_start)
+        plant.advance(end)
+        baseline = compute_kpis(plant.records(start, end), case, start, end, 'dynamic')
+    assert mpc['tdis_tot'] <= baseline['tdis_tot']
+    assert mpc['cost_tot'] < 0.95 * baseline['cost_tot']
+    # the plant ran the planned duty: measured full-load fraction per hour ~ the plan
+    records = result.records
+    hours = np.floor((records['time'].to_numpy() - 1e-6 - start) / 3600.0)
+    ran = records.assign(h=hours)[(hours >= 0) & (hours < 48)].groupby('h')[
+        'reaHeaPumY_y'].apply(lambda y: float(np.mean(y > 0.5)))
+    assert abs(ran.sum() - result.steps['duty'].sum()) < 2.0
+
+
+def test_study_exits_2_on_bad_options(capsys) -> None:
+    from mshoot_studies import boptest_mpc
+    assert boptest_mpc.main(['evaluate', '--days', '-1']) == 2
+    assert '--days' in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        boptest_mpc.main(['evaluate', '--prices', 'free'])
+    assert exc.value.code == 2
