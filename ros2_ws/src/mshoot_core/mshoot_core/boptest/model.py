@@ -37,7 +37,7 @@ import numpy as np
 import pandas as pd
 import scipy.linalg
 
-from mshoot_core.models.base import IntervalJacobians, Model
+from mshoot_core.models.base import check_parameters, IntervalJacobians, Model
 from mshoot_core.shooting import Scaling
 
 KELVIN = 273.15
@@ -88,15 +88,7 @@ class HouseParameters:
     paux: float = 530.7
 
     def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
-            if not (isinstance(value, (int, float)) and np.isfinite(value)):
-                raise ValueError(f'house parameter {f.name} must be a finite number, '
-                                 f'got {value!r}')
-        for name in ('Cz', 'Cf', 'Ce', 'Rzf', 'Rze', 'Rzo', 'Reo'):
-            if getattr(self, name) <= 0:
-                raise ValueError(f'house parameter {name} must be > 0, got '
-                                 f'{getattr(self, name)}')
+        check_parameters(self, 'house', positive=('Cz', 'Cf', 'Ce', 'Rzf', 'Rze', 'Rzo', 'Reo'))
 
     def to_dict(self) -> dict[str, float]:
         return {f.name: float(getattr(self, f.name)) for f in dataclasses.fields(self)}

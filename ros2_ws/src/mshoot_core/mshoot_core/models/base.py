@@ -70,6 +70,46 @@ def interval_start_times(t_start_s: Sequence[float] | np.ndarray | None,
     return times
 
 
+def check_parameters(parameters: object, label: str, *, positive: Sequence[str] = (),
+                     nonnegative: Sequence[str] = (), arrays: bool = False) -> None:
+    """
+    Check the fields of a model's parameters dataclass: finite, and signs where physics wants.
+
+    Parameters
+    ----------
+    parameters : dataclass instance
+        The parameters (fields in their own units).
+    label : str
+        The model's name in the messages (e.g. 'R1C1').
+    positive, nonnegative : sequence of str
+        Fields that must be > 0 (capacities, resistances) or >= 0 (gains).
+    arrays : bool
+        Whether a field may hold an array (every element checked); else each must be a real
+        number (not a bool).
+
+    Raises
+    ------
+    ValueError
+        Naming the first field that is not finite, not a number, or of the wrong sign.
+
+    """
+    for field in dataclasses.fields(parameters):
+        value = getattr(parameters, field.name)
+        if arrays:
+            if not np.all(np.isfinite(value)):
+                raise ValueError(f'{label} parameter {field.name} must be finite, got {value}')
+        elif (not isinstance(value, (int, float, np.floating)) or isinstance(value, bool)
+              or not math.isfinite(value)):
+            raise ValueError(f'{label} parameter {field.name} must be a finite number, got '
+                             f'{value!r}')
+    for names, fails, wording in ((positive, np.less_equal, '> 0'),
+                                  (nonnegative, np.less, '>= 0')):
+        for name in names:
+            value = getattr(parameters, name)
+            if np.any(fails(np.asarray(value), 0.0)):
+                raise ValueError(f'{label} parameter {name} must be {wording}, got {value}')
+
+
 @functools.lru_cache(maxsize=64)
 def _takes_start_times(method: object) -> bool:
     try:

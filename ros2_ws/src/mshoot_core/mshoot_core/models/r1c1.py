@@ -20,7 +20,7 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-from mshoot_core.models.base import IntervalJacobians, Model
+from mshoot_core.models.base import check_parameters, IntervalJacobians, Model
 
 KELVIN = 273.15
 #: Metabolic heat per occupant [W] at 293.15 K, falling linearly to 0 W at 325.15 K.
@@ -69,13 +69,7 @@ class R1C1Parameters:
     maxVent: float = 4800.0
 
     def __post_init__(self) -> None:
-        for field in dataclasses.fields(self):
-            value = getattr(self, field.name)
-            if not np.all(np.isfinite(value)):
-                raise ValueError(f'R1C1 parameter {field.name} must be finite, got {value}')
-        for name in ('tmass', 'RExt', 'Vi'):
-            if np.any(np.asarray(getattr(self, name)) <= 0):
-                raise ValueError(f'R1C1 parameter {name} must be > 0, got {getattr(self, name)}')
+        check_parameters(self, 'R1C1', positive=('tmass', 'RExt', 'Vi'), arrays=True)
 
     @property
     def capacity_j_k(self) -> float:

@@ -33,7 +33,7 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-from mshoot_core.models.base import IntervalJacobians, Model
+from mshoot_core.models.base import check_parameters, IntervalJacobians, Model
 from mshoot_core.models.r1c1 import AIR_HEAT_PER_M3H, KELVIN, OCC_HEAT_W
 
 #: Input columns (the R1C1 zone's).
@@ -82,18 +82,8 @@ class R2C2Parameters:
     maxVent: float = 4800.0
 
     def __post_init__(self) -> None:
-        for field in dataclasses.fields(self):
-            value = getattr(self, field.name)
-            if not isinstance(value, (int, float)) or isinstance(value, bool) \
-                    or not np.isfinite(value):
-                raise ValueError(f'R2C2 parameter {field.name} must be a finite number, got '
-                                 f'{value!r}')
-        for name in ('Cair', 'Cwall', 'Raw', 'Rwa', 'Rwin'):
-            if getattr(self, name) <= 0:
-                raise ValueError(f'R2C2 parameter {name} must be > 0, got {getattr(self, name)}')
-        for name in ('shgc', 'occheff', 'maxVent'):
-            if getattr(self, name) < 0:
-                raise ValueError(f'R2C2 parameter {name} must be >= 0, got {getattr(self, name)}')
+        check_parameters(self, 'R2C2', positive=('Cair', 'Cwall', 'Raw', 'Rwa', 'Rwin'),
+                         nonnegative=('shgc', 'occheff', 'maxVent'))
         if not 0.0 <= self.fsun <= 1.0:
             raise ValueError(f'R2C2 parameter fsun must be in [0, 1], got {self.fsun}')
 
