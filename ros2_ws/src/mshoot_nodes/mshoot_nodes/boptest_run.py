@@ -16,9 +16,12 @@ price scenario) and the controller answers each step:
 - ``rule``: the rule node with the lead and margin tuned offline, in core, beforehand
   (:func:`mshoot_core.boptest.rule.tune_rule` over the full period; cached in
   ``<out>/rule_tuning.json``), on the card ``boptest_tset.yaml``;
-- ``mshoot``: the MPC node with the economic MPC's settings from
-  :func:`mshoot_params` (TODO: provided by ``mshoot_core.boptest.economic``; until it lands
-  the runner reports mshoot as not available and goes on).
+- ``mshoot``: the economic node (:mod:`mshoot_nodes.economic_node`: the core
+  :class:`~mshoot_core.boptest.economic.EconomicController`, mode ``modulation``, margin
+  0.5 K) on the card ``boptest_modulation.yaml`` (the heat pump's modulation overwritten; the
+  warm-up and the step means of the outputs published for the MPC's observer); the bursts
+  within the hour travel as the setpoint's schedule within the step. It plans on perfect
+  forecasts of the test case's data (not on ``/forecast``: see the node).
 
 The baseline's and the rule's trajectories do not depend on the price scenario (they never
 read it): each is simulated once per period (the rule once per distinct tuned lead/margin) and
@@ -53,6 +56,7 @@ from rclpy.parameter import Parameter
 import yaml
 
 from mshoot_nodes import contract
+from mshoot_nodes.economic_node import EconomicNode
 from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_nodes.forecaster_node import ForecasterNode
 from mshoot_nodes.rule_node import RuleNode
@@ -64,31 +68,22 @@ CONTROLLERS = ('baseline', 'rule', 'mshoot')
 PERIODS = ('peak_heat_day', 'typical_heat_day')
 
 
-class MshootUnavailable(RuntimeError):
-    """The economic MPC (issue 15 items 4-5) is not in this tree yet."""
+#: The economic MPC of the mshoot runs (issue 15: mode, margin, minimum run time).
+MSHOOT_SETTINGS = {'mode': 'modulation', 'margin_k': 0.5, 'min_run_h': 0.0}
 
 
-def mshoot_params(case: TestCase, period: str, price: str, warmup_days: float,
-                  hours: int) -> dict[str, dict[str, Any]]:
+def mshoot_params(period: str, price: str, hours: int) -> dict[str, dict[str, Any]]:
     """
-    Return the node parameters of an mshoot run: ``{'mpc': {...}, 'emulator': {...}, ...}``.
+    Return the node parameters of an mshoot run that differ from the rule's.
 
-    TODO(issue 15, items 4-5): the economic MPC lives in ``mshoot_core.boptest.economic`` (the
-    other helper's branch). It is expected to provide ``ros_params(case, period, price,
-    warmup_days, hours) -> dict`` with the MPC node's parameters (its control model card,
-    horizon, cost, ...) and, where it needs them, the emulator's (e.g. its card) and the
-    forecaster's. Until then this raises :class:`MshootUnavailable`.
+    Returns
+    -------
+    dict
+        ``{'controller': {...}}``: the economic node's parameters (:data:`MSHOOT_SETTINGS`).
+
     """
-    try:
-        from mshoot_core.boptest import economic  # noqa: F401 (the other helper's module)
-    except ImportError as exc:
-        raise MshootUnavailable('the economic MPC (mshoot_core.boptest.economic) is not in '
-                                'this tree yet') from exc
-    provider = getattr(economic, 'ros_params', None)
-    if provider is None:
-        raise MshootUnavailable('mshoot_core.boptest.economic has no ros_params(case, period, '
-                                'price, warmup_days, hours) yet')
-    return provider(case, period, price, warmup_days, hours)
+    return {'controller': {'scenario': f'boptest:{period}:{price}', 'hours': hours,
+                           **MSHOOT_SETTINGS}}
 
 
 def write_card(kind: str, folder: pathlib.Path, case: TestCase,
@@ -98,8 +93,8 @@ def write_card(kind: str, folder: pathlib.Path, case: TestCase,
 
     Parameters
     ----------
-    kind : {'baseline', 'tset'}
-        ``boptest_baseline.yaml`` or ``boptest_tset.yaml``.
+    kind : {'baseline', 'tset', 'modulation'}
+        ``boptest_baseline.yaml``, ``boptest_tset.yaml`` or ``boptest_modulation.yaml``.
     folder : pathlib.Path
         Where the card is written.
     case : TestCase
@@ -109,7 +104,8 @@ def write_card(kind: str, folder: pathlib.Path, case: TestCase,
 
     """
     document = yaml.safe_load(builtin_card(f'boptest_{kind}').read_text())
-    document['boptest'] = {'test_case': str(case.directory), 'warmup_days': float(warmup_days)}
+    document['boptest'] = {**document.get('boptest', {}), 'test_case': str(case.directory),
+                           'warmup_days': float(warmup_days)}
     path = folder / f'boptest_{kind}_warmup{warmup_days:g}d.yaml'
     folder.mkdir(parents=True, exist_ok=True)
     path.write_text(yaml.safe_dump(document, sort_keys=False))
@@ -174,8 +170,6 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
         A node could not start.
     TimeoutError
         The run took longer than ``timeout_s``.
-    MshootUnavailable
-        ``mshoot`` without the economic MPC.
 
     """
     if controller not in CONTROLLERS:
@@ -189,7 +183,8 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
               'hours': hours}
     params: dict[str, dict[str, Any]] = {
         'emulator': {**common, 'output_dir': str(out) if out is not None else '',
-                     'model': str(write_card('baseline' if controller == 'baseline' else 'tset',
+                     'model': str(write_card({'baseline': 'baseline', 'rule': 'tset',
+                                              'mshoot': 'modulation'}[controller],
                                              cards, case, warmup_days)),
                      'ready_endpoints': [f'{contract.ZONE_STATE} subscribers>=1',
                                          f'{contract.SETPOINT} publishers>=1',
@@ -201,12 +196,9 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
     }
     controller_cls: type = RuleNode
     if controller == 'mshoot':
-        from mshoot_nodes.mpc_node import MpcNode
-        extra = mshoot_params(case, period, price, warmup_days, hours)
-        params['controller'] = {'use_sim_time': True, **extra.get('mpc', {})}
-        for name in ('emulator', 'forecaster'):
-            params[name].update(extra.get(name, {}))
-        controller_cls = MpcNode
+        params['controller'] = {'data': str(case.directory),
+                                **mshoot_params(period, price, hours)['controller']}
+        controller_cls = EconomicNode
     nodes: list[Any] = []
     executor = SingleThreadedExecutor(context=context)
 
@@ -353,16 +345,12 @@ def run_benchmark(args: argparse.Namespace, context: Context,
                           'rule': f'_lead{lead:g}_margin{margin:g}'}[controller]
                 name = f'{controller}_{period}{suffix}'
                 say(f'{name}: starting ({", ".join(prices)})')
-                try:
-                    run = run_ros(context, controller, period, case, price=prices[0],
-                                  warmup_days=args.warmup_days, length_days=args.days,
-                                  lead_h=lead if controller == 'rule' else 0.0,
-                                  margin_k=margin if controller == 'rule' else 0.0,
-                                  out=args.out / 'runs' / name, cards=args.out / 'cards',
-                                  timeout_s=args.timeout, progress=say)
-                except MshootUnavailable as exc:
-                    say(f'{name}: skipped: {exc}')
-                    continue
+                run = run_ros(context, controller, period, case, price=prices[0],
+                              warmup_days=args.warmup_days, length_days=args.days,
+                              lead_h=lead if controller == 'rule' else 0.0,
+                              margin_k=margin if controller == 'rule' else 0.0,
+                              out=args.out / 'runs' / name, cards=args.out / 'cards',
+                              timeout_s=args.timeout, progress=say)
                 if run.failed:
                     raise RuntimeError(f'{name}: the run failed: {run.failed}')
                 # time_rat: the controller's wall time between two advances over the step;
@@ -457,14 +445,18 @@ def write_docs(args: argparse.Namespace, records: list[dict], runs: list[dict],
              'grid (leads ' + ', '.join(f'{v:g}' for v in args.leads) + ' h; margins '
              + ', '.join(f'{v:g}' for v in args.margins) + ' K), each a full run of the period '
              'in core, for the smallest `cost_tot + 0.1 EUR/m2 per K h x tdis_tot`.',
-             '- `mshoot`: the economic MPC (issue 15 items 4-5).', '',
+             '- `mshoot`: the economic MPC (`mshoot_core.boptest.economic`, mode '
+             '`modulation`, band margin 0.5 K, no minimum run time) in the economic node '
+             '(`mshoot_nodes/economic_node.py`): every hour it plans the heat pump\'s duty over '
+             '36 h from its observer\'s state (zone, floor, envelope; the observer follows the '
+             'warm-up too) and sends the hour\'s full-load bursts (60 s resolution) as the '
+             'setpoint\'s schedule within the step, which the emulator applies to '
+             '`oveHeaPumY_u`. It plans on perfect forecasts computed from the test case\'s '
+             'files (interval means; the forecaster node serves the same files as hourly point '
+             'values and is not read by this node).', '',
              'The baseline and the rule never read the price: each is simulated once per '
              'period (the rule once per distinct tuned lead/margin) and its KPIs computed for '
              'each price scenario it stands for; only `cost_tot` differs.', '']
-    if not any(r['controller'] == 'mshoot' for r in records) and 'mshoot' in args.controllers:
-        lines += ['**mshoot was not run**: the economic MPC '
-                  '(`mshoot_core.boptest.economic.ros_params`) is not in this tree yet '
-                  '(see `mshoot_nodes.boptest_run.mshoot_params`).', '']
     extra = (('lead_h', 'lead [h]', '{:g}'), ('margin_k', 'margin [K]', '{:g}'),
              ('wall_s', 'run wall [s]', '{:.0f}'))
     lines += ['## KPIs', '', kpi_table(records, extra)]
