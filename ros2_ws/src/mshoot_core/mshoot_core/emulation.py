@@ -329,7 +329,8 @@ class Emulator:
 
     def _plant_step(self, inputs: np.ndarray,
                     times: np.ndarray) -> tuple[pd.DataFrame, pd.DataFrame]:
-        """Simulate the plant over one control step on the fine grid ``times``.
+        """
+        Simulate the plant over one control step on the fine grid ``times``.
 
         ``inputs``: one row of inputs per fine interval (shape (n_fine, n_inputs)).
         """

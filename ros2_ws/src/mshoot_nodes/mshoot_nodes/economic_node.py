@@ -105,6 +105,7 @@ class EconomicNode(ManagedNode):
         self.answered = 0
         self.steps: list[dict[str, Any]] = []
         self._last: tuple[int, Setpoint] | None = None
+        self._observed_ns: int | None = None
         self._last_error = ''
         self.diagnostics = DiagnosticsPublisher(self, self.health, hardware_id=p['zone'])
         self.autostart()
@@ -195,13 +196,15 @@ class EconomicNode(ManagedNode):
         t = self.fmu_time(stamp)
         p = self.params
         try:
-            states = dict(zip(msg.state_names, msg.state_values))
-            if self._last is None:
-                self._observe_history(msg, t)
-            else:
-                outputs = dict(zip(msg.output_names, msg.output_values))
-                self.controller.observe(_frame(t, outputs), t - self.step_s, t,
-                                        states[p['zone_temperature']])
+            if self._observed_ns != stamp:  # once per step (a failed decision is retried)
+                states = dict(zip(msg.state_names, msg.state_values))
+                if self._last is None:
+                    self._observe_history(msg, t)
+                else:
+                    outputs = dict(zip(msg.output_names, msg.output_values))
+                    self.controller.observe(_frame(t, outputs), t - self.step_s, t,
+                                            states[p['zone_temperature']])
+                self._observed_ns = stamp
             pieces, result = self.controller.decide(t)
         except (ValueError, KeyError, RuntimeError) as exc:
             self._last_error = f'cannot decide at {t:.0f} s: {exc}'
