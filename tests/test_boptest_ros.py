@@ -61,7 +61,7 @@ def test_ros_run_equals_the_core_run(boptest_case: TestCase, ros_runs: dict,
 
 
 def test_mshoot_over_ros_equals_the_core_economic_mpc(boptest_case: TestCase,
-                                                     ros_runs: dict) -> None:
+                                                      ros_runs: dict) -> None:
     """The economic node converts only: same overwrites, same KPIs as the core run."""
     from mshoot_core.boptest.economic import run_period as economic_run
     from mshoot_nodes.boptest_run import MSHOOT_SETTINGS

@@ -523,8 +523,8 @@ def test_emulator_schedule_within_the_step():
     from mshoot_core.models.card import build_model, builtin_card, load_card
     scenario = synthetic_scenario(hours=3, seed=4)
     with pytest.raises(ValueError, match='plant'):
-        Emulator(R1C1Model(), scenario, [293.15]).advance([0.0], [(0.0, [0.0]), (1800.0,
-                                                                                   [500.0])])
+        Emulator(R1C1Model(), scenario, [293.15]).advance(
+            [0.0], [(0.0, [0.0]), (1800.0, [500.0])])
     card = load_card(builtin_card('r1c1_fmu_cs'))
 
     def emulator():
