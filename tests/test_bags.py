@@ -29,6 +29,13 @@ def test_custom_types_come_from_the_installed_msg_files():
     from rclpy.serialization import serialize_message
     msg = zone_state_msg(7 * 10 ** 9, {'T_0': 294.0, 'T_1': 295.5}, {'Tc_0': 20.85},
                          {'q_0': 12.5, 'q_1': -3.0}, 'zone_a')
+    # a first state with its history (rclpy's serialize_message pads some layouts of empty
+    # float64[] fields beyond the data, which rosbags refuses; messages on the wire and in
+    # the recorded bags below have no such padding)
+    msg.history_offsets_s = [-3600.0, 0.0]
+    msg.history_state_values = [293.0, 294.0, 295.0, 295.5]
+    msg.history_output_names = ['Tc_0']
+    msg.history_output_values = [float('nan'), 20.8]
     decoded = store.deserialize_cdr(serialize_message(msg), 'mshoot_msgs/msg/ZoneState')
     assert decoded.header.frame_id == 'zone_a'
     assert list(decoded.state_names) == ['T_0', 'T_1']
@@ -36,6 +43,7 @@ def test_custom_types_come_from_the_installed_msg_files():
     assert list(decoded.control_names) == ['q_0', 'q_1']
     assert decoded.control_values.tolist() == [12.5, -3.0]
     assert list(decoded.output_names) == ['Tc_0'] and decoded.output_values.tolist() == [20.85]
+    assert decoded.history_state_values.tolist() == [293.0, 294.0, 295.0, 295.5]
 
 
 def test_qos_round_trip_through_the_metadata_form():

@@ -1,4 +1,4 @@
-"""BOPTEST over ROS: a shortened baseline and rule run equal the core runs; cards, scenario."""
+"""BOPTEST over ROS: shortened baseline, rule and mshoot runs equal the core runs; cards."""
 import pathlib
 
 from mshoot_core.boptest.emulation import boptest_scenario
@@ -20,7 +20,7 @@ LEAD_H, MARGIN_K = 3.0, 0.5
 
 @pytest.fixture(scope='module')
 def ros_runs(boptest_case: TestCase, tmp_path_factory: pytest.TempPathFactory) -> dict:
-    """Run baseline and rule over ROS: peak_heat_day, 1 day of warm-up, 2 days of test."""
+    """Run the three controllers over ROS: peak_heat_day, 1 day of warm-up, 2 days of test."""
     import rclpy
     from mshoot_nodes.boptest_run import run_ros
     out = tmp_path_factory.mktemp('boptest_ros')
@@ -29,8 +29,8 @@ def ros_runs(boptest_case: TestCase, tmp_path_factory: pytest.TempPathFactory) -
         runs = {controller: run_ros(context, controller, 'peak_heat_day', boptest_case,
                                     price='dynamic', warmup_days=1, length_days=2,
                                     lead_h=LEAD_H, margin_k=MARGIN_K, out=out / controller,
-                                    timeout_s=600.0)
-                for controller in ('baseline', 'rule')}
+                                    timeout_s=900.0)
+                for controller in ('baseline', 'rule', 'mshoot')}
     finally:
         rclpy.try_shutdown(context=context)
     return {'runs': runs, 'out': out}
@@ -58,6 +58,37 @@ def test_ros_run_equals_the_core_run(boptest_case: TestCase, ros_runs: dict,
     assert len(run.setpoint_waits_s) == 48 and min(run.setpoint_waits_s) >= 0
     written = ros_runs['out'] / controller / 'boptest_records.csv'
     assert written.is_file()
+
+
+def test_mshoot_over_ros_equals_the_core_economic_mpc(boptest_case: TestCase,
+                                                      ros_runs: dict) -> None:
+    """The economic node converts only: same overwrites, same KPIs as the core run."""
+    from mshoot_core.boptest.economic import run_period as economic_run
+    from mshoot_nodes.boptest_run import MSHOOT_SETTINGS
+    run = ros_runs['runs']['mshoot']
+    assert not run.failed and run.steps == 48
+    core = economic_run(boptest_case, 'peak_heat_day', 'dynamic', MSHOOT_SETTINGS['mode'],
+                        warmup_days=1, length_days=2, margin_k=MSHOOT_SETTINGS['margin_k'],
+                        min_run_h=MSHOOT_SETTINGS['min_run_h'])
+    assert (run.start_s, run.end_s) == (core.start_s, core.end_s)
+    columns = ['time', 'reaTZon_y', 'reaPHeaPum_y', 'reaQHeaPumCon_y', 'oveHeaPumY_u']
+    ros, ref = run.records[columns], core.records[columns]
+    assert len(ros) == len(ref)
+    test = ros['time'].to_numpy() > run.start_s
+    # the bursts within the hour reached the building: on and off inside one step
+    applied = ros.loc[test, 'oveHeaPumY_u']
+    assert set(applied.unique()) == {0.0, 1.0}
+    np.testing.assert_array_equal(applied.to_numpy(), ref.loc[test, 'oveHeaPumY_u'].to_numpy())
+    np.testing.assert_allclose(ros.to_numpy(), ref.to_numpy(), rtol=1e-9, atol=1e-9,
+                               equal_nan=True)
+    ours = compute_kpis(run.records, boptest_case, run.start_s, run.end_s, 'dynamic')
+    theirs = compute_kpis(core.records, boptest_case, core.start_s, core.end_s, 'dynamic')
+    for key in ('tdis_tot', 'ener_tot', 'cost_tot', 'pele_tot'):
+        assert ours[key] == pytest.approx(theirs[key], rel=1e-9, abs=1e-12)
+    base = ros_runs['runs']['baseline']
+    baseline = compute_kpis(base.records, boptest_case, base.start_s, base.end_s, 'dynamic')
+    assert ours['tdis_tot'] < baseline['tdis_tot'] and ours['cost_tot'] < baseline['cost_tot']
+    assert len(run.setpoint_waits_s) == 48
 
 
 def test_baseline_leaves_the_building_alone_and_the_rule_preheats(ros_runs: dict) -> None:
@@ -107,7 +138,8 @@ def test_scenario_rows_and_clock(boptest_case: TestCase) -> None:
 def test_boptest_cards(tmp_path: pathlib.Path, boptest_case: TestCase) -> None:
     card = load_card(builtin_card('boptest_tset'))
     assert card.source == 'boptest' and card.controls['TSet'].activate == 'oveTSet_activate'
-    assert card.boptest == {'test_case_dir': str(boptest_case.directory), 'warmup_days': 7.0}
+    assert card.boptest == {'test_case_dir': str(boptest_case.directory), 'warmup_days': 7.0,
+                            'history_step_s': 0.0}
     assert load_card(builtin_card('boptest_baseline')).controls['TSet'].activate is None
     with pytest.raises(ValueError, match='emulator'):
         build_model(card, role='control')

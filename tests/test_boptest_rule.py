@@ -56,3 +56,15 @@ def test_short_tuning_on_the_fmu(boptest_case: TestCase) -> None:
         scores = rows['cost_tot'] + tuning.weight * rows['tdis_tot']
         assert tuning.best[price]['score'] == pytest.approx(scores.min())
         assert tuning.parameters(price) == (tuning.best[price]['lead_h'], 0.5)
+
+
+def test_tuning_on_two_worker_processes_gives_the_same_grid(boptest_case: TestCase) -> None:
+    """Grid points on a pool of 2 processes (one FMU each): the same rows in the same order."""
+    kwargs = {'leads_h': (0.0, 3.0), 'margins_k': (0.5,), 'warmup_days': 1, 'length_days': 1}
+    serial = tune_rule(boptest_case, 'peak_heat_day', workers=1, **kwargs)
+    pooled = tune_rule(boptest_case, 'peak_heat_day', workers=2, **kwargs)
+    columns = ['lead_h', 'margin_k', 'price', 'tdis_tot', 'ener_tot', 'cost_tot']
+    assert serial.grid[columns].equals(pooled.grid[columns])
+    assert serial.best['constant']['lead_h'] == pooled.best['constant']['lead_h']
+    with pytest.raises(ValueError, match='workers'):
+        tune_rule(boptest_case, 'peak_heat_day', workers=0, **kwargs)

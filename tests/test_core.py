@@ -516,3 +516,29 @@ def test_plot_worker_that_cannot_run_still_gives_the_figure(tmp_path, monkeypatc
         path = plotter.plot(result.fine, result.steps, tmp_path / 'again' / 'plot.png', 'x')
     assert path.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     assert 'exit code 3: no figure today' in caplog.text
+
+
+def test_emulator_schedule_within_the_step():
+    """A plant takes pieces within the step (on the fine grid); other models refuse them."""
+    from mshoot_core.models.card import build_model, builtin_card, load_card
+    scenario = synthetic_scenario(hours=3, seed=4)
+    with pytest.raises(ValueError, match='plant'):
+        Emulator(R1C1Model(), scenario, [293.15]).advance(
+            [0.0], [(0.0, [0.0]), (1800.0, [500.0])])
+    card = load_card(builtin_card('r1c1_fmu_cs'))
+
+    def emulator():
+        return Emulator(build_model(card, 'emulator'), scenario, [293.15])
+
+    split, held_on, held_off = emulator(), emulator(), emulator()
+    record = split.advance([0.0], [(0.0, [0.0]), (1800.0, [1000.0])])
+    assert list(record.fine['q'].iloc[[0, 29, 30, 60]]) == [0.0, 0.0, 1000.0, 1000.0]
+    on, off = held_on.advance([1000.0]), held_off.advance([0.0])
+    # half a step of heat: between none and a whole step of it
+    assert off.x_end[0] < record.x_end[0] < on.x_end[0]
+    # the first half of the split step is the unheated one, to the sample
+    np.testing.assert_allclose(record.fine['x_T'].iloc[:31], off.fine['x_T'].iloc[:31],
+                               rtol=1e-12)
+    for bad in ([(60.0, [0.0])], [(0.0, [0.0]), (90.0, [1.0])], [(0.0, [0.0]), (3600.0, [1.0])]):
+        with pytest.raises(ValueError, match='offsets'):
+            emulator().advance([0.0], bad)

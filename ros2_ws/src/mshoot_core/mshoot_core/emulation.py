@@ -311,18 +311,38 @@ class Emulator:
                                  f'column ({list(row.index)})')
         return values
 
+    def start_plant(self, controls: Sequence[float]) -> None:
+        """
+        Start the plant now (not at the first step): its state becomes the current state.
+
+        For plants that do something before their first step (a BOPTEST warm-up), so that the
+        first published state is the plant's. ``controls`` only has to be valid (the first
+        step's controls are applied by :meth:`advance`). Nothing happens for other models or
+        a running plant.
+        """
+        if not self.plant or self._plant_running:
+            return
+        inputs = self._step_inputs(self.clip(controls), self.scenario.iloc[self.index])
+        x, y = self.model.plant_start(self.x, self.t_s, inputs)
+        self.x, self._y = np.asarray(x, dtype=float).reshape(-1), y
+        self._plant_running = True
+
     def _plant_step(self, inputs: np.ndarray,
                     times: np.ndarray) -> tuple[pd.DataFrame, pd.DataFrame]:
-        """Simulate the plant over one control step on the fine grid ``times``."""
+        """
+        Simulate the plant over one control step on the fine grid ``times``.
+
+        ``inputs``: one row of inputs per fine interval (shape (n_fine, n_inputs)).
+        """
         model = self.model
         if not self._plant_running:
-            x, y = model.plant_start(self.x, self.t_s, inputs)
+            x, y = model.plant_start(self.x, self.t_s, inputs[0])
             self._plant_running = True
         else:
             x, y = self.x, self._y
         states, outputs = [x], [y]
-        for _ in range(times.size - 1):
-            x, y = model.plant_step(inputs, self.fine_step_s)
+        for k in range(times.size - 1):
+            x, y = model.plant_step(inputs[k], self.fine_step_s)
             states.append(x)
             outputs.append(y)
         index = pd.Index(times, name='time_s')
@@ -341,9 +361,15 @@ class Emulator:
                                       f'{name!r} = {values[row, col]} at t = {time:.9g} s',
                                       variable=str(name), time_s=time)
 
-    def advance(self, controls: Sequence[float]) -> StepRecord:
+    def advance(self, controls: Sequence[float],
+                schedule: Sequence[tuple[float, Sequence[float]]] | None = None) -> StepRecord:
         """
         Apply ``controls`` over the current step and move to the next one.
+
+        ``schedule``: optional pieces within the step, ``(offset [s] from the step's start,
+        controls from there on)`` with increasing offsets, the first 0, each a multiple of
+        ``fine_step_s`` (a plant only): the controls then change within the step; ``controls``
+        is what the step's record reports (e.g. the first piece's).
 
         Raises
         ------
@@ -360,8 +386,22 @@ class Emulator:
         n_fine = int(round(self.step_s / self.fine_step_s))
         times = self.t_s + np.arange(n_fine + 1) * self.fine_step_s
         inputs = self._step_inputs(u, row)
+        fine_controls = np.tile(u, (n_fine, 1))
+        if schedule:
+            if not self.plant:
+                raise ValueError('a schedule within the step needs a model with a plant')
+            offsets = [float(o) for o, _ in schedule]
+            if (offsets[0] != 0.0 or any(b <= a for a, b in zip(offsets, offsets[1:]))
+                    or offsets[-1] >= self.step_s
+                    or any(abs(o / self.fine_step_s - round(o / self.fine_step_s)) > 1e-9
+                           for o in offsets)):
+                raise ValueError(f'schedule offsets must start at 0, increase, stay within the '
+                                 f'step and be multiples of {self.fine_step_s:g} s, got {offsets}')
+            for offset, values in schedule:
+                fine_controls[int(round(offset / self.fine_step_s)):] = self.clip(values)
         if self.plant:
-            ydf, xdf = self._plant_step(inputs, times)
+            rows = np.array([self._step_inputs(c, row) for c in fine_controls])
+            ydf, xdf = self._plant_step(rows, times)
         else:
             udf = pd.DataFrame(np.tile(inputs, (n_fine + 1, 1)),
                                index=pd.Index(times, name='time_s'),
@@ -372,8 +412,8 @@ class Emulator:
         fine = pd.concat([xdf.add_prefix('x_'), ydf.add_prefix('y_')], axis=1)
         fine['comfort_min'] = float(row['comfort_min'])
         fine['comfort_max'] = float(row['comfort_max'])
-        for name, value in zip(self.control_names, u):
-            fine[name] = value
+        for i, name in enumerate(self.control_names):
+            fine[name] = np.append(fine_controls[:, i], fine_controls[-1, i])
         record = StepRecord(self.t_s, u, self.x.copy(), xdf.to_numpy()[-1].copy(), fine)
         self.x = record.x_end.copy()
         self.index += 1

@@ -325,6 +325,10 @@ class EmulatorNode(ManagedNode):
         """Load the scenario and the model (the FMU), create the publishers."""
         p = self.params
         self.emulator = build_emulator(p)
+        if getattr(self.emulator.model, 'history_step_s', 0.0) > 0:
+            # a BOPTEST plant whose warm-up the controller observes: warm up now, so that the
+            # first state is the warmed-up building's and carries the warm-up's history
+            self.emulator.start_plant(self._safe_controls())
         self.interface = control_interface(self.emulator.model)
         self.sensors = Sensors(self.emulator.model.state_names,
                                [n.strip() for n in p['measured_states'].split(',') if n.strip()],
@@ -498,8 +502,21 @@ class EmulatorNode(ManagedNode):
                     for name in emulator.model.output_names})
         controls = ({} if last is None else
                     dict(zip(emulator.control_names, map(float, last.controls))))
-        self._state_pub.publish(zone_state_msg(
-            stamp, self.sensors.read(emulator.x, emulator.index), outputs, controls, zone))
+        means = tuple(getattr(emulator.model, 'step_mean_outputs', ()))
+        if last is not None and means:  # BOPTEST: the step means too (the KPIs' 60 s samples)
+            step_means = emulator.model.step_means(float(last.t_start_s),
+                                                   float(last.t_start_s) + emulator.step_s)
+            outputs.update({f'mean_{name}': step_means[name] for name in means})
+        msg = zone_state_msg(stamp, self.sensors.read(emulator.x, emulator.index), outputs,
+                             controls, zone)
+        history = getattr(emulator.model, 'history', None)
+        if last is None and history is not None:  # the warm-up, with the first state only
+            times, states, output_means = history
+            msg.history_offsets_s = [float(t) for t in times - emulator.t_s]
+            msg.history_state_values = [float(v) for v in states.T.reshape(-1)]
+            msg.history_output_names = list(emulator.model.output_names)
+            msg.history_output_values = [float(v) for v in output_means.T.reshape(-1)]
+        self._state_pub.publish(msg)
         self._last_publish_ns = self._steady_ns()
 
     def _heartbeat(self) -> None:
@@ -570,10 +587,27 @@ class EmulatorNode(ManagedNode):
             return
         self._setpoint_gate.accept(stamp, now)
         applied = reorder(msg.control_names, msg.control_values, controls)
+        schedule = None
+        if len(msg.schedule_offsets_s) or len(msg.schedule_values):
+            n = len(msg.schedule_offsets_s)
+            values = np.asarray(msg.schedule_values, dtype=float)
+            if not lockstep or n == 0 or values.size != n * len(msg.control_names):
+                self._reject(stamp, Rejection('length', (
+                    'a schedule within the step needs lockstep mode and n offsets with n '
+                    f'values per control, got {n} offsets and {values.size} values')))
+                return
+            if not np.all(np.isfinite(values)) or not np.all(
+                    np.isfinite(np.asarray(msg.schedule_offsets_s, dtype=float))):
+                self._reject(stamp, Rejection('non_finite', 'non-finite schedule within the '
+                                              'step'))
+                return
+            per_control = values.reshape(len(msg.control_names), n)
+            schedule = [(float(offset), reorder(msg.control_names, per_control[:, k], controls))
+                        for k, offset in enumerate(msg.schedule_offsets_s)]
         self._hold.offer(self._scenario_s(stamp), applied)
         if lockstep:
             self.setpoint_waits_s.append((self._steady_ns() - self._step_started_ns) / NS_PER_S)
-            self._advance(applied, 'setpoint')
+            self._advance(applied, 'setpoint', schedule)
 
     def _reject(self, stamp_ns: int, rejection: Rejection) -> None:
         self.rejections.reject('setpoint', self.resolve_topic_name(contract.SETPOINT), stamp_ns,
@@ -593,8 +627,9 @@ class EmulatorNode(ManagedNode):
                                       f'{decision.reason}')
         self._advance(decision.controls, decision.source)
 
-    def _advance(self, controls: np.ndarray, source: str = 'setpoint') -> None:
-        """Apply ``controls`` over the current step, publish the next one."""
+    def _advance(self, controls: np.ndarray, source: str = 'setpoint',
+                 schedule: list | None = None) -> None:
+        """Apply ``controls`` (or a ``schedule`` within the step) over the step, go on."""
         bounds = self.emulator.control_bounds
         clipped = np.clip(controls, bounds[:, 0], bounds[:, 1])
         names = self.emulator.control_names
@@ -604,7 +639,7 @@ class EmulatorNode(ManagedNode):
                 f'is outside the actuator limits [{bounds[k, 0]:.0f}, {bounds[k, 1]:.0f}] W: '
                 f'applying {clipped[k]:.1f} W')
         try:
-            record = self.emulator.advance(clipped)
+            record = self.emulator.advance(clipped, schedule)
         except Exception as exc:  # noqa: BLE001 - the building model failed: stop, clearly
             self._fail(f'the emulation model failed at {self.stamp_ns / NS_PER_S:.0f} s: '
                        f'{type(exc).__name__}: {exc}')

@@ -6,8 +6,9 @@ The economic MPC on BOPTEST's heat pump house, in core (no ROS): identify, then 
         identification.json (parameters, RMSE per period, power model) and, with --install,
         the packaged fit mshoot_core/boptest/house_fit.json
     python -m mshoot_studies.boptest_mpc evaluate [--periods ...] [--prices ...] [--modes ...]
-        run the MPC (and the baseline and a simple pre-heating rule for comparison) on the
-        test periods and write kpis.json and a markdown table (kpis.md) to --out
+        run the MPC (and the baseline and the pre-heating rule of mshoot_core.boptest.rule,
+        tuned on its default grid, for comparison) on the test periods and write kpis.json
+        and a markdown table (kpis.md) to --out
 
 Both print their progress; bad options exit with code 2 and one line.
 """
@@ -21,15 +22,10 @@ import sys
 import time
 from typing import Sequence
 
-import numpy as np
-
 logger = logging.getLogger('mshoot_studies.boptest_mpc')
 
 PERIODS = ('peak_heat_day', 'typical_heat_day')
 PRICES = ('constant', 'dynamic', 'highly_dynamic')
-#: Lead times [h] and margins [K] tried for the pre-heating rule.
-RULE_LEADS_H = (1.0, 2.0, 3.0)
-RULE_MARGINS_K = (0.2, 0.5)
 
 
 def _say(text: str) -> None:
@@ -74,23 +70,6 @@ def identify_command(args: argparse.Namespace) -> int:
     return 0
 
 
-def _rule_run(case, period: str, lead_h: float, margin_k: float, warmup_days: float,
-              length_days: float):
-    """Run the pre-heating rule: setpoint = highest lower edge over lead_h ahead + margin."""
-    from mshoot_core.boptest.plant import BoptestPlant
-    warmup_start, start, end = case.test_period(period, warmup_days, length_days)
-    with BoptestPlant(case) as plant:
-        plant.start(warmup_start)
-        plant.advance(start)
-        t = start
-        while t < end - 1e-6:
-            ahead = t + np.arange(0.0, lead_h * 3600.0 + 3600.0 + 1.0, 900.0)
-            setpoint = float(case.lookup('LowerSetp[1]', ahead).max()) + margin_k
-            plant.advance(t + 3600.0, {'oveTSet_u': setpoint})
-            t += 3600.0
-        return plant.records(start, end), start, end
-
-
 def evaluate_command(args: argparse.Namespace) -> int:
     from mshoot_core.boptest import economic
     from mshoot_core.boptest.kpis import compute_kpis, kpi_records
@@ -120,24 +99,17 @@ def evaluate_command(args: argparse.Namespace) -> int:
                 table = plant.records(start, end)
             keep(kpi_records(table, case, start, end, args.prices, controller='baseline',
                              period=period), time.perf_counter() - began)
-        if args.rule:
-            best = None
-            for lead in RULE_LEADS_H:
-                for margin in RULE_MARGINS_K:
-                    began = time.perf_counter()
-                    table, start, end = _rule_run(case, period, lead, margin, args.warmup_days,
-                                                  args.days)
-                    k = compute_kpis(table, case, start, end, 'constant')
-                    _say(f'  rule lead {lead:g} h margin {margin:g} K: tdis '
-                         f'{k["tdis_tot"]:.3f} K h, cost {k["cost_tot"]:.4f}')
-                    score = k['tdis_tot'] + 10.0 * k['cost_tot']
-                    if best is None or score < best[0]:
-                        best = (score, table, start, end, lead, margin,
-                                time.perf_counter() - began)
-            _, table, start, end, lead, margin, wall = best
-            keep(kpi_records(table, case, start, end, args.prices,
-                             controller=f'rule (lead {lead:g} h, +{margin:g} K)',
-                             period=period), wall)
+        if args.rule:  # the pre-heating rule of mshoot_core.boptest.rule, tuned per price
+            from mshoot_core.boptest.rule import LEADS_H, MARGINS_K, tune_rule
+            tuning = tune_rule(case, period, LEADS_H, MARGINS_K, prices=args.prices,
+                               warmup_days=args.warmup_days, length_days=args.days,
+                               progress=_say if args.verbose else None, workers=args.workers)
+            for price in args.prices:
+                row = dict(tuning.best[price])
+                row['period'] = period
+                row['controller'] = (f'rule (lead {row["lead_h"]:g} h, '
+                                     f'+{row["margin_k"]:g} K)')
+                keep([row], float(row['wall_s']))
         for mode in args.modes:
             for price in args.prices:
                 config = economic.controller_settings(
@@ -204,6 +176,8 @@ def parser() -> argparse.ArgumentParser:
     e.add_argument('--days', type=float, default=14.0, help='test period length [days]')
     e.add_argument('--warmup-days', type=float, default=7.0, help='warm-up [days]')
     e.add_argument('--verbose', action='store_true', help='progress every simulated day')
+    e.add_argument('--workers', type=int, default=1, choices=range(1, 9), metavar='N',
+                   help="the rule's tuning: grid points run at once, one process each")
     return p
 
 

@@ -123,10 +123,18 @@ class BoptestPlantModel:
         self.card = card
         self.case = TestCase.load(spec.get('test_case_dir'))
         self.warmup_s = float(spec.get('warmup_days', 7.0)) * 86400.0
+        #: Step of the warm-up's history and of the published output means [s] (0: none).
+        self.history_step_s = float(spec.get('history_step_s', 0.0))
+        #: The warm-up's history (:meth:`plant_start` with ``history_step_s``): times [s,
+        #: scenario], states at those times and step means of the outputs over the interval
+        #: ending there (NaN at the first time) [canonical units].
+        self.history: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.control_names = tuple(card.control_names)
         self.input_names = self.control_names
         self.state_names = tuple(card.state_names)
         self.output_names = tuple(card.output_names)
+        #: Output names whose step means the emulator publishes (``mean_<name>``).
+        self.step_mean_outputs = self.output_names if self.history_step_s > 0 else ()
         self.comfort_states = tuple(n for n in self.state_names if n == 'T' or n.startswith('T_'))
         self.control_limits = card.control_bounds((-np.inf, np.inf))
         self.time_origin_s = 0.0
@@ -194,10 +202,42 @@ class BoptestPlantModel:
         if self.plant.running:
             self.plant.close()
         self.plant.start(start - self.warmup_s)
-        self.plant.advance(start)
+        if self.history_step_s > 0:
+            self.history = self._warm_up_recorded(start - self.warmup_s, start)
+        else:
+            self.plant.advance(start)
         logger.info('%s warmed up under its own control from %g s to %g s (FMU time)',
                     self.case.name, start - self.warmup_s, start)
         return self._read()
+
+    def _warm_up_recorded(self, t0_s: float, t1_s: float) -> tuple[np.ndarray, ...]:
+        """Warm up from t0 to t1 (FMU time) in history steps; return the history."""
+        step = self.history_step_s
+        n = int(round((t1_s - t0_s) / step))
+        if n < 0 or abs(t0_s + n * step - t1_s) > 1e-6:
+            raise ValueError(f'the warm-up ({(t1_s - t0_s) / 86400:g} d) must be a whole '
+                             f'number of history steps ({step:g} s)')
+        names = [v.variable for v in self._outputs]
+        times, states, means = [t0_s], [self._read()[0]], [np.full(len(names), np.nan)]
+        for k in range(n):
+            a, b = t0_s + k * step, t0_s + (k + 1) * step
+            self.plant.advance(b)
+            means.append(self._step_means(a, b))
+            states.append(self._read()[0])
+            times.append(b)
+        return (np.asarray(times) + self.time_origin_s, np.array(states), np.array(means))
+
+    def _step_means(self, t0_s: float, t1_s: float) -> np.ndarray:
+        """Means of the outputs over the records in (t0, t1] (FMU time) [canonical units]."""
+        table = self.plant.records(t0_s, t1_s)
+        window = table[(table['time'] > t0_s) & (table['time'] <= t1_s + 1e-6)]
+        return np.array([(float(window[v.variable].mean()) - v.conversion()[1])
+                         / v.conversion()[0] for v in self._outputs])
+
+    def step_means(self, t0_s: float, t1_s: float) -> dict[str, float]:
+        """Return the means of the outputs over (t0, t1] (scenario time) by output name."""
+        values = self._step_means(self.fmu_time(t0_s), self.fmu_time(t1_s))
+        return dict(zip(self.output_names, map(float, values)))
 
     def plant_step(self, u: Sequence[float], dt_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Apply controls ``u`` [canonical units] over ``dt_s`` [s]; return states and outputs."""

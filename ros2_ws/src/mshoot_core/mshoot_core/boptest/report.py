@@ -82,9 +82,12 @@ def plot_run(records: pd.DataFrame, case: TestCase, start_s: float, end_s: float
     ax_t.fill_between(days, case.lookup(LOWER_SETPOINT, t) - KELVIN,
                       case.lookup(UPPER_SETPOINT, t) - KELVIN, step='post', color='tab:green',
                       alpha=0.15, label='comfort band')
+    modulated = ('oveHeaPumY_u' in period
+                 and bool(period['oveHeaPumY_u'].notna().any()))
     if 'reaTSet_y' in period:
         ax_t.plot(days, period['reaTSet_y'] - KELVIN, color='tab:orange', lw=0.8,
-                  label='setpoint followed')
+                  label=('local setpoint (not in charge: heat pump modulation overwritten)'
+                         if modulated else 'setpoint followed'))
     ax_t.plot(days, period['reaTZon_y'] - KELVIN, color='tab:red', lw=1.0,
               label='zone operative temperature')
     ax_t.set_ylabel('[degC]')

@@ -164,11 +164,24 @@ def choose(grid: pd.DataFrame, weight: float = DISCOMFORT_WEIGHT) -> dict[str, d
     return best
 
 
+def _grid_point(directory: str, period: str, lead: float, margin: float,
+                prices: Sequence[str], warmup_days: float,
+                length_days: float) -> tuple[list[dict], float]:
+    """Run one grid point (in this process or a worker): its KPI rows and wall time [s]."""
+    case = TestCase.load(directory)
+    rule = PreheatRule(case, lead, margin, case.control_step_s)
+    run = run_period(case, period, rule, warmup_days, length_days)
+    rows = [{**record, 'wall_s': run.wall_s}
+            for record in kpi_records(run.records, case, run.start_s, run.end_s, prices,
+                                      run.step_wall_s, lead_h=lead, margin_k=margin)]
+    return rows, run.wall_s
+
+
 def tune_rule(case: TestCase, period: str, leads_h: Sequence[float] = LEADS_H,
               margins_k: Sequence[float] = MARGINS_K, weight: float = DISCOMFORT_WEIGHT,
               prices: Sequence[str] = tuple(PRICE_SCENARIOS), warmup_days: float = 7.0,
-              length_days: float = 14.0,
-              progress: Callable[[str], None] | None = None) -> RuleTuning:
+              length_days: float = 14.0, progress: Callable[[str], None] | None = None,
+              workers: int = 1) -> RuleTuning:
     """
     Tune the rule's lead and margin on a test period by a grid of full runs (module docstring).
 
@@ -188,6 +201,9 @@ def tune_rule(case: TestCase, period: str, leads_h: Sequence[float] = LEADS_H,
         Run lengths [days] (BOPTEST: 7 and 14).
     progress : callable, optional
         Called with one line per run done.
+    workers : int
+        Grid points run at once, each in its own process (one FMU instance per process;
+        ``spawn`` start): the grid and the choice do not depend on it.
 
     Returns
     -------
@@ -196,19 +212,38 @@ def tune_rule(case: TestCase, period: str, leads_h: Sequence[float] = LEADS_H,
     """
     if not leads_h or not margins_k:
         raise ValueError('the tuning grid needs at least one lead and one margin')
-    rows = []
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f'workers must be an integer >= 1, got {workers!r}')
     points = [(float(lead), float(margin)) for lead in leads_h for margin in margins_k]
-    for n, (lead, margin) in enumerate(points, 1):
-        rule = PreheatRule(case, lead, margin, case.control_step_s)
-        run = run_period(case, period, rule, warmup_days, length_days)
-        for record in kpi_records(run.records, case, run.start_s, run.end_s, prices,
-                                  run.step_wall_s, lead_h=lead, margin_k=margin):
-            rows.append({**record, 'wall_s': run.wall_s})
+    args = [(str(case.directory), period, lead, margin, tuple(prices), warmup_days,
+             length_days) for lead, margin in points]
+    results: list[tuple[list[dict], float] | None] = [None] * len(points)
+
+    def report(n: int, k: int) -> None:
+        rows_k, wall = results[k]
+        lead, margin = points[k]
         message = (f'rule tuning {period} {n}/{len(points)}: lead {lead:g} h, margin '
-                   f'{margin:g} K: tdis {rows[-1]["tdis_tot"]:.3f} K h, ener '
-                   f'{rows[-1]["ener_tot"]:.3f} kWh/m2 ({run.wall_s:.1f} s)')
+                   f'{margin:g} K: tdis {rows_k[-1]["tdis_tot"]:.3f} K h, ener '
+                   f'{rows_k[-1]["ener_tot"]:.3f} kWh/m2 ({wall:.1f} s)')
         logger.info(message)
         if progress is not None:
             progress(message)
+
+    if workers == 1 or len(points) == 1:
+        for k, point_args in enumerate(args):
+            results[k] = _grid_point(*point_args)
+            report(k + 1, k)
+    else:
+        import concurrent.futures
+        import multiprocessing
+        with concurrent.futures.ProcessPoolExecutor(
+                min(workers, len(points)), mp_context=multiprocessing.get_context('spawn')
+        ) as pool:
+            futures = {pool.submit(_grid_point, *point_args): k
+                       for k, point_args in enumerate(args)}
+            for n, future in enumerate(concurrent.futures.as_completed(futures), 1):
+                results[futures[future]] = future.result()
+                report(n, futures[future])
+    rows = [row for result in results for row in result[0]]
     grid = pd.DataFrame(rows)
     return RuleTuning(period, grid, choose(grid, weight), weight)

@@ -212,7 +212,8 @@ class ModelCard:
     description : str
         Free text.
     boptest : dict or None
-        For a card of kind ``boptest``: ``test_case_dir`` (absolute) and ``warmup_days``.
+        For a card of kind ``boptest``: ``test_case_dir`` (absolute), ``warmup_days`` and
+        ``history_step_s``.
 
     """
 
@@ -657,7 +658,11 @@ def _boptest_spec(path: pathlib.Path, spec: dict,
     warmup = spec.get('warmup_days', 7.0)
     if isinstance(warmup, bool) or not isinstance(warmup, (int, float)) or warmup < 0:
         return None, None  # the schema reported it
-    return {'test_case_dir': str(directory), 'warmup_days': float(warmup)}, str(fmu)
+    history = spec.get('history_step_s', 0.0)
+    if isinstance(history, bool) or not isinstance(history, (int, float)) or history < 0:
+        return None, None  # the schema reported it
+    return {'test_case_dir': str(directory), 'warmup_days': float(warmup),
+            'history_step_s': float(history)}, str(fmu)
 
 
 def _time_origin_problem(value: str) -> str | None:
