@@ -31,6 +31,10 @@ def ros_runs(boptest_case: TestCase, tmp_path_factory: pytest.TempPathFactory) -
                                     lead_h=LEAD_H, margin_k=MARGIN_K, out=out / controller,
                                     timeout_s=900.0)
                 for controller in ('baseline', 'rule', 'mshoot')}
+        runs['mshoot_setpoint'] = run_ros(context, 'mshoot', 'peak_heat_day', boptest_case,
+                                          price='dynamic', warmup_days=1, length_days=2,
+                                          out=out / 'mshoot_setpoint', timeout_s=900.0,
+                                          mshoot_mode='setpoint')
     finally:
         rclpy.try_shutdown(context=context)
     return {'runs': runs, 'out': out}
@@ -89,6 +93,35 @@ def test_mshoot_over_ros_equals_the_core_economic_mpc(boptest_case: TestCase,
     baseline = compute_kpis(base.records, boptest_case, base.start_s, base.end_s, 'dynamic')
     assert ours['tdis_tot'] < baseline['tdis_tot'] and ours['cost_tot'] < baseline['cost_tot']
     assert len(run.setpoint_waits_s) == 48
+
+
+def test_mshoot_setpoint_mode_over_ros_equals_the_core(boptest_case: TestCase,
+                                                       ros_runs: dict) -> None:
+    """
+    Mode 'setpoint': the plan reaches the building through the zone setpoint only.
+
+    The same bursts as the core run's mode 'setpoint', sent as ``oveTSet_u`` (the heat pump's
+    own overwrite never active), the building's local loop running the heat pump; the KPIs
+    are the core run's and beat the baseline's.
+    """
+    from mshoot_core.boptest.economic import run_period as economic_run
+    from mshoot_nodes.boptest_run import MSHOOT_SETTINGS
+    run = ros_runs['runs']['mshoot_setpoint']
+    assert not run.failed and run.steps == 48
+    core = economic_run(boptest_case, 'peak_heat_day', 'dynamic', 'setpoint',
+                        warmup_days=1, length_days=2, margin_k=MSHOOT_SETTINGS['margin_k'],
+                        min_run_h=MSHOOT_SETTINGS['min_run_h'])
+    test = run.records['time'].to_numpy() > run.start_s
+    assert run.records.loc[test, 'oveHeaPumY_u'].isna().all()
+    setpoints = run.records.loc[test, 'oveTSet_u']
+    assert setpoints.notna().all() and setpoints.nunique() > 1
+    columns = ['time', 'reaTZon_y', 'reaPHeaPum_y', 'oveTSet_u']
+    np.testing.assert_allclose(run.records[columns].to_numpy(), core.records[columns].to_numpy(),
+                               rtol=1e-9, atol=1e-9)
+    ours = compute_kpis(run.records, boptest_case, run.start_s, run.end_s, 'dynamic')
+    base = ros_runs['runs']['baseline']
+    baseline = compute_kpis(base.records, boptest_case, base.start_s, base.end_s, 'dynamic')
+    assert ours['tdis_tot'] < baseline['tdis_tot'] and ours['cost_tot'] < baseline['cost_tot']
 
 
 def test_baseline_leaves_the_building_alone_and_the_rule_preheats(ros_runs: dict) -> None:

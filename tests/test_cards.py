@@ -507,7 +507,8 @@ def test_schema_and_builtin_cards_ship_with_the_package():
     setup_py = (pathlib.Path(cards.__file__).resolve().parents[2] / 'setup.py').read_text()
     assert "'cards/*.yaml'" in setup_py and "'schema/*.json'" in setup_py
     assert sorted(p.name for p in cards.CARDS_DIR.glob('*.yaml')) == [
-        'boptest_baseline.yaml', 'boptest_modulation.yaml', 'boptest_tset.yaml', 'r1c1.yaml',
+        'boptest_baseline.yaml', 'boptest_modulation.yaml', 'boptest_setpoint.yaml',
+        'boptest_tset.yaml', 'r1c1.yaml',
         'r1c1_fmu.yaml', 'r1c1_fmu_cs.yaml', 'r2c2.yaml']
 
 

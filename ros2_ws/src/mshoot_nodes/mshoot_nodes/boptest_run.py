@@ -70,11 +70,18 @@ PERIODS = ('peak_heat_day', 'typical_heat_day')
 
 #: The economic MPC of the mshoot runs (issue 15: mode, margin, minimum run time).
 MSHOOT_SETTINGS = {'mode': 'modulation', 'margin_k': 0.5, 'min_run_h': 0.0}
+#: How mshoot's plan may reach the building over ROS, each with its card ``boptest_<mode>.yaml``.
+MSHOOT_MODES = ('modulation', 'setpoint')
 
 
-def mshoot_params(period: str, price: str, hours: int) -> dict[str, dict[str, Any]]:
+def mshoot_params(period: str, price: str, hours: int,
+                  mode: str = MSHOOT_SETTINGS['mode']) -> dict[str, dict[str, Any]]:
     """
     Return the node parameters of an mshoot run that differ from the rule's.
+
+    ``mode`` is how the plan reaches the building (:data:`MSHOOT_MODES`): 'modulation'
+    (``oveHeaPumY_u``, card ``boptest_modulation.yaml``) or 'setpoint' (``oveTSet_u``, card
+    ``boptest_setpoint.yaml``).
 
     Returns
     -------
@@ -82,8 +89,10 @@ def mshoot_params(period: str, price: str, hours: int) -> dict[str, dict[str, An
         ``{'controller': {...}}``: the economic node's parameters (:data:`MSHOOT_SETTINGS`).
 
     """
+    if mode not in MSHOOT_MODES:
+        raise ValueError(f'mode must be one of {MSHOOT_MODES}, got {mode!r}')
     return {'controller': {'scenario': f'boptest:{period}:{price}', 'hours': hours,
-                           **MSHOOT_SETTINGS}}
+                           **MSHOOT_SETTINGS, 'mode': mode}}
 
 
 def write_card(kind: str, folder: pathlib.Path, case: TestCase,
@@ -93,8 +102,8 @@ def write_card(kind: str, folder: pathlib.Path, case: TestCase,
 
     Parameters
     ----------
-    kind : {'baseline', 'tset', 'modulation'}
-        ``boptest_baseline.yaml``, ``boptest_tset.yaml`` or ``boptest_modulation.yaml``.
+    kind : {'baseline', 'tset', 'modulation', 'setpoint'}
+        The built-in card ``boptest_<kind>.yaml``.
     folder : pathlib.Path
         Where the card is written.
     case : TestCase
@@ -135,7 +144,8 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
             price: str = 'constant', warmup_days: float = 7.0, length_days: float = 14.0,
             lead_h: float = 0.0, margin_k: float = 0.0, out: pathlib.Path | None = None,
             cards: pathlib.Path | None = None, timeout_s: float = 3600.0,
-            progress: Callable[[str], None] | None = None) -> BoptestRun:
+            progress: Callable[[str], None] | None = None,
+            mshoot_mode: str = MSHOOT_SETTINGS['mode']) -> BoptestRun:
     """
     Run one controller on one test period over ROS, in this process (module docstring).
 
@@ -184,7 +194,7 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
     params: dict[str, dict[str, Any]] = {
         'emulator': {**common, 'output_dir': str(out) if out is not None else '',
                      'model': str(write_card({'baseline': 'baseline', 'rule': 'tset',
-                                              'mshoot': 'modulation'}[controller],
+                                              'mshoot': mshoot_mode}[controller],
                                              cards, case, warmup_days)),
                      'ready_endpoints': [f'{contract.ZONE_STATE} subscribers>=1',
                                          f'{contract.SETPOINT} publishers>=1',
@@ -197,7 +207,8 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
     controller_cls: type = RuleNode
     if controller == 'mshoot':
         params['controller'] = {'data': str(case.directory),
-                                **mshoot_params(period, price, hours)['controller']}
+                                **mshoot_params(period, price, hours,
+                                                mshoot_mode)['controller']}
         controller_cls = EconomicNode
     nodes: list[Any] = []
     executor = SingleThreadedExecutor(context=context)
@@ -308,6 +319,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--workers', type=int, default=2, choices=range(1, 9),
                         metavar='N', help='rule tuning: grid points run at once, one process '
                         'and FMU instance each (default 2)')
+    parser.add_argument('--mshoot-mode', choices=MSHOOT_MODES, default=MSHOOT_SETTINGS['mode'],
+                        help="how mshoot's plan reaches the building: 'modulation' (the heat "
+                             "pump's oveHeaPumY_u) or 'setpoint' (the zone setpoint oveTSet_u: "
+                             'above the zone temperature during a planned burst, below the band '
+                             'otherwise); default: %(default)s')
     parser.add_argument('--out', type=pathlib.Path, default=pathlib.Path('out/boptest'))
     parser.add_argument('--docs', type=pathlib.Path, default=None,
                         help='write <docs>/boptest.md and <docs>/boptest/*.png')
@@ -353,7 +369,8 @@ def run_benchmark(args: argparse.Namespace, context: Context,
                               lead_h=lead if controller == 'rule' else 0.0,
                               margin_k=margin if controller == 'rule' else 0.0,
                               out=args.out / 'runs' / name, cards=args.out / 'cards',
-                              timeout_s=args.timeout, progress=say)
+                              timeout_s=args.timeout, progress=say,
+                              mshoot_mode=args.mshoot_mode)
                 if run.failed:
                     raise RuntimeError(f'{name}: the run failed: {run.failed}')
                 # time_rat: the controller's wall time between two advances over the step;
