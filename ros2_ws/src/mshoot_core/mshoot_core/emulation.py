@@ -266,8 +266,8 @@ class Emulator:
         """Disturbances of the current step (the scenario row at :attr:`t_s`)."""
         return self.scenario.iloc[self.index][list(DISTURBANCE_COLUMNS)]
 
-    def clip(self, controls: Sequence[float]) -> np.ndarray:
-        """Clip controls to the actuator limits, warning when anything changes."""
+    def clip(self, controls: Sequence[float], quiet: bool = False) -> np.ndarray:
+        """Clip controls to the actuator limits, warning when anything changes (unless quiet)."""
         u = np.asarray(controls, dtype=float).reshape(-1)
         if u.size != len(self.control_names):
             raise ValueError(f'expected {len(self.control_names)} controls '
@@ -275,7 +275,7 @@ class Emulator:
         if not np.all(np.isfinite(u)):
             raise ValueError(f'controls must be finite, got {u}')
         clipped = np.clip(u, self.control_bounds[:, 0], self.control_bounds[:, 1])
-        if np.any(clipped != u):
+        if not quiet and np.any(clipped != u):
             logger.warning('controls %s clipped to the actuator limits: %s', u, clipped)
         return clipped
 
@@ -317,12 +317,12 @@ class Emulator:
 
         For plants that do something before their first step (a BOPTEST warm-up), so that the
         first published state is the plant's. ``controls`` only has to be valid (the first
-        step's controls are applied by :meth:`advance`). Nothing happens for other models or
-        a running plant.
+        step's controls are applied by :meth:`advance`; they are clipped to the limits without a
+        warning). Nothing happens for other models or a running plant.
         """
         if not self.plant or self._plant_running:
             return
-        inputs = self._step_inputs(self.clip(controls), self.scenario.iloc[self.index])
+        inputs = self._step_inputs(self.clip(controls, quiet=True), self.scenario.iloc[self.index])
         x, y = self.model.plant_start(self.x, self.t_s, inputs)
         self.x, self._y = np.asarray(x, dtype=float).reshape(-1), y
         self._plant_running = True
