@@ -173,6 +173,9 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
         Wall-clock guard [s].
     progress : callable, optional
         Called with a line every simulated day.
+    mshoot_mode : str
+        For ``controller='mshoot'``: how the plan reaches the building, one of
+        :data:`MSHOOT_MODES` (the card ``boptest_<mode>.yaml``).
 
     Raises
     ------
