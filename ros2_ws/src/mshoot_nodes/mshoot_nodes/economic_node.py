@@ -74,14 +74,6 @@ PARAMS = (
 )
 
 
-def _check(v: dict[str, Any]) -> str | None:
-    if 'scenario' in v:
-        if not v['scenario'].startswith(sources.BOPTEST_PREFIX):
-            return f"scenario must be 'boptest:<period>[:<price>]', got {v['scenario']!r}"
-        return sources.check_scenario(v['scenario'], v.get('data', ''))
-    return None
-
-
 def _frame(t1_s: float, outputs: dict[str, float]) -> pd.DataFrame:
     """One record row at ``t1_s`` [s] holding the step means in the plant's columns."""
     missing = [name for name in MEASURED if name not in outputs]
@@ -99,7 +91,7 @@ class EconomicNode(ManagedNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('economic', **kwargs)
-        declare(self, PARAMS, [_check])
+        declare(self, PARAMS, [sources.check_boptest_parameters])
         self.params = p = values(self, PARAMS)
         self.controller: EconomicController | None = None
         self.answered = 0

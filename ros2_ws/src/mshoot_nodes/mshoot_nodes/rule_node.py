@@ -52,20 +52,12 @@ PARAMS = (
 )
 
 
-def _check(v: dict[str, Any]) -> str | None:
-    if 'scenario' in v:
-        if not v['scenario'].startswith(sources.BOPTEST_PREFIX):
-            return f"scenario must be 'boptest:<period>[:<price>]', got {v['scenario']!r}"
-        return sources.check_scenario(v['scenario'], v.get('data', ''))
-    return None
-
-
 class RuleNode(Node):
     """Answers zone states with the rule's setpoints (see the module docstring)."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('rule', **kwargs)
-        declare(self, PARAMS, [_check])
+        declare(self, PARAMS, [sources.check_boptest_parameters])
         p = self.params = values(self, PARAMS)
         scenario = sources.load_scenario(p['scenario'], p['data'], p['hours'])
         self.epoch_ns = sources.start_ns(scenario, p['start_time'])

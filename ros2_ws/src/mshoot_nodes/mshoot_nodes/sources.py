@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import pathlib
+from typing import Any
 
 from mshoot_core.models.registry import build_model, check_model  # noqa: F401 (API)
 from mshoot_core.models.registry import BUILTIN as MODELS  # noqa: F401 (API)
@@ -69,6 +70,21 @@ def check_scenario(name: str, data: str) -> str | None:
         return None if pathlib.Path(name).is_file() else f'scenario file {name!r} not found'
     return f'scenario must be one of {list(SCENARIOS)}, boptest:<period>[:<price>] or a path ' \
            f'to an OU44-format CSV, got {name!r}'
+
+
+def check_boptest_parameters(values: dict[str, Any]) -> str | None:
+    """
+    Reason why a BOPTEST-only node's scenario parameters are invalid, or None.
+
+    A parameter check for :func:`mshoot_nodes.params.declare`: ``values`` holds the parameters
+    being set; ``scenario`` must be ``boptest:<period>[:<price>]`` (with ``data``, the test case
+    folder).
+    """
+    if 'scenario' in values:
+        if not values['scenario'].startswith(BOPTEST_PREFIX):
+            return f"scenario must be 'boptest:<period>[:<price>]', got {values['scenario']!r}"
+        return check_scenario(values['scenario'], values.get('data', ''))
+    return None
 
 
 def load_scenario(name: str, data: str = '', hours: int = 72) -> pd.DataFrame:
