@@ -7,11 +7,10 @@ installed and are skipped elsewhere.
 import pathlib
 import sys
 
-from mshoot_core.closed_loop import forecast_window
 from mshoot_core.models import R1C1Model
 from mshoot_core.models.multizone import MultiZoneModel
 from mshoot_core.mpc import MPC
-from mshoot_core.scenario import DISTURBANCE_COLUMNS, synthetic_scenario
+from mshoot_core.scenario import DISTURBANCE_COLUMNS, forecast_window, synthetic_scenario
 import numpy as np
 import pytest
 

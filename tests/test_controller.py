@@ -11,13 +11,13 @@ import concurrent.futures
 import threading
 import time
 
-from mshoot_core.closed_loop import forecast_window, run_closed_loop
+from mshoot_core.closed_loop import run_closed_loop
 from mshoot_core.controller import Controller, controller_for
 from mshoot_core.emulation import Emulator
 from mshoot_core.models.multizone import MultiZoneModel
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.mpc import MPC
-from mshoot_core.scenario import reference_scenario, synthetic_scenario
+from mshoot_core.scenario import forecast_window, reference_scenario, synthetic_scenario
 from mshoot_core.settings import MpcSettings
 from mshoot_core.solvers import make_solver
 from mshoot_testing.faults import FaultyModel, FaultySolver

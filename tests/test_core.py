@@ -2,14 +2,14 @@
 import json
 
 from mshoot_core import plotting
-from mshoot_core.closed_loop import forecast_window, run_closed_loop
+from mshoot_core.closed_loop import run_closed_loop
 from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis, discomfort_kh, energy_kwh
 from mshoot_core.models import Model, R1C1Model, R1C1Parameters
 from mshoot_core.mpc import MPC
 from mshoot_core.outputs import write_outputs
 from mshoot_core.plotting import PlotWorker
-from mshoot_core.scenario import synthetic_scenario
+from mshoot_core.scenario import forecast_window, synthetic_scenario
 from mshoot_core.settings import ComfortSettings, MpcSettings, ProblemSettings, SettingsError
 from mshoot_core.shooting import NlpIndex, ShootingProblem
 from mshoot_core.solvers import make_solver, SlsqpSolver

@@ -16,7 +16,6 @@ from mshoot_core.models.base import ModelValueError
 from mshoot_core.mpc import MPC
 from mshoot_core.safety import NS_PER_S
 from mshoot_core.scenario import forecast_rows
-from mshoot_core.scenario import forecast_window  # noqa: F401 (API: used by the nodes)
 
 logger = logging.getLogger(__name__)
 

@@ -21,8 +21,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from mshoot_core.closed_loop import forecast_window
 from mshoot_core.safety import COMFORT_SERIES, PRICE_SERIES
+from mshoot_core.scenario import forecast_window
 from mshoot_msgs.msg import Forecast
 import numpy as np
 import pandas as pd
