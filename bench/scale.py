@@ -16,10 +16,9 @@ import sys
 import time
 import warnings
 
-from mshoot_core.closed_loop import forecast_window
 from mshoot_core.models.multizone import multizone_mpc_options, MultiZoneModel
 from mshoot_core.mpc import MPC
-from mshoot_core.scenario import synthetic_scenario
+from mshoot_core.scenario import forecast_window, synthetic_scenario
 import numpy as np
 import pandas as pd
 

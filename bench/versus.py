@@ -513,7 +513,7 @@ class OurZones(ZoneLoop):
                                                                               name)))
 
     def solve(self, k: int) -> tuple[Any, int, bool, float]:
-        from mshoot_core.closed_loop import forecast_window
+        from mshoot_core.scenario import forecast_window
         before = self.timers.total['simulations']
         result = self.mpc.solve(self.x, self.scenario.index[k],
                                 forecast_window(self.scenario, k, HORIZON))
@@ -529,7 +529,7 @@ class OurZones(ZoneLoop):
 
     def profile_step(self, k: int) -> list[dict]:
         """Profile one more (warm) step with cProfile: the top functions by own time."""
-        from mshoot_core.closed_loop import forecast_window
+        from mshoot_core.scenario import forecast_window
         profiler = cProfile.Profile()
         profiler.runcall(self.mpc.solve, self.x, self.scenario.index[k],
                          forecast_window(self.scenario, k, HORIZON))

@@ -1,5 +1,5 @@
 """Speed paths: naive vs fast agreement, grouped finite differences, sparse solvers, zones."""
-from mshoot_core.closed_loop import forecast_window, run_closed_loop
+from mshoot_core.closed_loop import run_closed_loop
 from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis
 from mshoot_core.models import R1C1Model
@@ -7,7 +7,7 @@ from mshoot_core.models.base import Model
 from mshoot_core.models.fmi import r1c1_fmi_model
 from mshoot_core.models.multizone import multizone_mpc_options, MultiZoneModel
 from mshoot_core.mpc import MPC
-from mshoot_core.scenario import reference_scenario, synthetic_scenario
+from mshoot_core.scenario import forecast_window, reference_scenario, synthetic_scenario
 from mshoot_core.sensitivities import column_groups, finite_difference_jacobians
 from mshoot_core.shooting import _band_jacobian, ContinuityStructure, NlpIndex
 from mshoot_core.solvers import SparseJacobian

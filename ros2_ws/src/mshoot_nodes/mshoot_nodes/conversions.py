@@ -161,7 +161,7 @@ def forecast_msg(stamp_ns: int, step_s: float, window: pd.DataFrame,
     window : DataFrame, shape (n, ...)
         Rows with the columns ``series``, ``comfort_min``, ``comfort_max`` [degC]
         and optionally ``price`` [currency/kWh] (e.g.
-        :func:`mshoot_core.closed_loop.forecast_window`: N+1 rows).
+        :func:`mshoot_core.scenario.forecast_window`: N+1 rows).
     series : sequence of str
         The disturbance columns to send (default: Tout, solrad, occ).
     zone : str

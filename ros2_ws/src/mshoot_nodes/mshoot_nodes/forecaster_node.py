@@ -4,7 +4,7 @@ The forecaster node: disturbance, comfort-band and price forecasts over the MPC 
 On every control step of simulated time (a sim-time timer) it publishes on
 ``/forecast`` (latched: reliable, transient local, depth 1) the scenario rows
 of the step and the ``horizon_steps`` that follow, from
-:func:`mshoot_core.closed_loop.forecast_window`, so a ROS run and the core-only
+:func:`mshoot_core.scenario.forecast_window`, so a ROS run and the core-only
 loop see the same forecasts: the scenario columns named by ``series`` (by
 default Tout, solrad, occ: what the control model needs besides the
 ventilation it assumes) as named series, the comfort band and, with
