@@ -536,12 +536,11 @@ class Controller:
         _trim(self._forecasts)
         return None
 
-    def _std_of(self, step_ns: int) -> np.ndarray | None:
-        """Return the standard deviation of the estimate a step is planned from, or None."""
+    def _estimate_for(self, step_ns: int) -> Estimate | None:
+        """Return the estimate a step is planned from, or None (states not estimated)."""
         oldest = step_ns - self._state_gate.max_age_ns
         stamps = [s for s in self._states if oldest <= s < step_ns + self.step_ns]
-        estimate = self._estimates.get(max(stamps)) if stamps else None
-        return None if estimate is None else estimate.std
+        return self._estimates.get(max(stamps)) if stamps else None
 
     def _state_for(self, step_ns: int) -> np.ndarray | None:
         oldest = step_ns - self._state_gate.max_age_ns
@@ -658,28 +657,53 @@ class Controller:
         window = (frame if offset == 0 and len(frame) == horizon + 1 else
                   forecast_window(frame, int(min(offset, len(frame) - 1)), horizon))
         self._last_step_ns = step
-        std = self._std_of(step)
-        self._dispatch(step, state, self._with_margin(window, std), steady_ns, std)
+        estimate = self._estimate_for(step)
+        std = None if estimate is None else estimate.std
+        self._dispatch(step, state, self._with_margin(step, window, estimate), steady_ns, std)
         self._collect(outcomes, time.monotonic_ns())
         return outcomes
 
-    def _with_margin(self, window: pd.DataFrame, std: np.ndarray | None) -> pd.DataFrame:
+    def _with_margin(self, step_ns: int, window: pd.DataFrame,
+                     estimate: Estimate | None) -> pd.DataFrame:
         """
         Return the forecast window with the comfort band narrowed for an uncertain state.
 
-        By ``comfort_margin_std`` standard deviations of the estimated zone temperatures (the
-        largest), on each side, at most to the band's middle.
+        Back-off by ``comfort_margin_std`` standard deviations of the predicted zone
+        temperatures (the largest bounded state's) at each row: the estimate's covariance
+        propagated over the horizon (:meth:`StateEstimator.predicted_std`, controls held at the
+        last decided ones, disturbances as forecast), on each side, at most to the band's
+        middle. Row 0 is the estimate's own std; the unmeasured states' uncertainty reaches the
+        zone temperature from row 1 on.
         """
         z = self.settings.estimation.comfort_margin_std
         bounded = [self.model.state_names.index(s) for s in self.mpc.state_bounds]
-        if std is None or z <= 0 or not bounded or not set(COMFORT_SERIES) <= set(window):
+        if estimate is None or z <= 0 or not bounded or not set(COMFORT_SERIES) <= set(window):
             return window
-        margin = z * float(np.max(std[bounded]))
+        std = self.estimator.predicted_std(self._held_inputs(step_ns, window),
+                                           estimate=estimate)
+        margin = z * std[:, bounded].max(axis=1)
         out = window.copy()
-        half = 0.5 * (out['comfort_max'] - out['comfort_min'])
+        half = 0.5 * (out['comfort_max'] - out['comfort_min']).to_numpy()
         out['comfort_min'] = out['comfort_min'] + np.minimum(margin, half)
         out['comfort_max'] = out['comfort_max'] - np.minimum(margin, half)
         return out
+
+    def _held_inputs(self, step_ns: int, window: pd.DataFrame) -> np.ndarray:
+        """
+        Return the model inputs over the window's intervals, shape (H, nu).
+
+        Disturbances from the window; controls held at the last decided ones (before the
+        first decision, at their lower bounds).
+        """
+        problem = self.settings.problem
+        earlier = [s for s in self._decided if s < step_ns]
+        held = (self._decided[max(earlier)] if earlier else
+                np.array([lo for lo, _ in problem.control_bounds], dtype=float))
+        controls = dict(zip(problem.control_names, held))
+        rows = len(window) - 1
+        return np.column_stack([np.full(rows, float(controls[n])) if n in controls
+                                else window[n].to_numpy(dtype=float)[:rows]
+                                for n in self.model.input_names])
 
     def _due(self, step: int, now_ns: int, steady_ns: int) -> tuple[float, float]:
         """How long the step has been due: (wall time, clock time) [s]."""

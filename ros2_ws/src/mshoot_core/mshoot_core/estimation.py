@@ -42,7 +42,7 @@ from typing import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from mshoot_core.models.base import accepts_start_times, Model
+from mshoot_core.models.base import accepts_start_times, Model, ModelValueError
 from mshoot_core.settings import EstimationSettings
 
 logger = logging.getLogger(__name__)
@@ -290,17 +290,32 @@ class StateEstimator:
     # -- the filter -----------------------------------------------------------------------
     def _transition(self, x: np.ndarray, u: np.ndarray, t0: float,
                     dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """Return the end state and F = dx_end/dx_start of one interval."""
+        """
+        Return the end state and F = dx_end/dx_start of one interval.
+
+        Raises
+        ------
+        ModelValueError
+            If either is not finite.
+
+        """
         kwargs = {'t_start_s': np.array([t0])} if self._times else {}
         jac = self.model.interval_jacobians(x[None], u[None], dt, [], **kwargs)
         if jac is not None:
-            return np.asarray(jac.x_end[0], dtype=float), np.asarray(jac.dx_dx0[0], dtype=float)
-        nx = x.size
-        steps = FD_STEP * np.maximum(1.0, np.abs(x))
-        starts = np.vstack([x, x + np.diag(steps)])
-        kwargs = {'t_start_s': np.full(nx + 1, t0)} if self._times else {}
-        ends, _ = self.model.simulate_intervals(starts, np.tile(u, (nx + 1, 1)), dt, **kwargs)
-        return ends[0], ((ends[1:] - ends[0]) / steps[:, None]).T
+            x_end = np.asarray(jac.x_end[0], dtype=float)
+            f = np.asarray(jac.dx_dx0[0], dtype=float)
+        else:
+            nx = x.size
+            steps = FD_STEP * np.maximum(1.0, np.abs(x))
+            starts = np.vstack([x, x + np.diag(steps)])
+            kwargs = {'t_start_s': np.full(nx + 1, t0)} if self._times else {}
+            ends, _ = self.model.simulate_intervals(starts, np.tile(u, (nx + 1, 1)), dt,
+                                                    **kwargs)
+            x_end, f = ends[0], ((ends[1:] - ends[0]) / steps[:, None]).T
+        if not (np.all(np.isfinite(x_end)) and np.all(np.isfinite(f))):
+            raise ModelValueError(f'{type(self.model).__name__}: non-finite prediction {x_end} '
+                                  f'from {x} over [{t0:g}, {t0 + dt:g}] s', time_s=t0)
+        return x_end, f
 
     def update(self, t_s: float, measurements: Mapping[str, float],
                inputs: pd.DataFrame | Sequence[float] | None = None) -> Estimate:
@@ -359,13 +374,7 @@ class StateEstimator:
         x, p = self.estimate.x.copy(), self.estimate.covariance.copy()
         q_step = self.process_noise_k ** 2
         for t0, dt, u in self._intervals(t_s, inputs):
-            x_next, f = self._transition(x, u, t0, dt)
-            if not (np.all(np.isfinite(x_next)) and np.all(np.isfinite(f))):
-                from mshoot_core.models.base import ModelValueError
-                raise ModelValueError(f'{type(self.model).__name__}: non-finite prediction '
-                                      f'{x_next} from {x} over [{t0:g}, {t0 + dt:g}] s',
-                                      time_s=t0)
-            x = x_next
+            x, f = self._transition(x, u, t0, dt)
             p = f @ p @ f.T + np.eye(x.size) * q_step * dt / self.step_s
         h = np.zeros((z.size, x.size))
         h[np.arange(z.size), self._rows] = 1.0
@@ -379,6 +388,52 @@ class StateEstimator:
                                  innovation, self.measured)
         self.updates += 1
         return self.estimate
+
+    def predicted_std(self, inputs: np.ndarray, step_s: float | None = None,
+                      estimate: Estimate | None = None) -> np.ndarray:
+        """
+        Return the standard deviation of every state along a prediction from the estimate.
+
+        The covariance propagated as between two updates, with no measurement:
+        ``P_j+1 = F_j P_j F_j' + Q`` along the model's prediction with ``inputs``
+        (what a plan's state will be uncertain by, for constraint back-off).
+
+        Parameters
+        ----------
+        inputs : ndarray, shape (n, nu)
+            The model's inputs over each of ``n`` intervals from the estimate's
+            time (controls as assumed, disturbances as forecast).
+        step_s : float, optional
+            Length of an interval [s] (default: the control step).
+        estimate : Estimate, optional
+            The estimate to predict from (default: the newest).
+
+        Returns
+        -------
+        ndarray, shape (n + 1, nx)
+            Row 0 the estimate's std, row ``j`` the std at the end of interval ``j`` [K].
+
+        Raises
+        ------
+        RuntimeError
+            Before the first estimate.
+        ModelValueError
+            If the model's prediction is not finite.
+
+        """
+        estimate = self.estimate if estimate is None else estimate
+        if estimate is None:
+            raise RuntimeError('no estimate yet: update() first')
+        dt = self.step_s if step_s is None else float(step_s)
+        inputs = np.asarray(inputs, dtype=float).reshape(-1, len(self.model.input_names))
+        x, p = estimate.x.copy(), estimate.covariance.copy()
+        q = np.eye(x.size) * self.process_noise_k ** 2 * dt / self.step_s
+        out = [np.diag(p)]
+        for j, u in enumerate(inputs):
+            x, f = self._transition(x, u, estimate.t_s + j * dt, dt)
+            p = f @ p @ f.T + q
+            out.append(np.diag(p))
+        return np.sqrt(np.clip(np.array(out), 0.0, None))
 
 
 class Sensors:

@@ -300,8 +300,10 @@ class EstimationSettings(SettingsGroup):
                                    'unmeasured state [K]', low=1e-6, high=1000.0,
                                    apply='inputs')
     comfort_margin_std: float = setting(0.0, 'with an estimated state: the comfort band is '
-                                        'narrowed by this many standard deviations of the '
-                                        'estimated zone temperature, on each side [-]',
+                                        'narrowed, on each side, by this many standard '
+                                        'deviations of the predicted zone temperature at each '
+                                        "step of the horizon (the estimate's covariance "
+                                        'propagated by the model) [-]',
                                         low=0.0, high=10.0, apply='inputs')
 
     @property
