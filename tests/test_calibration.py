@@ -513,3 +513,144 @@ def test_missing_data_exits_2(tmp_path: pathlib.Path) -> None:
                          capture_output=True, text=True, timeout=120)
     assert run.returncode == 2
     assert 'not found' in run.stderr and len(run.stderr.strip().splitlines()) == 1
+
+
+# -- learned models -------------------------------------------------------------------------
+#: An R1C1 whose time constant (8.8 h) is short next to the periods, so the learned
+#: temperature feedback matters in a free run.
+LEARNED_TRUTH = {'tmass': 10.0, 'shgc': 3.0, 'occheff': 1.5, 'RExt': 1.0}
+
+
+def linear_r1c1_period(name: str, rows: int, seed: int) -> calibration.Period:
+    """
+    Return a period of the R1C1 at :data:`LEARNED_TRUTH` without occupants or ventilation.
+
+    Without them the R1C1 is linear: with inputs held over each row its exact discretisation
+    is T+ - T = c_T T + c_u u + c, so an affine increment model of it is exact.
+    """
+    inputs = synthetic_inputs(rows, seed).assign(occ=0.0, dpos=0.0)
+    build = calibration.r1c1_builder(calibration.OU44_FIXED)
+    start = calibration.Period('gen', inputs, np.array([293.15]), np.zeros(rows))
+    return calibration.Period(name, inputs, start.x0,
+                              calibration.simulate_period(build(LEARNED_TRUTH), start))
+
+
+def test_learned_linear_model_recovers_a_linear_r1c1() -> None:
+    """
+    A linear regressor of the increment recovers a linear R1C1 from its own data.
+
+    The exact discretisation is affine in (T, u), so least squares finds it up to round-off
+    (1e-15 relative on features of up to 3000 W and 300 K, amplified by the condition of the
+    features): the free run on held-out inputs matches to 1e-8 K, and the R1C1 quantities
+    derived from the coefficients match the truth to 1e-8 relative.
+    """
+    from mshoot_core.models.r1c1 import R1C1Parameters
+    train = linear_r1c1_period('train', 5 * 48 + 1, seed=3)
+    held_out = linear_r1c1_period('validation', 4 * 48 + 1, seed=4)
+    result = calibration.fit_learned('linear', [train], [held_out])
+    assert held_out.measured.max() - held_out.measured.min() > 5.0  # the data do move
+    for period in (train, held_out):
+        assert result.metrics[period.name]['rmse_k'] < 1e-8, period.name
+        assert np.max(np.abs(result.simulated[period.name] - period.measured)) < 1e-8
+    truth = R1C1Parameters(**{**calibration.OU44_FIXED, **LEARNED_TRUTH})
+    physical = result.physical
+    assert physical['capacity_mj_k'] == pytest.approx(truth.capacity_j_k / 1e6, rel=1e-8)
+    assert physical['conductance_w_k'] == pytest.approx(1.0 / truth.resistance_k_w, rel=1e-8)
+    assert physical['time_constant_h'] == pytest.approx(
+        truth.capacity_j_k * truth.resistance_k_w / 3600.0, rel=1e-8)
+    assert physical['shgc_m2'] == pytest.approx(LEARNED_TRUTH['shgc'], rel=1e-8)
+    assert physical['outdoor_gain'] == pytest.approx(1.0, rel=1e-8)
+    # the reported coefficients are the model's increments in physical units
+    coefficients = result.coefficients
+    rng = np.random.default_rng(0)
+    x = rng.uniform(280.0, 300.0, (5, 1))
+    u = rng.uniform(0.0, 1.0, (5, 5)) * np.array([600.0, 20.0, 30.0, 80.0, 2689.0])
+    features = np.hstack([x, u])
+    slopes = np.array([coefficients[f] for f in result.features])
+    by_hand = features @ slopes + coefficients['intercept']
+    assert result.features == ['T', 'solrad', 'Tout', 'occ', 'dpos', 'q']
+    np.testing.assert_allclose(result.model.predict_increments(x, u)[:, 0], by_hand,
+                               rtol=1e-9, atol=1e-12)
+    described = result.parameters
+    assert described['estimator'] == 'linear' and described['regressor'] == 'LinearRegression'
+    assert described['training_rows'] == 5 * 48 and described['step_s'] == 1800.0
+    assert 'fit_intercept' in described['hyperparameters']
+    assert 'no confidence intervals' in result.to_dict()['uncertainty']
+    json.dumps(result.to_dict())  # JSON-ready
+
+
+def test_learned_model_learns_from_the_training_periods_only() -> None:
+    """The validation measurements are scored, never learned from."""
+    train = linear_r1c1_period('train', 2 * 48 + 1, seed=3)
+    held_out = linear_r1c1_period('validation', 48 + 1, seed=4)
+    shifted = dataclasses.replace(held_out, measured=held_out.measured + 2.0)
+    for estimator in ('ridge', 'knn'):
+        a = calibration.fit_learned(estimator, [train], [held_out])
+        b = calibration.fit_learned(estimator, [train], [shifted])
+        np.testing.assert_array_equal(a.simulated['validation'], b.simulated['validation'])
+        assert a.metrics['train'] == b.metrics['train']
+        assert b.metrics['validation'] == calibration.metrics(a.simulated['validation'],
+                                                              shifted.measured)
+    assert calibration.fit_learned('knn', [train]).coefficients is None
+
+
+def test_learned_model_bad_input_raises() -> None:
+    train = linear_r1c1_period('train', 48 + 1, seed=3)
+    with pytest.raises(ValueError, match='unknown estimator'):
+        calibration.fit_learned('boosting', [train])
+    with pytest.raises(ValueError, match='at least one training period'):
+        calibration.fit_learned('linear', [])
+    with pytest.raises(ValueError, match='one start temperature'):
+        calibration.fit_learned('linear', [dataclasses.replace(train, x0=np.array([1.0, 2.0]))])
+    uneven = train.inputs.set_axis(train.inputs.index.to_numpy() * np.linspace(1, 2, 49))
+    with pytest.raises(ValueError, match='one length'):
+        calibration.fit_learned('linear', [dataclasses.replace(train, inputs=uneven)])
+    with pytest.raises(TypeError, match='fit'):
+        calibration.fit_learned(object(), [train])
+
+
+def test_ou44_learned_model_through_the_verb(ou44_csv: pathlib.Path,
+                                             tmp_path: pathlib.Path) -> None:
+    """``--learned``: scored as the physical calibration, next to the published parameters."""
+    assert verb.main(['ou44', '--data', str(ou44_csv), '--out', str(tmp_path), '--learned',
+                      'ridge']) == 0
+    report = json.loads((tmp_path / 'calibration.json').read_text())
+    assert report['kind'] == 'learned' and report['parameters']['estimator'] == 'ridge'
+    for key in ('rmse_train_k', 'rmse_validation_k', 'wall_s'):
+        assert np.isfinite(report[key]) and report[key] > 0, key
+    periods = calibration.ou44_periods(ou44_csv)
+    assert report['metrics']['train']['rows'] == len(periods[0].measured) - 1
+    assert report['parameters']['training_rows'] == len(periods[0].measured) - 1
+    # the same numbers as the API, and the published ones as the physical command scores them
+    direct = calibration.fit_learned('ridge', periods[:1], periods[1:])
+    assert report['rmse_validation_k'] == pytest.approx(
+        direct.metrics['validation']['rmse_k'], rel=1e-9)
+    published = calibration.r1c1_builder()({})
+    for period in periods:
+        scores = calibration.metrics(calibration.simulate_period(published, period),
+                                     period.measured)
+        assert report['published'][f'rmse_{period.name}_k'] == pytest.approx(scores['rmse_k'],
+                                                                             rel=1e-12)
+    calibrated = report['comparison']['r1c1_calibrated']
+    assert calibrated['rmse_validation_k'] <= report['published']['rmse_validation_k']
+    assert set(report['parameters']['coefficients']) == {'T', 'solrad', 'Tout', 'occ', 'dpos',
+                                                         'q', 'intercept'}
+    assert report['card'] is None and 'no card format' in report['card_note']
+    assert not list(tmp_path.glob('*.yaml'))
+    assert (tmp_path / 'calibration.png').stat().st_size > 10_000
+
+
+@pytest.mark.parametrize('extra', [['--learned', 'boosting'],
+                                   ['--learned', 'linear', '--free', 'tmass'],
+                                   ['--learned', 'linear', '--bound', 'tmass=1:5'],
+                                   ['--learned', 'mlp', '--jac', 'fd', '--starts', '3'],
+                                   ['--learned', 'linear', '--model', 'r2c2']])
+def test_learned_bad_options_exit_2_one_line(ou44_csv: pathlib.Path, tmp_path: pathlib.Path,
+                                             extra: list) -> None:
+    run = subprocess.run([sys.executable, '-m', 'mshoot_studies.calibrate', 'ou44', '--data',
+                          str(ou44_csv), '--out', str(tmp_path), *extra],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2
+    assert len(run.stderr.strip().splitlines()) == 1, run.stderr
+    assert '--learned' in run.stderr
+    assert not (tmp_path / 'calibration.json').exists()

@@ -28,6 +28,15 @@ differences: one batched simulation of all perturbed parameter vectors when
 the builder can batch them (``simulate_batch``), one simulation per parameter
 otherwise. :func:`cross_validate` scores a fit setup on held-out blocks of a
 training period (the rest of the period fitted), without a validation period.
+
+Learned (scikit-learn) zone models are fitted by :func:`fit_learned` on the
+same periods and scored the same way: the regressor learns the temperature
+increment over one row from the measured temperature and the inputs held
+over the row, on the training rows only, then every period is simulated
+freely from its first measured temperature. A :class:`LearnedResult`
+describes the regressor (and, for a linear one, its coefficients in
+physical units and the equivalent R1C1: :func:`r1c1_equivalent`); it has no
+confidence intervals.
 """
 from __future__ import annotations
 
@@ -47,9 +56,11 @@ from mshoot_core.models.base import Model
 from mshoot_core.scenario import OU44_COLUMNS, read_ou44
 
 __all__ = ['calibrate', 'CalibrationResult', 'card_builder', 'cross_validate', 'fmi_builder',
-           'FreeParameter', 'JACOBIANS', 'LOSSES', 'metrics', 'model_builder', 'ModelBuilder',
+           'fit_learned', 'FreeParameter', 'JACOBIANS', 'LearnedResult',
+           'LEARNED_UNCERTAINTY', 'LOSSES', 'metrics', 'model_builder', 'ModelBuilder',
            'OU44_FIXED', 'OU44_FREE', 'OU44_MAX_HEAT_W', 'OU44_STUDY_BOUNDS', 'OU44_STUDY_FREE',
            'OU44_TRAIN', 'OU44_VALIDATION', 'ou44_periods', 'Period', 'r1c1_builder',
+           'r1c1_equivalent',
            'r2c2_builder', 'registry_builder', 'simulate_period']
 
 logger = logging.getLogger(__name__)
@@ -895,6 +906,287 @@ def _uncertainty(residuals: np.ndarray, jac_theta: np.ndarray, problem: _Problem
     for text in warnings:
         logger.warning('calibration: %s', text)
     return std, ci95, correlation, warnings
+
+
+# -- learned models ---------------------------------------------------------------------------
+#: What the report of a learned model says of its uncertainty.
+LEARNED_UNCERTAINTY = ('none: a learned model is a fitted regressor, not parameters with a '
+                       'likelihood; no confidence intervals are computed')
+
+
+@dataclasses.dataclass
+class LearnedResult:
+    """
+    What :func:`fit_learned` found: a regressor fitted to data, scored as :func:`calibrate` scores.
+
+    The "parameters" of a learned model are its fitted regressor: its kind,
+    hyperparameters and training rows, and for a linear regressor the
+    coefficients of the temperature increment in physical units. There are
+    no confidence intervals (:data:`LEARNED_UNCERTAINTY`).
+
+    Attributes
+    ----------
+    estimator : str
+        Name of the built-in estimator
+        (:data:`~mshoot_core.models.sklearn_model.ESTIMATOR_FACTORIES`) or
+        the regressor's class name.
+    regressor : str
+        The regressor's class name.
+    hyperparameters : dict
+        The regressor's ``get_params()`` (JSON-ready; other values as their repr).
+    training_rows : int
+        Training pairs (T_k, u_k) -> T_{k+1} - T_k over all training periods.
+    step_s : float
+        Learning step [s]: the data's row length.
+    use_state : bool
+        Whether the temperature is a feature of the increment.
+    features : list of str
+        Features of the increment, in order (``T`` [K] first if used).
+    coefficients : dict of str -> float or None
+        For a linear regressor: the temperature increment over one step per
+        unit of each feature [K per step per feature unit: 1 for ``T`` and
+        ``Tout``, per W/m2, person, % and W] and ``intercept`` [K per step];
+        None otherwise.
+    physical : dict of str -> float or None
+        R1C1-equivalent quantities of a linear model whose features include
+        ``T`` and ``q`` (see :func:`r1c1_equivalent`); None otherwise.
+    metrics : dict of str -> dict
+        Period name -> {'rmse_k', 'mae_k', 'rows'} (:func:`metrics`).
+    warnings : list of str
+        The regressor's own warnings while fitting (e.g. no convergence),
+        scored inputs or free runs outside the training range (extrapolation),
+        a free run that failed.
+    fit_s : float
+        Wall time of the regressor's fit [s].
+    wall_s : float
+        Wall time of the fit and the scoring [s].
+    simulated : dict of str -> ndarray
+        Period name -> simulated output at every row.
+    model : SklearnModel
+        The fitted model (:func:`~mshoot_core.models.sklearn_model.make_zone_model`).
+
+    """
+
+    estimator: str
+    regressor: str
+    hyperparameters: dict[str, Any]
+    training_rows: int
+    step_s: float
+    use_state: bool
+    features: list[str]
+    coefficients: dict[str, float] | None
+    physical: dict[str, float] | None
+    metrics: dict[str, dict[str, float]]
+    warnings: list[str]
+    fit_s: float
+    wall_s: float
+    simulated: dict[str, np.ndarray]
+    model: Any = dataclasses.field(repr=False)
+
+    @property
+    def parameters(self) -> dict[str, Any]:
+        """Return the learned model's description: what stands for its parameters."""
+        return {'estimator': self.estimator, 'regressor': self.regressor,
+                'hyperparameters': dict(self.hyperparameters),
+                'training_rows': self.training_rows, 'step_s': self.step_s,
+                'use_state': self.use_state, 'features': list(self.features),
+                'coefficients': None if self.coefficients is None else dict(self.coefficients),
+                'physical': None if self.physical is None else dict(self.physical)}
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return the JSON-ready summary (no simulated series, no model)."""
+        return {'parameters': self.parameters, 'uncertainty': LEARNED_UNCERTAINTY,
+                'metrics': self.metrics, 'warnings': list(self.warnings),
+                'fit_s': self.fit_s, 'wall_s': self.wall_s}
+
+
+def r1c1_equivalent(coefficients: Mapping[str, float],
+                    step_s: float) -> dict[str, float] | None:
+    """
+    Return the R1C1 quantities equivalent to an affine temperature increment.
+
+    The exact discretisation of the R1C1 over a step dt with constant
+    conductance g is ``T+ - T = (a - 1) T + (1 - a)(Tout + K + (shgc solrad
+    + q + ...) / g)``, ``a = exp(-g dt / C)``: so ``c_T = a - 1``, ``c_q =
+    (1 - a) / g``, and from the coefficients ``g = -c_T / c_q``, ``tau =
+    -dt / ln(1 + c_T)``, ``C = tau g``, each gain per W of ``q``. With
+    occupants or ventilation varying, g varies in the physics and these are
+    averages over the training data.
+
+    Parameters
+    ----------
+    coefficients : mapping
+        Increment per unit of each feature [K per step per unit] with at
+        least ``T`` and ``q`` (as :attr:`LearnedResult.coefficients`).
+    step_s : float
+        The step [s].
+
+    Returns
+    -------
+    dict or None
+        ``time_constant_h`` [h], ``conductance_w_k`` (to the outdoors and
+        the ventilation, [W/K]), ``capacity_mj_k`` [MJ/K], ``outdoor_gain``
+        (``c_Tout / -c_T``: 1 for an R1C1), and for the inputs present
+        ``shgc_m2`` [m2], ``occupant_heat_w`` [W per person],
+        ``ventilation_w_pct`` [W per % of damper]; None when the
+        coefficients describe no stable R1C1 (``-1 < c_T < 0``, ``c_q > 0``).
+
+    """
+    c_t, c_q = coefficients.get('T'), coefficients.get('q')
+    if c_t is None or c_q is None or not (-1.0 < c_t < 0.0 and c_q > 0.0):
+        return None
+    conductance = -c_t / c_q
+    time_constant_s = -step_s / math.log1p(c_t)
+    physical = {'time_constant_h': time_constant_s / 3600.0, 'conductance_w_k': conductance,
+                'capacity_mj_k': time_constant_s * conductance / 1e6}
+    if 'Tout' in coefficients:
+        physical['outdoor_gain'] = coefficients['Tout'] / -c_t
+    for name, label in (('solrad', 'shgc_m2'), ('occ', 'occupant_heat_w'),
+                        ('dpos', 'ventilation_w_pct')):
+        if name in coefficients:
+            physical[label] = coefficients[name] / c_q
+    return physical
+
+
+def fit_learned(estimator: str | Any, train: Sequence[Period], validation: Sequence[Period] = (),
+                *, use_state: bool = True, seed: int = 0) -> LearnedResult:
+    """
+    Fit a learned zone model to the ``train`` periods; score every period as :func:`calibrate`.
+
+    The model is :func:`~mshoot_core.models.sklearn_model.make_zone_model`
+    (the R1C1's inputs, state ``T`` [K], output ``T`` [degC]) with a
+    learning step of the data's row length. The regressor learns the
+    temperature increment over one row from the measured temperature
+    (``use_state``) and the inputs held over the row, on the training rows
+    only. Every period is then scored like a physical calibration: simulated
+    freely from its start state (:func:`simulate_period`; no correction by
+    the measurements) and compared over rows 1..N (:func:`metrics`).
+
+    Parameters
+    ----------
+    estimator : str or object
+        A built-in estimator's name
+        (:data:`~mshoot_core.models.sklearn_model.ESTIMATOR_FACTORIES`:
+        'linear', 'ridge', 'knn', 'random_forest', 'mlp', 'svr') or an
+        unfitted regressor with ``fit`` and ``predict``.
+    train : sequence of Period
+        The periods learned from: output ``T`` [degC], one state (``x0`` the
+        first row's temperature [K]), rows of one length. Row weights are
+        not used.
+    validation : sequence of Period
+        Periods only scored (their rows a multiple of the training rows' length).
+    use_state : bool
+        Learn the increment from the temperature too (else from the inputs only).
+    seed : int
+        Seed of a named estimator that uses one (random forest, MLP).
+
+    Returns
+    -------
+    LearnedResult
+        The regressor's description, the scores per period, warnings.
+
+    Raises
+    ------
+    ValueError
+        For no training period, a period whose output is not ``T`` or whose
+        start state is not one temperature, rows of unequal length, an
+        unknown estimator name, or a validation period whose rows are not a
+        multiple of the learning step.
+    TypeError
+        For an estimator without ``fit``/``predict``.
+
+    """
+    import warnings as python_warnings
+
+    from mshoot_core.models.sklearn_model import make_zone_model
+
+    train, validation = list(train), list(validation)
+    if not train:
+        raise ValueError('fit_learned needs at least one training period')
+    for period in [*train, *validation]:
+        if period.output != 'T' or period.x0.size != 1:
+            raise ValueError(f'period {period.name}: a learned zone model needs the output '
+                             f"'T' and one start temperature, got output {period.output!r} and "
+                             f'{period.x0.size} start states')
+    steps = np.concatenate([np.diff(np.asarray(p.inputs.index, dtype=float)) for p in train])
+    step_s = float(steps[0])
+    if not np.allclose(steps, step_s, rtol=1e-9, atol=1e-6):
+        raise ValueError('fit_learned: the training rows must have one length (the learning '
+                         f'step), got {steps.min():g} s to {steps.max():g} s')
+    started = time.perf_counter()
+    model = make_zone_model(estimator, step_s=step_s, use_state=use_state, seed=seed)
+    name = estimator if isinstance(estimator, str) else type(estimator).__name__
+    states = [pd.DataFrame({'T': p.measured + KELVIN}, index=p.inputs.index) for p in train]
+    with python_warnings.catch_warnings(record=True) as caught:
+        python_warnings.simplefilter('always')
+        model.fit(states, [p.inputs for p in train])
+    first_lines = [(str(w.message).strip() or type(w.message).__name__).splitlines()[0]
+                   for w in caught]
+    warnings = list(dict.fromkeys(f'{name} fit: {line}' for line in first_lines))
+    simulated, scores = {}, {}
+    for period in [*train, *validation]:
+        try:
+            simulated[period.name] = simulate_period(model, period)
+        except FloatingPointError as error:
+            simulated[period.name] = np.full(period.measured.size, np.nan)
+            warnings.append(f'period {period.name}: the free run failed ({error})')
+        scores[period.name] = metrics(simulated[period.name], period.measured)
+    warnings += _extrapolation(model, train, validation, simulated)
+    for text in warnings:
+        logger.warning('learned model: %s', text)
+    coefficients = physical = None
+    affine = model.affine_increments()
+    if affine is not None:
+        coefficients = {f: float(v) for f, v in affine[0].loc['T'].items()}
+        coefficients['intercept'] = float(affine[1]['T'])
+        physical = r1c1_equivalent(coefficients, step_s)
+    regressor = model.estimator
+    params = regressor.get_params() if hasattr(regressor, 'get_params') else {}
+    wall_s = time.perf_counter() - started
+    logger.info('learned model %s: %d training rows, fit %.3f s, %s', name,
+                model.n_training_pairs_, model.fit_time_s_,
+                ', '.join(f'RMSE {k} {v["rmse_k"]:.4f} K' for k, v in scores.items()))
+    return LearnedResult(name, type(regressor).__name__,
+                         {k: _json_ready(v) for k, v in params.items()},
+                         int(model.n_training_pairs_), step_s, bool(use_state),
+                         list(model.feature_names), coefficients, physical, scores, warnings,
+                         float(model.fit_time_s_), wall_s, simulated, model)
+
+
+def _json_ready(value: Any) -> Any:
+    """Return ``value`` if JSON can hold it (numbers, strings, None, lists of them), else repr."""
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    if isinstance(value, (tuple, list)) and all(isinstance(v, (bool, int, float, str))
+                                                for v in value):
+        return list(value)
+    return repr(value)
+
+
+def _extrapolation(model: Any, train: Sequence[Period], validation: Sequence[Period],
+                   simulated: Mapping[str, np.ndarray]) -> list[str]:
+    """Warn of scored inputs and free runs outside the training range (extrapolation)."""
+    inputs = pd.concat([p.inputs.iloc[:-1] for p in train])
+    low, high = inputs.min(), inputs.max()
+    measured = np.concatenate([p.measured for p in train])
+    texts = []
+    for period in validation:
+        held = period.inputs.iloc[:-1][list(model.input_names)]
+        outside = {name: int(((held[name] < low[name]) | (held[name] > high[name])).sum())
+                   for name in model.input_names}
+        for name, count in outside.items():
+            if count:
+                texts.append(f'period {period.name}: {name} outside its training range '
+                             f'[{low[name]:.4g}, {high[name]:.4g}] in {count} of {len(held)} '
+                             'rows (extrapolation)')
+    for period in [*train, *validation]:
+        run = simulated[period.name]
+        count = int(np.sum((run < measured.min()) | (run > measured.max())))
+        if count:
+            texts.append(f'period {period.name}: the free run leaves the training '
+                         f'temperature range [{measured.min():.2f}, {measured.max():.2f}] degC '
+                         f'in {count} of {run.size} rows (extrapolation)')
+    return texts
 
 
 # -- the OU44 reference calibration -----------------------------------------------------------

@@ -29,6 +29,21 @@ analytic Jacobian; free by default Cair, Cwall, Raw, Rwa, Rwin, shgc, fsun,
 occheff within :data:`R2C2_BOUNDS`, Tve and maxVent fixed as above): only the
 air temperature is compared, the envelope starts at the measured air
 temperature of each period's first row; writes ``r2c2_calibrated.yaml``.
+
+``--learned NAME`` fits a learned (scikit-learn) zone model instead, one of
+the built-in estimators (:data:`~mshoot_core.models.sklearn_model.ESTIMATOR_FACTORIES`),
+on the same periods and scored the same way
+(:func:`mshoot_core.calibration.fit_learned`): the regressor learns the
+temperature increment over one 30-minute row on the training rows, then each
+period is simulated freely from its first measured temperature. The report
+describes the regressor in place of parameters (no confidence intervals) and
+adds the R1C1 calibrated with the default setup under ``comparison``; the
+figure shows the learned model, the published and the calibrated R1C1. No
+card is written: model cards describe physical models (an FMU or a built-in
+R1C1/R2C2), not fitted regressors. The options of the least-squares fit
+(``--model``, ``--free``, ``--bounds``, ``--bound``, ``--prior``,
+``--starts``, ``--loss``, ``--f-scale``, ``--jac``, ``--cv-folds``,
+``--no-compare``) do not apply and are refused.
 """
 from __future__ import annotations
 
@@ -44,6 +59,7 @@ from mshoot_core import calibration
 from mshoot_core.models import card as cards
 from mshoot_core.models.r1c1 import OCC_HEAT_W, R1C1Parameters
 from mshoot_core.models.r2c2 import R2C2Parameters
+from mshoot_core.models.sklearn_model import ESTIMATOR_FACTORIES
 from mshoot_core.scenario import DEFAULT_DATA
 import numpy as np
 import yaml
@@ -86,6 +102,14 @@ JSON_NAME = 'calibration.json'
 CARD_NAME = 'r1c1_calibrated.yaml'
 R2C2_CARD_NAME = 'r2c2_calibrated.yaml'
 FIGURE_NAME = 'calibration.png'
+#: Why ``--learned`` writes no card.
+NO_CARD = ('no model card: cards describe physical models (an FMU or the built-in R1C1, R1C1 '
+           'FMU or R2C2), and this project has no card format for a fitted regressor')
+#: Options of the least-squares fit, refused with ``--learned`` (destination -> option).
+FIT_OPTIONS = {'model': '--model', 'free': '--free', 'bounds': '--bounds', 'bound': '--bound',
+               'prior': '--prior', 'starts': '--starts', 'loss': '--loss',
+               'f_scale': '--f-scale', 'jac': '--jac', 'cv_folds': '--cv-folds',
+               'no_compare': '--no-compare'}
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
@@ -149,6 +173,12 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument('--no-compare', action='store_true',
                         help='with the study bounds, skip the comparison fit within the wide '
                              'bounds')
+    parser.add_argument('--learned', default=None, metavar='NAME',
+                        help='fit a learned (scikit-learn) zone model instead, one of '
+                             f'{", ".join(ESTIMATOR_FACTORIES)}: it learns the temperature '
+                             'increment over one row on the training rows and is scored by the '
+                             'same free simulation; the least-squares options do not apply '
+                             '(--seed seeds random_forest and mlp)')
     parser.add_argument('--max-heat', type=float, default=calibration.OU44_MAX_HEAT_W,
                         help='radiator power at a fully open valve [W] (default: %(default)s)')
     parser.add_argument('--no-figure', action='store_true', help='skip the figure')
@@ -269,6 +299,8 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f'--f-scale must be a positive residual [K], got {args.f_scale}')
         if args.cv_folds < 0 or args.cv_folds == 1:
             raise ValueError(f'--cv-folds must be 0 (none) or >= 2, got {args.cv_folds}')
+        if args.learned is not None:  # then the setup below is the default R1C1's
+            check_learned(args)
         model_arg = args.model
         if model_arg is not None and str(model_arg) == 'r2c2':
             model_arg = cards.builtin_card('r2c2')
@@ -302,18 +334,12 @@ def run(args: argparse.Namespace) -> int:
     except (ValueError, FileNotFoundError) as error:
         logger.error('%s', ' '.join(str(error).split()))
         return 2
+    if args.learned is not None:
+        return run_learned(args, data, build, free, [train, validation], started)
     options = {'starts': args.starts, 'seed': args.seed, 'jac': args.jac, 'loss': args.loss,
                'f_scale': args.f_scale}
     result = calibration.calibrate(build, free, [train], [validation], **options)
-    published_model = calibration.r1c1_builder()({})
-    published = {'parameters': PUBLISHED, 'physical': physical(PUBLISHED)}
-    published_sim = {}
-    for period in (train, validation):  # the R1C1 from the measured temperature
-        published_sim[period.name] = calibration.simulate_period(
-            published_model, dataclasses.replace(period, x0=period.x0[:1]))
-        scores = calibration.metrics(published_sim[period.name], period.measured)
-        published[f'rmse_{period.name}_k'] = scores['rmse_k']
-        published[f'mae_{period.name}_k'] = scores['mae_k']
+    published, published_sim = score_published([train, validation])
     comparison, compared_sim = {}, None
     if args.bounds == 'study' and not args.no_compare and not r2c2:
         wide = [dataclasses.replace(p, lower=BOUNDS[p.name][0], upper=BOUNDS[p.name][1])
@@ -386,6 +412,128 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def score_published(periods: Sequence[calibration.Period]
+                    ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """
+    Score the published R1C1 parameters on ``periods``, simulated as a calibration simulates.
+
+    Each period is simulated freely from its measured first-row temperature.
+
+    Returns
+    -------
+    (dict, dict)
+        The report's ``published`` entry (parameters, physical quantities,
+        ``rmse_<period>_k`` and ``mae_<period>_k`` [K]) and the simulated
+        temperature per period [degC].
+
+    """
+    model = calibration.r1c1_builder()({})
+    published = {'parameters': PUBLISHED, 'physical': physical(PUBLISHED)}
+    simulated = {}
+    for period in periods:  # the R1C1 from the measured temperature
+        simulated[period.name] = calibration.simulate_period(
+            model, dataclasses.replace(period, x0=period.x0[:1]))
+        scores = calibration.metrics(simulated[period.name], period.measured)
+        published[f'rmse_{period.name}_k'] = scores['rmse_k']
+        published[f'mae_{period.name}_k'] = scores['mae_k']
+    return published, simulated
+
+
+def check_learned(args: argparse.Namespace) -> None:
+    """
+    Check ``--learned``: a built-in estimator, none of the least-squares options.
+
+    Raises
+    ------
+    ValueError
+        For an unknown estimator name or an option of :data:`FIT_OPTIONS`
+        set to other than its default.
+
+    """
+    if args.learned not in ESTIMATOR_FACTORIES:
+        raise ValueError(f'--learned {args.learned!r}: expected one of '
+                         f'{", ".join(ESTIMATOR_FACTORIES)}')
+    defaults = build_parser().parse_args([args.case])
+    given = [option for dest, option in FIT_OPTIONS.items()
+             if getattr(args, dest) != getattr(defaults, dest)]
+    if given:
+        raise ValueError(f'--learned {args.learned}: {", ".join(given)} set(s) the least-squares '
+                         'fit of a physical model and does not apply to a learned model')
+
+
+def run_learned(args: argparse.Namespace, data: pathlib.Path, build: calibration.Builder,
+                free: Sequence[calibration.FreeParameter],
+                periods: Sequence[calibration.Period], started: float) -> int:
+    """
+    Fit and score the learned model of ``--learned``; write the report and the figure.
+
+    Parameters
+    ----------
+    args : Namespace
+        The command line, checked by :func:`check_learned`.
+    data : path
+        The measurements read.
+    build, free
+        The default R1C1 calibration, fitted for the comparison.
+    periods : sequence of Period
+        ``[train, validation]`` of the R1C1.
+    started : float
+        ``time.perf_counter()`` at the command's start [s].
+
+    Returns
+    -------
+    int
+        0.
+
+    """
+    train, validation = periods
+    result = calibration.fit_learned(args.learned, [train], [validation], seed=args.seed)
+    published, published_sim = score_published(periods)
+    logger.info('comparison: the R1C1 calibrated with the default setup')
+    r1c1 = calibration.calibrate(build, free, [train], [validation])
+    comparison = {'r1c1_calibrated': {
+        'parameters': r1c1.parameters, 'bounds_source': BOUND_SOURCES['study'],
+        **{f'{m}_{p}_k': r1c1.metrics[p][f'{m}_k'] for p in ('train', 'validation')
+           for m in ('rmse', 'mae')}, 'wall_s': r1c1.wall_s}}
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    figure = None
+    if not args.no_figure:
+        figure = draw(out / FIGURE_NAME, periods, result.simulated, published_sim,
+                      r1c1.simulated, f'learned {args.learned}',
+                      f'Learned {args.learned} model', 'calibrated R1C1 (study bounds)')
+    report = {
+        'case': args.case, 'data': str(data), 'kind': 'learned',
+        'model': f'learned {args.learned} (scikit-learn {result.regressor})',
+        'parameters': result.parameters,
+        **{f'{m}_{p}_k': result.metrics[p][f'{m}_k'] for m in ('rmse', 'mae')
+           for p in ('train', 'validation')},
+        'published': published, 'comparison': comparison, 'wall_s': result.wall_s,
+        'total_wall_s': None, 'fit_s': result.fit_s,
+        'uncertainty': calibration.LEARNED_UNCERTAINTY,
+        'setup': {'train': list(args.train), 'validation': list(args.validation),
+                  'rows': {p.name: len(p.measured) for p in periods},
+                  'max_heat_w': args.max_heat, 'inputs': list(train.inputs.columns),
+                  'seed': args.seed,
+                  'training': 'one-step temperature increments over the rows of the training '
+                              'period only, from the measured temperature [K] and the inputs '
+                              'held over each row',
+                  'metric': 'rows 1..N of each period (row 0 is the measured start state), '
+                            'each period simulated freely from it'},
+        'metrics': result.metrics, 'warnings': result.warnings,
+        'card': None, 'card_note': NO_CARD, 'figure': None if figure is None else str(figure)}
+    report['total_wall_s'] = time.perf_counter() - started
+    (out / JSON_NAME).write_text(json.dumps(report, indent=2, default=_json_default) + '\n')
+    logger.info('learned %s: RMSE train %.4f K (published %.4f K, calibrated R1C1 %.4f K), '
+                'validation %.4f K (published %.4f K, calibrated R1C1 %.4f K); fit %.2f s, '
+                'total %.2f s; wrote %s', args.learned, report['rmse_train_k'],
+                published['rmse_train_k'], comparison['r1c1_calibrated']['rmse_train_k'],
+                report['rmse_validation_k'], published['rmse_validation_k'],
+                comparison['r1c1_calibrated']['rmse_validation_k'], result.wall_s,
+                report['total_wall_s'], out / JSON_NAME)
+    return 0
+
+
 def _json_default(value: Any) -> Any:
     if isinstance(value, np.generic):
         return value.item()
@@ -424,8 +572,9 @@ def write_card(path: pathlib.Path, parameters: dict[str, float],
 def draw(path: pathlib.Path, periods: Sequence[calibration.Period],
          simulated: dict[str, np.ndarray], published: dict[str, np.ndarray],
          wide: dict[str, np.ndarray] | None = None,
-         label: str = 'calibrated', structure: str = 'R1C1') -> pathlib.Path:
-    """Draw measured vs simulated (fitted, published, wide-bounds fit) over the periods."""
+         label: str = 'calibrated', structure: str = 'R1C1',
+         wide_label: str = 'least squares, wide bounds') -> pathlib.Path:
+    """Draw measured vs simulated (fitted, published, ``wide``: a third fit) over the periods."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     from mshoot_core.plotting import DPI, PNG_COMPRESSION
@@ -446,7 +595,7 @@ def draw(path: pathlib.Path, periods: Sequence[calibration.Period],
                   ls='--')
         if wide is not None:
             ax_t.plot(when, wide[period.name], color='tab:green', lw=1.0, ls=':',
-                      label='least squares, wide bounds' if first else None)
+                      label=wide_label if first else None)
             ax_e.plot(when, wide[period.name] - period.measured, color='tab:green', lw=1.0,
                       ls=':')
         if k > 0:

@@ -525,6 +525,47 @@ class SklearnModel(Model):
         x, u = self._check_batch(x, u)
         return self._increments(x, u)
 
+    def affine_increments(self) -> tuple[pd.DataFrame, pd.Series] | None:
+        """
+        Return the learned increment as an affine function of the features, if it is one.
+
+        For a linear regressor (one with ``coef_`` and ``intercept_``, e.g.
+        ``LinearRegression`` or ``Ridge``) the standardisation is undone:
+        ``dx = coefficients @ features + intercept`` over one learning step.
+
+        Returns
+        -------
+        (DataFrame, Series) or None
+            ``coefficients`` of shape (nx, n_features), indexed by
+            :attr:`state_names`, columns :attr:`feature_names` [state unit
+            per step per feature unit], and ``intercept`` (nx,) [state unit
+            per step]; None for a regressor without linear coefficients.
+
+        Raises
+        ------
+        NotFittedError
+            If the model is not trained.
+
+        """
+        self._require_fitted()
+        estimators = self._state_regressor.estimators
+        if not all(hasattr(e, 'coef_') and hasattr(e, 'intercept_') for e in estimators):
+            return None
+        n_features = len(self.feature_names)
+        weights = np.vstack([np.asarray(e.coef_, dtype=float).reshape(-1, n_features)
+                             for e in estimators])
+        offsets = np.concatenate([np.asarray(e.intercept_, dtype=float).reshape(-1)
+                                  for e in estimators])
+        if weights.shape != (len(self.state_names), n_features):
+            return None
+        x_scale, y_scale = self._feature_scaler, self._increment_scaler
+        coefficients = y_scale.scale[:, None] * weights / x_scale.scale[None, :]
+        intercept = y_scale.mean + y_scale.scale * (offsets - weights
+                                                    @ (x_scale.mean / x_scale.scale))
+        return (pd.DataFrame(coefficients, index=list(self.state_names),
+                             columns=list(self.feature_names)),
+                pd.Series(intercept, index=list(self.state_names)))
+
     def _increments(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         features = self._scale(self._features(x, u), self._feature_scaler)
         scaled = self._state_regressor.predict(features)
