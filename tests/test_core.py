@@ -500,6 +500,22 @@ def test_plot_worker_draws_the_figure_of_this_process(tmp_path):
     assert len(np.unique(here.reshape(-1, 4), axis=0)) > 20  # a drawn figure, not a blank
 
 
+def test_figure_png_is_what_matplotlibs_writer_gives(tmp_path):
+    """Our PNG writer: the pixels, mode, resolution and text of ``savefig``'s PNG."""
+    from PIL import Image
+    result, _ = _small_run()
+    series = plotting.closed_loop_series(result.fine, result.steps)
+    ours = plotting.draw_closed_loop(series, tmp_path / 'ours.png', 'a title\nline two')
+    figure = plotting._figure()
+    plotting._draw_data(figure, series, 'a title\nline two')
+    figure[0].savefig(tmp_path / 'matplotlib.png', dpi=plotting.DPI)
+    with Image.open(ours) as mine, Image.open(tmp_path / 'matplotlib.png') as theirs:
+        assert mine.mode == theirs.mode == 'RGBA'
+        assert mine.info == theirs.info  # Software, dpi
+        np.testing.assert_array_equal(np.asarray(mine), np.asarray(theirs))
+        assert len(np.unique(np.asarray(mine).reshape(-1, 4), axis=0)) > 20
+
+
 def test_plot_worker_that_cannot_run_still_gives_the_figure(tmp_path, monkeypatch, caplog):
     result, kpis = _small_run()
     monkeypatch.setattr(plotting.sys, 'executable', str(tmp_path / 'no-python'))

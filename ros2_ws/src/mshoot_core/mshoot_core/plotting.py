@@ -36,6 +36,8 @@ DPI = 100
 #: zlib level of the PNG: 1 writes it several times faster than the default 6, for a
 #: file about a third larger.
 PNG_COMPRESSION = 1
+#: The PNG's Software text (as matplotlib's writer puts it).
+PNG_SOFTWARE = 'Matplotlib version{version}, https://matplotlib.org/'
 #: Seconds to wait for the worker's figure before drawing it here instead.
 WORKER_TIMEOUT_S = 120.0
 
@@ -81,7 +83,7 @@ def _figure() -> tuple[Any, Any, Any]:
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
-    fig = Figure(figsize=(10, 6))
+    fig = Figure(figsize=(10, 6), dpi=DPI)
     FigureCanvasAgg(fig)
     ax_t, ax_q = fig.subplots(2, 1, sharex=True, gridspec_kw={'height_ratios': [3, 2]})
     fig.subplots_adjust(left=0.085, right=0.985, bottom=0.085, top=0.875, hspace=0.07)
@@ -113,8 +115,47 @@ def _finish(figure: tuple[Any, Any, Any], series: dict[str, np.ndarray],
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     _draw_data(figure, series, title)
-    figure[0].savefig(path, dpi=DPI, pil_kwargs={'compress_level': PNG_COMPRESSION})
+    figure[0].canvas.draw()
+    path.write_bytes(_png(figure[0].canvas.buffer_rgba(), figure[0].dpi))
     return path
+
+
+def _png(rgba: Any, dpi: float) -> bytes:
+    """
+    Return the PNG of an RGBA image (rows top down), as ``savefig`` writes it, faster.
+
+    The pixels, resolution and Software text of matplotlib's PNG (through Pillow) for the
+    pixels of its Agg canvas, written here: every row with PNG's 'up' filter (the difference
+    to the row above, one numpy subtraction), then zlib at :data:`PNG_COMPRESSION`. About a
+    third of the time of Pillow's encoder, whose filter is chosen per row, for a file of
+    about the same size.
+    """
+    import struct
+    import zlib
+
+    import matplotlib
+    import numpy as np
+    pixels = np.asarray(rgba, dtype=np.uint8)
+    height, width, channels = pixels.shape
+    rows = pixels.reshape(height, width * channels)
+    raw = np.empty((height, 1 + width * channels), dtype=np.uint8)
+    raw[0, 0], raw[1:, 0] = 0, 2  # the first row as it is (filter 0), the others 'up' (2)
+    raw[0, 1:] = rows[0]
+    np.subtract(rows[1:], rows[:-1], out=raw[1:, 1:])  # modulo 256, as PNG's filter
+    per_metre = int(round(dpi / 0.0254))
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return (struct.pack('>I', len(data)) + kind + data
+                + struct.pack('>I', zlib.crc32(kind + data)))
+
+    software = PNG_SOFTWARE.format(version=matplotlib.__version__).encode('latin-1')
+    return b''.join([
+        b'\x89PNG\r\n\x1a\n',
+        chunk(b'IHDR', struct.pack('>IIBBBBB', width, height, 8, 6, 0, 0, 0)),  # 8-bit RGBA
+        chunk(b'tEXt', b'Software\x00' + software),
+        chunk(b'pHYs', struct.pack('>IIB', per_metre, per_metre, 1)),
+        chunk(b'IDAT', zlib.compress(raw.tobytes(), PNG_COMPRESSION)),
+        chunk(b'IEND', b'')])
 
 
 def _rehearse(figure: tuple[Any, Any, Any]) -> None:
