@@ -6,13 +6,17 @@ Figures of closed-loop runs (matplotlib, headless), drawn here or in a worker pr
 begins: that process imports matplotlib (the costliest import of a run's
 output) while the run computes, then draws the figure it is sent at the end,
 while the run writes its other files. A command that makes one figure is then
-shorter by the import, on a machine with a core to spare.
+shorter by the import, on a machine with a core to spare. During the run's
+last steps :class:`FigurePreview` tells the worker the extremes of the data:
+it draws the figure's axes ahead, and after the run only the data on them
+(the same figure; see :data:`LIMITS_TOLERANCE`).
 
 This module imports only the standard library at load time (a command can
 start the worker before it loads anything else; the worker runs this file as
-a script, ``python -I plotting.py``, with nothing of mshoot_core on its
-path); matplotlib is imported where a figure is drawn, with the Agg backend
-and without pyplot.
+a script, ``python -I -S plotting.py FOLDER...``, with nothing of mshoot_core
+on its path and matplotlib's folders given); matplotlib is imported where a
+figure is drawn, with the Agg backend and without pyplot. The PNG is written
+by :func:`_png` (the pixels and metadata of matplotlib's writer, faster).
 """
 from __future__ import annotations
 
@@ -327,11 +331,11 @@ class PlotWorker:
     While the run goes, :meth:`preview` may tell it the extremes the data will
     span (:class:`FigurePreview`): it then draws the figure without its data
     ahead, and only the data once they come, when they span the same axes'
-    limits (the same pixels either way). Whatever goes wrong with the worker (it
-    cannot start, fails or times out), :meth:`wait` draws the figure in this
-    process instead, with a logged warning: the figure is never lost. Use as a
-    context manager, or call :meth:`close`, so an unused worker does not outlive
-    the run.
+    limits (to :data:`LIMITS_TOLERANCE`: the same figure). Whatever goes wrong
+    with the worker (it cannot start, fails or times out), :meth:`wait` draws
+    the figure in this process instead, with a logged warning: the figure is
+    never lost. Use as a context manager, or call :meth:`close`, so an unused
+    worker does not outlive the run.
 
     The worker reads messages from its stdin, each a length (8 bytes) and a pickle: previews,
     then the figure.
@@ -369,7 +373,7 @@ class PlotWorker:
 
         ``extremes``: (lowest, highest) of every array of :func:`closed_loop_series`, the
         comfort band's two as ``band``. A guess that turns out wrong costs the worker a
-        draw, never a different figure. Ignored once the figure is sent.
+        draw, not a different figure. Ignored once the figure is sent.
         """
         if self._process is not None and self._request is None:
             self._post({'kind': 'preview', 'extremes': {
