@@ -516,21 +516,6 @@ def test_figure_png_is_what_matplotlibs_writer_gives(tmp_path):
         assert len(np.unique(np.asarray(mine).reshape(-1, 4), axis=0)) > 20
 
 
-def test_png_with_its_lower_rows_compressed_ahead_has_the_same_pixels(tmp_path):
-    """The PNG of _png from a tail compressed ahead decodes to the pixels, as the whole one."""
-    import io
-    from PIL import Image
-    rng = np.random.default_rng(5)
-    pixels = rng.integers(0, 256, size=(60, 40, 4), dtype=np.uint8)
-    pixels[20:] = pixels[20]  # repeated rows: the 'up' filter gives zeros
-    whole = plotting._png(pixels, 100.0)
-    for first in (1, 25, 59):
-        split = plotting._png(pixels, 100.0, plotting._png_tail(pixels, first))
-        with Image.open(io.BytesIO(split)) as image, Image.open(io.BytesIO(whole)) as other:
-            assert image.info == other.info
-            np.testing.assert_array_equal(np.asarray(image), pixels)
-
-
 def _extremes(series):
     """Return the (lowest, highest) of a figure's series, as FigurePreview sends them."""
     extremes = {name: (float(series[name].min()), float(series[name].max()))

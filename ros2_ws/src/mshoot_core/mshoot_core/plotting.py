@@ -31,7 +31,6 @@ import subprocess
 import sys
 import tempfile
 import threading
-import time
 from typing import Any, Sequence, TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -200,61 +199,25 @@ def _finish(figure: tuple[Any, Any, Any], series: dict[str, np.ndarray],
     drawn, on it: the pixels of the whole figure drawn with those limits (the data are drawn
     last anyway, and do not reach the axes' frame). Else the whole figure is drawn.
     """
-    return _title_and_write(figure, path, title, _data_drawn(figure, series, background))
-
-
-def _data_drawn(figure: tuple[Any, Any, Any], series: dict[str, np.ndarray],
-                background: tuple | None) -> bool:
-    """
-    Add the run's data (:func:`_finish`'s first half); draw them on ``background`` if it fits.
-
-    Return whether they were drawn (on the background, with its limits).
-    """
-    artists = _draw_data(figure, series, '')
-    fig, ax_t, ax_q = figure
-    if background is None or not _close(_limits(figure), background[1]):
-        return False
-    x_t, y_t, _, y_q = background[1]
-    ax_t.set_xlim(x_t)  # (shared with ax_q)
-    ax_t.set_ylim(y_t)
-    ax_q.set_ylim(y_q)
-    fig.canvas.restore_region(background[0])
-    for artist, owner in artists:
-        owner.draw_artist(artist)
-    return True
-
-
-def _axes_tail(figure: tuple[Any, Any, Any]) -> tuple:
-    """Compress the figure's rows from the top of its axes down (:func:`_png_tail`)."""
-    fig, ax_t, _ = figure
-    return _png_tail(fig.canvas.buffer_rgba(), int(fig.bbox.height - ax_t.bbox.y1))
-
-
-def _title_and_write(figure: tuple[Any, Any, Any], path: str | pathlib.Path, title: str,
-                     drawn: bool, tail: tuple | None = None) -> pathlib.Path:
-    """
-    Add the title (:func:`_finish`'s second half), draw what is not ``drawn``, write the PNG.
-
-    ``tail``: the rows below the title compressed ahead (:func:`_axes_tail`), used when the
-    data were ``drawn`` and the title stays above them.
-    """
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig = figure[0]
-    if title:
-        text = fig.suptitle(title)
-        if drawn:
-            fig.draw_artist(text)
-            if tail is not None and fig.bbox.height - text.get_window_extent().y0 > tail[0]:
-                tail = None  # the title reaches into those rows
-    if not drawn:
+    artists = _draw_data(figure, series, title)
+    fig, ax_t, ax_q = figure
+    if background is not None and _close(_limits(figure), background[1]):
+        x_t, y_t, _, y_q = background[1]
+        ax_t.set_xlim(x_t)  # (shared with ax_q)
+        ax_t.set_ylim(y_t)
+        ax_q.set_ylim(y_q)
+        fig.canvas.restore_region(background[0])
+        for artist, owner in artists:
+            owner.draw_artist(artist)
+    else:
         fig.canvas.draw()
-        tail = None
-    path.write_bytes(_png(fig.canvas.buffer_rgba(), fig.dpi, tail))
+    path.write_bytes(_png(fig.canvas.buffer_rgba(), fig.dpi))
     return path
 
 
-def _png(rgba: Any, dpi: float, tail: tuple | None = None) -> bytes:
+def _png(rgba: Any, dpi: float) -> bytes:
     """
     Return the PNG of an RGBA image (rows top down), as ``savefig`` writes it, faster.
 
@@ -263,10 +226,6 @@ def _png(rgba: Any, dpi: float, tail: tuple | None = None) -> bytes:
     to the row above, one numpy subtraction), then zlib at :data:`PNG_COMPRESSION`. About a
     third of the time of Pillow's encoder, whose filter is chosen per row, for a file of
     about the same size.
-
-    ``tail``: the rows from some row down, compressed ahead by :func:`_png_tail` (they have not
-    changed since): only the rows above it are compressed here, and the two parts are joined
-    into one zlib stream.
     """
     import struct
     import zlib
@@ -275,13 +234,11 @@ def _png(rgba: Any, dpi: float, tail: tuple | None = None) -> bytes:
     import numpy as np
     pixels = np.asarray(rgba, dtype=np.uint8)
     height, width, channels = pixels.shape
-    if tail is None:
-        idat = zlib.compress(_filtered(pixels), PNG_COMPRESSION)
-    else:
-        first, deflated, data = tail
-        head = _filtered(pixels[:first])
-        idat = b''.join([zlib.compress(b'', PNG_COMPRESSION)[:2], _deflate(head, last=False),
-                         deflated, struct.pack('>I', zlib.adler32(data, zlib.adler32(head)))])
+    rows = pixels.reshape(height, width * channels)
+    raw = np.empty((height, 1 + width * channels), dtype=np.uint8)
+    raw[0, 0], raw[1:, 0] = 0, 2  # the first row as it is (filter 0), the others 'up' (2)
+    raw[0, 1:] = rows[0]
+    np.subtract(rows[1:], rows[:-1], out=raw[1:, 1:])  # modulo 256, as PNG's filter
     per_metre = int(round(dpi / 0.0254))
 
     def chunk(kind: bytes, data: bytes) -> bytes:
@@ -294,35 +251,8 @@ def _png(rgba: Any, dpi: float, tail: tuple | None = None) -> bytes:
         chunk(b'IHDR', struct.pack('>IIBBBBB', width, height, 8, 6, 0, 0, 0)),  # 8-bit RGBA
         chunk(b'tEXt', b'Software\x00' + software),
         chunk(b'pHYs', struct.pack('>IIB', per_metre, per_metre, 1)),
-        chunk(b'IDAT', idat),
+        chunk(b'IDAT', zlib.compress(raw.tobytes(), PNG_COMPRESSION)),
         chunk(b'IEND', b'')])
-
-
-def _filtered(pixels: np.ndarray) -> bytes:
-    """Return rows (h, w, channels) as PNG scanlines: the first as it is, the others 'up'."""
-    import numpy as np  # (this module loads with the standard library only)
-    height = pixels.shape[0]
-    rows = pixels.reshape(height, -1)
-    raw = np.empty((height, 1 + rows.shape[1]), dtype=np.uint8)
-    raw[0, 0], raw[1:, 0] = 0, 2  # filter types: 0 (none), 2 (up)
-    raw[0, 1:] = rows[0]
-    np.subtract(rows[1:], rows[:-1], out=raw[1:, 1:])  # modulo 256, as PNG's filter
-    return raw.tobytes()
-
-
-def _deflate(data: bytes, last: bool) -> bytes:
-    """Return ``data`` as raw deflate blocks at :data:`PNG_COMPRESSION` (a part of a stream)."""
-    import zlib
-    compressor = zlib.compressobj(PNG_COMPRESSION, zlib.DEFLATED, -15)
-    return compressor.compress(data) + compressor.flush(zlib.Z_FINISH if last
-                                                        else zlib.Z_SYNC_FLUSH)
-
-
-def _png_tail(rgba: Any, first: int) -> tuple:
-    """Compress the rows from ``first`` down ahead, for :func:`_png` (``tail``)."""
-    import numpy as np  # (this module loads with the standard library only)
-    data = _filtered(np.asarray(rgba, dtype=np.uint8)[first:])
-    return first, _deflate(data, last=True), data
 
 
 def _rehearse(figure: tuple[Any, Any, Any]) -> None:
@@ -408,7 +338,7 @@ class PlotWorker:
     worker does not outlive the run.
 
     The worker reads messages from its stdin, each a length (8 bytes) and a pickle: previews,
-    then the figure, or its data (:meth:`send_series`) and then its title.
+    then the figure.
     """
 
     def __init__(self) -> None:
@@ -417,7 +347,6 @@ class PlotWorker:
         self._sender: threading.Thread | None = None
         self._outbox: queue.SimpleQueue = queue.SimpleQueue()
         self._request: tuple[dict, pathlib.Path, str] | None = None
-        self._early: dict | None = None  # the series given ahead (send_series)
         try:
             # -I: the worker sees neither the environment's paths nor this module's folder;
             # -S: nor runs the site module (its .pth files: ~25 ms), given matplotlib's folders
@@ -434,15 +363,9 @@ class PlotWorker:
             self._sender.start()
 
     def _post(self, message: dict | None) -> None:
-        """
-        Queue a message for the worker (None: the last one, stdin is closed after it).
-
-        This thread then lets the sender thread run (``time.sleep(0)``), which else would
-        wait up to the interpreter's switch interval (5 ms) for the GIL.
-        """
+        """Queue a message for the worker (None: the last one, stdin is closed after it)."""
         self._outbox.put(None if message is None else
                          _frame(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)))
-        time.sleep(0)
 
     def preview(self, extremes: dict[str, Sequence[float]]) -> None:
         """
@@ -456,19 +379,6 @@ class PlotWorker:
             self._post({'kind': 'preview', 'extremes': {
                 name: (float(low), float(high)) for name, (low, high) in extremes.items()}})
 
-    def send_series(self, series: dict[str, np.ndarray]) -> None:
-        """
-        Give the worker the figure's data ahead of the rest (:meth:`send`); do not wait.
-
-        ``series``: the arrays :func:`closed_loop_series` will give for the records
-        :meth:`send` is given, e.g. built during the run. The worker draws them meanwhile;
-        :meth:`send` then only adds the title, if its data are these (else it sends them).
-        Ignored once the figure is sent, or after a first call.
-        """
-        if self._process is not None and self._request is None and self._early is None:
-            self._early = series
-            self._post({'kind': 'series', 'series': series})
-
     def send(self, fine: Any, steps: Any, path: str | pathlib.Path, title: str = '',
              temperature_column: str = 'y_T', control: str = 'q') -> None:
         """Give the worker the figure of :func:`plot_closed_loop` to draw; do not wait."""
@@ -478,10 +388,7 @@ class PlotWorker:
         path = pathlib.Path(path).resolve()
         self._request = (series, path, title)
         if self._process is not None:
-            message = {'kind': 'figure', 'series': series, 'path': str(path), 'title': title}
-            if self._early is not None and _same_series(series, self._early):
-                message = {'kind': 'title', 'path': str(path), 'title': title}
-            self._post(message)
+            self._post({'kind': 'figure', 'series': series, 'path': str(path), 'title': title})
             self._post(None)
 
     @staticmethod
@@ -560,9 +467,7 @@ class FigurePreview:
     temperature and heat rate so far; the time axes and the comfort band's extremes are
     the scenario's. From ``lead`` steps before the end, whenever those extremes are new,
     it sends them (:meth:`PlotWorker.preview`), so that the worker draws the figure's
-    background while the last steps run and only the data after them; after the last step it
-    sends the data themselves (:meth:`PlotWorker.send_series`, gathered step by step), which
-    the worker draws while the run's records and KPIs are made, before the title.
+    background while the last steps run and only the data after them.
 
     Parameters
     ----------
@@ -596,24 +501,10 @@ class FigurePreview:
         self._temperature = (float('inf'), float('-inf'))
         self._q_kw = (float('inf'), float('-inf'))
         self._sent: dict | None = None
-        # the figure's fine-grid arrays, step by step
-        self._parts: dict[str, list] = {name: [] for name in (
-            'time_s', 'comfort_min', 'comfort_max', 'temperature')}
 
     def __call__(self, rows: list[dict], fines: list[Any]) -> None:
-        """
-        Take the step just done; send the extremes when they are due and new.
-
-        After the last step, give the worker the figure's data (:meth:`PlotWorker.send_series`)
-        while the run's records and KPIs are made.
-        """
-        fine = fines[-1]
-        values = fine[self.temperature_column].to_numpy(dtype=float)
-        for name, part in (('time_s', fine.index.to_numpy(dtype=float)),
-                           ('comfort_min', fine['comfort_min'].to_numpy(dtype=float)),
-                           ('comfort_max', fine['comfort_max'].to_numpy(dtype=float)),
-                           ('temperature', values)):
-            self._parts[name].append(part)
+        """Take the step just done; send the extremes when they are due and new."""
+        values = fines[-1][self.temperature_column].to_numpy(dtype=float)
         q_kw = float(rows[-1][self.control]) / 1000.0
         self._temperature = (min(self._temperature[0], float(values.min())),
                              max(self._temperature[1], float(values.max())))
@@ -624,14 +515,6 @@ class FigurePreview:
             if extremes != self._sent:
                 self.plotter.preview(extremes)
                 self._sent = extremes
-        elif left == 0:
-            import numpy as np  # (this module loads with the standard library only)
-            parts = {name: np.concatenate(part) for name, part in self._parts.items()}
-            self.plotter.send_series({
-                'hours': parts['time_s'] / 3600.0, 'comfort_min': parts['comfort_min'],
-                'comfort_max': parts['comfort_max'], 'temperature': parts['temperature'],
-                'step_hours': np.array([row['time_s'] for row in rows], dtype=float) / 3600.0,
-                'q_kw': np.array([row[self.control] for row in rows], dtype=float) / 1000.0})
 
 
 def _library_folders() -> list[str]:
@@ -648,13 +531,6 @@ def _library_folders() -> list[str]:
     if spec is not None and spec.submodule_search_locations:
         folders.insert(0, str(pathlib.Path(next(iter(spec.submodule_search_locations))).parent))
     return list(dict.fromkeys(folders))
-
-
-def _same_series(series: dict[str, np.ndarray], other: dict[str, np.ndarray]) -> bool:
-    """Whether two :func:`closed_loop_series` hold the same arrays, bit for bit."""
-    import numpy as np  # (this module loads with the standard library only)
-    return series.keys() == other.keys() and all(
-        np.array_equal(series[name], other[name]) for name in series)
 
 
 def _frame(payload: bytes) -> bytes:
@@ -708,28 +584,17 @@ def _serve(fd: int = 0) -> None:
     matplotlib.use('Agg')
     figure = _figure()
     _rehearse(figure)
-    background = drawn = tail = None
+    background = None
     while True:
         message = _read_message(fd)
         if message is None:  # the run ended without a figure
             return
-        kind = message['kind']
-        if kind == 'preview':
+        if message['kind'] == 'preview':
             if not select.select([fd], [], [], 0)[0]:  # (a newer message makes it stale)
                 background = _background(figure, message['extremes'], background)
-        elif kind == 'series':  # the data ahead of the title: drawn, most rows compressed
-            drawn = _data_drawn(figure, message['series'], background)
-            tail = _axes_tail(figure) if drawn else None
-        elif kind == 'title':
-            if drawn is None:
-                raise ValueError('the title of a figure whose data never came')
-            _title_and_write(figure, message['path'], message['title'], drawn, tail)
-            return
-        else:  # the whole figure
-            if drawn is not None:  # (data given ahead, but not those of the figure)
-                _clear_data(figure)
-            _finish(figure, message['series'], message['path'], message['title'], background)
-            return
+            continue
+        _finish(figure, message['series'], message['path'], message['title'], background)
+        return
 
 
 if __name__ == '__main__':
