@@ -209,6 +209,9 @@ def instrumented_case(argv: list[str], report: pathlib.Path, profile: bool) -> i
         from mshoot_core.plotting import PlotWorker
         worker = PlotWorker()
     started, cpu = time.perf_counter(), time.process_time()
+    import_verb = getattr(cli, 'import_verb', None)  # as the command imports it (no GC)
+    if import_verb is not None:
+        import_verb('case')
     module = importlib.import_module(CASE_MODULE)
     imports_s = time.perf_counter() - started
     imports_cpu_s = time.process_time() - cpu

@@ -195,6 +195,26 @@ def test_exit_now_does_what_a_normal_exit_does_for_the_outputs(tmp_path, with_th
     assert (tmp_path / 'log.txt').read_text() == 'INFO:probe:logged\n'
 
 
+@pytest.mark.parametrize('collector', ['on', 'off'])
+def test_import_verb_imports_without_collections_and_restores_the_collector(collector):
+    """The verb's module is imported, no collection runs meanwhile, its objects are frozen."""
+    probe = ('import gc, sys\n'
+             'from mshoot_studies.cli import import_verb\n'
+             'if sys.argv[1] == "off":\n'
+             '    gc.disable()\n'
+             'runs = []\n'
+             'gc.callbacks.append(lambda phase, info: runs.append(phase))\n'
+             'frozen = gc.get_freeze_count()\n'
+             'import_verb("card")\n'
+             'assert "mshoot_studies.card" in sys.modules\n'
+             'assert runs == [], runs\n'
+             'assert gc.get_freeze_count() > frozen\n'
+             'assert gc.isenabled() == (sys.argv[1] == "on")\n')
+    done = subprocess.run([sys.executable, '-c', probe, collector], capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+
+
 # -- Setup 2 ----------------------------------------------------------------------------------
 @pytest.mark.parametrize('ventilation', ['measured', 'off'])
 def test_setup2_svr_on_ou44(ou44_csv, ventilation):

@@ -500,6 +500,90 @@ def test_plot_worker_draws_the_figure_of_this_process(tmp_path):
     assert len(np.unique(here.reshape(-1, 4), axis=0)) > 20  # a drawn figure, not a blank
 
 
+def test_figure_png_is_what_matplotlibs_writer_gives(tmp_path):
+    """Our PNG writer: the pixels, mode, resolution and text of ``savefig``'s PNG."""
+    from PIL import Image
+    result, _ = _small_run()
+    series = plotting.closed_loop_series(result.fine, result.steps)
+    ours = plotting.draw_closed_loop(series, tmp_path / 'ours.png', 'a title\nline two')
+    figure = plotting._figure()
+    plotting._draw_data(figure, series, 'a title\nline two')
+    figure[0].savefig(tmp_path / 'matplotlib.png', dpi=plotting.DPI)
+    with Image.open(ours) as mine, Image.open(tmp_path / 'matplotlib.png') as theirs:
+        assert mine.mode == theirs.mode == 'RGBA'
+        assert mine.info == theirs.info  # Software, dpi
+        np.testing.assert_array_equal(np.asarray(mine), np.asarray(theirs))
+        assert len(np.unique(np.asarray(mine).reshape(-1, 4), axis=0)) > 20
+
+
+def _extremes(series):
+    """Return the (lowest, highest) of a figure's series, as FigurePreview sends them."""
+    extremes = {name: (float(series[name].min()), float(series[name].max()))
+                for name in ('hours', 'temperature', 'step_hours', 'q_kw')}
+    extremes['band'] = (float(series['comfort_min'].min()), float(series['comfort_max'].max()))
+    return extremes
+
+
+def test_figure_drawn_on_a_background_drawn_ahead_has_the_pixels_of_a_whole_draw(tmp_path):
+    """
+    The data drawn on a background drawn for their extremes: the figure drawn whole.
+
+    Also when the background was drawn for other limits (it is not used then), or for limits
+    a millionth of a span off (used: its limits).
+    """
+    from PIL import Image
+    result, _ = _small_run()
+    series = plotting.closed_loop_series(result.fine, result.steps)
+    whole = plotting.draw_closed_loop(series, tmp_path / 'whole.png', 'a title')
+    exact = _extremes(series)
+    other = dict(exact, q_kw=(exact['q_kw'][0] - 0.5, exact['q_kw'][1]))
+    span = exact['q_kw'][1] - exact['q_kw'][0]
+    close = dict(exact, q_kw=(exact['q_kw'][0] - 1e-9 * span, exact['q_kw'][1]))
+    pixels = {}
+    for name, extremes in (('exact', exact), ('other', other), ('close', close)):
+        figure = plotting._figure()
+        plotting._rehearse(figure)
+        background = plotting._background(figure, extremes)
+        assert plotting._background(figure, extremes, background) is background  # not redrawn
+        draws = []
+        canvas_draw = figure[0].canvas.draw
+        figure[0].canvas.draw = lambda: (draws.append(1), canvas_draw())
+        plotting._finish(figure, series, tmp_path / f'{name}.png', 'a title', background)
+        assert len(draws) == (1 if name == 'other' else 0), name  # the data alone on it
+        with Image.open(tmp_path / f'{name}.png') as image:
+            pixels[name] = np.asarray(image)
+    with Image.open(whole) as image:
+        for name, drawn in pixels.items():
+            np.testing.assert_array_equal(drawn, np.asarray(image), err_msg=name)
+
+
+def test_plot_worker_with_previews_draws_the_figure_of_this_process(tmp_path):
+    """A run's previews (FigurePreview) reach the worker; its PNG is the one drawn here."""
+    import matplotlib.image
+    scenario = synthetic_scenario(hours=7)
+    sent = []
+    with PlotWorker() as plotter:
+        preview = plotting.FigurePreview(plotter, scenario, len(scenario) - 1, 3600.0, lead=4)
+        original = plotter.preview
+        plotter.preview = lambda extremes: (sent.append(extremes), original(extremes))
+        result = run_closed_loop(MPC(R1C1Model(), horizon_steps=3),
+                                 Emulator(R1C1Model(), scenario, [20.0 + KELVIN]),
+                                 log_every=0, progress=preview)
+        kpis = closed_loop_kpis(result.steps, result.fine, 3600.0, result.wall_s)
+        write_outputs(tmp_path / 'worker', result, kpis, 'a title', plotter)
+    write_outputs(tmp_path / 'here', result, kpis, 'a title')
+    worker, here = (matplotlib.image.imread(tmp_path / name / 'plot.png')
+                    for name in ('worker', 'here'))
+    np.testing.assert_array_equal(worker, here)
+    # from 4 steps before the end, while new; the time axes and the band known ahead
+    assert 1 <= len(sent) <= 4
+    final = _extremes(plotting.closed_loop_series(result.fine, result.steps))
+    for name in ('hours', 'step_hours', 'band'):
+        assert sent[0][name] == final[name], name
+    for name in ('temperature', 'q_kw'):
+        assert final[name][0] <= sent[-1][name][0] <= sent[-1][name][1] <= final[name][1]
+
+
 def test_plot_worker_that_cannot_run_still_gives_the_figure(tmp_path, monkeypatch, caplog):
     result, kpis = _small_run()
     monkeypatch.setattr(plotting.sys, 'executable', str(tmp_path / 'no-python'))

@@ -116,3 +116,24 @@ def test_an_fmu_is_extracted_once_for_every_model_and_process(isolated, tmp_path
     assert [p.name for p in extracted.iterdir()] == [folders[0].name]
     assert (folders[0] / 'modelDescription.xml').is_file()
     assert os.listdir(folders[0] / 'binaries')
+
+
+def test_a_cached_fmu_is_validated_once(isolated, monkeypatch):
+    """The first model of an FMU file validates its modelDescription; later ones only read it."""
+    from mshoot_core.models import fmi
+    validations = []
+    read = fmi.fmpy.read_model_description
+
+    def recorded(*args, **kwargs):
+        validations.append(kwargs.get('validate', True))
+        return read(*args, **kwargs)
+    monkeypatch.setattr(fmi.fmpy, 'read_model_description', recorded)
+    for _ in range(2):
+        with r1c1_fmi_model(fmi_type='CoSimulation') as model:
+            folder = model._unzip_dir
+            assert (folder / fmi.VALIDATED_MARKER).is_file()
+    assert validations == [True, False]
+    (folder / fmi.VALIDATED_MARKER).unlink()  # (a cache of an older mshoot)
+    with r1c1_fmi_model(fmi_type='CoSimulation') as model:
+        assert (folder / fmi.VALIDATED_MARKER).is_file()
+    assert validations == [True, False, True]

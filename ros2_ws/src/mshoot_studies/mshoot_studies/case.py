@@ -38,7 +38,7 @@ from mshoot_core.models.registry import (build_model, BUILTIN, check_model, CONT
                                          EMULATOR_TOLERANCE, is_card_path, model_names,
                                          MODEL_PARAMETERS, ModelSettings)
 from mshoot_core.outputs import write_outputs
-from mshoot_core.plotting import PlotWorker
+from mshoot_core.plotting import FigurePreview, PlotWorker
 from mshoot_core.scenario import DEFAULT_DATA, PUBLISHED, reference_scenario
 from mshoot_core.settings import (add_arguments, from_arguments, MpcSettings, option_wording,
                                   SettingsError)
@@ -346,9 +346,11 @@ def _run(args: argparse.Namespace, settings: MpcSettings, plotter: PlotWorker) -
         logger.info('running %s: %d h, horizon %d h, control %s, cost %s, comfort %s',
                     args.scenario, args.hours, horizon, args.control, args.cost, args.comfort)
         stopped = None
-        try:
+        try:  # (the plot worker gets the figure's extremes during the last steps)
             result, kpis = run_case(scenario, control, emulator, settings, x0=x0,
-                                    actuator_bounds=actuators)
+                                    actuator_bounds=actuators,
+                                    progress=FigurePreview(plotter, scenario, len(scenario) - 1,
+                                                           settings.problem.step_s))
         except EmulationStopped as stop:
             stopped, result, kpis = stop, stop.result, stop.kpis or {'stopped': str(stop)}
     finally:

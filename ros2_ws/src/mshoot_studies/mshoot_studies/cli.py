@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import atexit
 import contextlib
+import gc
 import importlib
 import logging
 import os
@@ -133,11 +134,32 @@ def exit_now(code: int) -> None:
     os._exit(code)
 
 
+def import_verb(verb: str) -> None:
+    """
+    Import the module of a verb without the cyclic garbage collector, then freeze its objects.
+
+    An import makes a few hundred thousand objects (numpy, pandas, the models) and no garbage
+    worth collecting, while the collector, run every 700 allocations, traverses them again
+    and again: some 35 ms of CPU of a ``mshoot case`` command. Frozen
+    (:func:`gc.freeze`), they are left out of the run's later collections too. For the
+    command's process only (:func:`console_main`): frozen objects are never collected.
+    """
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        importlib.import_module(VERBS[verb][0])
+    finally:
+        gc.freeze()
+        if enabled:
+            gc.enable()
+
+
 def console_main() -> None:
     """
     Run the ``mshoot`` console script.
 
-    The verb's :data:`VERB_ENVIRONMENT`, :func:`main`, then a fast :func:`exit_now`.
+    The verb's :data:`VERB_ENVIRONMENT`, its module imported (:func:`import_verb`),
+    :func:`main`, then a fast :func:`exit_now`.
     """
     verb = _verb(sys.argv[1:])
     for name, value in VERB_ENVIRONMENT.get(verb, {}).items():
@@ -147,6 +169,8 @@ def console_main() -> None:
         if verb in FIGURE_VERBS:
             from mshoot_core.plotting import PlotWorker  # the standard library only
             worker = stack.enter_context(PlotWorker())
+        if verb is not None:
+            import_verb(verb)
         try:
             code = main(plot_worker=worker)
         except SystemExit as stop:  # argparse errors and --help: as sys.exit reports them

@@ -82,8 +82,9 @@ from mshoot_core.models.fmi_sensitivities import (ForwardSensitivities,
 from mshoot_core.models.fmi_values import FmuValueError, NonFiniteChecks
 
 __all__ = ['FMI_TYPES', 'FmiModel', 'FmuValueError', 'MAX_SOLVER_STEPS', 'ME_MAX_STEPS',
-           'R1C1_VARIABLES', 'r1c1_fmi_model', 'read_fmu_description',
-           'SENSITIVITY_NOMINAL_FACTOR', 'VariableNames']
+           'R1C1_VARIABLES', 'r1c1_fmi_model', 'read_cached_description',
+           'read_fmu_description', 'SENSITIVITY_NOMINAL_FACTOR', 'VALIDATED_MARKER',
+           'VariableNames']
 
 logger = logging.getLogger(__name__)
 
@@ -149,7 +150,32 @@ def _listed(names: Sequence[str]) -> str:
     return str(names)
 
 
-def read_fmu_description(folder: str | pathlib.Path, label: str) -> Any:
+#: A file in an FMU's cache folder (:func:`mshoot_core.fmu_cache.extract_fmu`) once its
+#: modelDescription passed fmpy's schema validation. The folder is keyed by the FMU file's
+#: hash: later models of the same file read it without validating it again (loading the XML
+#: schema costs some 12 ms of every command).
+VALIDATED_MARKER = '.mshoot-validated'
+
+
+def read_cached_description(folder: pathlib.Path, label: str) -> Any:
+    """
+    :func:`read_fmu_description` of an FMU in the cache: validated once, then marked.
+
+    Validated unless the folder holds :data:`VALIDATED_MARKER`, which a validated read leaves
+    there (where the cache can be written).
+    """
+    marker = pathlib.Path(folder) / VALIDATED_MARKER
+    validated = marker.is_file()
+    md = read_fmu_description(folder, label, validate=not validated)
+    if not validated:
+        try:
+            marker.touch()
+        except OSError:  # a read-only cache: validated every time
+            pass
+    return md
+
+
+def read_fmu_description(folder: str | pathlib.Path, label: str, validate: bool = True) -> Any:
     """
     Read the modelDescription of an extracted FMU; refuse what FmiModel cannot run.
 
@@ -159,6 +185,8 @@ def read_fmu_description(folder: str | pathlib.Path, label: str) -> Any:
         The extracted FMU.
     label : str
         The FMU's name in messages (its file).
+    validate : bool
+        Validate the XML against the FMI schema (fmpy's ``validate``).
 
     Raises
     ------
@@ -168,7 +196,7 @@ def read_fmu_description(folder: str | pathlib.Path, label: str) -> Any:
 
     """
     try:
-        md = fmpy.read_model_description(str(folder))
+        md = fmpy.read_model_description(str(folder), validate=validate)
     except Exception as error:  # noqa: BLE001 - fmpy raises plain Exceptions, lxml, KeyError
         raise ValueError(f'{label} is not a readable FMU: its modelDescription.xml '
                          f'could not be read ({type(error).__name__}: {error})') from error
@@ -279,11 +307,12 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
             described: list[Any] = []  # read while checking a new extraction: not again
             if path.is_dir():
                 self._unzip_dir = path
+                described.append(read_fmu_description(path, path.name))
             else:
                 self._unzip_dir = extract_fmu(path, check=lambda folder: described.append(
-                    read_fmu_description(folder, path.name)))
+                    read_cached_description(folder, path.name)))
             self.model_description = (described[0] if described
-                                      else read_fmu_description(self._unzip_dir, path.name))
+                                      else read_cached_description(self._unzip_dir, path.name))
             self._configure(inputs, states, outputs, dict(parameters or {}), fmi_type,
                             dict(fixed_inputs or {}))
             self._instantiate(instance_name)
