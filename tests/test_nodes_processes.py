@@ -82,12 +82,25 @@ def graph(monkeypatch):
     rclpy.try_shutdown(context=context)
 
 
-def _call(executor, client, request, timeout_s=30.0):
+def _call(executor, client, request, timeout_s=30.0, resend_s=None):
+    """
+    Call a service and spin until its answer (or fail after ``timeout_s``).
+
+    ``resend_s``: for an idempotent request (get_state), send it again after that long without
+    an answer. ``wait_for_service`` sees the server's request reader only: a response sent
+    before the server has discovered this client's response reader is lost (DDS discovery
+    race, e.g. ros2/rclpy#1191), which a loaded machine makes likely for a process just started.
+    """
     assert client.wait_for_service(timeout_sec=timeout_s), f'{client.srv_name} not offered'
     future = client.call_async(request)
     deadline = time.monotonic() + timeout_s
+    sent = time.monotonic()
     while not future.done():
-        assert time.monotonic() < deadline, f'no answer from {client.srv_name}'
+        now = time.monotonic()
+        assert now < deadline, f'no answer from {client.srv_name}'
+        if resend_s is not None and now - sent > resend_s:
+            client.remove_pending_request(future)
+            future, sent = client.call_async(request), now
         executor.spin_once(timeout_sec=0.05)
     return future.result()
 
@@ -140,7 +153,7 @@ def test_executable_alone_is_a_lifecycle_node_on_diagnostics(exe, graph, tmp_pat
             executor.spin_once(timeout_sec=0.05)
 
     try:
-        assert _call(executor, get_state, GetState.Request()).current_state.id == \
+        assert _call(executor, get_state, GetState.Request(), resend_s=2.0).current_state.id == \
             State.PRIMARY_STATE_UNCONFIGURED
         latest('unconfigured')
         for transition, state in ((Transition.TRANSITION_CONFIGURE, 'inactive'),
