@@ -840,6 +840,10 @@ class ContinuityStructure:
         self.cols = np.concatenate(cols)
         self.shape = (n * nx, idx.size)
         self.minus_ones = -np.ones(n * nx)
+        # dense blocks (every entry, in the row-major order of np.nonzero): the entries of an
+        # interval are its block as laid out, taken by a reshape instead of fancy indexing
+        self._u_block = (nx, nc) if self.u_rows.size == nx * nc else None
+        self._x_block = (nx, nx) if self.x_rows.size == nx * nx else None
 
     def values(self, dx_du: np.ndarray, dx_dx0: np.ndarray, x_scale: np.ndarray,
                u_scale: np.ndarray) -> np.ndarray:
@@ -855,8 +859,14 @@ class ContinuityStructure:
     def scaled_values(self, dx_du: np.ndarray, dx_dx0: np.ndarray,
                       factors: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
         """Return :meth:`values` with the :meth:`factors` of the solve's scalings."""
-        du = dx_du[:, self.u_rows, self.u_cols] * factors[0]
-        dx = dx_dx0[1:, self.x_rows, self.x_cols] * factors[1]
+        if dx_du.shape[1:] == self._u_block:
+            du = dx_du.reshape(dx_du.shape[0], factors[0].size) * factors[0]
+        else:
+            du = dx_du[:, self.u_rows, self.u_cols] * factors[0]
+        if dx_dx0.shape[1:] == self._x_block:
+            dx = dx_dx0[1:].reshape(dx_dx0.shape[0] - 1, factors[1].size) * factors[1]
+        else:
+            dx = dx_dx0[1:, self.x_rows, self.x_cols] * factors[1]
         return np.concatenate([du.ravel(), self.minus_ones, dx.ravel()])
 
     def matrix(self, dx_du: np.ndarray, dx_dx0: np.ndarray, x_scale: np.ndarray,
