@@ -244,10 +244,10 @@ class MPC:
         except (TypeError, ValueError):  # a column that is not numeric: take ours one by one
             values = np.column_stack([forecast[c].to_numpy(dtype=float)[:rows]
                                       for c in columns])
-        if not np.all(np.isfinite(values)):
+        if not np.isfinite(values).all():
             raise ValueError('forecast holds non-finite values')
         for lo, hi, _ in self.state_bounds.values():
-            if np.any(values[:, columns.index(lo)] > values[:, columns.index(hi)]):
+            if (values[:, columns.index(lo)] > values[:, columns.index(hi)]).any():
                 raise ValueError(f'forecast bound {lo} exceeds {hi}')
         return values
 

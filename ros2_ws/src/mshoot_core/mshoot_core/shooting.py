@@ -110,7 +110,7 @@ class Scaling:
     scale: np.ndarray
 
     def __post_init__(self) -> None:
-        if np.any(~np.isfinite(self.scale)) or np.any(self.scale <= 0):
+        if (~np.isfinite(self.scale)).any() or (self.scale <= 0).any():
             raise ValueError(f'scales must be finite and > 0, got {self.scale}')
 
     def to_hat(self, v: np.ndarray) -> np.ndarray:
@@ -268,6 +268,7 @@ class ShootingProblem:
                          type(model).__name__)
         self._t_start_s: np.ndarray | None = None
         self._structures: dict[NlpIndex, ContinuityStructure] = {}
+        self._last_scaling: tuple[tuple, Scaling] | None = None
 
     # -- model evaluation ------------------------------------------------------------------
     def _full_inputs(self, controls: np.ndarray, disturbances: np.ndarray) -> np.ndarray:
@@ -321,6 +322,17 @@ class ShootingProblem:
     def _state_scaling_for(self, lower: np.ndarray, upper: np.ndarray) -> Scaling:
         if self.state_scaling is not None:
             return self.state_scaling
+        lower, upper = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
+        key = (lower.tobytes(), upper.tobytes(), lower.shape, upper.shape)
+        last = self._last_scaling
+        if last is not None and last[0] == key:  # (a solve asks twice: its bounds, relaxing)
+            return last[1]
+        scaling = self._scaling_of_bounds(lower, upper)
+        self._last_scaling = (key, scaling)
+        return scaling
+
+    @staticmethod
+    def _scaling_of_bounds(lower: np.ndarray, upper: np.ndarray) -> Scaling:
         # per state: the lowest finite lower bound and the highest finite upper bound
         lo = np.where(np.isfinite(lower), lower, np.inf).min(axis=0)
         hi = np.where(np.isfinite(upper), upper, -np.inf).max(axis=0)
@@ -338,12 +350,14 @@ class ShootingProblem:
         high), each (N, nx), the interval end states.
         """
         n = self.n_intervals
-        sides = [self._full_inputs(np.tile(self.control_bounds[:, side], (n, 1)), disturbances)
-                 for side in (0, 1)]
-        u = np.stack(sides, axis=1)  # (N, 2, nu): interval k of the lower and upper sides
+        # (N, 2, nu): interval k of the lower and upper sides, every control at its bound
+        u = np.empty((n, 2, len(self.model.input_names)))
+        for side in (0, 1):
+            u[:, side, self._control_index] = self.control_bounds[:, side]
+            u[:, side, self._disturbance_index] = disturbances
         times = self._t_start_s
         ends, _ = self.model.simulate_chains(
-            np.tile(x0, (2, 1)), u, self.step_s,
+            np.repeat(np.asarray(x0)[None, :], 2, axis=0), u, self.step_s,
             **self._times(None if times is None else np.repeat(times[:, None], 2, axis=1)))
         self.model_evaluations += 2 * n
         return np.minimum(ends[:, 0], ends[:, 1]), np.maximum(ends[:, 0], ends[:, 1])
@@ -371,7 +385,7 @@ class ShootingProblem:
         pad = margin * self._state_scaling_for(lower, upper).scale
         new_lower = np.where(env_high - pad < lower, env_high - pad, lower)
         new_upper = np.where(env_low + pad > upper, env_low + pad, upper)
-        relaxed = bool(np.any(new_lower != lower) or np.any(new_upper != upper))
+        relaxed = bool((new_lower != lower).any() or (new_upper != upper).any())
         return new_lower, new_upper, relaxed
 
     def solve(self, x0: Sequence[float], disturbances: np.ndarray, lower: np.ndarray,
@@ -431,11 +445,11 @@ class ShootingProblem:
         disturbances = np.asarray(disturbances, dtype=float).reshape(n, len(self.disturbance_cols))
         lower = np.asarray(lower, dtype=float).reshape(n, nx)
         upper = np.asarray(upper, dtype=float).reshape(n, nx)
-        if x0.size != nx or not np.all(np.isfinite(x0)):
+        if x0.size != nx or not np.isfinite(x0).all():
             raise ValueError(f'x0 must be {nx} finite values, got {x0}')
-        if not np.all(np.isfinite(disturbances)):
+        if not np.isfinite(disturbances).all():
             raise ValueError('disturbances must be finite')
-        if np.any(lower > upper):
+        if (lower > upper).any():
             raise ValueError('state bounds must have lower <= upper')
         if t0_s is not None and not np.isfinite(float(t0_s)):
             raise ValueError(f't0_s must be a finite time [s], got {t0_s}')
@@ -581,8 +595,8 @@ class ShootingProblem:
 
         lb = np.full(idx.size, -np.inf)
         ub = np.full(idx.size, np.inf)
-        lb[idx.u_slice] = np.tile(u_lo, n)
-        ub[idx.u_slice] = np.tile(u_hi, n)
+        idx.u(lb)[:] = u_lo  # (every interval's row: np.tile's values)
+        idx.u(ub)[:] = u_hi
         if idx.soft:
             lb[idx.s_slice] = 0.0
             finite_lo = np.isfinite(lower_hat).reshape(-1)
@@ -625,7 +639,7 @@ class ShootingProblem:
             z = np.clip(np.asarray(z0, dtype=float), lb, ub)
             success, status, message, nit, nfev = False, -1, f'solver error: {exc}', 0, 0
             budget_exceeded = False
-        if not np.all(np.isfinite(z)):
+        if not np.isfinite(z).all():
             z = np.clip(np.asarray(z0, dtype=float), lb, ub)
             success, status, message = False, -2, 'solver returned non-finite values'
         z[idx.u_slice] = np.clip(z[idx.u_slice], lb[idx.u_slice], ub[idx.u_slice])

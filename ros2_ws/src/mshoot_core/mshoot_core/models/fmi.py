@@ -792,7 +792,7 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         if n > 1 and u.ndim == 3 and u.shape[1] == chains and self.me_batch_plan() is None \
                 and type(self).simulate_intervals is FmiModel.simulate_intervals:
             # rows >= chains of the starts are not read: the driver chains the end states
-            x_start, inputs, dt_s = self._check_batch(np.tile(x0, (n, 1)),
+            x_start, inputs, dt_s = self._check_batch(np.concatenate([x0] * n),  # (np.tile)
                                                       u.reshape(n * chains, -1), dt_s)
             times = None if t_start_s is None else np.asarray(t_start_s, dtype=float)
             t0 = self._fmu_start_times(None if times is None else times.reshape(-1),
