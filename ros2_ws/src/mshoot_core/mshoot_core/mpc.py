@@ -47,7 +47,11 @@ def blas_threads(limit: int | None) -> contextlib.AbstractContextManager:
     """
     if limit is None:
         return contextlib.nullcontext()
-    return _threadpools().limit(limits=int(limit), user_api='blas')
+    pools = _threadpools()
+    if all(pool.num_threads == int(limit) for pool in pools.lib_controllers
+           if pool.user_api == 'blas'):
+        return contextlib.nullcontext()  # (at the limit already, e.g. OPENBLAS_NUM_THREADS=1)
+    return pools.limit(limits=int(limit), user_api='blas')
 
 
 class MpcResult(ShootingResult):
