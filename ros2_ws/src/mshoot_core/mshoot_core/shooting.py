@@ -537,15 +537,28 @@ class ShootingProblem:
         batch.x_start[0] = x0
         batch.u[:] = self._full_inputs(np.zeros((n, idx.n_controls)), disturbances)
         analytic = True  # (until the model returns no analytic derivatives)
+        # from_hat written into the batch's buffers (v_hat * scale, then + offset: the same
+        # numbers): the starts of intervals 1..N-1, and the controls' columns of the inputs
+        # where they are adjacent (a view), else assigned
+        x_later, x_scale, x_offset = batch.x_start[1:], xs.scale, xs.offset
+        columns = self._control_index
+        u_controls = (batch.u[:, columns[0]:columns[-1] + 1] if columns.size and bool(
+            (np.diff(columns) == 1).all()) else None)
+        u_scale, u_offset = us.scale, us.offset
 
         def evaluate(z: np.ndarray) -> IntervalJacobians:
             nonlocal analytic
             key = z.tobytes()
             jac = cache.get(key)
             if jac is None:
-                batch.x_start[1:] = xs.from_hat(z[x_slice].reshape(n, nx)[:-1])
-                batch.u[:, self._control_index] = us.from_hat(
-                    z[u_slice].reshape(n, idx.n_controls))
+                np.multiply(z[x_slice].reshape(n, nx)[:-1], x_scale, out=x_later)
+                np.add(x_later, x_offset, out=x_later)
+                u_hat = z[u_slice].reshape(n, idx.n_controls)
+                if u_controls is None:
+                    batch.u[:, columns] = us.from_hat(u_hat)
+                else:
+                    np.multiply(u_hat, u_scale, out=u_controls)
+                    np.add(u_controls, u_offset, out=u_controls)
                 jac = batch.jacobians() if analytic else None
                 if jac is None:  # finite differences (_interval_jacobians asks again)
                     analytic = False
