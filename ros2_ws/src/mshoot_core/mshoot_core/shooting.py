@@ -23,7 +23,7 @@ import dataclasses
 import functools
 import logging
 import time
-from typing import Callable, Sequence, TYPE_CHECKING
+from typing import Any, Callable, Sequence, TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -269,6 +269,7 @@ class ShootingProblem:
         self._t_start_s: np.ndarray | None = None
         self._structures: dict[NlpIndex, ContinuityStructure] = {}
         self._last_scaling: tuple[tuple, Scaling] | None = None
+        self._batch: tuple[tuple, Any] | None = None  # (_solve_nlp's interval batch)
 
     # -- model evaluation ------------------------------------------------------------------
     def _full_inputs(self, controls: np.ndarray, disturbances: np.ndarray) -> np.ndarray:
@@ -440,6 +441,7 @@ class ShootingProblem:
         started = time.perf_counter()
         self.model_evaluations = 0
         self._deadline = deadline
+        self._batch = None  # (a batch per solve: its NLPs share it)
         n, nx = self.n_intervals, len(self.model.state_names)
         x0 = np.asarray(x0, dtype=float).reshape(-1)
         disturbances = np.asarray(disturbances, dtype=float).reshape(n, len(self.disturbance_cols))
@@ -532,8 +534,16 @@ class ShootingProblem:
         # place (the start state of interval 0 and the disturbances once, here)
         u_slice, x_slice = idx.u_slice, idx.x_slice
         t_start_s = self._t_start_s
-        batch = self.model.interval_batch(n, self.step_s, self.control_cols,
-                                          t_start_s if self._takes_times else None)
+        # one batch for the NLPs of a solve (a least-violation phase, then the least cost):
+        # the same intervals and times; bound to the model's driver by the first
+        times = t_start_s if self._takes_times else None
+        key = (id(self.model), n, self.step_s, tuple(self.control_cols),
+               None if times is None else np.asarray(times, dtype=float).tobytes())
+        if self._batch is not None and self._batch[0] == key:
+            batch = self._batch[1]
+        else:
+            batch = self.model.interval_batch(n, self.step_s, self.control_cols, times)
+            self._batch = (key, batch)
         batch.x_start[0] = x0
         batch.u[:] = self._full_inputs(np.zeros((n, idx.n_controls)), disturbances)
         analytic = True  # (until the model returns no analytic derivatives)
