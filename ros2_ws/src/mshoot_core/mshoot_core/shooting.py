@@ -334,6 +334,7 @@ class ShootingProblem:
 
     @staticmethod
     def _scaling_of_bounds(lower: np.ndarray, upper: np.ndarray) -> Scaling:
+        """Return the state scaling of bounds (N, nx): their finite range per state, else 1."""
         # per state: the lowest finite lower bound and the highest finite upper bound
         lo = np.where(np.isfinite(lower), lower, np.inf).min(axis=0)
         hi = np.where(np.isfinite(upper), upper, -np.inf).max(axis=0)
