@@ -201,6 +201,7 @@ def instrumented_case(argv: list[str], report: pathlib.Path, profile: bool) -> i
     """
     script_start_epoch = time.time()
     # as the mshoot command starts: its environment for the verb, its plot worker first
+    started = time.perf_counter()
     cli = importlib.import_module('mshoot_studies.cli')
     for name, value in getattr(cli, 'VERB_ENVIRONMENT', {}).get('case', {}).items():
         os.environ.setdefault(name, value)
@@ -208,6 +209,7 @@ def instrumented_case(argv: list[str], report: pathlib.Path, profile: bool) -> i
     if 'case' in getattr(cli, 'FIGURE_VERBS', ()):
         from mshoot_core.plotting import PlotWorker
         worker = PlotWorker()
+    start_s = time.perf_counter() - started
     started, cpu = time.perf_counter(), time.process_time()
     import_verb = getattr(cli, 'import_verb', None)  # as the command imports it (no GC)
     if import_verb is not None:
@@ -216,8 +218,10 @@ def instrumented_case(argv: list[str], report: pathlib.Path, profile: bool) -> i
     imports_s = time.perf_counter() - started
     imports_cpu_s = time.process_time() - cpu
     from mshoot_core.emulation import Emulator
-    from mshoot_core.models import fmi
     from mshoot_core.mpc import MPC
+    started = time.perf_counter()  # (the command imports it when it builds an FMU model: here
+    from mshoot_core.models import fmi  # before, to time it; counted with the models)
+    fmi_import_s = time.perf_counter() - started
     timers = Timers()
     profiler = cProfile.Profile()
     if profile:
@@ -245,6 +249,7 @@ def instrumented_case(argv: list[str], report: pathlib.Path, profile: bool) -> i
     main_s = time.perf_counter() - started
     children = resource.getrusage(resource.RUSAGE_CHILDREN)
     figures = {'imports_s': imports_s, 'main_s': main_s, 'code': code, 'patched': patched,
+               'start_s': start_s, 'fmi_import_s': fmi_import_s,
                'total_s': timers.total, 'calls': timers.calls,
                'script_start_epoch': script_start_epoch,
                'imports_cpu_s': imports_cpu_s, 'cpu_s': timers.cpu,
@@ -353,10 +358,14 @@ def breakdown(repeats: int, tmp: pathlib.Path) -> dict:
     """
     Where the time of both whole commands goes (medians of ``repeats`` runs) [s].
 
-    interpreter: a bare ``python -c pass`` (start and exit); imports: ours, the import of
-    :data:`CASE_MODULE` timed inside the run; CasADi's, from launch to its ``main`` less the
-    bare interpreter; exit: from the end of ``main`` to the end of the process; other: the
-    rest (argparse, logging, and for ours the instrumenting driver's own start).
+    interpreter: a bare ``python -c pass`` (start and exit); start: ours, what the ``mshoot``
+    command does before it imports the verb (its cli module, the plot worker's start);
+    imports: ours, the import of :data:`CASE_MODULE` timed inside the run; CasADi's, from
+    launch to its ``main`` less the bare interpreter; models: ours with the import of fmpy
+    (``mshoot_core.models.fmi``, which the command imports when it builds the FMU model and
+    the instrumented run before, to patch it); exit: from the end of ``main`` to the end of
+    the process; other: the rest (argparse, the option checks, logging, and for ours the
+    instrumenting driver's own imports).
     """
     python_s = interpreter_s(repeats)
     this = str(pathlib.Path(__file__).resolve())
@@ -370,16 +379,17 @@ def breakdown(repeats: int, tmp: pathlib.Path) -> dict:
         if missing:
             raise SystemExit(f'{CASE_MODULE} has no {missing}: update instrumented_case()')
         t, c = figures['total_s'], figures['calls']
-        run = {'total': wall, 'interpreter': python_s, 'imports': figures['imports_s'],
-               'data': t['data'], 'models': t['models'], 'loop': t['loop'],
+        run = {'total': wall, 'interpreter': python_s, 'start': figures.get('start_s', 0.0),
+               'imports': figures['imports_s'], 'data': t['data'],
+               'models': t['models'] + figures.get('fmi_import_s', 0.0), 'loop': t['loop'],
                'solves': t['solves'], 'simulations': t['simulations'],
                'native': t.get('native', 0.0),
                'glue': t['solves'] - t['simulations'], 'plant': t['plant'],
                'loop_other': t['loop'] - t['solves'] - t['plant'], 'output': t['output'],
                'exit': exited - figures['main_end_epoch'],
                'simulation_calls': c['simulations'], 'solve_calls': c['solves']}
-        run['other'] = wall - sum(run[k] for k in ('interpreter', 'imports', 'data', 'models',
-                                                   'loop', 'output', 'exit'))
+        run['other'] = wall - sum(run[k] for k in ('interpreter', 'start', 'imports', 'data',
+                                                   'models', 'loop', 'output', 'exit'))
         t = figures['cpu_s']
         cpu = {'imports': figures['imports_cpu_s'], 'data': t['data'], 'models': t['models'],
                'loop': t['loop'], 'solves': t['solves'], 'simulations': t['simulations'],
@@ -393,7 +403,7 @@ def breakdown(repeats: int, tmp: pathlib.Path) -> dict:
         ours_runs.append(run)
         wall, _, launched, exited, _ = run_timed(casadi_command(tmp / 'casadi_instrumented'))
         t = json.loads((tmp / 'casadi_instrumented' / 'kpis.json').read_text())['timing']
-        run = {'total': wall, 'interpreter': python_s,
+        run = {'total': wall, 'interpreter': python_s, 'start': 0.0,
                'imports': t['main_start_epoch'] - launched - python_s, 'data': t['data_s'],
                'models': t['build_s'], 'loop': t['loop_s'] + t['kpis_s'],
                'solves': t['solves_s'], 'simulations': t['function_evaluations_s'],
@@ -715,9 +725,10 @@ def report(whole: dict, zones: list[dict], parts: dict) -> None:
     logger.info('\n== Where the whole command goes (1 zone, H = %d h, 72 h; medians) [s] ==',
                 HORIZON)
     lines = (('interpreter start + exit', 'interpreter', ''),
+             ('command start (cli, plot worker)', 'start', ''),
              ('imports (before main)', 'imports', ''),
              ('data (scenario)', 'data', ''),
-             ('models / NLP build', 'models', ''),
+             ('models (ours: with fmpy import)', 'models', ''),
              ('control loop', 'loop', ''),
              ('  solves', 'solves', '  '),
              ('    model evaluations', 'simulations', '    '),
@@ -727,7 +738,7 @@ def report(whole: dict, zones: list[dict], parts: dict) -> None:
              ('  loop other', 'loop_other', '  '),
              ('output (files, figure)', 'output', ''),
              ('exit (after main)', 'exit', ''),
-             ('other (argparse, logging)', 'other', ''),
+             ('other (argparse, checks, logging)', 'other', ''),
              ('total (instrumented run)', 'total', ''))
     logger.info('%s %10s %7s %10s %7s %9s %9s', 'phase'.ljust(34), 'ours', '%', 'casadi', '%',
                 'ours cpu', 'casadi cpu')

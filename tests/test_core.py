@@ -476,7 +476,12 @@ def test_write_csv_writes_pandas_bytes(tmp_path):
     frame = pd.DataFrame(values, columns=['x_T', 'y_T', 'y_Qr', 'comfort_min', 'q'],
                          index=pd.Index(np.arange(400) * 60.0, name='time_s'))
     odd = frame.rename(columns={'q': 'q, heat'}).assign(ok=True)
-    for table in (frame, odd, frame.astype({'q': 'float32'})):
+    # repeated values (each formatted once), signed zeros and NaNs in one column, and a
+    # column equal to an earlier one (its fields reused) or equal but for a zero's sign
+    steps = np.repeat(rng.normal(size=40), 10)
+    steps[:30] = np.tile([0.0, -0.0, np.nan], 10)
+    repeats = frame.assign(q=steps, T=frame['x_T'], u=frame['x_T'].replace(0.0, -0.0))
+    for table in (frame, odd, frame.astype({'q': 'float32'}), repeats, repeats.iloc[:0]):
         write_csv(table, tmp_path / 'ours.csv', index_label='time_s')
         table.to_csv(tmp_path / 'pandas.csv', index_label='time_s')
         assert (tmp_path / 'ours.csv').read_bytes() == (tmp_path / 'pandas.csv').read_bytes()

@@ -118,8 +118,30 @@ def test_an_fmu_is_extracted_once_for_every_model_and_process(isolated, tmp_path
     assert os.listdir(folders[0] / 'binaries')
 
 
+def _fields(value: object, path: tuple = ()) -> object:
+    """Return fmpy's description as nested tuples of its fields (its classes compare by id)."""
+    import attrs
+    if attrs.has(type(value)):
+        if id(value) in path:  # (a reference back up the tree)
+            return '<cycle>'
+        return (type(value).__name__, tuple((f.name, _fields(getattr(value, f.name),
+                                                             (*path, id(value))))
+                                            for f in attrs.fields(type(value))))
+    if isinstance(value, (list, tuple)):
+        return tuple(_fields(item, path) for item in value)
+    if isinstance(value, dict):
+        return tuple(sorted((key, _fields(item, path)) for key, item in value.items()))
+    return repr(value)
+
+
 def test_a_cached_fmu_is_validated_once(isolated, monkeypatch):
-    """The first model of an FMU file validates its modelDescription; later ones only read it."""
+    """
+    The first model of an FMU file validates its modelDescription; later ones load what it read.
+
+    The description read is kept beside the marker (a pickle) and loaded by later models, the
+    same description as the XML's; without it, or damaged, the XML is read again (not
+    validated); without the marker (a cache of an older mshoot), validated again.
+    """
     from mshoot_core.models import fmi
     validations = []
     read = fmi.fmpy.read_model_description
@@ -129,9 +151,22 @@ def test_a_cached_fmu_is_validated_once(isolated, monkeypatch):
         return read(*args, **kwargs)
     monkeypatch.setattr(fmi.fmpy, 'read_model_description', recorded)
     for _ in range(2):
-        with r1c1_fmi_model(fmi_type='CoSimulation') as model:
+        with r1c1_fmi_model(fmi_type='ModelExchange') as model:
             folder = model._unzip_dir
             assert (folder / fmi.VALIDATED_MARKER).is_file()
+            loaded = model.model_description
+    assert validations == [True]  # the second model loaded the description kept
+    assert _fields(loaded) == _fields(read(str(folder), validate=False))
+    assert loaded.outputs and all(  # the structure kept: outputs refer to model variables
+        any(o.variable is v for v in loaded.modelVariables) for o in loaded.outputs)
+    kept = [p for p in folder.iterdir() if p.name.startswith('.mshoot-description')]
+    assert len(kept) == 1  # (no temporary file left)
+    kept[0].write_bytes(b'not a pickle')
+    with r1c1_fmi_model(fmi_type='ModelExchange') as model:
+        assert _fields(model.model_description) == _fields(loaded)
+    assert validations == [True, False]  # read again (rewritten), not validated
+    with r1c1_fmi_model(fmi_type='ModelExchange'):
+        pass
     assert validations == [True, False]
     (folder / fmi.VALIDATED_MARKER).unlink()  # (a cache of an older mshoot)
     with r1c1_fmi_model(fmi_type='CoSimulation') as model:

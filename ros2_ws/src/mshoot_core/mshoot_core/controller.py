@@ -487,7 +487,11 @@ class Controller:
         The required ones, the assumed inputs, the comfort band and the energy price (``price``
         [currency/kWh]).
         """
-        names = [*self.forecast_required, *self.assumed_inputs, *COMFORT_SERIES, PRICE_SERIES]
+        return self._known_with(self.forecast_required)
+
+    def _known_with(self, required: tuple[str, ...]) -> tuple[str, ...]:
+        """:attr:`forecast_known` given :attr:`forecast_required`."""
+        names = [*required, *self.assumed_inputs, *COMFORT_SERIES, PRICE_SERIES]
         return tuple(dict.fromkeys(names))
 
     def offer_forecast(self, stamp_ns: int, step_s: float,
@@ -505,9 +509,11 @@ class Controller:
             Why it was refused, or None when it was taken.
 
         """
+        required = self.forecast_required  # (once: forecast_known takes it too)
+        known = self._known_with(required)
         rejection = (check_forecast(step_s, series,
                                     expected_step_s=self.settings.problem.step_s,
-                                    required=self.forecast_required, known=self.forecast_known)
+                                    required=required, known=known)
                      or self._forecast_gate.check(stamp_ns, now_ns))
         if rejection is None:
             names = list(series)

@@ -47,7 +47,11 @@ def blas_threads(limit: int | None) -> contextlib.AbstractContextManager:
     """
     if limit is None:
         return contextlib.nullcontext()
-    return _threadpools().limit(limits=int(limit), user_api='blas')
+    pools = _threadpools()
+    if all(pool.num_threads == int(limit) for pool in pools.lib_controllers
+           if pool.user_api == 'blas'):
+        return contextlib.nullcontext()  # (at the limit already, e.g. OPENBLAS_NUM_THREADS=1)
+    return pools.limit(limits=int(limit), user_api='blas')
 
 
 class MpcResult(ShootingResult):
@@ -244,10 +248,10 @@ class MPC:
         except (TypeError, ValueError):  # a column that is not numeric: take ours one by one
             values = np.column_stack([forecast[c].to_numpy(dtype=float)[:rows]
                                       for c in columns])
-        if not np.all(np.isfinite(values)):
+        if not np.isfinite(values).all():
             raise ValueError('forecast holds non-finite values')
         for lo, hi, _ in self.state_bounds.values():
-            if np.any(values[:, columns.index(lo)] > values[:, columns.index(hi)]):
+            if (values[:, columns.index(lo)] > values[:, columns.index(hi)]).any():
                 raise ValueError(f'forecast bound {lo} exceeds {hi}')
         return values
 

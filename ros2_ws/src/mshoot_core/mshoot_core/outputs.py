@@ -87,11 +87,26 @@ def write_csv(frame: pd.DataFrame, path: pathlib.Path, index_label: str) -> None
         frame.to_csv(path, index_label=index_label)
         return
 
-    def text(value: float) -> str:
-        return repr(value) if value == value else ''  # NaN: empty, as pandas' na_rep
-
-    lines = [','.join(labels)]
-    for time_s, row in zip(frame.index.tolist(), frame.to_numpy().tolist()):
-        lines.append(','.join([text(time_s), *map(text, row)]))
-    lines.append('')
+    columns = [frame.index.to_numpy(dtype=np.float64)]
+    columns += [frame.iloc[:, j].to_numpy(dtype=np.float64) for j in range(frame.shape[1])]
+    bits = [np.ascontiguousarray(column).view(np.int64) for column in columns]
+    texts: list[list[str]] = []
+    for j, column in enumerate(bits):  # a column equal to an earlier one, bit for bit: its fields
+        same = next((i for i in range(j) if np.array_equal(column, bits[i])), None)
+        texts.append(texts[same] if same is not None else _float_fields(column))
+    lines = [','.join(labels), *map(','.join, zip(*texts)), '']
     pathlib.Path(path).write_text('\n'.join(lines), encoding='utf-8')
+
+
+def _float_fields(bits: np.ndarray) -> list[str]:
+    """
+    Return the CSV fields of a float64 column given as its bits (int64): each ``repr``.
+
+    NaN gives an empty field, as pandas' ``na_rep``. Each distinct value (bit for bit, so
+    -0.0 and 0.0 apart) is formatted once: a run's controls and comfort band repeat over the
+    fine grid.
+    """
+    distinct, inverse = np.unique(bits, return_inverse=True)
+    fields = np.array([repr(value) if value == value else ''
+                       for value in distinct.view(np.float64).tolist()], dtype=object)
+    return fields[inverse.reshape(-1)].tolist()

@@ -694,6 +694,7 @@ class SetpointSupervisor:
                             (np.asarray(state_range[0], dtype=float),
                              np.asarray(state_range[1], dtype=float)))
         self.bound_tolerance = float(bound_tolerance)
+        self._limits: tuple | None = None  # (_control_limits)
         self._plan: _GoodPlan | None = None
         #: Consecutive steps without a fresh optimum.
         self.consecutive_fallbacks = 0
@@ -724,21 +725,36 @@ class SetpointSupervisor:
             return f'the plan has shape {u.shape}, expected (N >= 1, {self.n_controls})'
         if x.ndim != 2 or x.shape[0] != u.shape[0]:
             return f'the predicted states have shape {x.shape} for {u.shape[0]} intervals'
-        if not np.all(np.isfinite(u)):
+        if not np.isfinite(u).all():
             return 'the plan holds non-finite controls'
-        if not np.all(np.isfinite(x)):
+        if not np.isfinite(x).all():
             return 'the predicted states are not finite'
-        span = self.bounds[:, 1] - self.bounds[:, 0]
-        slack = self.bound_tolerance * np.maximum(np.abs(self.bounds).max(axis=1), span) + 1e-9
-        if np.any(u < self.bounds[:, 0] - slack) or np.any(u > self.bounds[:, 1] + slack):
+        lowest, highest = self._control_limits()
+        if (u < lowest).any() or (u > highest).any():
             return (f'the plan leaves the control bounds {self.bounds.tolist()} '
                     f'(range {u.min():g} to {u.max():g})')
         if self.state_range is not None:
             low, high = self.state_range
-            if np.any(x < low) or np.any(x > high):
+            if (x < low).any() or (x > high).any():
                 return (f'the predicted states leave the plausible range [{low.tolist()}, '
                         f'{high.tolist()}] (range {x.min():g} to {x.max():g})')
         return None
+
+    def _control_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        """
+        Return the lowest and highest controls a plan may hold: the bounds and a tolerance.
+
+        ``bound_tolerance`` of the larger of the bound's magnitude and the range, plus 1e-9;
+        computed again when the bounds or the tolerance changed.
+        """
+        key = (self.bounds.tobytes(), self.bounds.shape, self.bound_tolerance)
+        cached = self._limits
+        if cached is None or cached[0] != key:
+            span = self.bounds[:, 1] - self.bounds[:, 0]
+            slack = (self.bound_tolerance * np.maximum(np.abs(self.bounds).max(axis=1), span)
+                     + 1e-9)
+            cached = self._limits = (key, (self.bounds[:, 0] - slack, self.bounds[:, 1] + slack))
+        return cached[1]
 
     def review(self, t_s: float, result: Any, *, accept_unconverged: bool = True) -> Decision:
         """

@@ -23,7 +23,7 @@ import dataclasses
 import functools
 import logging
 import time
-from typing import Callable, Sequence, TYPE_CHECKING
+from typing import Any, Callable, Sequence, TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -110,7 +110,7 @@ class Scaling:
     scale: np.ndarray
 
     def __post_init__(self) -> None:
-        if np.any(~np.isfinite(self.scale)) or np.any(self.scale <= 0):
+        if (~np.isfinite(self.scale)).any() or (self.scale <= 0).any():
             raise ValueError(f'scales must be finite and > 0, got {self.scale}')
 
     def to_hat(self, v: np.ndarray) -> np.ndarray:
@@ -268,6 +268,8 @@ class ShootingProblem:
                          type(model).__name__)
         self._t_start_s: np.ndarray | None = None
         self._structures: dict[NlpIndex, ContinuityStructure] = {}
+        self._last_scaling: tuple[tuple, Scaling] | None = None
+        self._batch: tuple[tuple, Any] | None = None  # (_solve_nlp's interval batch)
 
     # -- model evaluation ------------------------------------------------------------------
     def _full_inputs(self, controls: np.ndarray, disturbances: np.ndarray) -> np.ndarray:
@@ -321,6 +323,18 @@ class ShootingProblem:
     def _state_scaling_for(self, lower: np.ndarray, upper: np.ndarray) -> Scaling:
         if self.state_scaling is not None:
             return self.state_scaling
+        lower, upper = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
+        key = (lower.tobytes(), upper.tobytes(), lower.shape, upper.shape)
+        last = self._last_scaling
+        if last is not None and last[0] == key:  # (a solve asks twice: its bounds, relaxing)
+            return last[1]
+        scaling = self._scaling_of_bounds(lower, upper)
+        self._last_scaling = (key, scaling)
+        return scaling
+
+    @staticmethod
+    def _scaling_of_bounds(lower: np.ndarray, upper: np.ndarray) -> Scaling:
+        """Return the state scaling of bounds (N, nx): their finite range per state, else 1."""
         # per state: the lowest finite lower bound and the highest finite upper bound
         lo = np.where(np.isfinite(lower), lower, np.inf).min(axis=0)
         hi = np.where(np.isfinite(upper), upper, -np.inf).max(axis=0)
@@ -338,12 +352,14 @@ class ShootingProblem:
         high), each (N, nx), the interval end states.
         """
         n = self.n_intervals
-        sides = [self._full_inputs(np.tile(self.control_bounds[:, side], (n, 1)), disturbances)
-                 for side in (0, 1)]
-        u = np.stack(sides, axis=1)  # (N, 2, nu): interval k of the lower and upper sides
+        # (N, 2, nu): interval k of the lower and upper sides, every control at its bound
+        u = np.empty((n, 2, len(self.model.input_names)))
+        for side in (0, 1):
+            u[:, side, self._control_index] = self.control_bounds[:, side]
+            u[:, side, self._disturbance_index] = disturbances
         times = self._t_start_s
         ends, _ = self.model.simulate_chains(
-            np.tile(x0, (2, 1)), u, self.step_s,
+            np.repeat(np.asarray(x0)[None, :], 2, axis=0), u, self.step_s,
             **self._times(None if times is None else np.repeat(times[:, None], 2, axis=1)))
         self.model_evaluations += 2 * n
         return np.minimum(ends[:, 0], ends[:, 1]), np.maximum(ends[:, 0], ends[:, 1])
@@ -371,7 +387,7 @@ class ShootingProblem:
         pad = margin * self._state_scaling_for(lower, upper).scale
         new_lower = np.where(env_high - pad < lower, env_high - pad, lower)
         new_upper = np.where(env_low + pad > upper, env_low + pad, upper)
-        relaxed = bool(np.any(new_lower != lower) or np.any(new_upper != upper))
+        relaxed = bool((new_lower != lower).any() or (new_upper != upper).any())
         return new_lower, new_upper, relaxed
 
     def solve(self, x0: Sequence[float], disturbances: np.ndarray, lower: np.ndarray,
@@ -426,16 +442,17 @@ class ShootingProblem:
         started = time.perf_counter()
         self.model_evaluations = 0
         self._deadline = deadline
+        self._batch = None  # (a batch per solve: its NLPs share it)
         n, nx = self.n_intervals, len(self.model.state_names)
         x0 = np.asarray(x0, dtype=float).reshape(-1)
         disturbances = np.asarray(disturbances, dtype=float).reshape(n, len(self.disturbance_cols))
         lower = np.asarray(lower, dtype=float).reshape(n, nx)
         upper = np.asarray(upper, dtype=float).reshape(n, nx)
-        if x0.size != nx or not np.all(np.isfinite(x0)):
+        if x0.size != nx or not np.isfinite(x0).all():
             raise ValueError(f'x0 must be {nx} finite values, got {x0}')
-        if not np.all(np.isfinite(disturbances)):
+        if not np.isfinite(disturbances).all():
             raise ValueError('disturbances must be finite')
-        if np.any(lower > upper):
+        if (lower > upper).any():
             raise ValueError('state bounds must have lower <= upper')
         if t0_s is not None and not np.isfinite(float(t0_s)):
             raise ValueError(f't0_s must be a finite time [s], got {t0_s}')
@@ -518,20 +535,41 @@ class ShootingProblem:
         # place (the start state of interval 0 and the disturbances once, here)
         u_slice, x_slice = idx.u_slice, idx.x_slice
         t_start_s = self._t_start_s
-        batch = self.model.interval_batch(n, self.step_s, self.control_cols,
-                                          t_start_s if self._takes_times else None)
+        # one batch for the NLPs of a solve (a least-violation phase, then the least cost):
+        # the same intervals and times; bound to the model's driver by the first
+        times = t_start_s if self._takes_times else None
+        key = (id(self.model), n, self.step_s, tuple(self.control_cols),
+               None if times is None else np.asarray(times, dtype=float).tobytes())
+        if self._batch is not None and self._batch[0] == key:
+            batch = self._batch[1]
+        else:
+            batch = self.model.interval_batch(n, self.step_s, self.control_cols, times)
+            self._batch = (key, batch)
         batch.x_start[0] = x0
         batch.u[:] = self._full_inputs(np.zeros((n, idx.n_controls)), disturbances)
         analytic = True  # (until the model returns no analytic derivatives)
+        # from_hat written into the batch's buffers (v_hat * scale, then + offset: the same
+        # numbers): the starts of intervals 1..N-1, and the controls' columns of the inputs
+        # where they are adjacent (a view), else assigned
+        x_later, x_scale, x_offset = batch.x_start[1:], xs.scale, xs.offset
+        columns = self._control_index
+        u_controls = (batch.u[:, columns[0]:columns[-1] + 1] if columns.size and bool(
+            (np.diff(columns) == 1).all()) else None)
+        u_scale, u_offset = us.scale, us.offset
 
         def evaluate(z: np.ndarray) -> IntervalJacobians:
             nonlocal analytic
             key = z.tobytes()
             jac = cache.get(key)
             if jac is None:
-                batch.x_start[1:] = xs.from_hat(z[x_slice].reshape(n, nx)[:-1])
-                batch.u[:, self._control_index] = us.from_hat(
-                    z[u_slice].reshape(n, idx.n_controls))
+                np.multiply(z[x_slice].reshape(n, nx)[:-1], x_scale, out=x_later)
+                np.add(x_later, x_offset, out=x_later)
+                u_hat = z[u_slice].reshape(n, idx.n_controls)
+                if u_controls is None:
+                    batch.u[:, columns] = us.from_hat(u_hat)
+                else:
+                    np.multiply(u_hat, u_scale, out=u_controls)
+                    np.add(u_controls, u_offset, out=u_controls)
                 jac = batch.jacobians() if analytic else None
                 if jac is None:  # finite differences (_interval_jacobians asks again)
                     analytic = False
@@ -581,8 +619,8 @@ class ShootingProblem:
 
         lb = np.full(idx.size, -np.inf)
         ub = np.full(idx.size, np.inf)
-        lb[idx.u_slice] = np.tile(u_lo, n)
-        ub[idx.u_slice] = np.tile(u_hi, n)
+        idx.u(lb)[:] = u_lo  # (every interval's row: np.tile's values)
+        idx.u(ub)[:] = u_hi
         if idx.soft:
             lb[idx.s_slice] = 0.0
             finite_lo = np.isfinite(lower_hat).reshape(-1)
@@ -625,7 +663,7 @@ class ShootingProblem:
             z = np.clip(np.asarray(z0, dtype=float), lb, ub)
             success, status, message, nit, nfev = False, -1, f'solver error: {exc}', 0, 0
             budget_exceeded = False
-        if not np.all(np.isfinite(z)):
+        if not np.isfinite(z).all():
             z = np.clip(np.asarray(z0, dtype=float), lb, ub)
             success, status, message = False, -2, 'solver returned non-finite values'
         z[idx.u_slice] = np.clip(z[idx.u_slice], lb[idx.u_slice], ub[idx.u_slice])
@@ -840,6 +878,10 @@ class ContinuityStructure:
         self.cols = np.concatenate(cols)
         self.shape = (n * nx, idx.size)
         self.minus_ones = -np.ones(n * nx)
+        # dense blocks (every entry, in the row-major order of np.nonzero): the entries of an
+        # interval are its block as laid out, taken by a reshape instead of fancy indexing
+        self._u_block = (nx, nc) if self.u_rows.size == nx * nc else None
+        self._x_block = (nx, nx) if self.x_rows.size == nx * nx else None
 
     def values(self, dx_du: np.ndarray, dx_dx0: np.ndarray, x_scale: np.ndarray,
                u_scale: np.ndarray) -> np.ndarray:
@@ -855,8 +897,14 @@ class ContinuityStructure:
     def scaled_values(self, dx_du: np.ndarray, dx_dx0: np.ndarray,
                       factors: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
         """Return :meth:`values` with the :meth:`factors` of the solve's scalings."""
-        du = dx_du[:, self.u_rows, self.u_cols] * factors[0]
-        dx = dx_dx0[1:, self.x_rows, self.x_cols] * factors[1]
+        if dx_du.shape[1:] == self._u_block:
+            du = dx_du.reshape(dx_du.shape[0], factors[0].size) * factors[0]
+        else:
+            du = dx_du[:, self.u_rows, self.u_cols] * factors[0]
+        if dx_dx0.shape[1:] == self._x_block:
+            dx = dx_dx0[1:].reshape(dx_dx0.shape[0] - 1, factors[1].size) * factors[1]
+        else:
+            dx = dx_dx0[1:, self.x_rows, self.x_cols] * factors[1]
         return np.concatenate([du.ravel(), self.minus_ones, dx.ravel()])
 
     def matrix(self, dx_du: np.ndarray, dx_dx0: np.ndarray, x_scale: np.ndarray,

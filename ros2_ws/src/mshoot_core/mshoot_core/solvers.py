@@ -192,7 +192,7 @@ class SlsqpSolver(Solver):
     def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None) -> SolverResult:
         derivatives = nlp.grad is not None and nlp.eq_jac is not None and (
             nlp.ineq_fun is None or nlp.ineq_jac is not None)
-        fixed = np.all(np.asarray(nlp.lb) == np.asarray(nlp.ub))  # (SciPy's own case)
+        fixed = (np.asarray(nlp.lb) == np.asarray(nlp.ub)).all()  # (SciPy's own case)
         if derivatives and core() is not None and not fixed:
             res = minimize_slsqp(
                 nlp.fun, nlp.grad, z0, nlp.lb, nlp.ub, ConstraintBlock(nlp.eq_fun, nlp.eq_jac),

@@ -61,7 +61,11 @@ import ctypes
 import dataclasses
 import logging
 import math
+import os
 import pathlib
+import pickle
+import sys
+import tempfile
 from typing import Any, Mapping, Sequence, Union
 
 import fmpy
@@ -81,8 +85,8 @@ from mshoot_core.models.fmi_sensitivities import (ForwardSensitivities,
                                                   SENSITIVITY_NOMINAL_FACTOR)
 from mshoot_core.models.fmi_values import FmuValueError, NonFiniteChecks
 
-__all__ = ['FMI_TYPES', 'FmiModel', 'FmuValueError', 'MAX_SOLVER_STEPS', 'ME_MAX_STEPS',
-           'R1C1_VARIABLES', 'r1c1_fmi_model', 'read_cached_description',
+__all__ = ['DESCRIPTION_PICKLE', 'FMI_TYPES', 'FmiModel', 'FmuValueError', 'MAX_SOLVER_STEPS',
+           'ME_MAX_STEPS', 'R1C1_VARIABLES', 'r1c1_fmi_model', 'read_cached_description',
            'read_fmu_description', 'SENSITIVITY_NOMINAL_FACTOR', 'VALIDATED_MARKER',
            'VariableNames']
 
@@ -156,23 +160,62 @@ def _listed(names: Sequence[str]) -> str:
 #: schema costs some 12 ms of every command).
 VALIDATED_MARKER = '.mshoot-validated'
 
+#: The modelDescription of a validated FMU of the cache, as fmpy read it (a pickle; per fmpy
+#: and Python version): later models of the file load it instead of parsing the XML (lxml's
+#: import and the parse, some 6 ms of every command with an FMU).
+DESCRIPTION_PICKLE = '.mshoot-description-fmpy{fmpy}-py{python}.pickle'
+
 
 def read_cached_description(folder: pathlib.Path, label: str) -> Any:
     """
     :func:`read_fmu_description` of an FMU in the cache: validated once, then marked.
 
     Validated unless the folder holds :data:`VALIDATED_MARKER`, which a validated read leaves
-    there (where the cache can be written).
+    there (where the cache can be written), with the description read
+    (:data:`DESCRIPTION_PICKLE`): a marked folder's description is loaded from it, when it
+    is there and loads; else read from the XML again. The cache is trusted as for the
+    FMU's own binaries, which it holds and which are loaded and run.
     """
-    marker = pathlib.Path(folder) / VALIDATED_MARKER
+    folder = pathlib.Path(folder)
+    marker = folder / VALIDATED_MARKER
+    cached = folder / DESCRIPTION_PICKLE.format(
+        fmpy=fmpy.__version__, python=f'{sys.version_info[0]}.{sys.version_info[1]}')
     validated = marker.is_file()
-    md = read_fmu_description(folder, label, validate=not validated)
-    if not validated:
+    if validated:
         try:
-            marker.touch()
-        except OSError:  # a read-only cache: validated every time
+            with open(cached, 'rb') as stream:
+                return pickle.load(stream)
+        except FileNotFoundError:
             pass
+        except Exception as error:  # noqa: BLE001 - a damaged pickle: read the XML again
+            logger.debug('cached modelDescription of %s not loaded (%s: %s)', label,
+                         type(error).__name__, error)
+    md = read_fmu_description(folder, label, validate=not validated)
+    try:
+        if not validated:
+            marker.touch()
+        _write_whole(cached, pickle.dumps(md, protocol=pickle.HIGHEST_PROTOCOL))
+    except (OSError, pickle.PicklingError, TypeError, AttributeError) as error:
+        # a read-only cache (validated every time) or a description that does not pickle
+        logger.debug('modelDescription of %s not cached (%s: %s)', label,
+                     type(error).__name__, error)
     return md
+
+
+def _write_whole(path: pathlib.Path, payload: bytes) -> None:
+    """Write ``payload`` to ``path`` whole or not at all (a file beside it, renamed)."""
+    with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f'{path.name}.',
+                                     delete=False) as out:
+        try:
+            out.write(payload)
+        except BaseException:
+            os.unlink(out.name)
+            raise
+    try:
+        os.replace(out.name, path)
+    except BaseException:
+        os.unlink(out.name)
+        raise
 
 
 def read_fmu_description(folder: str | pathlib.Path, label: str, validate: bool = True) -> Any:
@@ -749,7 +792,7 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         if n > 1 and u.ndim == 3 and u.shape[1] == chains and self.me_batch_plan() is None \
                 and type(self).simulate_intervals is FmiModel.simulate_intervals:
             # rows >= chains of the starts are not read: the driver chains the end states
-            x_start, inputs, dt_s = self._check_batch(np.tile(x0, (n, 1)),
+            x_start, inputs, dt_s = self._check_batch(np.concatenate([x0] * n),  # (np.tile)
                                                       u.reshape(n * chains, -1), dt_s)
             times = None if t_start_s is None else np.asarray(t_start_s, dtype=float)
             t0 = self._fmu_start_times(None if times is None else times.reshape(-1),

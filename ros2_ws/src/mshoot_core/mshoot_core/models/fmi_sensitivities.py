@@ -167,6 +167,7 @@ class _DriverBatch(IntervalBatch):
         self._t_end = (self.dt_s if self._fmu_times is None else self._fmu_times + self.dt_s)
         self._bound: Any = None
         self._snapshot: Any = None
+        self._views: tuple | None = None
 
     def jacobians(self) -> IntervalJacobians | None:
         model, bound = self.model, self._bound
@@ -192,7 +193,13 @@ class _DriverBatch(IntervalBatch):
         x_end, y_end = bound.x_end.copy(), bound.y_end.copy()
         if not math.isfinite(np.add.reduce(x_end, None) + np.add.reduce(y_end, None)):
             model._check_finite(x_end, y_end, self._t_end)
-        return model._driver_jacobians(self._plan, x_end, y_end, bound.s_end, bound.dyo)
+        views = self._views
+        if views is None:
+            return model._driver_jacobians(self._plan, x_end, y_end, bound.s_end, bound.dyo)
+        # _driver_jacobians where every output is an FMU output, on views taken once
+        sx, su, dy_dx, dy_du_direct, positions = views
+        return IntervalJacobians(x_end, y_end, sx[:, positions].copy(), su[:, positions].copy(),
+                                 dy_dx @ sx, dy_dx @ su + dy_du_direct)
 
     def _bind(self) -> None:
         """Take the driver batch the last call ran on, if it ran on the driver."""
@@ -205,6 +212,11 @@ class _DriverBatch(IntervalBatch):
         bound = model._me_bound.get((key, self.x_start.shape[0], self._fmu_times is None))
         if bound is not None and bound.driver is model._me_driver:
             self._bound, self._snapshot = bound, model._snapshot
+            self._views = None
+            if self._plan.all_outputs:  # the views of the bound buffers _driver_jacobians takes
+                nx, n = bound.x_end.shape[1], model._n_continuous
+                self._views = (bound.s_end[:, :, :nx], bound.s_end[:, :, nx:],
+                               bound.dyo[:, :, :n], bound.dyo[:, :, n:], self._plan.positions)
 
 
 class ForwardSensitivities:
