@@ -54,11 +54,7 @@ MEASURED = {'mean_Tout': ('weaSta_reaWeaTDryBul_y', KELVIN),
 PARAMS = (
     ParamSpec('scenario', 'boptest:peak_heat_day:constant', "the emulator's scenario: "
               "'boptest:<period>[:<price>]' (its price is the MPC's)", read_only=True),
-    ParamSpec('data', '', "the BOPTEST test case folder ('' = the default)", read_only=True),
-    ParamSpec('hours', 336, 'control steps of the scenario [-]', low=1, high=1_000_000,
-              read_only=True),
-    ParamSpec('start_time', '', "ROS time of the first scenario row ('' = the scenario's)",
-              read_only=True),
+    *sources.BOPTEST_SCENARIO_PARAMS,
     ParamSpec('mode', 'modulation', "how the plan reaches the building: 'modulation' "
               "(oveHeaPumY_u, card control Y), 'setpoint' or 'tracking' (oveTSet_u, TSet)",
               choices=MODES, read_only=True),

@@ -31,11 +31,7 @@ KELVIN = 273.15
 PARAMS = (
     ParamSpec('scenario', 'boptest:peak_heat_day', "the emulator's scenario: "
               "'boptest:<period>[:<price>]'", read_only=True),
-    ParamSpec('data', '', "the BOPTEST test case folder ('' = the default)", read_only=True),
-    ParamSpec('hours', 336, 'control steps of the scenario [-]', low=1, high=1_000_000,
-              read_only=True),
-    ParamSpec('start_time', '', "ROS time of the first scenario row ('' = the scenario's)",
-              read_only=True),
+    *sources.BOPTEST_SCENARIO_PARAMS,
     ParamSpec('step_s', 3600.0, 'control step [s]', low=1.0, high=86400.0, read_only=True),
     ParamSpec('mode', 'rule', "'rule': the pre-heating rule; 'baseline': the band's lower "
               'bound (the baseline card ignores it)', choices=('rule', 'baseline'),

@@ -20,6 +20,7 @@ from mshoot_core.scenario import reference_scenario
 import pandas as pd
 
 from mshoot_nodes.conversions import NS_PER_S
+from mshoot_nodes.params import ParamSpec
 
 logger = logging.getLogger(__name__)
 
@@ -70,6 +71,17 @@ def check_scenario(name: str, data: str) -> str | None:
         return None if pathlib.Path(name).is_file() else f'scenario file {name!r} not found'
     return f'scenario must be one of {list(SCENARIOS)}, boptest:<period>[:<price>] or a path ' \
            f'to an OU44-format CSV, got {name!r}'
+
+
+#: The scenario parameters a BOPTEST-only node declares besides ``scenario`` (checked by
+#: :func:`check_boptest_parameters`).
+BOPTEST_SCENARIO_PARAMS = (
+    ParamSpec('data', '', "the BOPTEST test case folder ('' = the default)", read_only=True),
+    ParamSpec('hours', 336, 'control steps of the scenario [-]', low=1, high=1_000_000,
+              read_only=True),
+    ParamSpec('start_time', '', "ROS time of the first scenario row ('' = the scenario's)",
+              read_only=True),
+)
 
 
 def check_boptest_parameters(values: dict[str, Any]) -> str | None:
