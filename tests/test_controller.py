@@ -126,7 +126,8 @@ def test_named_inputs_are_checked_against_the_model():
     # Any order: put in the model's order.
     assert offer_state(0, ['T_1', 'T_0'], [294.0, 293.0], 0, control_names=['q_1'],
                        control_values=[5.0]) is None
-    np.testing.assert_array_equal(controller._state_for(0), [293.0, 294.0])  # noqa: SLF001
+    state = controller._states[controller._state_stamp(0)]  # noqa: SLF001
+    np.testing.assert_array_equal(state, [293.0, 294.0])
     window = forecast_window(scenario, 0, 3)
     series = {c: window[c].to_numpy() for c in ('Tout', 'solrad', 'occ', 'comfort_min',
                                                 'comfort_max')}

@@ -542,16 +542,11 @@ class Controller:
         _trim(self._forecasts)
         return None
 
-    def _estimate_for(self, step_ns: int) -> Estimate | None:
-        """Return the estimate a step is planned from, or None (states not estimated)."""
+    def _state_stamp(self, step_ns: int) -> int | None:
+        """Return the stamp [ns] of the (newest fresh) state a step is planned from, or None."""
         oldest = step_ns - self._state_gate.max_age_ns
         stamps = [s for s in self._states if oldest <= s < step_ns + self.step_ns]
-        return self._estimates.get(max(stamps)) if stamps else None
-
-    def _state_for(self, step_ns: int) -> np.ndarray | None:
-        oldest = step_ns - self._state_gate.max_age_ns
-        stamps = [s for s in self._states if oldest <= s < step_ns + self.step_ns]
-        return self._states[max(stamps)] if stamps else None
+        return max(stamps) if stamps else None
 
     def _forecast_for(self, step_ns: int) -> tuple[int, pd.DataFrame] | None:
         oldest = step_ns - self._forecast_gate.max_age_ns
@@ -644,7 +639,8 @@ class Controller:
         if self._pending is not None:
             self._apply(self._pending)
             self._pending = None
-        state = self._state_for(step)
+        state_stamp = self._state_stamp(step)
+        state = None if state_stamp is None else self._states[state_stamp]
         forecast = self._forecast_for(step)
         if state is None or forecast is None:
             if self._input_wait.overdue(waited_s, waited_clock_s):
@@ -663,7 +659,7 @@ class Controller:
         window = (frame if offset == 0 and len(frame) == horizon + 1 else
                   forecast_window(frame, int(min(offset, len(frame) - 1)), horizon))
         self._last_step_ns = step
-        estimate = self._estimate_for(step)
+        estimate = self._estimates.get(state_stamp)  # None: the states are not estimated
         std = None if estimate is None else estimate.std
         self._dispatch(step, state, self._with_margin(step, window, estimate), steady_ns, std)
         self._collect(outcomes, time.monotonic_ns())
