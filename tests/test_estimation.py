@@ -297,6 +297,28 @@ def test_a_wrong_model_estimates_worse(air_only_noisy):
     assert error[CONVERGED_STEPS:].max() > ERROR_BOUND_K
 
 
+class _NoPrediction(R2C2Model):
+    """An R2C2 whose single-interval prediction (the filter's, no input derivatives) is NaN."""
+
+    def interval_jacobians(self, x_start, u, dt_s, wrt_inputs, t_start_s=None):
+        jac = super().interval_jacobians(x_start, u, dt_s, wrt_inputs, t_start_s)
+        if len(wrt_inputs) == 0:
+            jac.x_end[...] = np.nan
+        return jac
+
+
+def test_a_failed_prediction_backs_off_by_the_estimates_std(caplog):
+    """The back-off's prediction fails: a warning, the estimate's own std at every row, a plan."""
+    propagated, _, _ = closed_loop(('T',), NOISE_K, hours=6, comfort_margin_std=1.0)
+    with caplog.at_level('WARNING', logger='mshoot_core.controller'):
+        result, _, _ = closed_loop(('T',), NOISE_K, hours=6, comfort_margin_std=1.0,
+                                   model=_NoPrediction(measured_states=('T',)))
+    assert "comfort back-off at 0 s from the estimate's std only" in caplog.text
+    assert result.steps['source'].eq('optimum').all()
+    # less back-off than the propagated one at the first step (the envelope's doubt unseen)
+    assert result.steps['q'].iloc[0] < propagated.steps['q'].iloc[0]
+
+
 def test_without_estimation_the_guess_is_what_the_mpc_gets():
     """The same sensors, the states taken as measured: the envelope error is never corrected."""
     model = R2C2Model(measured_states=('T', 'Tw'))

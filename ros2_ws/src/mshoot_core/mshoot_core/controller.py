@@ -675,14 +675,20 @@ class Controller:
         propagated over the horizon (:meth:`StateEstimator.predicted_std`, controls held at the
         last decided ones, disturbances as forecast), on each side, at most to the band's
         middle. Row 0 is the estimate's own std; the unmeasured states' uncertainty reaches the
-        zone temperature from row 1 on.
+        zone temperature from row 1 on. If the model's prediction fails (non-finite), the
+        estimate's own std at every row, with a logged warning.
         """
         z = self.settings.estimation.comfort_margin_std
         bounded = [self.model.state_names.index(s) for s in self.mpc.state_bounds]
         if estimate is None or z <= 0 or not bounded or not set(COMFORT_SERIES) <= set(window):
             return window
-        std = self.estimator.predicted_std(self._held_inputs(step_ns, window),
-                                           estimate=estimate)
+        try:
+            std = self.estimator.predicted_std(self._held_inputs(step_ns, window),
+                                               estimate=estimate)
+        except ModelValueError as exc:  # the estimate's own std over the whole horizon
+            logger.warning("comfort back-off at %.0f s from the estimate's std only: the "
+                           'prediction failed (%s)', step_ns / NS_PER_S, exc)
+            std = estimate.std[None, :]
         margin = z * std[:, bounded].max(axis=1)
         out = window.copy()
         half = 0.5 * (out['comfort_max'] - out['comfort_min']).to_numpy()
