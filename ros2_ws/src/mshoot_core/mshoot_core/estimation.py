@@ -288,6 +288,10 @@ class StateEstimator:
         return [(float(s), float(e - s), v) for s, e, v in zip(starts, ends, values)]
 
     # -- the filter -----------------------------------------------------------------------
+    def _process_noise(self, dt: float) -> np.ndarray:
+        """Return Q of an interval of ``dt`` [s] (``process_noise_k^2`` per step) [K^2]."""
+        return np.eye(len(self.model.state_names)) * self.process_noise_k ** 2 * dt / self.step_s
+
     def _transition(self, x: np.ndarray, u: np.ndarray, t0: float,
                     dt: float) -> tuple[np.ndarray, np.ndarray]:
         """
@@ -372,10 +376,9 @@ class StateEstimator:
             raise ValueError(f'the inputs since the last estimate at {self.estimate.t_s:g} s '
                              'are needed (or reset() the estimator)')
         x, p = self.estimate.x.copy(), self.estimate.covariance.copy()
-        q_step = self.process_noise_k ** 2
         for t0, dt, u in self._intervals(t_s, inputs):
             x, f = self._transition(x, u, t0, dt)
-            p = f @ p @ f.T + np.eye(x.size) * q_step * dt / self.step_s
+            p = f @ p @ f.T + self._process_noise(dt)
         h = np.zeros((z.size, x.size))
         h[np.arange(z.size), self._rows] = 1.0
         innovation = z - h @ x
@@ -427,7 +430,7 @@ class StateEstimator:
         dt = self.step_s if step_s is None else float(step_s)
         inputs = np.asarray(inputs, dtype=float).reshape(-1, len(self.model.input_names))
         x, p = estimate.x.copy(), estimate.covariance.copy()
-        q = np.eye(x.size) * self.process_noise_k ** 2 * dt / self.step_s
+        q = self._process_noise(dt)
         out = [np.diag(p)]
         for j, u in enumerate(inputs):
             x, f = self._transition(x, u, estimate.t_s + j * dt, dt)
