@@ -1,5 +1,8 @@
 """mshoot_core: R1C1 analytics, multiple shooting, MPC loop, KPIs, scenarios and outputs."""
 import json
+import os
+import pathlib
+import sys
 
 from mshoot_core import plotting
 from mshoot_core.closed_loop import run_closed_loop
@@ -587,6 +590,32 @@ def test_plot_worker_with_previews_draws_the_figure_of_this_process(tmp_path):
         assert sent[0][name] == final[name], name
     for name in ('temperature', 'q_kw'):
         assert final[name][0] <= sent[-1][name][0] <= sent[-1][name][1] <= final[name][1]
+
+
+def test_plot_worker_runs_optimised_only_where_its_bytecode_can_be(monkeypatch):
+    """
+    -OO where matplotlib's bytecode of that level is there or can be written; else not.
+
+    (Without it, every worker would compile matplotlib anew.) The setup prepares it:
+    after :func:`plotting.prepare_worker` it is there.
+    """
+    import importlib.util
+    spec = importlib.util.find_spec('matplotlib')
+    cached = importlib.util.cache_from_source(spec.origin, optimization=2)
+    assert plotting.prepare_worker() == 0
+    command = plotting.worker_command()
+    assert command[:4] == [sys.executable, '-I', '-S', '-OO']
+    assert command[4] == str(pathlib.Path(plotting.__file__).resolve())
+    assert str(pathlib.Path(spec.origin).parent.parent) in command[5:]
+    if os.access(os.path.dirname(cached), os.W_OK):
+        assert os.path.exists(cached)
+    real_exists = os.path.exists
+    monkeypatch.setattr(plotting.os.path, 'exists',
+                        lambda path: path != cached and real_exists(path))
+    monkeypatch.setattr(plotting.os, 'access', lambda path, mode: False)
+    assert '-OO' not in plotting.worker_command()
+    monkeypatch.setattr(plotting.os, 'access', lambda path, mode: True)  # written by its first
+    assert '-OO' in plotting.worker_command()
 
 
 def test_plot_worker_that_cannot_run_still_gives_the_figure(tmp_path, monkeypatch, caplog):

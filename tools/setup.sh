@@ -68,4 +68,14 @@ fi
 #    otherwise compile them at import (~0.1 s a run). Only new or edited files are compiled;
 #    a file edited after this is compiled in memory at import, as before.
 "$venv/bin/python" -m compileall -q -j 0 ros2_ws/src > /dev/null || true
+
+# 5. The plot worker's imports compiled at its optimisation level (-OO, see
+#    mshoot_core.plotting.worker_command), which step 1 does not compile: once, else the first
+#    run's worker would (a second or more of CPU).
+if ! compgen -G "$venv/lib/python*/site-packages/matplotlib/__pycache__/__init__.*.opt-2.pyc" > /dev/null; then
+  log "compiling the plot worker's imports (-OO)"
+  PYTHONPATH="$root/ros2_ws/src/mshoot_core" "$venv/bin/python" -c \
+    'import mshoot_core.plotting as p; raise SystemExit(p.prepare_worker())' \
+    || log "warning: the plot worker did not start; figures are drawn in the command's process"
+fi
 log "ready: source env.sh"
