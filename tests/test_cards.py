@@ -88,6 +88,7 @@ def test_builtin_cards_are_the_registry_models(card_name, registry_name):
     assert from_card.state_names == reference.state_names == ('T',)
     assert from_card.output_names == reference.output_names == ('T', 'Qr')
     assert getattr(from_card, 'fmi_type', None) == getattr(reference, 'fmi_type', None)
+    assert from_card.monotone_inputs == reference.monotone_inputs == ('q',)  # an RC network
     rng = np.random.default_rng(1)
     columns = {'solrad': rng.uniform(0, 400, 6), 'Tout': rng.uniform(-5, 15, 6),
                'occ': rng.integers(0, 30, 6).astype(float), 'dpos': rng.uniform(0, 50, 6),
@@ -468,6 +469,34 @@ def test_python_r1c1_card_keeps_its_names_and_units(tmp_path):
     good['parameters'] = {'shgc': 3.0}
     model = cards.build_model(write_card(tmp_path, 'good.yaml', good))
     assert isinstance(model, R1C1Model) and model.parameters.shgc == 3.0
+
+
+def test_monotone_is_the_card_authors_claim(zone_cards, tmp_path, r1c1_fmu):
+    """
+    A model is monotone as its card says; an FMU claims nothing unless its card does.
+
+    ``false`` withdraws a built-in model's claim; anything but a boolean is a problem of the
+    card.
+    """
+    zone = load_card(zone_cards[0])
+    assert zone.monotone is None and cards.build_model(zone).monotone_inputs == ()
+    claimed = write_card(zone_cards[0].parent, 'monotone.yaml', with_changes(
+        yaml.safe_load(zone_cards[0].read_text()), monotone=True))
+    model = cards.build_model(claimed)
+    assert model.monotone_inputs == ('q',)
+    assert MPC(model, horizon_steps=2).problem.monotone
+    withdrawn = with_changes(yaml.safe_load(cards.builtin_card('r1c1').read_text()),
+                             monotone=False)
+    python = cards.build_model(write_card(tmp_path, 'r1c1.yaml', withdrawn))
+    assert isinstance(python, R1C1Model) and python.monotone_inputs == ()
+    assert not MPC(python, horizon_steps=2).problem.monotone
+    assert R1C1Model().monotone_inputs == ('q',)  # (the class keeps its claim)
+    with pytest.raises(CardError, match='monotone'):
+        load_card(write_card(tmp_path, 'bad.yaml', with_changes(withdrawn, monotone='yes')))
+    # the built-in FMU claims it, another file of the same names does not
+    from mshoot_core.models.fmi import r1c1_fmi_model
+    assert r1c1_fmi_model(fmi_type='ModelExchange').monotone_inputs == ('q',)
+    assert r1c1_fmi_model(fmi_type='ModelExchange', fmu_path=r1c1_fmu).monotone_inputs == ()
 
 
 def test_overwrite_switch_must_be_a_free_input(zone2_card):

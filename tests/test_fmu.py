@@ -380,6 +380,8 @@ def test_bad_parameters_and_settings(r1c1_fmu):
         FmiModel(r1c1_fmu, fmi_type='Scheduled', **R1C1_VARIABLES)
     with pytest.raises(ValueError, match='tolerance'):
         FmiModel(r1c1_fmu, tolerance=0.0, **R1C1_VARIABLES)
+    with pytest.raises(ValueError, match=r"monotone_inputs must be inputs .*\['heat'\]"):
+        FmiModel(r1c1_fmu, monotone_inputs=['q', 'heat'], **R1C1_VARIABLES)
     with pytest.raises(TypeError, match='string'):
         FmiModel(r1c1_fmu, inputs='q', states=['heatCapacitor.T'], outputs=['T'])
     with pytest.raises(FileNotFoundError):

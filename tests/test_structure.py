@@ -10,7 +10,7 @@ from mshoot_core.mpc import MPC
 from mshoot_core.scenario import forecast_window, reference_scenario, synthetic_scenario
 from mshoot_core.sensitivities import column_groups, finite_difference_jacobians
 from mshoot_core.shooting import _band_jacobian, ContinuityStructure, NlpIndex
-from mshoot_core.solvers import SparseJacobian
+from mshoot_core.solvers import SlsqpSolver, SparseJacobian
 import numpy as np
 import pytest
 
@@ -211,3 +211,94 @@ def test_model_exchange_and_co_simulation_closed_loops_agree(ou44_csv):
     assert me['energy_kwh'] > 1.0
     assert me['energy_kwh'] == pytest.approx(cs['energy_kwh'], rel=1e-4)
     assert me['discomfort_kh'] == pytest.approx(cs['discomfort_kh'], rel=1e-3, abs=1e-3)
+
+
+# -- the band's feasible tube (monotone models) ------------------------------------------------
+def _inputs(problem, disturbances, k, side):
+    """Return the model inputs of interval k, every control at its lower (0) or upper (1) bound."""
+    u = np.empty((1, len(problem.model.input_names)))
+    u[0, problem.disturbance_cols] = disturbances[k]
+    u[0, problem.control_cols] = problem.control_bounds[:, side]
+    return u
+
+
+def test_band_the_envelope_reaches_but_no_plan_keeps_is_infeasible_along_the_tube():
+    """
+    A band each of whose bounds the envelope reaches but no plan keeps: infeasible.
+
+    Warm by hour 1, then cooler by hour 2 than full cooling gets from there: the hard NLP
+    fails on it. The solve goes to the least-violation phase at once, and its plan is the one
+    the hard NLP's failure led to, to the last bit, for fewer model evaluations.
+    """
+    model = R1C1Model()
+    problem = MPC(model, horizon_steps=3).problem
+    disturbances = synthetic_scenario(hours=4)[list(problem.disturbance_names)].to_numpy()[:3]
+    x0 = np.array([293.15])
+    low, high = problem.reachable_envelope(x0, disturbances)
+    lower, upper = np.full((3, 1), -np.inf), np.full((3, 1), np.inf)
+    lower[0] = high[0] - 0.1
+    from_warm = model.simulate_intervals(lower[0][None, :], _inputs(problem, disturbances, 1, 0),
+                                         3600.0)[0][0]
+    upper[1] = from_warm - 0.05
+    assert low[1] < upper[1] and high[0] > lower[0]  # each bound reachable on its own
+    assert not problem.relax_bounds(x0, disturbances, lower, upper)[2]
+    assert problem.monotone and problem.infeasible_band(x0, disturbances, lower, upper)
+    assert not problem.solve(x0, disturbances, lower, upper, SlsqpSolver(), relax=False).success
+    upper[1] = from_warm + 0.05  # now reachable from the warm end: feasible
+    assert not problem.infeasible_band(x0, disturbances, lower, upper)
+    assert problem.solve(x0, disturbances, lower, upper, SlsqpSolver(), relax=False).success
+    upper[1] = from_warm - 0.05
+    tube = problem.solve(x0, disturbances, lower, upper, SlsqpSolver())
+    problem.monotone = False  # the claim withdrawn: the hard NLP first, its failure, then the same
+    hard_first = problem.solve(x0, disturbances, lower, upper, SlsqpSolver())
+    assert tube.relaxed and hard_first.relaxed
+    for name in ('x', 'controls', 'states', 'slacks', 'outputs'):
+        np.testing.assert_array_equal(getattr(tube, name), getattr(hard_first, name), name)
+    assert (tube.fun, tube.nit, tube.success) == (hard_first.fun, hard_first.nit,
+                                                  hard_first.success)
+    assert tube.model_evaluations < hard_first.model_evaluations
+
+
+@pytest.mark.parametrize('name', ['r1c1', 'r2c2', 'zones'])
+def test_tube_calls_infeasible_only_bands_the_hard_nlp_fails_on(name):
+    """
+    Where the tube calls a band infeasible, the hard NLP fails on it; the plans are unchanged.
+
+    Random bands, narrow and jumping, within the envelope; every solve's plan is the one
+    without the model's claim, to the last bit.
+    """
+    from mshoot_core.models.r2c2 import R2C2Model
+    model = {'r1c1': R1C1Model(), 'r2c2': R2C2Model(), 'zones': MultiZoneModel(2, seed=1)}[name]
+    n = 4
+    options = multizone_mpc_options(model, 'slsqp') if name == 'zones' else {}
+    problem = MPC(model, horizon_steps=n, **options).problem
+    bounded = [i for i, s in enumerate(model.state_names) if s == 'T' or s.startswith('T_')]
+    scenario = synthetic_scenario(hours=24, seed=5)
+    rng = np.random.default_rng(7)
+    counts = {'infeasible': 0, 'feasible': 0}
+    for trial in range(24):
+        start = int(rng.integers(0, 24 - n))
+        disturbances = scenario[list(problem.disturbance_names)].to_numpy()[start:start + n]
+        x0 = rng.uniform(291.0, 296.0, len(model.state_names))
+        low, high = problem.reachable_envelope(x0, disturbances)
+        # bands within the envelope (each bound reachable on its own), narrow, jumping
+        centre = low + rng.uniform(0.0, 1.0, low.shape) * (high - low)
+        width = rng.uniform(0.05, 0.8, low.shape)
+        lower, upper = (np.full((n, len(model.state_names)), value) for value in (-np.inf, np.inf))
+        lower[:, bounded] = (centre - width / 2)[:, bounded]
+        upper[:, bounded] = (centre + width / 2)[:, bounded]
+        infeasible = problem.infeasible_band(x0, disturbances, lower, upper)
+        hard = problem.solve(x0, disturbances, lower, upper, SlsqpSolver(), relax=False)
+        if infeasible:
+            assert not hard.success, (trial, hard.message)
+            counts['infeasible'] += 1
+        elif hard.success:
+            counts['feasible'] += 1
+        problem.monotone = True
+        tube = problem.solve(x0, disturbances, lower, upper, SlsqpSolver())
+        problem.monotone = False
+        hard_first = problem.solve(x0, disturbances, lower, upper, SlsqpSolver())
+        problem.monotone = True
+        np.testing.assert_array_equal(tube.x, hard_first.x, str(trial))
+        assert tube.relaxed == hard_first.relaxed
+    assert counts['infeasible'] >= 2 and counts['feasible'] >= 2, counts

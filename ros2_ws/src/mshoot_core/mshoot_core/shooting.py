@@ -43,6 +43,12 @@ logger = logging.getLogger(__name__)
 #: quadratic (keeps the phase-1 problem well posed).
 LEAST_VIOLATION_LINEAR = 1e3
 LEAST_VIOLATION_QUADRATIC = 1e1
+#: How far (scaled state units) the band's feasible tube must miss a bound for
+#: :meth:`ShootingProblem.infeasible_band` to call the band infeasible: above the constraint
+#: violation an NLP solver accepts (SLSQP's 1e-10, summed; IPOPT's 1e-4), so that a band it
+#: calls infeasible is one the hard NLP would fail on (IPOPT's 'acceptable' level, 1e-2, may
+#: pass a band missed by less than that: the least-violation phase then plans it instead).
+TUBE_MARGIN = 1e-3
 #: User cost: cost(x_hat (N, nx), y_hat (N, ny), u_hat (N, nc)) -> float.
 CostFunction = Callable[[np.ndarray, np.ndarray, np.ndarray], float]
 
@@ -270,6 +276,10 @@ class ShootingProblem:
         self._structures: dict[NlpIndex, ContinuityStructure] = {}
         self._last_scaling: tuple[tuple, Scaling] | None = None
         self._batch: tuple[tuple, Any] | None = None  # (_solve_nlp's interval batch)
+        #: Whether the model is monotone in every control (``Model.monotone_inputs``): the
+        #: band's feasibility is then tested along its tube (:meth:`infeasible_band`).
+        self.monotone = bool(self.control_names) and set(self.control_names) <= set(
+            getattr(model, 'monotone_inputs', ()))
 
     # -- model evaluation ------------------------------------------------------------------
     def _full_inputs(self, controls: np.ndarray, disturbances: np.ndarray) -> np.ndarray:
@@ -364,6 +374,54 @@ class ShootingProblem:
         self.model_evaluations += 2 * n
         return np.minimum(ends[:, 0], ends[:, 1]), np.maximum(ends[:, 0], ends[:, 1])
 
+    def infeasible_band(self, x0: np.ndarray, disturbances: np.ndarray, lower: np.ndarray,
+                        upper: np.ndarray, margin: float = TUBE_MARGIN) -> bool:
+        """
+        Whether no controls within their bounds keep the states within ``lower``/``upper``.
+
+        Only for a model monotone in its start states and in every control
+        (:attr:`monotone`); False for others (nothing is claimed). The states that
+        controls within their bounds can reach at the end of interval k, the bounds kept at
+        every interval end before, lie between two trajectories simulated interval by
+        interval: the lowest, from the lowest such state with every control at its lower
+        bound, and the highest, from the highest with every control at its upper bound, each
+        clipped to the bounds after every interval (the tube). Where the highest falls below
+        a lower bound, or the lowest rises above an upper bound, by more than ``margin``
+        (scaled state units), the bounds cannot be kept together, even where
+        :meth:`relax_bounds`' envelope (the extreme trajectories, unclipped) reaches each of
+        them on its own: a hard NLP would fail, and :meth:`solve` goes to the
+        least-violation phase at once.
+
+        Parameters
+        ----------
+        x0 : ndarray, shape (nx,)
+            Initial state (physical units).
+        disturbances : ndarray, shape (N, nd)
+            Non-control inputs of each interval.
+        lower, upper : ndarray, shape (N, nx)
+            State bounds at the end of each interval (physical units; +-inf for unbounded).
+        margin : float
+            How far a bound must be missed [scaled state units].
+
+        """
+        if not self.monotone:
+            return False
+        pad = margin * self._state_scaling_for(lower, upper).scale
+        tube = np.repeat(np.asarray(x0, dtype=float)[None, :], 2, axis=0)  # lowest, highest
+        u = np.empty((2, len(self.model.input_names)))
+        u[:, self._control_index] = self.control_bounds.T  # lower bounds, upper bounds
+        times = self._t_start_s
+        for k in range(self.n_intervals):
+            u[:, self._disturbance_index] = disturbances[k]
+            ends, _ = self.model.simulate_intervals(
+                tube, u, self.step_s,
+                **self._times(None if times is None else np.full(2, times[k])))
+            self.model_evaluations += 2
+            if (ends[1] < lower[k] - pad).any() or (ends[0] > upper[k] + pad).any():
+                return True
+            tube = np.clip(ends, lower[k], upper[k])
+        return False
+
     def relax_bounds(self, x0: np.ndarray, disturbances: np.ndarray, lower: np.ndarray,
                      upper: np.ndarray, margin: float = 1e-4) -> tuple[np.ndarray, np.ndarray,
                                                                        bool]:
@@ -398,8 +456,9 @@ class ShootingProblem:
         Optimise the horizon from ``x0``.
 
         With hard bounds, where the band cannot be reached from ``x0`` (the
-        extreme controls cannot bring the state inside, or the hard problem
-        fails), a first phase minimises the violation (soft bounds, a large
+        extreme controls cannot bring the state inside, a monotone model's tube
+        misses it (:meth:`infeasible_band`), or the hard problem fails), a first
+        phase minimises the violation (soft bounds, a large
         linear penalty); the bounds are then relaxed to that least-violating
         trajectory and the hard problem is solved from it: the plan keeps the
         state as close to the band as physics allows, at the least cost.
@@ -469,7 +528,8 @@ class ShootingProblem:
             result.relaxed = False
         else:
             unreachable = relax and (self.relaxation == 'exact-penalty' or self.relax_bounds(
-                x0, disturbances, lower, upper)[2])
+                x0, disturbances, lower, upper)[2] or self.infeasible_band(
+                x0, disturbances, lower, upper))
             result = None
             if not unreachable:
                 result = self._solve_nlp(x0, disturbances, lower, upper, solver, z0,

@@ -220,6 +220,13 @@ class Model(abc.ABC):
     state_names: tuple[str, ...] = ()
     #: Names of the outputs, the order of output arrays.
     output_names: tuple[str, ...] = ()
+    #: Inputs in which the model is a monotone system: the end states of every interval
+    #: are nondecreasing in its start states and in each of these inputs, as a thermal RC
+    #: network's temperatures are in its start temperatures and its heat rates. Empty (the
+    #: default): no such claim. Where every control is one of them, the MPC tests before it
+    #: solves whether the comfort band can be kept at all
+    #: (:meth:`~mshoot_core.shooting.ShootingProblem.infeasible_band`).
+    monotone_inputs: tuple[str, ...] = ()
 
     @abc.abstractmethod
     def simulate(self, udf: pd.DataFrame, x0: Sequence[float]) -> tuple[pd.DataFrame,

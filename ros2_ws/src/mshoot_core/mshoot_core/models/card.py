@@ -10,6 +10,7 @@ the states the MPC shoots over, and the measured outputs::
     fmi_type: auto             # auto | model-exchange | co-simulation
     tolerance: 1.0e-6          # optional: default that of the role
     time_origin: scenario      # wall-clock time of FMU t = 0: `scenario` or ISO 8601
+    monotone: true             # optional: states nondecreasing in their starts and the controls
     parameters: {shgc: 4.6}    # set before every initialisation
     controls:
       q: {variable: q, unit: W, min: -2000, max: 2000}
@@ -37,6 +38,14 @@ the canonical one, the conversion at its boundary
 A state no sensor measures says ``measured: false``: the model's
 ``measured_states`` leave it out and a controller estimates it
 (:mod:`mshoot_core.estimation`).
+
+``monotone: true`` is a claim about the model's physics that only its author can make:
+the end states of every interval are nondecreasing in its start states and in every
+control, as the temperatures of a thermal RC network are in their start values and in
+the heat rates (not in a ventilation rate, say). The model's ``monotone_inputs`` are
+then the controls, and the MPC tests the band's feasibility before it solves
+(:meth:`~mshoot_core.shooting.ShootingProblem.infeasible_band`); ``false`` withdraws a
+built-in model's own claim; absent, the model's own (none for an FMU).
 
 Canonical units (what the applications see): states in SI (temperatures in
 K, power W, energy J); inputs and outputs in the scenario's conventions
@@ -205,6 +214,9 @@ class ModelCard:
         Relative integrator tolerance, or None for the role's default.
     time_origin : str
         'scenario' or an ISO 8601 date-time.
+    monotone : bool or None
+        Whether the model is monotone in its start states and its controls (None: the
+        card says nothing, the model's own claim holds).
     parameters : dict
         Variable name -> value, set before every initialisation.
     controls, disturbances, states, outputs : dict of str -> CardVariable
@@ -231,6 +243,7 @@ class ModelCard:
     outputs: dict[str, CardVariable]
     description: str = ''
     boptest: dict[str, Any] | None = None
+    monotone: bool | None = None
 
     @property
     def source(self) -> str:
@@ -639,7 +652,8 @@ def load_card(path: str | pathlib.Path) -> ModelCard:
         path=path, fmu=fmu, builtin=document.get('builtin'), fmi_type=fmi_type,
         interface=interface, tolerance=None if tolerance is None else float(tolerance),
         time_origin=time_origin, parameters=dict(parameters),
-        description=document.get('description', ''), boptest=boptest, **variables)
+        description=document.get('description', ''), boptest=boptest,
+        monotone=document.get('monotone'), **variables)
 
 
 def _boptest_spec(path: pathlib.Path, spec: dict,
@@ -961,10 +975,11 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
         return model
     if card.builtin == 'r1c1':
         from mshoot_core.models.r1c1 import R1C1Model, R1C1Parameters
-        return R1C1Model(R1C1Parameters(**card.parameters))
+        return _claim_monotone(R1C1Model(R1C1Parameters(**card.parameters)), card)
     if card.builtin == 'r2c2':
         from mshoot_core.models.r2c2 import R2C2Model, R2C2Parameters
-        return R2C2Model(R2C2Parameters(**card.parameters), card.measured_states)
+        return _claim_monotone(R2C2Model(R2C2Parameters(**card.parameters),
+                                         card.measured_states), card)
     options: dict[str, Any] = {}
     if 'time_origin_s' in inspect.signature(FmiModel).parameters:
         options['time_origin_s'] = float(time_origin_s)
@@ -988,6 +1003,13 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
     model.comfort_states = tuple(n for n in card.state_names if n == 'T' or n.startswith('T_'))
     model.measured_states = card.measured_states  # the others are estimated
     logger.debug('built %r from %s for the %s', model, card.path, role)
+    return _claim_monotone(model, card)
+
+
+def _claim_monotone(model: Model, card: ModelCard) -> Model:
+    """Set ``model.monotone_inputs`` as the card's ``monotone`` says (absent: as it is)."""
+    if card.monotone is not None:
+        model.monotone_inputs = tuple(card.control_names) if card.monotone else ()
     return model
 
 

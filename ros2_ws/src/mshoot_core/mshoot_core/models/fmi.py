@@ -84,6 +84,7 @@ from mshoot_core.models.fmi_plant import FmuPlant
 from mshoot_core.models.fmi_sensitivities import (ForwardSensitivities,
                                                   SENSITIVITY_NOMINAL_FACTOR)
 from mshoot_core.models.fmi_values import FmuValueError, NonFiniteChecks
+from mshoot_core.models.r1c1 import R1C1Model
 
 __all__ = ['DESCRIPTION_PICKLE', 'FMI_TYPES', 'FmiModel', 'FmuValueError', 'MAX_SOLVER_STEPS',
            'ME_MAX_STEPS', 'R1C1_VARIABLES', 'r1c1_fmi_model', 'read_cached_description',
@@ -288,6 +289,10 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
     time_origin_s : float
         Time of FMU t = 0 in the caller's time base [s]: the FMU sees
         ``t - time_origin_s`` (default 0: the caller's time is FMU time).
+    monotone_inputs : sequence of str
+        Model inputs in which the FMU is a monotone system
+        (:attr:`~mshoot_core.models.base.Model.monotone_inputs`): a claim about
+        its physics that only its author can make (default: none).
 
     Raises
     ------
@@ -299,7 +304,7 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
     ValueError
         For unknown variable names (the message lists the valid ones), an
         FMI type the FMU lacks, a bad tolerance or time origin, a file that is
-        not an FMU, or an FMI 3.0 FMU.
+        not an FMU, an FMI 3.0 FMU, or monotone inputs that are not inputs.
 
     Notes
     -----
@@ -319,7 +324,7 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
                  parameters: Mapping[str, Any] | None = None, tolerance: float = 1e-8,
                  fmi_type: str | None = None, instance_name: str = 'mshoot',
                  fixed_inputs: Mapping[str, Any] | None = None,
-                 time_origin_s: float = 0.0) -> None:
+                 time_origin_s: float = 0.0, monotone_inputs: Sequence[str] = ()) -> None:
         self._fmu: FMU2Model | FMU2Slave | None = None
         self._unzip_dir: pathlib.Path | None = None
         self._snapshot: Any = None
@@ -358,6 +363,12 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
                                       else read_cached_description(self._unzip_dir, path.name))
             self._configure(inputs, states, outputs, dict(parameters or {}), fmi_type,
                             dict(fixed_inputs or {}))
+            monotone = tuple(monotone_inputs)
+            unknown = [name for name in monotone if name not in self.input_names]
+            if unknown:
+                raise ValueError(f'monotone_inputs must be inputs of the model '
+                                 f'{list(self.input_names)}, got {unknown}')
+            self.monotone_inputs = monotone
             self._instantiate(instance_name)
         except BaseException:
             self.close()
@@ -888,7 +899,11 @@ def r1c1_fmi_model(parameters: Any = None, fmi_type: str | None = 'CoSimulation'
         values = dataclasses.asdict(parameters)
     else:
         values = dict(parameters)
-    if fmu_path is None:
+    builtin = fmu_path is None
+    if builtin:
         fmu_path = find_fmu('r1c1')
+    # the built-in FMU is the RC network of R1C1Model: monotone in T and q (another file of the
+    # same names makes no such claim)
     return FmiModel(fmu_path, parameters=values, tolerance=tolerance, fmi_type=fmi_type,
+                    monotone_inputs=R1C1Model.monotone_inputs if builtin else (),
                     **R1C1_VARIABLES)

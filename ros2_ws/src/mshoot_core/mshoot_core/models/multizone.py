@@ -58,6 +58,7 @@ class MultiZoneModel(Model):
         self.state_names = tuple(f'T_{i}' for i in range(self.n_zones))
         self.output_names = tuple(f'Tc_{i}' for i in range(self.n_zones))
         self.control_names = tuple(f'q_{i}' for i in range(self.n_zones))
+        self.monotone_inputs = self.control_names  # (R1C1 zones, each in its own q)
         self.comfort_states = self.state_names
 
     def _zone_inputs(self, u: np.ndarray) -> np.ndarray:

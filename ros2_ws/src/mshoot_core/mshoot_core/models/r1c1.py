@@ -94,6 +94,9 @@ class R1C1Model(Model):
     input_names = ('solrad', 'Tout', 'occ', 'dpos', 'q')
     state_names = ('T',)
     output_names = ('T', 'Qr')
+    #: T(t) = T_inf + (T0 - T_inf) exp(-g t / C), T_inf = f / g with g, C > 0: increasing in T0
+    #: and in q (f grows with q)
+    monotone_inputs = ('q',)
 
     def __init__(self, parameters: R1C1Parameters | None = None) -> None:
         self.parameters = parameters or R1C1Parameters()

@@ -190,6 +190,9 @@ class R2C2Model(Model):
     input_names = ('solrad', 'Tout', 'occ', 'dpos', 'q')
     state_names = ('T', 'Tw')
     output_names = ('T', 'Qr')
+    #: A's off-diagonal entries (1 / (C Raw)) are positive, so Phi = expm(A t) >= 0: both
+    #: nodes' ends are nondecreasing in both starts and in q (heat into the air node)
+    monotone_inputs = ('q',)
     control_names = ('q',)
     comfort_states = ('T',)
 
