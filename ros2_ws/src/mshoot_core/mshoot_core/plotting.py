@@ -13,10 +13,11 @@ it draws the figure's axes ahead, and after the run only the data on them
 
 This module imports only the standard library at load time (a command can
 start the worker before it loads anything else; the worker runs this file as
-a script, ``python -I -S -OO plotting.py FOLDER...`` (:func:`worker_command`), with
-nothing of mshoot_core on its path and matplotlib's folders given); matplotlib is imported where a
-figure is drawn, with the Agg backend and without pyplot. The PNG is written
-by :func:`_png` (the pixels and metadata of matplotlib's writer, faster).
+a script, ``python -I -S -OO plotting.py FOLDER...`` (:func:`worker_command`),
+with nothing of mshoot_core on its path and matplotlib's folders given);
+matplotlib is imported where a figure is drawn, with the Agg backend and
+without pyplot. The PNG is written by :func:`_png` (the pixels and metadata of
+matplotlib's writer, faster).
 """
 from __future__ import annotations
 

@@ -390,7 +390,8 @@ class ShootingProblem:
         (scaled state units), the bounds cannot be kept together, even where
         :meth:`relax_bounds`' envelope (the extreme trajectories, unclipped) reaches each of
         them on its own: a hard NLP would fail, and :meth:`solve` goes to the
-        least-violation phase at once.
+        least-violation phase at once. (It does not replace the envelope's test, which also
+        relaxes bounds reached by less than its margin.)
 
         Parameters
         ----------
@@ -419,7 +420,7 @@ class ShootingProblem:
             self.model_evaluations += 2
             if (ends[1] < lower[k] - pad).any() or (ends[0] > upper[k] + pad).any():
                 return True
-            tube = np.clip(ends, lower[k], upper[k])
+            tube = np.minimum(np.maximum(ends, lower[k]), upper[k])  # (np.clip, faster)
         return False
 
     def relax_bounds(self, x0: np.ndarray, disturbances: np.ndarray, lower: np.ndarray,
