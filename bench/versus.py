@@ -1,7 +1,7 @@
 """
 Versus: mshoot next to a CasADi/IPOPT multiple-shooting implementation of the same cases.
 
-    python bench/versus.py [--repeats 3] [--zones 10 50 100] [--zone-steps 6]
+    python bench/versus.py [--repeats 5] [--zones 10 50 100] [--zone-steps 6]
 
 In one run (issue 16, part 1):
 
@@ -782,8 +782,8 @@ def report(whole: dict, zones: list[dict], parts: dict) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument('--repeats', type=int, default=3,
-                        help='runs of each whole command (default 3; medians)')
+    parser.add_argument('--repeats', type=int, default=5,
+                        help='runs of each whole command (default 5; medians)')
     parser.add_argument('--zones', nargs='+', type=int, default=[10, 50, 100])
     parser.add_argument('--zone-steps', type=int, default=6,
                         help='MPC steps per zone count (default 6: one cold, five warm)')

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import math
 from typing import Any, Iterable, Mapping
 
@@ -326,6 +327,7 @@ GROUPS: dict[str, type] = {'problem': ProblemSettings, 'comfort': ComfortSetting
                            'inputs': InputSettings, 'estimation': EstimationSettings}
 
 
+@functools.cache  # (a group's fields never change; every validation asks for them)
 def fields_of(group: type) -> tuple[SettingField, ...]:
     """Return the described settings of one group (fields without a description are left out)."""
     out = []
