@@ -214,14 +214,6 @@ def test_model_exchange_and_co_simulation_closed_loops_agree(ou44_csv):
 
 
 # -- the band's feasible tube (monotone models) ------------------------------------------------
-def _inputs(problem, disturbances, k, side):
-    """Return the model inputs of interval k, every control at its lower (0) or upper (1) bound."""
-    u = np.empty((1, len(problem.model.input_names)))
-    u[0, problem.disturbance_cols] = disturbances[k]
-    u[0, problem.control_cols] = problem.control_bounds[:, side]
-    return u
-
-
 def test_band_the_envelope_reaches_but_no_plan_keeps_is_infeasible_along_the_tube():
     """
     A band each of whose bounds the envelope reaches but no plan keeps: infeasible.
@@ -237,8 +229,8 @@ def test_band_the_envelope_reaches_but_no_plan_keeps_is_infeasible_along_the_tub
     low, high = problem.reachable_envelope(x0, disturbances)
     lower, upper = np.full((3, 1), -np.inf), np.full((3, 1), np.inf)
     lower[0] = high[0] - 0.1
-    from_warm = model.simulate_intervals(lower[0][None, :], _inputs(problem, disturbances, 1, 0),
-                                         3600.0)[0][0]
+    full_cooling = problem._full_inputs(problem.control_bounds[None, :, 0], disturbances[1:2])
+    from_warm = model.simulate_intervals(lower[0][None, :], full_cooling, 3600.0)[0][0]
     upper[1] = from_warm - 0.05
     assert low[1] < upper[1] and high[0] > lower[0]  # each bound reachable on its own
     assert not problem.relax_bounds(x0, disturbances, lower, upper)[2]
