@@ -4,7 +4,7 @@ ROOT := $(abspath $(dir $(lastword $(MAKEFILE_LIST))))
 RUN := source $(ROOT)/env.sh &&
 PYTEST_ARGS ?=
 
-.PHONY: setup test bench bench-setup versus clean help
+.PHONY: setup test bench bench-setup versus clean help docs
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:.*## /\t/'
@@ -12,8 +12,12 @@ help:  ## list the targets
 setup:  ## create .venv, install pinned wheels, build the FMUs and the ROS 2 workspace (idempotent)
 	@bash $(ROOT)/tools/setup.sh
 
-test: setup  ## run every test (about 3 min on 2 cores)
+test: setup  ## run every test, the docs build and its tutorials included (about 5 min on 2 cores)
 	@$(RUN) cd $(ROOT) && python -m pytest $(PYTEST_ARGS)
+
+docs: setup  ## the documentation site (Sphinx, warnings as errors) -> out/docs/html/index.html
+	@$(RUN) cd $(ROOT) && python -m sphinx -W --keep-going -q -b html -d out/docs/doctrees \
+		docs out/docs/html && echo "out/docs/html/index.html"
 
 bench-setup: setup  ## install the benchmark-only packages (bench/requirements.txt: CasADi) into .venv
 	@VIRTUAL_ENV=$(ROOT)/.venv $(ROOT)/.venv/bin/uv pip install -q --compile-bytecode -r $(ROOT)/bench/requirements.txt

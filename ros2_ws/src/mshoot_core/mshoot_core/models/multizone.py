@@ -23,6 +23,12 @@ class MultiZoneModel(Model):
     """
     Z independent R1C1 zones in one model.
 
+    Inputs ``solrad``, ``Tout``, ``occ``, ``dpos`` (shared) and ``q_0`` ...
+    ``q_{Z-1}`` [W]; states ``T_0`` ... [K]; outputs ``Tc_0`` ... [degC].
+    The controls (:attr:`control_names`) are the heat rates ``q_i``; every state
+    is a zone temperature bounded by the comfort band (:attr:`comfort_states`;
+    see :func:`mshoot_core.models.registry.control_interface`).
+
     Parameters
     ----------
     n_zones : int
@@ -32,12 +38,6 @@ class MultiZoneModel(Model):
         aperture x U(0.5, 1.5), occupancy share x U(0.5, 1.5).
     base : R1C1Parameters, optional
         Parameters of the reference zone (default: the OU44 classroom).
-
-    Inputs ``solrad``, ``Tout``, ``occ``, ``dpos`` (shared) and ``q_0`` ...
-    ``q_{Z-1}`` [W]; states ``T_0`` ... [K]; outputs ``Tc_0`` ... [degC].
-    The controls (:attr:`control_names`) are the heat rates ``q_i``; every state
-    is a zone temperature bounded by the comfort band (:attr:`comfort_states`;
-    see :func:`mshoot_core.models.registry.control_interface`).
 
     """
 

@@ -1,6 +1,8 @@
 """
 An R2C2 zone in plain Python: an air node and an envelope node, exact per interval.
 
+Its heat balances [W]::
+
     Cair  dT/dt  = (Tw - T)/Raw + (Tout + 273.15 - T)/Rwin + (1 - fsun)*shgc*solrad
                    + occheff*84*occ + qv + q
     Cwall dTw/dt = (T - Tw)/Raw + (Tout + 273.15 - Tw)/Rwa + fsun*shgc*solrad
