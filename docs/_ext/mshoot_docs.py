@@ -10,7 +10,8 @@ Directives (MyST: ```` ```{mshoot-settings} ```` ... ```` ``` ````):
 
 ``mshoot-settings``
     Every described setting of the controller (group, default, unit and description, range or
-    choices, what a change at run time implies, command-line option). Option ``:groups:``
+    choices, what a change at run time implies, the ``mshoot case`` option where it has one);
+    each is a parameter of the MPC node of the same name. Option ``:groups:``
     limits the table to some groups (e.g. ``problem comfort``); ``:model:`` (a flag) lists
     the model settings of :mod:`mshoot_core.models.registry` instead.
 ``mshoot-node-params`` *module*
@@ -119,15 +120,17 @@ class SettingsTable(RstDirective):
         else:
             groups = (self.options.get('groups') or '').split()
             fields = tuple(f for f in settings.PARAMETERS if not groups or f.group in groups)
+        from mshoot_studies.case import CASE_SETTINGS
         rows = []
         for f in fields:
             option = f.cli or '--' + f.name.replace('_', '-')
             change = '; '.join(sorted(f.applies))
             rows.append([_literal(f.name), _literal(f.group), _literal(repr(f.default)),
                          _cell(f.description), _bounds(f.low, f.high, f.choices),
-                         _literal(change), _literal(option)])
+                         _literal(change), _literal(option) if f.name in CASE_SETTINGS else ''])
         return list_table(['setting', 'group', 'default', 'description [unit]',
-                           'range or choices', 'run-time change', 'CLI option'], rows)
+                           'range or choices', 'run-time change', '``mshoot case`` option'],
+                          rows)
 
 
 class NodeParams(RstDirective):
