@@ -9,11 +9,11 @@ command line is the ``--help`` of each parser, formatted at build time.
 Directives (MyST: ```` ```{mshoot-settings} ```` ... ```` ``` ````):
 
 ``mshoot-settings``
-    Every described setting of the controller (group, default, unit and description, range or
-    choices, what a change at run time implies, the ``mshoot case`` option where it has one);
-    each is a parameter of the MPC node of the same name. Option ``:groups:``
-    limits the table to some groups (e.g. ``problem comfort``); ``:model:`` (a flag) lists
-    the model settings of :mod:`mshoot_core.models.registry` instead.
+    Every described setting of the controller, one table per group (default, range or
+    choices, what a change at run time implies, unit and description, the ``mshoot case``
+    option where it has one); each is a parameter of the MPC node of the same name. Option
+    ``:groups:`` limits the tables to some groups (e.g. ``problem comfort``); ``:model:`` (a
+    flag) lists the model settings of :mod:`mshoot_core.models.registry` instead.
 ``mshoot-node-params`` *module*
     The parameters a node declares (its module's ``PARAMS``): type, default, range or
     choices, read-only, description.
@@ -114,23 +114,33 @@ class SettingsTable(RstDirective):
 
     def rst(self) -> list[str]:
         from mshoot_core import settings
-        if 'model' in self.options:
-            from mshoot_core.models.registry import MODEL_PARAMETERS
-            fields = MODEL_PARAMETERS
-        else:
-            groups = (self.options.get('groups') or '').split()
-            fields = tuple(f for f in settings.PARAMETERS if not groups or f.group in groups)
         from mshoot_studies.case import CASE_SETTINGS
-        rows = []
-        for f in fields:
-            option = f.cli or '--' + f.name.replace('_', '-')
-            change = '; '.join(sorted(f.applies))
-            rows.append([_literal(f.name), _literal(f.group), _literal(repr(f.default)),
-                         _cell(f.description), _bounds(f.low, f.high, f.choices),
-                         _literal(change), _literal(option) if f.name in CASE_SETTINGS else ''])
-        return list_table(['setting', 'group', 'default', 'description [unit]',
-                           'range or choices', 'run-time change', '``mshoot case`` option'],
-                          rows)
+        if 'model' in self.options:
+            from mshoot_core.models.registry import MODEL_PARAMETERS, ModelSettings
+            tables = [(None, ModelSettings, MODEL_PARAMETERS)]
+        else:
+            wanted = (self.options.get('groups') or '').split()
+            tables = [(name, cls, settings.fields_of(cls))
+                      for name, cls in settings.GROUPS.items() if not wanted or name in wanted]
+        lines: list[str] = []
+        for name, cls, fields in tables:
+            rows = []
+            for f in fields:
+                description = _cell(f.description)
+                if f.name in CASE_SETTINGS:
+                    option = f.cli or '--' + f.name.replace('_', '-')
+                    description += f' (``mshoot case {option}``)'
+                rows.append([_literal(f.name), _literal(repr(f.default)),
+                             _bounds(f.low, f.high, f.choices),
+                             _literal('; '.join(sorted(f.applies))), description])
+            if name is not None:
+                title = f'Group ``{name}``'
+                summary = (cls.__doc__ or '').strip().splitlines()[0]
+                lines += [title, '~' * len(title), '', _cell(summary), '']
+            lines += list_table(['setting', 'default', 'range or choices', 'run-time change',
+                                 'description [unit]'], rows, widths='22 12 16 12 38')
+            lines.append('')
+        return lines
 
 
 class NodeParams(RstDirective):
@@ -142,11 +152,11 @@ class NodeParams(RstDirective):
         module = importlib.import_module(self.arguments[0])
         rows = []
         for spec in module.PARAMS:
-            rows.append([_literal(spec.name), type(spec.default).__name__,
-                         _literal(repr(spec.default)), _bounds(spec.low, spec.high, spec.choices),
+            rows.append([_literal(spec.name), _literal(repr(spec.default)),
+                         _bounds(spec.low, spec.high, spec.choices),
                          'yes' if spec.read_only else '', _cell(spec.description)])
-        return list_table(['parameter', 'type', 'default', 'range or choices', 'read-only',
-                           'description [unit]'], rows, widths='auto')
+        return list_table(['parameter', 'default', 'range or choices', 'read-only',
+                           'description [unit]'], rows, widths='24 14 16 8 38')
 
 
 def _qos_words(qos: Any) -> str:
