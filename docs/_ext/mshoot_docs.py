@@ -305,6 +305,20 @@ def escape_bars(app: Sphinx, what: str, name: str, obj: Any, options: Any,
             lines[i] = _BARS.sub(r'\\|\1\\|', line)
 
 
+def prose_attributes(app: Sphinx, what: str, name: str, obj: Any, options: Any,
+                     lines: list[str]) -> None:
+    """
+    Keep a data or attribute docstring prose (before napoleon reads it).
+
+    napoleon reads the first line of such a docstring as ``type: description`` when it holds a
+    colon, so ``#: Robust losses of least_squares ('linear': plain ...)`` would lose its start
+    to a type. mshoot's types are annotations, never written there: an empty RST comment
+    (``..``) as the first line, which napoleon takes for that line, keeps the text whole.
+    """
+    if what in ('data', 'attribute') and lines and ':' in lines[0]:
+        lines[:0] = ['..', '']
+
+
 def reread_index(app: Sphinx, env: Any, added: set[str], changed: set[str],
                  removed: set[str]) -> list[str]:
     """Re-read the index when pages come or go (its remaining pages change)."""
@@ -322,4 +336,5 @@ def setup(app: Sphinx) -> dict[str, Any]:
     app.connect('source-read', remaining_pages)
     app.connect('env-get-outdated', reread_index)
     app.connect('autodoc-process-docstring', escape_bars)
+    app.connect('autodoc-process-docstring', prose_attributes, priority=400)  # before napoleon
     return {'version': '1', 'parallel_read_safe': True, 'parallel_write_safe': True}
