@@ -44,6 +44,7 @@ import pkgutil
 import re
 import shlex
 import subprocess
+import sys
 from typing import Any, Iterator
 
 from docutils import nodes
@@ -104,6 +105,11 @@ class RstDirective(SphinxDirective):
         if 'myst' in type(self.state).__module__:  # a MyST page parses Markdown: RST inside
             lines = ['````{eval-rst}', *lines, '````']
         nested_parse_with_titles(self.state, StringList(lines, source=source), node)
+        # what the text came from: an incremental build re-reads the page when the code changes
+        for module in list(sys.modules.values()):
+            path = getattr(module, '__file__', None)
+            if path and module.__name__.split('.')[0].startswith('mshoot_'):
+                self.env.note_dependency(path)
         return node.children
 
 
