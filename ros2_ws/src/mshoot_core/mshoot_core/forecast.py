@@ -84,6 +84,20 @@ MAX_SEED = 2 ** 32 - 1
 Truth = Callable[[str, np.ndarray], np.ndarray]
 
 
+def ar1(points: int, first: Callable[[], float],
+        following: Callable[[float], float]) -> np.ndarray:
+    """
+    Return an AR(1) sequence of ``points`` values: ``first()``, then ``following(last)``.
+
+    Drawn in order, one value at a time (the order BOPTEST draws its errors in).
+    """
+    error = np.zeros(points)
+    error[0] = first()
+    for i in range(1, points):
+        error[i] = following(error[i - 1])
+    return error
+
+
 @dataclasses.dataclass(frozen=True)
 class TemperatureError:
     """
@@ -110,11 +124,8 @@ class TemperatureError:
 
     def draw(self, random: np.random.RandomState, points: int) -> np.ndarray:
         """Return ``points`` errors [K], drawn in order from ``random`` (BOPTEST's order)."""
-        error = np.zeros(points)
-        error[0] = random.normal(self.F0, self.K0)
-        for i in range(points - 1):
-            error[i + 1] = random.normal(error[i] * self.F + self.mu, self.K)
-        return error
+        return ar1(points, lambda: random.normal(self.F0, self.K0),
+                   lambda last: random.normal(last * self.F + self.mu, self.K))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -141,11 +152,8 @@ class SolarError:
 
     def draw(self, random: np.random.RandomState, points: int) -> np.ndarray:
         """Return ``points`` errors [W/m2], drawn in order from ``random`` (BOPTEST's order)."""
-        error = np.zeros(points)
-        error[0] = random.laplace(self.ag0, self.bg0)
-        for i in range(1, points):
-            error[i] = random.laplace(error[i - 1] * self.phi + self.ag, self.bg)
-        return error
+        return ar1(points, lambda: random.laplace(self.ag0, self.bg0),
+                   lambda last: random.laplace(last * self.phi + self.ag, self.bg))
 
 
 #: BOPTEST's temperature error levels (``none``: no error).
