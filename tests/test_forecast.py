@@ -242,7 +242,8 @@ def test_the_same_draw_within_one_hour() -> None:
 def test_horizons_over_48_h_are_refused_with_errors() -> None:
     uncertain = _source(ForecastErrorSettings(temperature_uncertainty='low'))
     uncertain.forecast(0.0, MAX_HORIZON_S, 3600.0)
-    with pytest.raises(ValueError, match=r"48 h\) for \['T'\]"):
+    with pytest.raises(ValueError, match=r"48 h\) with forecast uncertainty \['low'\], got "
+                       r"176400 s \(points \['T'\]\)"):
         uncertain.forecast(0.0, MAX_HORIZON_S + 3600.0, 3600.0)
     # a point without errors has no such limit
     assert len(uncertain.forecast(0.0, 72 * 3600.0, 3600.0, ['G', 'price'])) == 73

@@ -316,7 +316,7 @@ def test_invalid_parameters_are_rejected_with_a_reason(context, tmp_path):
     assert 'start_time must be after 1970' in rejected(EmulatorNode, start_time='1960-01-01')
     assert 'temperature_uncertainty must be one of' in rejected(
         ForecasterNode, temperature_uncertainty='gauss')
-    assert 'must be <= 172800 s (48 h)' in rejected(ForecasterNode, solar_uncertainty='high',
+    assert 'horizon <= 172800 s (48 h)' in rejected(ForecasterNode, solar_uncertainty='high',
                                                     horizon_steps=49)
     assert "storage must be one of ['mcap', 'sqlite3']" in rejected(
         RecorderNode, storage='zip', bag_path=str(tmp_path / 'b'))

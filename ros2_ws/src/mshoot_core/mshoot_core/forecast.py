@@ -41,7 +41,9 @@ times) with these errors; :meth:`ForecastSource.from_test_case` is a BOPTEST tes
 manager does (:meth:`mshoot_core.boptest.testcase.TestCase.forecast_values`). The two points
 with errors are named by the caller (default BOPTEST's ``TDryBul`` and ``HGloHor``), so a source
 over other series (a scenario's ``Tout`` [degC] and ``solrad``) uses the same model: a
-temperature error is the same in K and degC.
+temperature error is the same in K and degC. :class:`ScenarioForecasts` puts these errors on a
+scenario's step forecasts (the forecaster node's): for a BOPTEST test period, the test case's
+points at the step's FMU time.
 
 Where this differs from BOPTEST v0.8.0 (on purpose): a seed of 0 is a seed (BOPTEST reads 0 as
 "no seed": unreproducible draws); the draw of both points is made together, so a request that
@@ -268,6 +270,19 @@ def forecast_times(now_s: float, horizon_s: float, interval_s: float) -> np.ndar
     return np.arange(now_s, now_s + horizon_s + 0.1, interval_s)
 
 
+def horizon_problem(levels: Sequence[str], horizon_s: float) -> str | None:
+    """
+    Return why ``horizon_s`` [s] is too long for points with error ``levels``, or None.
+
+    BOPTEST refuses a horizon over 48 h (:data:`MAX_HORIZON_S`) for a point with errors.
+    """
+    uncertain = sorted({level for level in levels if level != 'none'})
+    if uncertain and horizon_s > MAX_HORIZON_S:
+        return (f'expected a horizon <= {MAX_HORIZON_S:.0f} s (48 h) with forecast '
+                f'uncertainty {uncertain}, got {horizon_s:g} s')
+    return None
+
+
 def _level(level: str, what: str) -> str:
     if level not in UNCERTAINTY_LEVELS:
         raise ValueError(f'{what} uncertainty must be one of {list(UNCERTAINTY_LEVELS)}, '
@@ -409,10 +424,10 @@ class ForecastSource:
         if now_s < 0 or horizon_s < 0 or interval_s <= 0:
             raise ValueError(f'expected time >= 0, horizon >= 0 and interval > 0 [s], got '
                              f'{now_s:g}, {horizon_s:g} and {interval_s:g}')
-        with_errors = [n for n in names if n in self.uncertain_points]
-        if with_errors and horizon_s > MAX_HORIZON_S:
-            raise ValueError(f'expected a horizon <= {MAX_HORIZON_S:.0f} s (48 h) for '
-                             f'{with_errors} with forecast uncertainty, got {horizon_s:g} s')
+        levels = self.uncertain_points
+        problem = horizon_problem([levels[n] for n in names if n in levels], horizon_s)
+        if problem:
+            raise ValueError(f'{problem} (points {[n for n in names if n in levels]})')
 
     def _current_draw(self, now_s: float, horizon_s: float) -> _Draw:
         """Return the draw of this request: the kept one while start and start + H hold."""
@@ -518,9 +533,10 @@ class ScenarioForecasts:
 
     def check_horizon(self, horizon_steps: int) -> None:
         """Raise ValueError if ``horizon_steps`` rows are too long a horizon for the errors."""
-        if self.source.uncertain_points and horizon_steps * self.step_s > MAX_HORIZON_S:
-            raise ValueError(f'expected a horizon <= {MAX_HORIZON_S:.0f} s (48 h) with forecast '
-                             f'uncertainty, got {horizon_steps} steps of {self.step_s:g} s')
+        problem = horizon_problem(list(self.source.uncertain_points.values()),
+                                  horizon_steps * self.step_s)
+        if problem:
+            raise ValueError(f'{problem} ({horizon_steps} steps of {self.step_s:g} s)')
 
     def window(self, index: int, horizon_steps: int) -> pd.DataFrame:
         """

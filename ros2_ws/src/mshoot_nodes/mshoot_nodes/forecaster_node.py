@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from mshoot_core.forecast import MAX_HORIZON_S, ScenarioForecasts
+from mshoot_core.forecast import horizon_problem, ScenarioForecasts
 from mshoot_core.safety import COMFORT_SERIES, PRICE_SERIES
 from mshoot_core.settings import fields_of, ForecastErrorSettings
 from mshoot_msgs.msg import Forecast
@@ -77,11 +77,10 @@ def _check_sources(v: dict[str, Any]) -> str | None:
         clash = [n for n in names if n in (*COMFORT_SERIES, PRICE_SERIES)]
         if clash:
             return f'series must not name {clash}: the comfort band and the price are sent anyway'
-    levels = (v.get('temperature_uncertainty'), v.get('solar_uncertainty'))
-    if any(level not in (None, 'none') for level in levels) and 'horizon_steps' in v \
-            and v['horizon_steps'] * v.get('step_s', 3600.0) > MAX_HORIZON_S:
-        return (f'horizon_steps x step_s must be <= {MAX_HORIZON_S:.0f} s (48 h) with forecast '
-                f"uncertainty, got {v['horizon_steps']} x {v.get('step_s', 3600.0):g} s")
+    if 'horizon_steps' in v and (reason := horizon_problem(
+            [v.get('temperature_uncertainty', 'none'), v.get('solar_uncertainty', 'none')],
+            v['horizon_steps'] * v.get('step_s', 3600.0))):
+        return f'horizon_steps x step_s: {reason}'
     if 'price_per_kwh' in v:
         prices = list(v['price_per_kwh'])
         if len(prices) not in (1, 24) or not all(np.isfinite(prices)):
