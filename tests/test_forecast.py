@@ -157,7 +157,7 @@ def test_temperature_errors_follow_the_ar1_model(level: str) -> None:
 
 @pytest.mark.parametrize('level', ['low', 'medium', 'high'])
 def test_solar_errors_follow_the_ar1_laplace_model(level: str) -> None:
-    """Raw draws: Laplace first error (mean ag0, std sqrt(2) bg0) and AR coefficient phi."""
+    """Raw draws: the Laplace first error and innovation (mean, variance 2 b^2), and phi."""
     model = SOLAR_ERRORS[level]
     draws, points = 2000, 20
     errors = np.array([model.draw(np.random.RandomState(seed), points)
@@ -171,8 +171,11 @@ def test_solar_errors_follow_the_ar1_laplace_model(level: str) -> None:
     residual = y - slope * x - intercept
     slope_se = residual.std(ddof=2) / (x.std() * np.sqrt(x.size))
     assert abs(slope - model.phi) < Z * slope_se
-    assert abs(np.median(np.abs(residual - np.median(residual))) / np.log(2) - model.bg) \
-        < 0.05 * model.bg  # Laplace: median absolute deviation = b ln 2
+    n = x.size
+    assert abs(intercept - model.ag) < Z * residual.std() * np.sqrt(1 / n + x.mean() ** 2
+                                                                    / (n * x.var()))
+    assert abs(residual.var(ddof=2) - 2 * model.bg ** 2) < Z * np.sqrt(20) * model.bg ** 2 \
+        / np.sqrt(n)
 
 
 def test_solar_forecast_is_bounded_and_dark_at_night() -> None:
