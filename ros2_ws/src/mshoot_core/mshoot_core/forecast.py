@@ -55,6 +55,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import numbers
 from typing import Callable, Sequence
 
 import numpy as np
@@ -361,10 +362,11 @@ class ForecastSource:
 
     @property
     def uncertain_points(self) -> dict[str, str]:
-        """Return the series with errors, by name, with their level (none left out)."""
+        """Return the served series with errors, by name, with their level (none left out)."""
         levels = {self.temperature_point: self.errors.temperature_uncertainty,
                   self.solar_point: self.errors.solar_uncertainty}
-        return {name: level for name, level in levels.items() if level != 'none'}
+        return {name: level for name, level in levels.items()
+                if level != 'none' and name in self.series}
 
     def forecast(self, now_s: float, horizon_s: float, interval_s: float,
                  points: Sequence[str] | None = None) -> pd.DataFrame:
@@ -418,7 +420,7 @@ class ForecastSource:
                              f'{names}')
         for label, value in (('time', now_s), ('horizon', horizon_s),
                              ('interval', interval_s)):
-            if not isinstance(value, (int, float)) or isinstance(value, bool) \
+            if not isinstance(value, numbers.Real) or isinstance(value, bool) \
                     or not math.isfinite(value):
                 raise ValueError(f'expected a finite {label} [s], got {value!r}')
         if now_s < 0 or horizon_s < 0 or interval_s <= 0:
