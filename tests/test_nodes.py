@@ -314,7 +314,10 @@ def test_invalid_parameters_are_rejected_with_a_reason(context, tmp_path):
     assert "mode must be one of ['lockstep', 'free']" in rejected(EmulatorNode, mode='fast')
     assert 'step_s must be a multiple of fine_step_s' in rejected(EmulatorNode, fine_step_s=7.0)
     assert 'start_time must be after 1970' in rejected(EmulatorNode, start_time='1960-01-01')
-    assert 'error_model must be one of' in rejected(ForecasterNode, error_model='gauss')
+    assert 'temperature_uncertainty must be one of' in rejected(
+        ForecasterNode, temperature_uncertainty='gauss')
+    assert 'horizon <= 172800 s (48 h)' in rejected(ForecasterNode, solar_uncertainty='high',
+                                                    horizon_steps=49)
     assert "storage must be one of ['mcap', 'sqlite3']" in rejected(
         RecorderNode, storage='zip', bag_path=str(tmp_path / 'b'))
     assert 'exists (set overwrite:=true' in rejected(RecorderNode, bag_path=str(tmp_path))

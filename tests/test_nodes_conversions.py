@@ -8,7 +8,6 @@ from mshoot_core.scenario import forecast_window, reference_scenario, synthetic_
 from mshoot_core.settings import MpcSettings
 from mshoot_nodes import conversions as cv
 from mshoot_nodes import sources
-from mshoot_nodes.forecaster_node import forecast_errors
 import numpy as np
 import pandas as pd
 import pytest
@@ -175,15 +174,3 @@ def test_simulated_time_starts_at_the_scenario_date():
     assert 'not found' in sources.check_model('/nowhere/x.fmu')
     assert 'must be one of' in sources.check_model('matlab')
     assert 'must be one of' in sources.check_scenario('winter', '')
-
-
-def test_forecast_errors_are_seeded_and_grow_with_lead_time():
-    tout, solrad = forecast_errors(3, 11, 0.5, 20.0, seed=1)
-    assert tout[0] == solrad[0] == 0.0
-    again = forecast_errors(3, 11, 0.5, 20.0, seed=1)
-    np.testing.assert_array_equal(tout, again[0])
-    other = forecast_errors(4, 11, 0.5, 20.0, seed=1)
-    assert not np.array_equal(tout, other[0])
-    many = np.array([forecast_errors(k, 11, 0.5, 20.0, seed=0)[0] for k in range(400)])
-    spread = many.std(axis=0)
-    assert spread[10] > 2 * spread[1] > 0

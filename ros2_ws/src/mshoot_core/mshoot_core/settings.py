@@ -321,6 +321,42 @@ class EstimationSettings(SettingsGroup):
         return []
 
 
+#: BOPTEST's forecast uncertainty levels (:mod:`mshoot_core.forecast`).
+UNCERTAINTY_LEVELS = ('none', 'low', 'medium', 'high')
+
+
+@dataclasses.dataclass(frozen=True)
+class ForecastErrorSettings(SettingsGroup):
+    """
+    The forecasts' emulated errors, as BOPTEST's forecast uncertainty scenario has them.
+
+    Not a group of :class:`MpcSettings`: the forecaster's (:mod:`mshoot_core.forecast`).
+    Validated on construction.
+
+    Raises
+    ------
+    SettingsError
+        With every problem at once.
+
+    """
+
+    temperature_uncertainty: str = setting(
+        'none', "error level of the outdoor temperature forecast (BOPTEST's "
+        "temperature_uncertainty: AR(1) Gaussian errors; 'none': exact)",
+        choices=UNCERTAINTY_LEVELS, apply='fixed')
+    solar_uncertainty: str = setting(
+        'none', "error level of the global horizontal irradiance forecast (BOPTEST's "
+        "solar_uncertainty: AR(1) Laplace errors; 'none': exact)",
+        choices=UNCERTAINTY_LEVELS, apply='fixed')
+    seed: int = setting(0, 'seed of the forecast errors: a draw at time t [s] is seeded with '
+                        'seed + t, as BOPTEST does [-]', low=0, high=2 ** 31 - 1, apply='fixed')
+
+    def __post_init__(self) -> None:
+        problems = self.problems()
+        if problems:
+            raise SettingsError(problems)
+
+
 #: The groups of :class:`MpcSettings`, by attribute name.
 GROUPS: dict[str, type] = {'problem': ProblemSettings, 'comfort': ComfortSettings,
                            'solver': SolverSettings, 'supervisor': SupervisorSettings,
@@ -453,16 +489,19 @@ assert len(BY_NAME) == len(PARAMETERS), 'flat setting names must be unique'
 
 
 # -- the command line ---------------------------------------------------------------------
-def add_arguments(parser: argparse.ArgumentParser, names: Iterable[str],
+def add_arguments(parser: argparse.ArgumentParser, names: Iterable[str | SettingField],
                   defaults: Mapping[str, Any] | None = None) -> None:
     """
     Add the settings ``names`` as options of ``parser`` (help from their descriptions).
 
-    Options are parsed as strings of the setting's type; validation is left to
-    :meth:`MpcSettings.replace`, so every problem is reported at once.
+    A name is that of an MPC setting (:data:`BY_NAME`), or a :class:`SettingField` of another
+    group (e.g. ``fields_of(ForecastErrorSettings)``). Options are parsed as strings of the
+    setting's type; validation is left to :meth:`MpcSettings.replace` (or the group's
+    constructor), so every problem is reported at once.
     """
     for name in names:
-        f = BY_NAME[name]
+        f = name if isinstance(name, SettingField) else BY_NAME[name]
+        name = f.name
         default = (defaults or {}).get(name, f.default)
         option = f.cli or '--' + name.replace('_', '-')
         kind = type(f.default)

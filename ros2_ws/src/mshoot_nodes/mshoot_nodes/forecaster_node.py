@@ -10,9 +10,10 @@ default Tout, solrad, occ: what the control model needs besides the
 ventilation it assumes) as named series, the comfort band and, with
 ``send_price``, an energy price series (``price_per_kwh``: flat or by hour of
 the day; a scenario with its own ``price`` column, e.g. a BOPTEST test period, sends that
-one instead). By default the forecasts are perfect; the ``random_walk`` error
-model adds seeded errors to Tout and solrad that grow with the lead time (the
-current step stays exact: it is measured).
+one instead). By default the forecasts are perfect; ``temperature_uncertainty``,
+``solar_uncertainty`` and ``seed`` give Tout and solrad BOPTEST's forecast errors
+(:class:`mshoot_core.forecast.ScenarioForecasts`: for a BOPTEST scenario, the test case's
+``TDryBul`` and ``HGloHor`` at the step's FMU time, as BOPTEST serves them).
 
 Health on ``/diagnostics`` (``mshoot/forecaster``): forecasts published, the
 last forecast's step, whether forecasts are paused (WARN).
@@ -21,8 +22,9 @@ from __future__ import annotations
 
 from typing import Any
 
+from mshoot_core.forecast import horizon_problem, ScenarioForecasts
 from mshoot_core.safety import COMFORT_SERIES, PRICE_SERIES
-from mshoot_core.scenario import forecast_window
+from mshoot_core.settings import fields_of, ForecastErrorSettings
 from mshoot_msgs.msg import Forecast
 import numpy as np
 import pandas as pd
@@ -50,14 +52,7 @@ PARAMS = (
               high=86400.0, read_only=True),
     ParamSpec('horizon_steps', 10, 'forecast horizon N: every forecast holds N+1 samples [-]',
               low=1, high=10_000),
-    ParamSpec('error_model', 'none', "'none': perfect forecasts; 'random_walk': errors that "
-              'grow with the lead time', choices=('none', 'random_walk')),
-    ParamSpec('error_tout_std_c', 0.5, 'random walk: outdoor temperature error added per '
-              'step of lead time, standard deviation [K]', low=0.0, high=100.0),
-    ParamSpec('error_solrad_std_w_m2', 20.0, 'random walk: solar radiation error added per '
-              'step of lead time, standard deviation [W/m2]', low=0.0, high=2000.0),
-    ParamSpec('error_seed', 0, 'seed of the forecast errors (with the step index) [-]',
-              low=0, high=2 ** 31 - 1),
+    *(ParamSpec.from_setting(f) for f in fields_of(ForecastErrorSettings)),
     ParamSpec('series', list(FORECAST_DISTURBANCES), 'scenario columns sent as named '
               "disturbance series (the control model's disturbances; those it assumes may be "
               'left out)', read_only=True),
@@ -82,41 +77,16 @@ def _check_sources(v: dict[str, Any]) -> str | None:
         clash = [n for n in names if n in (*COMFORT_SERIES, PRICE_SERIES)]
         if clash:
             return f'series must not name {clash}: the comfort band and the price are sent anyway'
+    if 'horizon_steps' in v and (reason := horizon_problem(
+            [v.get('temperature_uncertainty', 'none'), v.get('solar_uncertainty', 'none')],
+            v['horizon_steps'] * v.get('step_s', 3600.0))):
+        return f'horizon_steps x step_s: {reason}'
     if 'price_per_kwh' in v:
         prices = list(v['price_per_kwh'])
         if len(prices) not in (1, 24) or not all(np.isfinite(prices)):
             return (f'price_per_kwh must be 1 or 24 finite prices [currency/kWh], got '
                     f'{prices}')
     return None
-
-
-def forecast_errors(step_index: int, samples: int, tout_std: float, solrad_std: float,
-                    seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """
-    Random-walk forecast errors of one step: zero at lead 0, then cumulative.
-
-    Parameters
-    ----------
-    step_index : int
-        Scenario row of the forecast's first sample (seeds the generator with
-        ``seed``, so every step's errors are reproducible on their own).
-    samples : int
-        Forecast length.
-    tout_std, solrad_std : float
-        Standard deviation of the increment per step [K], [W/m2].
-    seed : int
-        Base seed.
-
-    Returns
-    -------
-    (tout_error, solrad_error) : ndarrays, shape (samples,)
-
-    """
-    rng = np.random.default_rng([int(seed), int(step_index)])
-    steps = rng.standard_normal((2, samples))
-    steps[:, 0] = 0.0
-    walk = np.cumsum(steps, axis=1)
-    return walk[0] * tout_std, walk[1] * solrad_std
 
 
 class ForecasterNode(Node):
@@ -133,6 +103,10 @@ class ForecasterNode(Node):
         if missing:
             raise ValueError(f'series {missing} are not columns of the {p["scenario"]} '
                              f'scenario {list(self.scenario.columns)}')
+        #: The step forecasts, with the errors of ``temperature_uncertainty``,
+        #: ``solar_uncertainty`` and ``seed`` (read-only: fixed for the run).
+        self.forecasts = ScenarioForecasts(self.scenario, ForecastErrorSettings(
+            **{f.name: p[f.name] for f in fields_of(ForecastErrorSettings)}))
         self.epoch_ns = sources.start_ns(self.scenario, p['start_time'])
         self.step_ns = seconds_to_ns(p['step_s'])
         self.last_index: int | None = None
@@ -144,7 +118,8 @@ class ForecasterNode(Node):
         self.get_logger().info(
             f"{p['scenario']} scenario from {pd.Timestamp(self.epoch_ns, tz='UTC').isoformat()}: "
             f"{p['horizon_steps'] + 1}-sample forecasts of {p['series']} every "
-            f"{p['step_s']:.0f} s, errors: {p['error_model']}"
+            f"{p['step_s']:.0f} s, errors: temperature {p['temperature_uncertainty']}, solar "
+            f"{p['solar_uncertainty']} (seed {p['seed']})"
             + (f", price {p['price_per_kwh']} per kWh" if p['send_price'] else ''))
 
     def _on_parameters_set(self, params: list) -> None:
@@ -182,7 +157,9 @@ class ForecasterNode(Node):
         p = self.params
         last = self.last_index
         values_ = {'forecasts_published': self.published, 'enabled': p['enabled'],
-                   'error_model': p['error_model'], 'horizon_steps': p['horizon_steps'],
+                   'temperature_uncertainty': p['temperature_uncertainty'],
+                   'solar_uncertainty': p['solar_uncertainty'], 'seed': p['seed'],
+                   'horizon_steps': p['horizon_steps'],
                    'last_step': last if last is not None else 'none',
                    'scenario_steps': len(self.scenario) - 1}
         if last is not None:
@@ -215,13 +192,7 @@ class ForecasterNode(Node):
     def publish_forecast(self, index: int) -> Forecast:
         """Publish the forecast starting at scenario row ``index``."""
         p = self.params
-        window = forecast_window(self.scenario, index, p['horizon_steps'])
-        if p['error_model'] == 'random_walk':
-            tout_err, solrad_err = forecast_errors(index, len(window), p['error_tout_std_c'],
-                                                   p['error_solrad_std_w_m2'], p['error_seed'])
-            window = window.copy()
-            window['Tout'] = window['Tout'].to_numpy() + tout_err
-            window['solrad'] = np.clip(window['solrad'].to_numpy() + solrad_err, 0.0, None)
+        window = self.forecasts.window(index, p['horizon_steps'])
         if p['send_price'] and PRICE_SERIES not in self.scenario.columns:
             window = window.copy()
             window[PRICE_SERIES] = self.prices(window.index.to_numpy(dtype=float))

@@ -5,6 +5,7 @@ The ``mshoot`` command: one entry point, one verb per application.
     mshoot case synthetic --control zone.yaml --emulator zone_cs.yaml --out out/zone
     mshoot card check zone.yaml
     mshoot study --data PATH --out docs --jobs 2
+    mshoot forecast --testcase DIR --time 0 --temperature-uncertainty high --seed 1
     mshoot VERB --help
 
 Each verb's options are those of its module's own ``build_parser`` (so
@@ -36,6 +37,8 @@ VERBS: dict[str, tuple[str, str]] = {
                                     "what it maps, list an FMU's variables"),
     'calibrate': ('mshoot_studies.calibrate', 'fit model parameters to measured data (the OU44 '
                                               'reference calibration): RMSEs, card, figure'),
+    'forecast': ('mshoot_studies.forecast', 'the forecast a BOPTEST test case serves at a time, '
+                                            "with BOPTEST's forecast uncertainty, as CSV"),
 }
 
 

@@ -40,6 +40,9 @@ logger = logging.getLogger(__name__)
 YEAR = 2023
 #: Kelvin at 0 degC.
 KELVIN = 273.15
+#: The scenario's weather columns from the test case's: column -> (test case column, offset
+#: added): the outdoor temperature [degC] and the global horizontal irradiance [W/m2].
+SCENARIO_WEATHER = {'Tout': ('TDryBul', -KELVIN), 'solrad': ('HGloHor', 0.0)}
 
 
 def year_start() -> pd.Timestamp:
@@ -77,10 +80,13 @@ def boptest_scenario(case: TestCase, period: str, hours: int | None = None,
     if steps < 1:
         raise ValueError(f'hours must be >= 1, got {hours!r}')
     fmu_times = start + np.arange(steps + 1) * step
-    data = case.lookup_frame(['TDryBul', 'HGloHor', 'Occupancy[1]', LOWER_SETPOINT,
-                              UPPER_SETPOINT, case.price_column(price)], fmu_times)
+    data = case.lookup_frame([*(c for c, _ in SCENARIO_WEATHER.values()), 'Occupancy[1]',
+                              LOWER_SETPOINT, UPPER_SETPOINT, case.price_column(price)],
+                             fmu_times)
+    weather = {name: data[column].to_numpy() + offset
+               for name, (column, offset) in SCENARIO_WEATHER.items()}
     scenario = pd.DataFrame({
-        'solrad': data['HGloHor'].to_numpy(), 'Tout': data['TDryBul'].to_numpy() - KELVIN,
+        'solrad': weather['solrad'], 'Tout': weather['Tout'],
         'occ': data['Occupancy[1]'].to_numpy(), 'dpos': np.zeros(fmu_times.size),
         'comfort_min': data[LOWER_SETPOINT].to_numpy() - KELVIN,
         'comfort_max': data[UPPER_SETPOINT].to_numpy() - KELVIN,
@@ -88,7 +94,8 @@ def boptest_scenario(case: TestCase, period: str, hours: int | None = None,
     }, index=pd.Index(fmu_times - start, name='time_s'))
     scenario.attrs['start'] = (year_start() + pd.Timedelta(seconds=start)).isoformat()
     scenario.attrs['boptest'] = {'test_case': str(case.directory), 'period': period,
-                                 'price': price, 'start_s': start}
+                                 'price': price, 'start_s': start,
+                                 'weather': {k: list(v) for k, v in SCENARIO_WEATHER.items()}}
     return scenario
 
 

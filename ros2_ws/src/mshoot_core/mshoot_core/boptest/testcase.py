@@ -71,6 +71,12 @@ RESOURCE_FILES = ('dataFromModel.csv', 'prices.csv', 'emissions.csv', 'weather.c
 LOWER_SETPOINT = 'LowerSetp[1]'
 UPPER_SETPOINT = 'UpperSetp[1]'
 SECONDS_PER_DAY = 86400.0
+#: BOPTEST's weather points (the ``weather`` category of its ``data/categories.json``): its
+#: forecasts interpolate them linearly between rows and hold every other series.
+WEATHER_POINTS = frozenset({
+    'pAtm', 'nTot', 'nOpa', 'HGloHor', 'HDifHor', 'HDirNor', 'ceiHei', 'winSpe', 'HHorIR',
+    'winDir', 'cloTim', 'solTim', 'TDewPoi', 'relHum', 'TDryBul', 'TWetBul', 'solAlt', 'solZen',
+    'solDec', 'solHouAng', 'lon', 'lat', 'TBlaSky'})
 #: The shim's shared library name and its sources in ``<test case>/shim``.
 SHIM_LIBRARY = 'libgfortran.so.4'
 SHIM_SOURCES = ('gfortran4_shim.c', 'v.map')
@@ -297,6 +303,32 @@ class TestCase:
                              f': got [{np.nanmin(times):g}, {np.nanmax(times):g}]')
         rows = np.clip(np.searchsorted(index, times, side='right') - 1, 0, index.size - 1)
         return frame[column].to_numpy(dtype=float)[rows]
+
+    def forecast_values(self, column: str,
+                        times_s: Sequence[float] | np.ndarray | float) -> np.ndarray:
+        """
+        Return a data column at the given times as BOPTEST's forecasts have it.
+
+        Weather points (:data:`WEATHER_POINTS`) are interpolated linearly between rows, every
+        other series is held (:meth:`lookup`), as BOPTEST's data manager does.
+
+        Raises
+        ------
+        ValueError
+            For an unknown column or times outside the data (a weather point: after its last
+            row).
+
+        """
+        if column not in WEATHER_POINTS:
+            return self.lookup(column, times_s)
+        values = self.lookup(column, times_s)  # checks the column and the range
+        frame = self._resources[self._column_file[column]]
+        index = frame.index.to_numpy(dtype=float)
+        times = np.asarray(times_s, dtype=float)
+        if times.size and times.max() > index[-1]:
+            raise ValueError(f'times outside the data of {column!r} ([{index[0]:g}, '
+                             f'{index[-1]:g}] s): got [{times.min():g}, {times.max():g}]')
+        return np.interp(times, index, frame[column].to_numpy(dtype=float)).reshape(values.shape)
 
     def lookup_frame(self, columns: Sequence[str],
                      times_s: Sequence[float] | np.ndarray) -> pd.DataFrame:

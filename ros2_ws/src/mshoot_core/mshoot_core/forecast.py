@@ -1,0 +1,566 @@
+"""
+Forecasts as a building gets them: BOPTEST's forecast uncertainty model and a forecast source.
+
+BOPTEST (from v0.8.0) emulates forecast error on two weather points: the outdoor dry-bulb
+temperature (``TDryBul`` [K]) and the global horizontal irradiance (``HGloHor`` [W/m2]); every
+other series is forecast exactly. This module is that model, drawn with NumPy's legacy generator
+exactly as BOPTEST draws it, so a forecast here is the one BOPTEST's ``PUT /forecast`` returns
+for the same scenario (``temperature_uncertainty``, ``solar_uncertainty``, ``seed``):
+
+- temperature error, AR(1) with Gaussian noise: ``e[0] ~ N(F0, K0)``,
+  ``e[i+1] ~ N(F e[i] + mu, K)`` (K0, K standard deviations), :data:`TEMPERATURE_ERRORS`;
+- solar error, AR(1) with Laplace noise: ``e[0] ~ Laplace(ag0, bg0)``,
+  ``e[i] ~ Laplace(phi e[i-1] + ag, bg)`` (location, scale), :data:`SOLAR_ERRORS`.
+
+A forecast at time ``now`` [s] with horizon ``H`` and interval ``dt`` [s] (:func:`hourly_grid`,
+:func:`temperature_on_grid`, :func:`solar_on_grid`):
+
+1. the hourly grid ``start = now - now mod 3600``, ``start, start + 3600, ...`` up to
+   ``start + H + 3600`` (``floor(H / 3600) + 2`` points);
+2. seed ``s = int(seed + now)``; the temperature errors drawn in order from
+   ``RandomState(s)`` (the legacy generator ``np.random.seed(s)`` sets);
+3. solar: for ``i = 0 .. 199`` the errors drawn from ``RandomState(s + i * i)``; candidate =
+   truth - error on the grid; the first candidate whose points with truth > 50 W/m2 all lie in
+   [0.2, 2] x truth is kept (else the last one drawn); then a 3-point moving average over the
+   interior points, skipping points whose value is exactly 0; then clipped to
+   [0.2, 2] x truth (night stays 0);
+4. forecast = truth on the grid - temperature error, the solar result; then linear
+   interpolation to ``now, now + dt, ..., now + H`` (held at the grid's last value beyond it,
+   as ``np.interp`` does: only for a horizon that is not a whole number of hours);
+5. errors are redrawn only when ``start`` or ``start + H`` changes (:class:`ForecastSource`
+   keeps the draw): requests within one hour with the same horizon get the same errors;
+6. a horizon over 48 h is refused for a point with errors.
+
+The levels are BOPTEST's ``forecast/forecast_uncertainty_params.json``; the model is from
+Zheng, Zabala, Febres, Blum and Wang (2025), J. Building Performance Simulation,
+doi 10.1080/19401493.2025.2453537.
+
+:class:`ForecastSource` serves named series of a "truth" (a callable giving a series at
+times) with these errors; :meth:`ForecastSource.from_test_case` is a BOPTEST test case folder's
+``Resources/*.csv``, each series by its BOPTEST column name, interpolated as BOPTEST's data
+manager does (:meth:`mshoot_core.boptest.testcase.TestCase.forecast_values`). The two points
+with errors are named by the caller (default BOPTEST's ``TDryBul`` and ``HGloHor``), so a source
+over other series (a scenario's ``Tout`` [degC] and ``solrad``) uses the same model: a
+temperature error is the same in K and degC. :class:`ScenarioForecasts` puts these errors on a
+scenario's step forecasts (the forecaster node's): for a BOPTEST test period, the test case's
+points at the step's FMU time.
+
+Where this differs from BOPTEST v0.8.0 (on purpose): a seed of 0 is a seed (BOPTEST reads 0 as
+"no seed": unreproducible draws); the draw of both points is made together, so a request that
+adds a point within an hour gets the errors of that hour's first request (BOPTEST draws a
+point's errors at the first request that names it, with that request's seed).
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import numbers
+from typing import Callable, Sequence
+
+import numpy as np
+import pandas as pd
+
+from mshoot_core.scenario import forecast_window
+from mshoot_core.settings import ForecastErrorSettings, UNCERTAINTY_LEVELS
+
+logger = logging.getLogger(__name__)
+
+#: BOPTEST's names of the two points with errors: outdoor dry-bulb temperature [K] and global
+#: horizontal irradiance [W/m2].
+TEMPERATURE_POINT = 'TDryBul'
+SOLAR_POINT = 'HGloHor'
+#: Spacing of the grid the errors are drawn on [s].
+GRID_S = 3600.0
+#: Longest horizon of a forecast with errors [s].
+MAX_HORIZON_S = 48 * 3600.0
+#: Solar candidates drawn before the last one is kept anyway.
+SOLAR_TRIES = 200
+#: Solar acceptance and clipping: the forecast within [low, high] x truth where the truth is
+#: above :data:`SOLAR_CHECK_W_M2` [W/m2].
+SOLAR_BOUNDS = (0.2, 2.0)
+SOLAR_CHECK_W_M2 = 50.0
+#: Largest seed NumPy's legacy generator takes.
+MAX_SEED = 2 ** 32 - 1
+
+#: A truth: ``truth(series, times_s) -> values`` (shape of ``times_s``).
+Truth = Callable[[str, np.ndarray], np.ndarray]
+
+
+def ar1(points: int, first: Callable[[], float],
+        following: Callable[[float], float]) -> np.ndarray:
+    """
+    Return an AR(1) sequence of ``points`` values: ``first()``, then ``following(last)``.
+
+    Drawn in order, one value at a time (the order BOPTEST draws its errors in).
+    """
+    error = np.zeros(points)
+    error[0] = first()
+    for i in range(1, points):
+        error[i] = following(error[i - 1])
+    return error
+
+
+@dataclasses.dataclass(frozen=True)
+class TemperatureError:
+    """
+    AR(1) Gaussian temperature error: ``e[0] ~ N(F0, K0)``, ``e[i+1] ~ N(F e[i] + mu, K)``.
+
+    Attributes
+    ----------
+    F0, K0 : float
+        Mean and standard deviation of the first error [K].
+    F : float
+        Autocorrelation [-].
+    K : float
+        Standard deviation of the innovation [K].
+    mu : float
+        Mean of the innovation [K].
+
+    """
+
+    F0: float
+    K0: float
+    F: float
+    K: float
+    mu: float
+
+    def draw(self, random: np.random.RandomState, points: int) -> np.ndarray:
+        """Return ``points`` errors [K], drawn in order from ``random`` (BOPTEST's order)."""
+        return ar1(points, lambda: random.normal(self.F0, self.K0),
+                   lambda last: random.normal(last * self.F + self.mu, self.K))
+
+
+@dataclasses.dataclass(frozen=True)
+class SolarError:
+    """
+    AR(1) Laplace solar error: ``e[0] ~ L(ag0, bg0)``, ``e[i] ~ L(phi e[i-1] + ag, bg)``.
+
+    Attributes
+    ----------
+    ag0, bg0 : float
+        Location and scale of the first error [W/m2].
+    phi : float
+        Autocorrelation [-].
+    ag, bg : float
+        Location and scale of the innovation [W/m2].
+
+    """
+
+    ag0: float
+    bg0: float
+    phi: float
+    ag: float
+    bg: float
+
+    def draw(self, random: np.random.RandomState, points: int) -> np.ndarray:
+        """Return ``points`` errors [W/m2], drawn in order from ``random`` (BOPTEST's order)."""
+        return ar1(points, lambda: random.laplace(self.ag0, self.bg0),
+                   lambda last: random.laplace(last * self.phi + self.ag, self.bg))
+
+
+#: BOPTEST's temperature error levels (``none``: no error).
+TEMPERATURE_ERRORS: dict[str, TemperatureError] = {
+    'low': TemperatureError(F0=0.0, K0=0.6, F=0.92, K=0.4, mu=0.0),
+    'medium': TemperatureError(F0=0.15, K0=1.2, F=0.93, K=0.6, mu=0.0),
+    'high': TemperatureError(F0=-0.58, K0=1.5, F=0.95, K=0.7, mu=-0.015),
+}
+#: BOPTEST's solar error levels (``none``: no error).
+SOLAR_ERRORS: dict[str, SolarError] = {
+    'low': SolarError(ag0=4.44, bg0=57.42, phi=0.62, ag=1.86, bg=45.64),
+    'medium': SolarError(ag0=15.02, bg0=122.6, phi=0.63, ag=4.44, bg=91.97),
+    'high': SolarError(ag0=32.09, bg0=119.94, phi=0.67, ag=10.63, bg=87.44),
+}
+assert set(TEMPERATURE_ERRORS) == set(SOLAR_ERRORS) == set(UNCERTAINTY_LEVELS) - {'none'}
+
+
+def hourly_grid(now_s: float, horizon_s: float) -> np.ndarray:
+    """
+    Return the grid the errors are drawn on [s]: ``floor(H / 3600) + 2`` whole hours.
+
+    From the hour that holds ``now_s`` (``now - now mod 3600``) to ``start + H + 3600``.
+    """
+    start = now_s - now_s % GRID_S
+    return start + GRID_S * np.arange(math.floor(horizon_s / GRID_S) + 2)
+
+
+def draw_seed(seed: int, now_s: float) -> int:
+    """
+    Return BOPTEST's seed of a draw at ``now_s``: ``int(seed + now)``.
+
+    Raises
+    ------
+    ValueError
+        If the draws' seeds (up to ``s + 199**2``) leave NumPy's range [0, 2**32 - 1].
+
+    """
+    s = int(seed + now_s)
+    if s < 0 or s + (SOLAR_TRIES - 1) ** 2 > MAX_SEED:
+        raise ValueError(f'expected seed + time in [0, {MAX_SEED - (SOLAR_TRIES - 1) ** 2}], '
+                         f'got {seed} + {now_s:g} s')
+    return s
+
+
+def temperature_on_grid(truth: np.ndarray, level: str, seed: int) -> np.ndarray:
+    """
+    Return the temperature forecast on the grid: ``truth - error`` [K or degC].
+
+    Parameters
+    ----------
+    truth : np.ndarray
+        The true temperature at the grid's points (:func:`hourly_grid`).
+    level : str
+        One of :data:`~mshoot_core.settings.UNCERTAINTY_LEVELS`.
+    seed : int
+        The draw's seed (:func:`draw_seed`).
+
+    """
+    truth = np.asarray(truth, dtype=float)
+    if _level(level, 'temperature') == 'none':
+        return truth.copy()
+    return truth - TEMPERATURE_ERRORS[level].draw(np.random.RandomState(seed), truth.size)
+
+
+def solar_on_grid(truth: np.ndarray, level: str, seed: int) -> np.ndarray:
+    """
+    Return the solar forecast on the grid [W/m2]: accepted, smoothed and clipped (module doc).
+
+    Parameters
+    ----------
+    truth : np.ndarray
+        The true irradiance at the grid's points (:func:`hourly_grid`) [W/m2].
+    level : str
+        One of :data:`~mshoot_core.settings.UNCERTAINTY_LEVELS`.
+    seed : int
+        The draw's seed (:func:`draw_seed`); candidate ``i`` is drawn with ``seed + i * i``.
+
+    """
+    truth = np.asarray(truth, dtype=float)
+    if _level(level, 'solar') == 'none':
+        return truth.copy()
+    model = SOLAR_ERRORS[level]
+    low, high = SOLAR_BOUNDS[0] * truth, SOLAR_BOUNDS[1] * truth
+    checked = truth > SOLAR_CHECK_W_M2
+    for i in range(SOLAR_TRIES):
+        candidate = truth - model.draw(np.random.RandomState(seed + i * i), truth.size)
+        if not np.any((candidate[checked] > high[checked]) | (candidate[checked] < low[checked])):
+            break
+    else:
+        logger.debug('no solar candidate of %d within bounds (seed %d): the last one kept',
+                     SOLAR_TRIES, seed)
+    return np.clip(moving_average(candidate), low, high)
+
+
+def moving_average(values: np.ndarray) -> np.ndarray:
+    """
+    Return the 3-point moving average of the interior points (BOPTEST's ``mean_filter``).
+
+    The ends are kept, and so is every point whose value is exactly 0; the averages are of the
+    values given (not of those already averaged).
+    """
+    values = np.asarray(values, dtype=float)
+    out = values.copy()
+    for i in range(1, values.size - 1):
+        if values[i] != 0:
+            out[i] = sum(values[i - 1:i + 2]) / 3  # sum(): BOPTEST's rounding, to the last bit
+    return out
+
+
+def forecast_times(now_s: float, horizon_s: float, interval_s: float) -> np.ndarray:
+    """Return the forecast's times ``now, now + dt, ... <= now + H`` [s] (BOPTEST's)."""
+    return np.arange(now_s, now_s + horizon_s + 0.1, interval_s)
+
+
+def horizon_problem(levels: Sequence[str], horizon_s: float) -> str | None:
+    """
+    Return why ``horizon_s`` [s] is too long for points with error ``levels``, or None.
+
+    BOPTEST refuses a horizon over 48 h (:data:`MAX_HORIZON_S`) for a point with errors.
+    """
+    uncertain = sorted({level for level in levels if level != 'none'})
+    if uncertain and horizon_s > MAX_HORIZON_S:
+        return (f'expected a horizon <= {MAX_HORIZON_S:.0f} s (48 h) with forecast '
+                f'uncertainty {uncertain}, got {horizon_s:g} s')
+    return None
+
+
+def _level(level: str, what: str) -> str:
+    if level not in UNCERTAINTY_LEVELS:
+        raise ValueError(f'{what} uncertainty must be one of {list(UNCERTAINTY_LEVELS)}, '
+                         f'got {level!r}')
+    return level
+
+
+@dataclasses.dataclass(frozen=True)
+class _Draw:
+    """One draw on the grid of ``start`` and ``stop``: the two points' forecasts there."""
+
+    start_s: float
+    stop_s: float
+    grid_s: np.ndarray
+    temperature: np.ndarray | None
+    solar: np.ndarray | None
+
+
+class ForecastSource:
+    """
+    Forecasts of named series with BOPTEST's errors (module docstring), at any time.
+
+    Parameters
+    ----------
+    truth : callable
+        ``truth(series, times_s) -> values``: the true series at the times [s]; raises
+        ValueError for an unknown series or times outside its data.
+    series : sequence of str
+        The series it serves.
+    errors : ForecastErrorSettings, optional
+        Uncertainty levels and seed (default: none, perfect forecasts).
+    temperature_point, solar_point : str
+        The series the temperature and the solar errors apply to.
+
+    Notes
+    -----
+    The source keeps its last draw (BOPTEST's forecaster does): a request redraws only when the
+    hour of ``now`` or ``start + H`` differs from the draw's. A fresh source gives what a fresh
+    BOPTEST request gets.
+
+    """
+
+    def __init__(self, truth: Truth, series: Sequence[str],
+                 errors: ForecastErrorSettings | None = None,
+                 temperature_point: str = TEMPERATURE_POINT,
+                 solar_point: str = SOLAR_POINT) -> None:
+        self.truth = truth
+        self.series = tuple(series)
+        self.errors = errors if errors is not None else ForecastErrorSettings()
+        if not isinstance(self.errors, ForecastErrorSettings):
+            raise TypeError(f'errors must be ForecastErrorSettings, got '
+                            f'{type(self.errors).__name__}')
+        self.temperature_point = temperature_point
+        self.solar_point = solar_point
+        self._draw: _Draw | None = None
+        self.draws = 0
+
+    @classmethod
+    def from_test_case(cls, case: object, errors: ForecastErrorSettings | None = None,
+                       temperature_point: str = TEMPERATURE_POINT,
+                       solar_point: str = SOLAR_POINT) -> ForecastSource:
+        """
+        Return the source of a BOPTEST test case folder's series (BOPTEST's column names).
+
+        Parameters
+        ----------
+        case : mshoot_core.boptest.testcase.TestCase
+            The test case; its times are seconds from 1 January.
+        errors : ForecastErrorSettings, optional
+            Uncertainty levels and seed.
+        temperature_point, solar_point : str
+            The columns with errors (default BOPTEST's).
+
+        """
+        return cls(case.forecast_values, case.columns, errors, temperature_point, solar_point)
+
+    @property
+    def uncertain_points(self) -> dict[str, str]:
+        """Return the served series with errors, by name, with their level (none left out)."""
+        levels = {self.temperature_point: self.errors.temperature_uncertainty,
+                  self.solar_point: self.errors.solar_uncertainty}
+        return {name: level for name, level in levels.items()
+                if level != 'none' and name in self.series}
+
+    def forecast(self, now_s: float, horizon_s: float, interval_s: float,
+                 points: Sequence[str] | None = None) -> pd.DataFrame:
+        """
+        Return the forecast a request at ``now_s`` gets (BOPTEST's ``PUT /forecast``).
+
+        Parameters
+        ----------
+        now_s : float
+            Time of the request [s] (a test case's: from 1 January), >= 0.
+        horizon_s : float
+            Horizon [s], >= 0 (<= 48 h for a point with errors).
+        interval_s : float
+            Interval between the forecast's times [s], > 0.
+        points : sequence of str, optional
+            The series (default: every one, in :attr:`series` order).
+
+        Returns
+        -------
+        pd.DataFrame
+            Columns ``time`` [s] and one per point, in the truth's units; rows
+            ``now, now + dt, ..., <= now + H``.
+
+        Raises
+        ------
+        ValueError
+            For an unknown point, a bad time, horizon or interval, or times outside the data.
+
+        """
+        names = list(self.series if points is None else points)
+        self._check(now_s, horizon_s, interval_s, names)
+        times = forecast_times(float(now_s), float(horizon_s), float(interval_s))
+        columns: dict[str, np.ndarray] = {'time': times}
+        uncertain = self.uncertain_points
+        draw = self._current_draw(float(now_s), float(horizon_s)) \
+            if any(n in uncertain for n in names) else None
+        for name in names:
+            if draw is not None and name == self.temperature_point and name in uncertain:
+                columns[name] = np.interp(times, draw.grid_s, draw.temperature)
+            elif draw is not None and name == self.solar_point and name in uncertain:
+                columns[name] = np.interp(times, draw.grid_s, draw.solar)
+            else:
+                columns[name] = np.asarray(self.truth(name, times), dtype=float)
+        return pd.DataFrame(columns)
+
+    def _check(self, now_s: float, horizon_s: float, interval_s: float,
+               names: list[str]) -> None:
+        unknown = [n for n in names if n not in self.series]
+        if unknown or not names or len(set(names)) != len(names):
+            raise ValueError(f'expected distinct forecast points among {list(self.series)}, got '
+                             f'{names}')
+        for label, value in (('time', now_s), ('horizon', horizon_s),
+                             ('interval', interval_s)):
+            if not isinstance(value, numbers.Real) or isinstance(value, bool) \
+                    or not math.isfinite(value):
+                raise ValueError(f'expected a finite {label} [s], got {value!r}')
+        if now_s < 0 or horizon_s < 0 or interval_s <= 0:
+            raise ValueError(f'expected time >= 0, horizon >= 0 and interval > 0 [s], got '
+                             f'{now_s:g}, {horizon_s:g} and {interval_s:g}')
+        levels = self.uncertain_points
+        problem = horizon_problem([levels[n] for n in names if n in levels], horizon_s)
+        if problem:
+            raise ValueError(f'{problem} (points {[n for n in names if n in levels]})')
+
+    def _current_draw(self, now_s: float, horizon_s: float) -> _Draw:
+        """Return the draw of this request: the kept one while start and start + H hold."""
+        start = now_s - now_s % GRID_S
+        stop = start + horizon_s
+        kept = self._draw
+        if kept is not None and kept.start_s == start and kept.stop_s == stop:
+            return kept
+        grid = hourly_grid(now_s, horizon_s)
+        seed = draw_seed(self.errors.seed, now_s)
+        levels = self.uncertain_points
+        temperature = solar = None
+        if self.temperature_point in levels:
+            temperature = temperature_on_grid(self.truth(self.temperature_point, grid),
+                                              levels[self.temperature_point], seed)
+        if self.solar_point in levels:
+            solar = solar_on_grid(self.truth(self.solar_point, grid), levels[self.solar_point],
+                                  seed)
+        self._draw = _Draw(start, stop, grid, temperature, solar)
+        self.draws += 1
+        logger.debug('forecast errors drawn at %g s (seed %d) for [%g, %g] s', now_s, seed,
+                     grid[0], grid[-1])
+        return self._draw
+
+
+def truth_of_frame(frame: pd.DataFrame, clock: np.ndarray | None = None) -> Truth:
+    """
+    Return a truth over the columns of ``frame``: linear in time, held beyond its ends.
+
+    Held beyond the last row as :func:`mshoot_core.scenario.forecast_window` repeats it.
+
+    Parameters
+    ----------
+    frame : pd.DataFrame
+        Columns of series; index: time [s] unless ``clock`` is given.
+    clock : np.ndarray, optional
+        The time of each row [s] (e.g. a scenario's ``fmu_time_s``).
+
+    """
+    times = np.asarray(frame.index if clock is None else clock, dtype=float)
+
+    def truth(series: str, at_s: np.ndarray) -> np.ndarray:
+        if series not in frame.columns:
+            raise ValueError(f'unknown series {series!r}: expected one of {list(frame.columns)}')
+        return np.interp(np.asarray(at_s, dtype=float), times,
+                         frame[series].to_numpy(dtype=float))
+    return truth
+
+
+class ScenarioForecasts:
+    """
+    The forecasts of a scenario's control steps: its rows, the weather with BOPTEST's errors.
+
+    Every step's forecast is :func:`mshoot_core.scenario.forecast_window` (the rows of the step
+    and the ``horizon_steps`` after it); with an uncertainty level, the weather columns are
+    replaced by a :class:`ForecastSource`'s forecast at the step's time (horizon
+    ``horizon_steps`` x the row spacing, interval the row spacing):
+
+    - a BOPTEST test period (``attrs['boptest']`` of
+      :func:`mshoot_core.boptest.emulation.boptest_scenario`): the test case folder's series at
+      the FMU time of the step (seconds from 1 January, BOPTEST's clock and seed), each
+      scenario column from the test case column and offset in ``attrs['boptest']['weather']``;
+    - any other scenario: its own ``Tout`` [degC] and ``solrad`` [W/m2] columns (linear
+      between rows) at the scenario's time [s since its start].
+
+    With no errors the forecast is the scenario's rows, unchanged.
+
+    Parameters
+    ----------
+    scenario : pd.DataFrame
+        The scenario (:mod:`mshoot_core.scenario`).
+    errors : ForecastErrorSettings, optional
+        Uncertainty levels and seed.
+
+    """
+
+    #: The scenario's weather columns (:mod:`mshoot_core.scenario`): temperature, solar.
+    WEATHER = ('Tout', 'solrad')
+
+    def __init__(self, scenario: pd.DataFrame,
+                 errors: ForecastErrorSettings | None = None) -> None:
+        self.scenario = scenario
+        self.errors = errors if errors is not None else ForecastErrorSettings()
+        times = np.asarray(scenario.index, dtype=float)
+        self.step_s = float(times[1] - times[0]) if times.size > 1 else GRID_S
+        boptest = scenario.attrs.get('boptest')
+        temperature, solar = self.WEATHER
+        if boptest:
+            from mshoot_core.boptest.testcase import TestCase
+            #: Scenario column -> (source series, offset added to it).
+            self.weather = {str(k): (str(v[0]), float(v[1]))
+                            for k, v in boptest['weather'].items()}
+            self.clock = scenario['fmu_time_s'].to_numpy(dtype=float)
+            self.source = ForecastSource.from_test_case(
+                TestCase.load(boptest['test_case']), self.errors,
+                self.weather[temperature][0], self.weather[solar][0])
+        else:
+            self.weather = {temperature: (temperature, 0.0), solar: (solar, 0.0)}
+            self.clock = times - times[0]
+            self.source = ForecastSource(truth_of_frame(scenario[list(self.WEATHER)],
+                                                        self.clock),
+                                         self.WEATHER, self.errors, temperature, solar)
+
+    def check_horizon(self, horizon_steps: int) -> None:
+        """Raise ValueError if ``horizon_steps`` rows are too long a horizon for the errors."""
+        problem = horizon_problem(list(self.source.uncertain_points.values()),
+                                  horizon_steps * self.step_s)
+        if problem:
+            raise ValueError(f'{problem} ({horizon_steps} steps of {self.step_s:g} s)')
+
+    def window(self, index: int, horizon_steps: int) -> pd.DataFrame:
+        """
+        Return the forecast of step ``index``: ``horizon_steps + 1`` rows (class docstring).
+
+        Raises
+        ------
+        ValueError
+            For a bad index, or a horizon over 48 h with errors.
+
+        """
+        window = forecast_window(self.scenario, index, horizon_steps)
+        uncertain = self.source.uncertain_points
+        if not uncertain:
+            return window
+        self.check_horizon(horizon_steps)
+        points = {column: self.weather[column] for column in self.WEATHER
+                  if self.weather[column][0] in uncertain and column in window.columns}
+        forecast = self.source.forecast(float(self.clock[index]),
+                                        horizon_steps * self.step_s, self.step_s,
+                                        [point for point, _ in points.values()])
+        window = window.copy()
+        for column, (point, offset) in points.items():
+            window[column] = forecast[point].to_numpy() + offset
+        return window

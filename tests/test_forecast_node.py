@@ -1,0 +1,71 @@
+"""The forecaster node serves BOPTEST's forecast uncertainty: what it publishes is the core's."""
+from mshoot_core.boptest.testcase import TestCase
+from mshoot_core.forecast import ForecastSource
+from mshoot_core.settings import ForecastErrorSettings
+import numpy as np
+import pytest
+
+from conftest import spin_until
+
+pytestmark = pytest.mark.ros
+
+KELVIN = 273.15
+
+
+def test_the_published_forecast_is_the_core_sources(boptest_case: TestCase, context,
+                                                    tmp_path) -> None:
+    """Over DDS and in the bag: Tout and solrad are the test case source's at that FMU time."""
+    from mshoot_msgs.msg import Forecast
+    from mshoot_nodes import contract
+    from mshoot_nodes.bags import read_messages
+    from mshoot_nodes.recorder_node import RecorderNode
+    from mshoot_nodes.conversions import forecast_series
+    from mshoot_nodes.forecaster_node import ForecasterNode
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    node = ForecasterNode(context=context, parameter_overrides=[
+        Parameter('scenario', value='boptest:typical_heat_day:dynamic'),
+        Parameter('hours', value=48), Parameter('horizon_steps', value=24),
+        Parameter('temperature_uncertainty', value='high'),
+        Parameter('solar_uncertainty', value='high'), Parameter('seed', value=7)])
+    listener = Node('forecast_listener', context=context)
+    received: list = []
+    listener.create_subscription(Forecast, contract.FORECAST, received.append,
+                                 contract.LATCHED_QOS)
+    bag = tmp_path / 'bag'
+    recorder = RecorderNode(context=context, parameter_overrides=[
+        Parameter('bag_path', value=str(bag)), Parameter('topics', value=[contract.FORECAST])])
+    executor = SingleThreadedExecutor(context=context)
+    for each in (node, listener, recorder):
+        executor.add_node(each)
+    try:
+        spin_until(executor, lambda: node.count_subscribers(contract.FORECAST) >= 2,
+                   what='the listener and the recorder')
+        step = 5 + 13  # a step in the day: the sun is up within the horizon
+        node.publish_forecast(step)
+        spin_until(executor, lambda: len(received) == 1
+                   and recorder.counts.get(contract.FORECAST) == 1, what='the forecast')
+    finally:
+        executor.shutdown()
+        recorder.destroy_node()  # closes the bag
+        listener.destroy_node()
+        node.destroy_node()
+    series, rejection = forecast_series(received[0])
+    assert rejection is None
+    bagged = read_messages(bag, contract.FORECAST)
+    assert len(bagged) == 1
+    names = list(bagged[0].series_names)
+    np.testing.assert_array_equal(np.asarray(bagged[0].series_values).reshape(len(names), -1),
+                                  np.array([series[n] for n in names]))
+    _, start, _ = boptest_case.test_period('typical_heat_day')
+    errors = ForecastErrorSettings(temperature_uncertainty='high', solar_uncertainty='high',
+                                   seed=7)
+    core = ForecastSource.from_test_case(boptest_case, errors).forecast(
+        start + step * 3600.0, 24 * 3600.0, 3600.0, ['TDryBul', 'HGloHor'])
+    np.testing.assert_allclose(series['Tout'], core['TDryBul'] - KELVIN, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(series['solrad'], core['HGloHor'], rtol=0, atol=1e-9)
+    truth = boptest_case.lookup_frame(['TDryBul', 'HGloHor', 'Occupancy[1]'], core['time'])
+    assert np.abs(series['Tout'] - (truth['TDryBul'].to_numpy() - KELVIN)).max() > 0.1
+    assert np.abs(series['solrad'] - truth['HGloHor'].to_numpy()).max() > 1.0
+    np.testing.assert_array_equal(series['occ'], truth['Occupancy[1]'])  # exact, as before
