@@ -259,6 +259,10 @@ class TrustConstrSolver(Solver):
         return res
 
 
+#: IPOPT options every :class:`IpoptSolver` sets beyond the solve's own (output, iterations,
+#: tolerance, Hessian): the adaptive barrier update (``bench/versus.py`` gives CasADi's IPOPT
+#: the same, with a solver's ``options``, for its same-options comparisons).
+IPOPT_DEFAULT_OPTIONS: dict[str, Any] = {'mu_strategy': 'adaptive'}
 #: IPOPT options for large, structured problems (many zones), where the linear algebra is
 #: most of a solve. The wheel's IPOPT has one linear solver, MUMPS (5.5.1 without METIS;
 #: the HSL solvers are not built in), whose solve phase is slow on the many tiny fronts
@@ -320,8 +324,7 @@ class IpoptSolver(Solver):
         problem.add_option('max_iter', self.max_iter)
         problem.add_option('tol', self.tol)
         problem.add_option('hessian_approximation', 'exact' if use_hessian else 'limited-memory')
-        problem.add_option('mu_strategy', 'adaptive')
-        for key, value in self.options.items():
+        for key, value in {**IPOPT_DEFAULT_OPTIONS, **self.options}.items():
             problem.add_option(key, value)
         start = time.perf_counter()
         z, info = problem.solve(z_start)
