@@ -2,14 +2,15 @@
 CasADi/IPOPT multiple-shooting reference of mshoot's benchmark cases (a benchmark only).
 
     python bench/casadi_ref.py [--data PATH] [--horizon 10] [--hours 72] [--substeps 4] \
-        [--out out/bench/casadi_case]
+        [--ipopt-option NAME=VALUE ...] [--out out/bench/casadi_case]
 
 runs the OU44 reference case (SPEC section 3) as a straightforward CasADi user
 would write it, in a closed loop over ``--hours`` hourly steps: the R1C1 zone
 as a symbolic ODE (state T in degC), RK4 with ``--substeps`` steps per hour,
 multiple shooting over the horizon (one SX graph), exact first and second
 derivatives from CasADi, IPOPT with its default settings (MUMPS, tolerance
-1e-8), the previous plan shifted as the initial guess of the next solve.
+1e-8) or with the ``--ipopt-option`` given (``bench/versus.py`` passes ours:
+:func:`ipopt_option`), the previous plan shifted as the initial guess of the next solve.
 
 Same data and settings as ``mshoot_studies.case``: the scenario of
 ``reference_scenario`` (5-8 April 2018, hourly means, ventilation off), the
@@ -252,9 +253,31 @@ def function_time_s(stats: dict) -> float:
         'nlp_f', 'nlp_g', 'nlp_grad', 'nlp_grad_f', 'nlp_jac_g', 'nlp_hess_l')))
 
 
+def ipopt_option(text: str) -> tuple[str, Any]:
+    """
+    Return ('ipopt.NAME', value) from 'NAME=VALUE' (an int or float where VALUE reads as one).
+
+    Raises ValueError for text without '='.
+    """
+    name, sep, value = text.partition('=')
+    if not sep or not name:
+        raise ValueError(f'expected an IPOPT option as NAME=VALUE, got {text!r}')
+    for kind in (int, float):
+        try:
+            return f'ipopt.{name}', kind(value)
+        except ValueError:
+            pass
+    return f'ipopt.{name}', value
+
+
 def run_case(data: pathlib.Path | None, horizon: int, hours: int, substeps: int,
-             initial_c: float = 20.0) -> tuple[dict, pd.DataFrame, dict]:
-    """Run the closed loop of the reference case; return (kpis, steps, phase times [s])."""
+             initial_c: float = 20.0,
+             ipopt_options: dict | None = None) -> tuple[dict, pd.DataFrame, dict]:
+    """
+    Run the closed loop of the reference case; return (kpis, steps, phase times [s]).
+
+    ``ipopt_options``: IPOPT options beyond IPOPT's defaults, in CasADi's spelling.
+    """
     timing = {}
     started, cpu = time.perf_counter(), time.process_time()
     scenario = reference_scenario('ou44', data, hours)
@@ -264,7 +287,8 @@ def run_case(data: pathlib.Path | None, horizon: int, hours: int, substeps: int,
     timing['data_cpu_s'] = time.process_time() - cpu
 
     started, cpu = time.perf_counter(), time.process_time()
-    mpc = CasadiMpc(ZoneParameters.from_r1c1(), horizon, substeps=substeps)
+    mpc = CasadiMpc(ZoneParameters.from_r1c1(), horizon, substeps=substeps,
+                    ipopt_options=ipopt_options)
     emulator = Emulator(R1C1Model(), scenario, [initial_c + KELVIN])
     timing['build_s'] = time.perf_counter() - started
     timing['build_cpu_s'] = time.process_time() - cpu
@@ -315,6 +339,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--hours', type=int, default=72, help='control steps (default 72)')
     parser.add_argument('--substeps', type=int, default=4,
                         help='RK4 steps per hour (default 4)')
+    parser.add_argument('--ipopt-option', action='append', default=[], metavar='NAME=VALUE',
+                        help='an IPOPT option beyond its defaults (repeatable), e.g. '
+                        'mu_strategy=adaptive')
     parser.add_argument('--out', type=pathlib.Path,
                         default=pathlib.Path('out/bench/casadi_case'))
     args = parser.parse_args(argv)
@@ -322,7 +349,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.horizon < 1 or args.hours < 1 or args.substeps < 1:
         parser.error('--horizon, --hours and --substeps must be >= 1')
     try:
-        kpis, steps, timing = run_case(args.data, args.horizon, args.hours, args.substeps)
+        options = dict(ipopt_option(text) for text in args.ipopt_option)
+    except ValueError as exc:
+        parser.error(str(exc))
+    try:
+        kpis, steps, timing = run_case(args.data, args.horizon, args.hours, args.substeps,
+                                       ipopt_options=options)
     except (FileNotFoundError, ValueError) as exc:
         logger.error('%s', exc)
         return 2
@@ -336,7 +368,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                   main_start_cpu_s=main_start_cpu, main_end_cpu_s=time.process_time())
     kpis.update(horizon_h=args.horizon, substeps=args.substeps, casadi=ca.__version__,
                 penalty_linear=PENALTY_LINEAR, penalty_quadratic=PENALTY_QUADRATIC,
-                timing=timing)
+                ipopt_options=options, timing=timing)
     (args.out / 'kpis.json').write_text(json.dumps(kpis, indent=2, sort_keys=True) + '\n')
     logger.info('casadi: energy %.2f kWh, discomfort %.2f Kh (hourly %.2f Kh), loop %.2f s, '
                 'median solve %.4f s, %d failures', kpis['energy_kwh'], kpis['discomfort_kh'],

@@ -1,7 +1,8 @@
 """
 Versus: mshoot next to a CasADi/IPOPT multiple-shooting implementation of the same cases.
 
-    python bench/versus.py [--repeats 5] [--zones 10 50 100] [--zone-steps 6]
+    python bench/versus.py [--repeats 5] [--zones 10 50 100 300] [--horizons 24] \
+        [--horizon-zones 100] [--zone-steps 6] [--data PATH]
 
 In one run (issue 16, part 1):
 
@@ -10,13 +11,17 @@ In one run (issue 16, part 1):
    script as a user runs it; SLSQP by default, and with ``--solver ipopt``) and
    ``bench/casadi_ref.py`` (RK4, exact derivatives, IPOPT), each run
    ``--repeats`` times as a subprocess, interleaved, medians of wall and CPU
-   time (CPU: the process and those it waited for, e.g. our plot worker); with
-   the control loop, the median solve and the KPIs of both (so a reader sees
-   they solve the same problem);
+   time (CPU: the process and those it waited for, e.g. our plot worker); the
+   CasADi script also with our IPOPT options
+   (:data:`mshoot_core.solvers.IPOPT_DEFAULT_OPTIONS`), the peer of ours with
+   ``--solver ipopt``; with the control loop, the median solve, the iterations
+   and the KPIs of all (so a reader sees they solve the same problem);
 2. the Z-zone scale problem of ``bench/scale.py`` (Z independent R1C1 zones,
-   IPOPT) at Z = 10, 50, 100 and H = 10 h, ours next to CasADi's formulation
-   of the same zones: build, cold first solve, warm median per step (wall and
-   CPU time);
+   IPOPT) at Z = 10, 50, 100, 300 and H = 10 h, and at Z = 100 with H = 24 h,
+   ours next to CasADi's formulation of the same zones (with IPOPT's defaults
+   and with our IPOPT options), the loops stepping in turn: build, cold first
+   solve, warm median per step (wall and CPU time), iterations, and the
+   exponents of the time per step in Z and in H (least squares on the logs);
 3. where the time of both whole commands goes: interpreter, imports, data,
    models, solves (ours: model evaluations vs glue; CasADi: its function
    evaluations vs IPOPT), plant, output, by timers (wall and CPU) wrapped
@@ -58,9 +63,13 @@ CASADI_SCRIPT = BENCH / 'casadi_ref.py'
 HORIZON = 10
 
 
+#: The OU44 measurements (``--data``; default ``../shared/data/ou44`` from the project root).
+DATA = ROOT / '..' / 'shared' / 'data' / 'ou44' / 'measurements.csv'
+
+
 def data_file() -> pathlib.Path:
-    """Return the OU44 measurements (``../shared/data/ou44`` from the project root)."""
-    path = (ROOT / '..' / 'shared' / 'data' / 'ou44' / 'measurements.csv').resolve()
+    """Return the OU44 measurements (:data:`DATA`)."""
+    path = pathlib.Path(DATA).resolve()
     if not path.is_file():
         raise SystemExit(f'benchmark data missing: {path}')
     return path
@@ -89,10 +98,18 @@ def ours_command(out: pathlib.Path, *extra: str, python_flags: Sequence[str] = (
     return [sys.executable, *python_flags, mshoot_script(), 'case', *case_arguments(out, *extra)]
 
 
-def casadi_command(out: pathlib.Path, python_flags: Sequence[str] = ()) -> list[str]:
-    """Return the CasADi script of the same case."""
+def casadi_command(out: pathlib.Path, python_flags: Sequence[str] = (),
+                   ipopt_options: dict | None = None) -> list[str]:
+    """Return the CasADi script of the same case (IPOPT's defaults, or ``ipopt_options``)."""
     return [sys.executable, *python_flags, str(CASADI_SCRIPT), '--data', str(data_file()),
-            '--horizon', str(HORIZON), '--out', str(out)]
+            '--horizon', str(HORIZON), '--out', str(out),
+            *(f'--ipopt-option={key}={value}' for key, value in (ipopt_options or {}).items())]
+
+
+def case_ipopt_options() -> dict:
+    """Return the IPOPT options of ``mshoot case ... --solver ipopt`` beyond IPOPT's defaults."""
+    from mshoot_core.solvers import IPOPT_DEFAULT_OPTIONS
+    return dict(IPOPT_DEFAULT_OPTIONS)
 
 
 def run_timed(command: list[str]) -> tuple[float, str, float, float, float]:
@@ -297,12 +314,14 @@ def profile_figures(stats: pstats.Stats, top: int = 12) -> dict:
 # -- the whole commands ---------------------------------------------------------------------------
 def whole_commands(repeats: int, tmp: pathlib.Path) -> dict:
     """Both whole commands ``repeats`` times, interleaved; walls and each run's figures."""
-    runs: dict[str, list] = {'ours': [], 'ours_ipopt': [], 'casadi': []}
+    runs: dict[str, list] = {'ours': [], 'ours_ipopt': [], 'casadi': [], 'casadi_same': []}
     for repeat in range(repeats):
         for name, command in (('ours', ours_command(tmp / 'ours')),
                               ('ours_ipopt', ours_command(tmp / 'ours_ipopt', '--solver',
                                                           'ipopt')),
-                              ('casadi', casadi_command(tmp / 'casadi'))):
+                              ('casadi', casadi_command(tmp / 'casadi')),
+                              ('casadi_same', casadi_command(
+                                  tmp / 'casadi_same', ipopt_options=case_ipopt_options()))):
             wall, _, _, _, cpu = run_timed(command)
             kpis = json.loads((tmp / name / 'kpis.json').read_text())
             with open(tmp / name / 'steps.csv', newline='') as steps:
@@ -463,9 +482,10 @@ class ZoneLoop:
     the exact multi-zone model (``MultiZoneModel.simulate_intervals``), as in ``scale.py``.
     """
 
-    def __init__(self, n_zones: int, steps: int) -> None:
+    def __init__(self, n_zones: int, steps: int, horizon: int = HORIZON) -> None:
         from scale import zone_case
-        self.model, self.mpc, self.scenario, self.x = zone_case(n_zones, HORIZON, 'ipopt',
+        self.horizon = horizon
+        self.model, self.mpc, self.scenario, self.x = zone_case(n_zones, horizon, 'ipopt',
                                                                 steps + 1)
         self.times_s: list[float] = []
         self.cpus_s: list[float] = []
@@ -514,9 +534,9 @@ class ZoneLoop:
 class OurZones(ZoneLoop):
     """Ours: ``bench/scale.py``'s MPC (IPOPT); model time = our model's batch functions."""
 
-    def __init__(self, n_zones: int, steps: int) -> None:
+    def __init__(self, n_zones: int, steps: int, horizon: int = HORIZON) -> None:
         started = time.perf_counter()
-        super().__init__(n_zones, steps)
+        super().__init__(n_zones, steps, horizon)
         self.build_s = time.perf_counter() - started
         self.variables = self.mpc.problem.index.size
         self.timers = Timers()
@@ -524,12 +544,19 @@ class OurZones(ZoneLoop):
         for name in ('simulate_intervals', 'interval_jacobians'):  # on the instance only
             setattr(self.model, name, self.timers.wrap('simulations', getattr(self.model,
                                                                               name)))
+        interval_batch = self.model.interval_batch
+
+        def timed_batch(*args: Any, **kwargs: Any) -> Any:  # its batches' evaluations too
+            batch = interval_batch(*args, **kwargs)
+            batch.jacobians = self.timers.wrap('simulations', batch.jacobians)
+            return batch
+        self.model.interval_batch = timed_batch
 
     def solve(self, k: int) -> tuple[Any, int, bool, float]:
         from mshoot_core.scenario import forecast_window
         before = self.timers.total['simulations']
         result = self.mpc.solve(self.x, self.scenario.index[k],
-                                forecast_window(self.scenario, k, HORIZON))
+                                forecast_window(self.scenario, k, self.horizon))
         model_s = self.timers.total['simulations'] - before
         return result.controls[0], result.nit, result.success, model_s
 
@@ -545,7 +572,7 @@ class OurZones(ZoneLoop):
         from mshoot_core.scenario import forecast_window
         profiler = cProfile.Profile()
         profiler.runcall(self.mpc.solve, self.x, self.scenario.index[k],
-                         forecast_window(self.scenario, k, HORIZON))
+                         forecast_window(self.scenario, k, self.horizon))
         return profile_figures(pstats.Stats(profiler))['top_tottime']
 
 
@@ -556,8 +583,9 @@ def our_ipopt_options(mpc: Any) -> dict:
     The solver's own (``IpoptSolver``: adaptive barrier update) and ``multizone_mpc_options``'
     (Mehrotra).
     """
-    return {'ipopt.mu_strategy': 'adaptive',
-            **{f'ipopt.{key}': value for key, value in mpc.solver.options.items()}}
+    from mshoot_core.solvers import IPOPT_DEFAULT_OPTIONS
+    return {f'ipopt.{key}': value
+            for key, value in {**IPOPT_DEFAULT_OPTIONS, **mpc.solver.options}.items()}
 
 
 class CasadiZones(ZoneLoop):
@@ -568,15 +596,15 @@ class CasadiZones(ZoneLoop):
     evaluations.
     """
 
-    def __init__(self, n_zones: int, steps: int, tuned: bool) -> None:
+    def __init__(self, n_zones: int, steps: int, tuned: bool, horizon: int = HORIZON) -> None:
         from casadi_ref import CasadiMpc, ZoneParameters
-        super().__init__(n_zones, steps)
+        super().__init__(n_zones, steps, horizon)
         self.ipopt_options = our_ipopt_options(self.mpc) if tuned else {}
         started = time.perf_counter()
-        self.casadi = CasadiMpc(ZoneParameters.from_multizone(self.model), HORIZON,
+        self.casadi = CasadiMpc(ZoneParameters.from_multizone(self.model), horizon,
                                 ipopt_options=self.ipopt_options)
         self.build_s = time.perf_counter() - started
-        self.variables = 3 * n_zones * HORIZON
+        self.variables = 3 * n_zones * horizon
         self.disturbances = self.scenario[['solrad', 'Tout', 'occ', 'dpos']].to_numpy(float)
         self.band = self.scenario[['comfort_min', 'comfort_max']].to_numpy(dtype=float)
 
@@ -584,7 +612,7 @@ class CasadiZones(ZoneLoop):
         import numpy as np
         from casadi_ref import function_time_s
         from mshoot_core.models.r1c1 import KELVIN
-        rows = np.arange(k, k + HORIZON + 1)
+        rows = np.arange(k, k + self.horizon + 1)
         zones = self.x.size
         plan = self.casadi.solve(self.x - KELVIN, self.disturbances[rows[:-1]],
                                  np.repeat(self.band[rows[1:], :1], zones, axis=1),
@@ -593,9 +621,9 @@ class CasadiZones(ZoneLoop):
                 function_time_s(plan['stats']))
 
 
-def zone_rows(zones: Sequence[int], steps: int) -> list[dict]:
+def zone_rows(cases: Sequence[tuple[int, int]], steps: int) -> list[dict]:
     """
-    Return one row per Z: ours, CasADi with IPOPT's defaults and with our IPOPT options.
+    Return one row per case (Z zones, horizon H [h]): ours and CasADi's with both options.
 
     Each row holds build, cold first solve, warm median per step, iterations and model time of
     ours, CasADi with IPOPT's defaults ('casadi') and with our IPOPT options ('casadi_tuned'); the
@@ -607,17 +635,19 @@ def zone_rows(zones: Sequence[int], steps: int) -> list[dict]:
     for loop in (OurZones(1, 1), CasadiZones(1, 1, tuned=False)):  # one-time imports, plugins
         loop.step(0)
     rows = []
-    for n_zones in zones:
+    largest = max(cases)
+    for n_zones, horizon in cases:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter('always')
-            loops = {'ours': OurZones(n_zones, steps),
-                     'casadi': CasadiZones(n_zones, steps, tuned=False),
-                     'casadi_tuned': CasadiZones(n_zones, steps, tuned=True)}
+            loops = {'ours': OurZones(n_zones, steps, horizon),
+                     'casadi': CasadiZones(n_zones, steps, tuned=False, horizon=horizon),
+                     'casadi_tuned': CasadiZones(n_zones, steps, tuned=True, horizon=horizon)}
             for k in range(steps):
                 for loop in loops.values():
                     loop.step(k)
-            profile = loops['ours'].profile_step(steps) if n_zones == max(zones) else []
-        row = {'zones': n_zones, 'horizon_h': HORIZON, 'steps': steps,
+            profile = (loops['ours'].profile_step(steps) if (n_zones, horizon) == largest
+                       else [])
+        row = {'zones': n_zones, 'horizon_h': horizon, 'steps': steps,
                'casadi_tuned_ipopt_options': loops['casadi_tuned'].ipopt_options,
                'ours_profile_top': profile,
                'ours_warnings': sorted({f'{w.category.__name__} at '
@@ -636,15 +666,46 @@ def zone_rows(zones: Sequence[int], steps: int) -> list[dict]:
     return rows
 
 
+def growth_exponents(rows: list[dict]) -> list[dict]:
+    """
+    Return how the warm time per step grows: the exponent p of time ~ Z^p (at each H) and H^p.
+
+    One row per (what, at, loop), for ours and both CasADi options, wall and CPU time: p from
+    a least-squares line through log(time) against log(Z) at each horizon with two or more zone
+    counts (Z > 1), and against log(H) at each zone count with two or more horizons.
+    """
+    import numpy as np
+    out = []
+    for what, key, other in (('Z', 'zones', 'horizon_h'), ('H', 'horizon_h', 'zones')):
+        for at in sorted({row[other] for row in rows}):
+            chosen = sorted((row for row in rows if row[other] == at and row['zones'] > 1),
+                            key=lambda row: row[key])
+            if len({row[key] for row in chosen}) < 2:
+                continue
+            sizes = np.log([row[key] for row in chosen])
+            fitted = {'what': what, 'at': f'{"H" if what == "Z" else "Z"} = {at}',
+                      'points': ' '.join(str(row[key]) for row in chosen)}
+            for loop in ('ours', 'casadi', 'casadi_tuned'):
+                for time_key, label in (('warm_s', ''), ('warm_cpu_s', '_cpu')):
+                    fitted[f'{loop}{label}'] = float(np.polyfit(
+                        sizes, np.log([row[f'{loop}_{time_key}'] for row in chosen]), 1)[0])
+            out.append(fitted)
+    return out
+
+
 # -- report ---------------------------------------------------------------------------------------
-def report(whole: dict, zones: list[dict], parts: dict) -> None:
+def report(whole: dict, zones: list[dict], growth: list[dict], parts: dict) -> None:
     from common import logger, print_table
     ours, ipopt, theirs = whole['ours'], whole['ours_ipopt'], whole['casadi']
+    same = whole['casadi_same']
     logger.info('\n== 1 zone, H = %d h, 72 h (OU44): whole command and control loop, medians '
                 'of %d runs ==', HORIZON, len(ours['walls_s']))
+    logger.info("casadi: IPOPT's defaults; casadi same: with our IPOPT options (%s); ratio: "
+                'ours (slsqp) / casadi; ratio ipopt: ours (ipopt) / casadi same',
+                ', '.join(f'{k}={v}' for k, v in case_ipopt_options().items()))
     width = 24
-    logger.info('%s %14s %14s %14s %10s %10s', 'what'.ljust(width), 'ours (slsqp)',
-                'ours (ipopt)', 'casadi', 'ratio', 'ratio ipopt')
+    logger.info('%s %14s %14s %14s %14s %10s %11s', 'what'.ljust(width), 'ours (slsqp)',
+                'ours (ipopt)', 'casadi', 'casadi same', 'ratio', 'ratio ipopt')
     for label, key, fmt, scale, ratio in (
             ('whole command [s]', 'wall_s', '.3f', 1.0, True),
             ('  its CPU time [s]', 'cpu_s', '.3f', 1.0, True),
@@ -658,18 +719,20 @@ def report(whole: dict, zones: list[dict], parts: dict) -> None:
             ('solver failures', 'solver_failures', '', None, False)):
         cells = ['-' if run.get(key) is None else
                  format(run[key] if scale is None else run[key] * scale, fmt)
-                 for run in (ours, ipopt, theirs)]
-        ratios = [f'{run[key] / theirs[key]:.2f}' if ratio else '' for run in (ours, ipopt)]
-        logger.info('%s %14s %14s %14s %10s %10s', label.ljust(width), *cells, *ratios)
+                 for run in (ours, ipopt, theirs, same)]
+        ratios = [f'{run[key] / peer[key]:.2f}' if ratio else ''
+                  for run, peer in ((ours, theirs), (ipopt, same))]
+        logger.info('%s %14s %14s %14s %14s %10s %11s', label.ljust(width), *cells, *ratios)
     for key, what in (('walls_s', 'wall'), ('cpus_s', 'CPU')):
-        logger.info('whole command, ratio ours/casadi of each run (%s; runs interleaved): '
-                    'slsqp %s, ipopt %s', what,
+        logger.info('whole command, ratio of each run (%s; runs interleaved): slsqp/casadi %s, '
+                    'ipopt/casadi same %s', what,
                     ' '.join(f'{a / b:.2f}' for a, b in zip(ours[key], theirs[key])),
-                    ' '.join(f'{a / b:.2f}' for a, b in zip(ipopt[key], theirs[key])))
+                    ' '.join(f'{a / b:.2f}' for a, b in zip(ipopt[key], same[key])))
 
-    logger.info('\n== Z zones, H = %d h, IPOPT: seconds per MPC step (first: cold; warm: '
-                'median of the others) ==', HORIZON)
-    print_table(zones, [('zones', 'Z', 'd'), ('ours_build_s', 'ours build', '.3f'),
+    logger.info('\n== Z zones, H hours, IPOPT: seconds per MPC step (first: cold; warm: '
+                'median of the others) ==')
+    print_table(zones, [('zones', 'Z', 'd'), ('horizon_h', 'H', 'd'),
+                        ('ours_build_s', 'ours build', '.3f'),
                         ('ours_first_s', 'ours first', '.3f'),
                         ('ours_warm_s', 'ours warm', '.3f'),
                         ('ours_iterations', 'ours iters', '.1f'),
@@ -683,22 +746,35 @@ def report(whole: dict, zones: list[dict], parts: dict) -> None:
                         ('casadi_warm_ratio', 'ratio warm', '.2f')])
     logger.info('the same, CPU time per warm step (the process, all threads; less sensitive to '
                 'other load on the machine than the wall time) [s]:')
-    print_table(zones, [('zones', 'Z', 'd'), ('ours_warm_cpu_s', 'ours cpu', '.3f'),
+    print_table(zones, [('zones', 'Z', 'd'), ('horizon_h', 'H', 'd'),
+                        ('ours_warm_cpu_s', 'ours cpu', '.3f'),
                         ('casadi_warm_cpu_s', 'casadi cpu', '.3f'),
                         ('casadi_warm_cpu_ratio', 'ratio cpu', '.2f'),
                         ('casadi_tuned_warm_cpu_s', 'tuned cpu', '.3f'),
                         ('casadi_tuned_warm_cpu_ratio', 'ratio tuned cpu', '.2f')])
     logger.info('CasADi with our IPOPT options (%s):', ', '.join(
         f'{k}={v}' for k, v in zones[0]['casadi_tuned_ipopt_options'].items()))
-    print_table(zones, [('zones', 'Z', 'd'), ('casadi_tuned_first_s', 'tuned first', '.3f'),
+    print_table(zones, [('zones', 'Z', 'd'), ('horizon_h', 'H', 'd'),
+                        ('ours_iterations', 'ours iters', '.1f'),
+                        ('casadi_tuned_first_s', 'tuned first', '.3f'),
                         ('casadi_tuned_warm_s', 'tuned warm', '.3f'),
                         ('casadi_tuned_iterations', 'tuned iters', '.1f'),
                         ('casadi_tuned_model_warm_s', 'tuned evals', '.3f'),
                         ('casadi_tuned_first_ratio', 'ratio first', '.2f'),
-                        ('casadi_tuned_warm_ratio', 'ratio warm', '.2f')])
+                        ('casadi_tuned_warm_ratio', 'ratio warm', '.2f'),
+                        ('casadi_tuned_warm_cpu_ratio', 'ratio cpu', '.2f')])
+    if growth:
+        logger.info('growth of the warm time per step: exponent p of time ~ Z^p or H^p '
+                    '(least squares on the logs; wall, and cpu):')
+        print_table(growth, [('what', 'in', 's'), ('at', 'at', 's'), ('points', 'points', 's'),
+                             ('ours', 'ours', '.2f'), ('ours_cpu', 'ours cpu', '.2f'),
+                             ('casadi', 'casadi', '.2f'), ('casadi_cpu', 'casadi cpu', '.2f'),
+                             ('casadi_tuned', 'tuned', '.2f'),
+                             ('casadi_tuned_cpu', 'tuned cpu', '.2f')])
     logger.info('the same problem: energy of the applied heat rates [kWh], discomfort of the '
                 'hourly states [Kh], largest difference of the first applied heat rates [W]')
-    print_table(zones, [('zones', 'Z', 'd'), ('ours_energy_kwh', 'ours kWh', '.2f'),
+    print_table(zones, [('zones', 'Z', 'd'), ('horizon_h', 'H', 'd'),
+                        ('ours_energy_kwh', 'ours kWh', '.2f'),
                         ('casadi_energy_kwh', 'casadi kWh', '.2f'),
                         ('casadi_tuned_energy_kwh', 'tuned kWh', '.2f'),
                         ('ours_discomfort_kh', 'ours Kh', '.3f'),
@@ -713,10 +789,10 @@ def report(whole: dict, zones: list[dict], parts: dict) -> None:
     for row in zones:
         for warning in row['ours_warnings']:
             logger.info('ours, Z = %d: %s', row['zones'], warning)
-    largest = zones[-1]
+    largest = max(zones, key=lambda row: (row['zones'], row['horizon_h']))
     if largest['ours_profile_top']:
-        logger.info('cProfile of one warm step of ours at Z = %d, top own times:',
-                    largest['zones'])
+        logger.info('cProfile of one warm step of ours at Z = %d, H = %d, top own times:',
+                    largest['zones'], largest['horizon_h'])
         for item in largest['ours_profile_top'][:10]:
             logger.info('  %8.3f s %8d calls  %s', item['tottime_s'], item['calls'],
                         item['function'])
@@ -780,11 +856,19 @@ def report(whole: dict, zones: list[dict], parts: dict) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    global DATA
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--repeats', type=int, default=5,
                         help='runs of each whole command (default 5; medians)')
-    parser.add_argument('--zones', nargs='+', type=int, default=[10, 50, 100])
+    parser.add_argument('--zones', nargs='+', type=int, default=[10, 50, 100, 300],
+                        help='zone counts of the scale problem at H = 10 h')
+    parser.add_argument('--horizons', nargs='+', type=int, default=[24],
+                        help='further horizons [h] of the scale problem at --horizon-zones')
+    parser.add_argument('--horizon-zones', type=int, default=100,
+                        help='the zone count of the further horizons (default 100)')
+    parser.add_argument('--data', type=pathlib.Path, default=DATA,
+                        help=f'the OU44 measurements (default {DATA})')
     parser.add_argument('--zone-steps', type=int, default=6,
                         help='MPC steps per zone count (default 6: one cold, five warm)')
     parser.add_argument('--instrument', type=pathlib.Path, help=argparse.SUPPRESS)
@@ -793,8 +877,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.instrument is not None:
         return instrumented_case(args.case_argv, args.instrument, args.profile)
-    if args.repeats < 1 or args.zone_steps < 2 or min(args.zones) < 1:
-        parser.error('--repeats >= 1, --zone-steps >= 2 and --zones >= 1 expected')
+    DATA = args.data  # (the whole commands' data file; the instrumented run's is on its argv)
+    if (args.repeats < 1 or args.zone_steps < 2 or min(args.zones) < 1
+            or min(args.horizons, default=1) < 1 or args.horizon_zones < 1):
+        parser.error('--repeats >= 1, --zone-steps >= 2, --zones, --horizons and '
+                     '--horizon-zones >= 1 expected')
     try:
         import casadi
     except ImportError:
@@ -810,8 +897,14 @@ def main(argv: list[str] | None = None) -> int:
                     args.repeats)
         parts = breakdown(args.repeats, tmp)
     logger.info('Z-zone problem (%d steps each) ...', args.zone_steps)
-    zones = zone_rows(args.zones, args.zone_steps)
-    report(whole, zones, parts)
+    cases = [(z, HORIZON) for z in args.zones] + [
+        (args.horizon_zones, h) for h in args.horizons if (args.horizon_zones, h) not in {
+            (z, HORIZON) for z in args.zones}]
+    if (args.horizon_zones, HORIZON) not in cases and args.horizons:
+        cases.append((args.horizon_zones, HORIZON))  # (the horizons' reference point)
+    zones = zone_rows(cases, args.zone_steps)
+    growth = growth_exponents(zones)
+    report(whole, zones, growth, parts)
     cached = importlib.util.find_spec(CASE_MODULE).cached
     byte_compiled = bool(cached) and pathlib.Path(cached).is_file()
     logger.info('%s byte-compiled (__pycache__): %s; PYTHONDONTWRITEBYTECODE=%s', CASE_MODULE,
@@ -820,7 +913,7 @@ def main(argv: list[str] | None = None) -> int:
                           'case_module_byte_compiled': byte_compiled,
                           'repeats': args.repeats, 'whole': whole, 'zones': [
                               {k: v for k, v in row.items() if not k.endswith('controls_w')}
-                              for row in zones], 'breakdown': parts})
+                              for row in zones], 'growth': growth, 'breakdown': parts})
     return 0
 
 

@@ -75,6 +75,36 @@ def test_grouped_finite_differences_match_analytic_multizone():
     assert spent_dense == batch * 41  # base + 20 states + 20 controls
 
 
+def test_multizone_interval_batch_rewrites_its_diagonals_and_matches_the_model():
+    # the optimiser's batch keeps its derivative arrays across calls: every call must give
+    # what a fresh interval_jacobians gives (no stale entry from the call before), on a
+    # subset of the heat rates in another order too, and its arrays must not be writable
+    model = MultiZoneModel(6, seed=4)
+    rng = np.random.default_rng(5)
+    for wrt in (list(range(4, 10)), [9, 5, 6]):
+        batch = model.interval_batch(3, 3600.0, wrt)
+        for _ in range(3):
+            x = rng.uniform(291, 297, (3, 6))
+            u = np.column_stack([rng.uniform(0, 400, (3, 1)), rng.uniform(0, 10, (3, 1)),
+                                 rng.uniform(0, 20, (3, 1)), np.zeros((3, 1)),
+                                 rng.uniform(-2000, 2000, (3, 6))])
+            batch.x_start[:] = x
+            batch.u[:] = u
+            got = batch.jacobians()
+            fresh = model.interval_jacobians(x, u, 3600.0, wrt)
+            x_end, y_end = model.simulate_intervals(x, u, 3600.0)
+            np.testing.assert_array_equal(got.x_end, x_end)
+            np.testing.assert_array_equal(got.y_end, y_end)
+            for name in ('dx_dx0', 'dx_du', 'dy_dx0', 'dy_du'):
+                np.testing.assert_array_equal(getattr(got, name), getattr(fresh, name))
+            decay = np.diagonal(got.dx_dx0, axis1=1, axis2=2)
+            assert np.count_nonzero(got.dx_dx0) == 3 * 6 and (decay > 0).all()
+            assert np.count_nonzero(got.dx_du) == 3 * len(wrt)
+            with pytest.raises(ValueError):
+                got.dx_du[0, 0, 0] = 1.0
+    assert model.interval_batch(2, 3600.0, [1, 4]).jacobians() is None  # Tout: no analytic
+
+
 def test_multizone_batch_equals_simulate_and_single_zone_equals_r1c1():
     model = MultiZoneModel(3)
     s = synthetic_scenario(hours=5)

@@ -259,6 +259,10 @@ class TrustConstrSolver(Solver):
         return res
 
 
+#: IPOPT options every :class:`IpoptSolver` sets beyond the solve's own (output, iterations,
+#: tolerance, Hessian): the adaptive barrier update (``bench/versus.py`` gives CasADi's IPOPT
+#: the same, with a solver's ``options``, for its same-options comparisons).
+IPOPT_DEFAULT_OPTIONS: dict[str, Any] = {'mu_strategy': 'adaptive'}
 #: IPOPT options for large, structured problems (many zones), where the linear algebra is
 #: most of a solve. The wheel's IPOPT has one linear solver, MUMPS (5.5.1 without METIS;
 #: the HSL solvers are not built in), whose solve phase is slow on the many tiny fronts
@@ -288,7 +292,7 @@ class IpoptSolver(Solver):
                  options: dict | None = None) -> None:
         super().__init__(max_iter, tol)
         try:
-            import cyipopt  # noqa: F401
+            import cyipopt
         except ImportError as exc:  # pragma: no cover - depends on the install
             raise ValueError('solver "ipopt" needs cyipopt: pip install cyipopt-wheels') from exc
         self.options = dict(options or {})
@@ -296,80 +300,31 @@ class IpoptSolver(Solver):
         cyipopt_logger = logging.getLogger('cyipopt')
         if cyipopt_logger.getEffectiveLevel() < logging.WARNING:
             cyipopt_logger.setLevel(logging.WARNING)
+        # ... and tell cyipopt: it took its threshold from the level its logger had when it was
+        # first imported, and below it looks the logger up at every callback
+        cyipopt.set_logging_level(cyipopt_logger.getEffectiveLevel())
 
     def solve(self, nlp: Nlp, z0: Vector, deadline: float | None = None) -> SolverResult:
         if nlp.grad is None or nlp.eq_jac is None:
             raise ValueError('IPOPT needs derivatives: use mode "fast" or the slsqp solver')
         import cyipopt
-        n = z0.size
         z_start = np.clip(z0, nlp.lb, nlp.ub)
-        jacobians = [nlp.eq_jac] + ([nlp.ineq_jac] if nlp.ineq_fun is not None else [])
-        offsets, row_parts, col_parts, entries = [0], [], [], []
-        for jac in jacobians:
-            if isinstance(jac, SparseJacobian):  # the pattern without an evaluation
-                rows, cols, m_part, values = jac.rows, jac.cols, jac.shape[0], jac.values
-            else:
-                structure = jac(z_start)
-                rows, cols, m_part = structure.row, structure.col, structure.shape[0]
-
-                def values(z: Vector, jac: Callable = jac) -> Vector:
-                    return jac(z).data
-            row_parts.append(rows + offsets[-1])
-            col_parts.append(cols)
-            offsets.append(offsets[-1] + m_part)
-            entries.append(values)
-        rows, cols = np.concatenate(row_parts), np.concatenate(col_parts)
-        m, n_eq = offsets[-1], offsets[1]
-        counter = {'nfev': 0, 'nit': 0}
         use_hessian = (nlp.objective_hessian_diag is not None
                        and 'hessian_approximation' not in self.options)
-        diag = np.arange(n)
-
-        class _Problem:
-
-            def objective(self, z):
-                counter['nfev'] += 1
-                return nlp.fun(z)
-
-            def gradient(self, z):
-                return nlp.grad(z)
-
-            def constraints(self, z):
-                parts = [nlp.eq_fun(z)]
-                if nlp.ineq_fun is not None:
-                    parts.append(nlp.ineq_fun(z))
-                return np.concatenate(parts)
-
-            def jacobian(self, z):
-                return np.concatenate([values(z) for values in entries])
-
-            def jacobianstructure(self):
-                return rows, cols
-
-            def hessianstructure(self):
-                return diag, diag
-
-            def hessian(self, z, lagrange, obj_factor):
-                return obj_factor * nlp.objective_hessian_diag(z)
-
-            def intermediate(self, *args):
-                counter['nit'] = int(args[1])
-                # False stops IPOPT (status 5, user requested stop) past the deadline
-                return deadline is None or time.perf_counter() <= deadline
-
+        callbacks = _IpoptCallbacks(nlp, z_start, deadline)
+        m = callbacks.constraint_values.size
         cu = np.zeros(m)
-        cu[n_eq:] = 2e19
+        cu[callbacks.n_eq:] = 2e19
         lb = np.where(np.isfinite(nlp.lb), nlp.lb, -2e19)
         ub = np.where(np.isfinite(nlp.ub), nlp.ub, 2e19)
-        problem = cyipopt.Problem(n=n, m=m, problem_obj=_Problem(), lb=lb, ub=ub,
+        problem = cyipopt.Problem(n=z0.size, m=m, problem_obj=callbacks, lb=lb, ub=ub,
                                   cl=np.zeros(m), cu=cu)
         problem.add_option('print_level', 0)
         problem.add_option('sb', 'yes')
         problem.add_option('max_iter', self.max_iter)
         problem.add_option('tol', self.tol)
         problem.add_option('hessian_approximation', 'exact' if use_hessian else 'limited-memory')
-        problem.add_option('mu_strategy', 'adaptive')
-        for key, value in self.options.items():
+        for key, value in {**IPOPT_DEFAULT_OPTIONS, **self.options}.items():
             problem.add_option(key, value)
         start = time.perf_counter()
         z, info = problem.solve(z_start)
@@ -378,10 +333,95 @@ class IpoptSolver(Solver):
             x=z, fun=float(info['obj_val']), success=status in (0, 1), status=status,
             message=info['status_msg'].decode() if isinstance(info['status_msg'], bytes)
             else str(info['status_msg']),
-            nit=counter['nit'], nfev=counter['nfev'],
+            nit=callbacks.nit, nfev=callbacks.nfev,
             wall_s=time.perf_counter() - start)
         _mark_budget(res, deadline)
         return res
+
+
+class _IpoptCallbacks:
+    """
+    The callbacks cyipopt calls for one :class:`Nlp`, on arrays allocated once per solve.
+
+    The constraint Jacobian's pattern is the concatenation of the equality and inequality
+    patterns (taken from a :class:`SparseJacobian` without an evaluation, else from one
+    evaluation at ``z_start``); its constant parts (e.g. a soft band's) are written into
+    the entries once, the others at each call, in place. The constraint values are written
+    into one array. (cyipopt copies what a callback returns into IPOPT's own arrays.)
+    """
+
+    def __init__(self, nlp: Nlp, z_start: Vector, deadline: float | None) -> None:
+        self.nlp = nlp
+        self.deadline = deadline
+        self.nfev = 0
+        self.nit = 0
+        offset, entries, row_parts, col_parts = 0, 0, [], []
+        varying: list[tuple[slice, Callable[[Vector], Vector]]] = []
+        constant: list[tuple[slice, Vector]] = []
+        for jac in [nlp.eq_jac] + ([nlp.ineq_jac] if nlp.ineq_fun is not None else []):
+            if isinstance(jac, SparseJacobian):  # the pattern without an evaluation
+                rows, cols, m_part, values = jac.rows, jac.cols, jac.shape[0], jac.values
+                fixed = jac.constant
+            else:
+                structure = jac(z_start)
+                rows, cols, m_part = structure.row, structure.col, structure.shape[0]
+                fixed = False
+
+                def values(z: Vector, jac: Callable = jac) -> Vector:
+                    return jac(z).data
+            part = slice(entries, entries + rows.size)
+            if fixed:
+                constant.append((part, values(None)))
+            else:
+                varying.append((part, values))
+            row_parts.append(rows + offset)
+            col_parts.append(cols)
+            offset += m_part
+            entries += rows.size
+            if len(row_parts) == 1:
+                self.n_eq = m_part
+        self.rows = np.concatenate(row_parts)
+        self.cols = np.concatenate(col_parts)
+        self.jacobian_values = np.empty(entries)
+        for part, values in constant:
+            self.jacobian_values[part] = values
+        self._varying = varying
+        self.constraint_values = np.empty(offset)
+        self._eq = self.constraint_values[:self.n_eq]
+        self._ineq = self.constraint_values[self.n_eq:]
+        self._diagonal = np.arange(z_start.size)
+
+    def objective(self, z: Vector) -> float:
+        self.nfev += 1
+        return self.nlp.fun(z)
+
+    def gradient(self, z: Vector) -> Vector:
+        return self.nlp.grad(z)
+
+    def constraints(self, z: Vector) -> Vector:
+        self._eq[:] = self.nlp.eq_fun(z)
+        if self._ineq.size:
+            self._ineq[:] = self.nlp.ineq_fun(z)
+        return self.constraint_values
+
+    def jacobian(self, z: Vector) -> Vector:
+        for part, values in self._varying:
+            self.jacobian_values[part] = values(z)
+        return self.jacobian_values
+
+    def jacobianstructure(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.rows, self.cols
+
+    def hessianstructure(self) -> tuple[np.ndarray, np.ndarray]:
+        return self._diagonal, self._diagonal
+
+    def hessian(self, z: Vector, lagrange: Vector, obj_factor: float) -> Vector:
+        return obj_factor * self.nlp.objective_hessian_diag(z)
+
+    def intermediate(self, *args: Any) -> bool:
+        self.nit = int(args[1])
+        # False stops IPOPT (status 5, user requested stop) past the deadline
+        return self.deadline is None or time.perf_counter() <= self.deadline
 
 
 SOLVERS: dict[str, type[Solver]] = {cls.name: cls for cls in (SlsqpSolver, TrustConstrSolver,

@@ -15,7 +15,7 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-from mshoot_core.models.base import IntervalJacobians, Model
+from mshoot_core.models.base import IntervalBatch, IntervalJacobians, Model
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model, R1C1Parameters
 
 
@@ -89,37 +89,36 @@ class MultiZoneModel(Model):
         ydf = pd.DataFrame(states - KELVIN, index=udf.index, columns=list(self.output_names))
         return ydf, xdf
 
+    def _exact(self, x_start: np.ndarray, u: np.ndarray,
+               dt_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Return the exact end states (B, Z) [K], the decay exp(-g dt / C) and g [W/K]."""
+        f, g, cap = self._coefficients(u)
+        decay = np.exp(-g * dt_s / cap)
+        return f / g + (x_start - f / g) * decay, decay, g
+
     def simulate_intervals(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                            t_start_s: np.ndarray | None = None) -> tuple[np.ndarray,
                                                                          np.ndarray]:
         """Exact end values of B intervals (``t_start_s`` ignored: time-invariant)."""
-        x_start = np.atleast_2d(np.asarray(x_start, dtype=float))
-        f, g, cap = self._coefficients(np.atleast_2d(np.asarray(u, dtype=float)))
-        decay = np.exp(-g * dt_s / cap)
-        x_end = f / g + (x_start - f / g) * decay
+        x_end = self._exact(np.atleast_2d(np.asarray(x_start, dtype=float)),
+                            np.atleast_2d(np.asarray(u, dtype=float)), dt_s)[0]
         return x_end, x_end - KELVIN
 
     def interval_jacobians(self, x_start: np.ndarray, u: np.ndarray, dt_s: float,
                            wrt_inputs: Sequence[int],
                            t_start_s: np.ndarray | None = None) -> IntervalJacobians | None:
         """Exact derivatives w.r.t. the zone inputs (``t_start_s`` ignored), else None."""
-        wrt = list(wrt_inputs)
-        if any(col < 4 for col in wrt):
+        batch = _ZoneBatch(self, np.atleast_2d(x_start).shape[0], dt_s, wrt_inputs)
+        if not batch.analytic:
             return None  # derivatives w.r.t. shared disturbances: use finite differences
-        x_start = np.atleast_2d(np.asarray(x_start, dtype=float))
-        u = np.atleast_2d(np.asarray(u, dtype=float))
-        x_end, y_end = self.simulate_intervals(x_start, u, dt_s)
-        f, g, cap = self._coefficients(u)
-        decay = np.exp(-g * dt_s / cap)
-        batch, z = x_start.shape
-        dx_dx0 = np.zeros((batch, z, z))
-        dx_du = np.zeros((batch, z, len(wrt)))
-        zones = np.arange(z)
-        dx_dx0[:, zones, zones] = decay
-        for j, col in enumerate(wrt):
-            zone = col - 4
-            dx_du[:, zone, j] = (1.0 - decay[:, zone]) / g[:, zone]
-        return IntervalJacobians(x_end, y_end, dx_dx0, dx_du, dx_dx0.copy(), dx_du.copy())
+        batch.x_start[:] = x_start
+        batch.u[:] = u
+        return batch.jacobians()
+
+    def interval_batch(self, batch: int, dt_s: float, wrt_inputs: Sequence[int],
+                       t_start_s: np.ndarray | None = None) -> IntervalBatch:
+        """Return the zones' batch: derivative arrays allocated once, their diagonals rewritten."""
+        return _ZoneBatch(self, batch, dt_s, wrt_inputs)
 
     def jacobian_sparsity(self, wrt_inputs: Sequence[int]) -> np.ndarray:
         z = self.n_zones
@@ -133,6 +132,42 @@ class MultiZoneModel(Model):
                 else:
                     pattern[rows, z + j] = True
         return pattern
+
+
+class _ZoneBatch(IntervalBatch):
+    """
+    B intervals of a :class:`MultiZoneModel`, evaluated again and again (the optimiser's loop).
+
+    An :class:`~mshoot_core.models.base.IntervalBatch` whose derivative arrays (B, Z, Z) and
+    (B, Z, len(wrt_inputs)) are allocated once, zero but for their diagonals, which each
+    :meth:`jacobians` writes by index arrays (no loop over zones): the arrays it returns are
+    read-only and the batch's own, valid until its next call. The outputs are the states in
+    degC, so their derivatives are the same arrays.
+    """
+
+    def __init__(self, model: MultiZoneModel, batch: int, dt_s: float,
+                 wrt_inputs: Sequence[int]) -> None:
+        super().__init__(model, batch, dt_s, wrt_inputs)
+        wrt = np.asarray(self.wrt_inputs, dtype=np.intp).reshape(-1)
+        #: Whether every differentiated input is a heat rate (else no analytic derivatives).
+        self.analytic = not (wrt < 4).any()
+        z = model.n_zones
+        self._zones = np.arange(z)
+        self._controlled = wrt - 4  # the zone of each differentiated heat rate
+        self._columns = np.arange(wrt.size)
+        self._dx_dx0 = np.zeros((int(batch), z, z))
+        self._dx_du = np.zeros((int(batch), z, wrt.size))
+
+    def jacobians(self) -> IntervalJacobians | None:
+        if not self.analytic:
+            return None
+        x_end, decay, g = self.model._exact(self.x_start, self.u, self.dt_s)
+        dx_dx0, dx_du, zones, controlled = self._dx_dx0, self._dx_du, self._zones, self._controlled
+        dx_dx0.flags.writeable = dx_du.flags.writeable = True
+        dx_dx0[:, zones, zones] = decay
+        dx_du[:, controlled, self._columns] = (1.0 - decay[:, controlled]) / g[:, controlled]
+        dx_dx0.flags.writeable = dx_du.flags.writeable = False
+        return IntervalJacobians(x_end, x_end - KELVIN, dx_dx0, dx_du, dx_dx0, dx_du)
 
 
 def multizone_mpc_options(model: MultiZoneModel, solver: str = 'ipopt') -> dict:
