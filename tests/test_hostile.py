@@ -366,22 +366,28 @@ def test_mpc_plans_from_the_real_state_reports_intruders_and_stale_peers(context
 @pytest.mark.ros
 def test_a_short_hostile_flood_against_the_three_executables(tmp_path):
     """
-    ``bench/hostile.py`` for a few seconds: separate processes, DDS on this host.
+    ``bench/hostile.py`` for a few seconds: separate processes, DDS on this host, lockstep.
 
-    Every step applies the MPC's setpoint, none is planned from an injected state, the MPC
-    publishes no invalid setpoint, every node survives, and the intruder is reported.
+    Every step applies the MPC's setpoint (the emulator's count; and every step observed
+    applied the value the MPC sent), none is planned from an injected state, the MPC publishes
+    no invalid setpoint, every node survives and the intruder is reported, by node and GID.
     """
     env = dict(os.environ, PYTHONUNBUFFERED='1')
-    done = subprocess.run([sys.executable, str(ROOT / 'bench' / 'hostile.py'), '--seconds', '5',
-                           '--settle', '1', '--speedup', '3600', '--rate', '500',
+    done = subprocess.run([sys.executable, str(ROOT / 'bench' / 'hostile.py'), '--seconds', '4',
+                           '--settle', '1', '--mode', 'lockstep', '--rate', '500',
                            '--max-growth-mb', '1000', '--out', str(tmp_path)],
                           env=env, capture_output=True, text=True, timeout=300)
-    report = json.loads((tmp_path / 'hostile.json').read_text())
     logs = '\n'.join(p.read_text()[-1500:] for p in tmp_path.glob('*.log'))
-    assert done.returncode == 0, f'{done.stdout}\n{done.stderr}\n{logs}'
-    assert report['sent_total'] > 1000
-    assert report['steps'] >= 5 and report['applied_other'] == 0
-    assert report['applied_sources'] == {'setpoint': report['steps']}
+    assert (tmp_path / 'hostile.json').is_file(), f'{done.stdout}\n{done.stderr}\n{logs}'
+    report = json.loads((tmp_path / 'hostile.json').read_text())
+    assert report['sent_total'] > 100, report
+    assert report['steps'] >= 3 and report['applied_sources'] == {
+        'setpoint': report['steps'], 'held': 0, 'safe': 0}, report
+    assert report['applied_mpc_setpoint'] >= 1 and report['applied_other'] == 0, report
     assert report['planned_from_injected_state'] == 0 and report['invalid_setpoints'] == 0
     assert all(report['nodes_alive_at_flood_end'].values())
-    assert any('/hostile' in message for message in report['intruders_reported'].values())
+    assert all(report['nodes_alive_after_settling'].values())
+    assert re.search(r'/hostile \(gid [0-9a-f.]+\)', report['intruders_reported'].get(
+        'mshoot/emulator/peer/setpoint', '')), report['intruders_reported']
+    assert 'rejected_states' in report['mpc_rejections']
+    assert int(report['mpc_rejections']['rejected_states']) > 0
