@@ -20,7 +20,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Sequence
 
-NS_PER_S = 1_000_000_000
+from mshoot_core.safety import NS_PER_S
 
 
 @dataclasses.dataclass(frozen=True)
