@@ -20,7 +20,10 @@ Modes (parameter ``mode``):
   re-publishes clock, state and disturbances every ``heartbeat_period_s`` (lost
   messages during discovery cannot stall the loop).
 - ``free``: simulated time runs at ``speedup`` times the wall clock; at the
-  end of each step the setpoint of the step is applied.
+  end of each step the setpoint of the step is applied. While it has not come,
+  state and disturbances are re-published every ``heartbeat_period_s`` (a
+  message lost, e.g. displaced from a reader's queue by a flood, is sent again;
+  the MPC answers a repeated state with its setpoint again).
 
 Safety (the rules are in :mod:`mshoot_core.safety`):
 
@@ -154,9 +157,9 @@ PARAMS = (
               low=1e-3, high=1e9),
     ParamSpec('clock_period_s', 0.02, 'free mode: wall time between /clock ticks [s]',
               low=1e-3, high=10.0, read_only=True),
-    ParamSpec('heartbeat_period_s', 0.5, 'lockstep: wall time without a setpoint after which '
-              'clock, state and disturbances are published again [s]', low=0.01, high=600.0,
-              read_only=True),
+    ParamSpec('heartbeat_period_s', 0.5, 'wall time without the setpoint of the step after '
+              'which state and disturbances (and, in lockstep, the clock) are published again '
+              '[s]', low=0.01, high=600.0, read_only=True),
     ParamSpec('lockstep_timeout_s', 60.0, 'lockstep: wall time a step waits for its setpoint '
               'before on_lockstep_timeout applies [s]', low=0.01, high=86400.0),
     ParamSpec('on_lockstep_timeout', 'stop', "lockstep, no setpoint in time: 'stop' ends the "
@@ -504,11 +507,15 @@ class EmulatorNode(ManagedNode):
     # -- publishing -----------------------------------------------------------------------
     def _publish_step(self) -> None:
         """Publish clock, disturbances and state of the current step."""
+        self._clock_pub.publish(clock_msg(self.stamp_ns))
+        self._sim_ns = self.stamp_ns
+        self._publish_state()
+
+    def _publish_state(self) -> None:
+        """Publish disturbances and state of the current step."""
         stamp = self.stamp_ns
         zone = self.params['zone']
         emulator = self.emulator
-        self._clock_pub.publish(clock_msg(stamp))
-        self._sim_ns = stamp
         row = emulator.scenario.iloc[emulator.index]
         self._disturbance_pub.publish(disturbances_msg(stamp, {
             name: float(row[name]) for name in emulator.model.input_names
@@ -635,6 +642,9 @@ class EmulatorNode(ManagedNode):
         self._sim_ns += int(self.params['clock_period_s'] * self._speedup * NS_PER_S)
         if self._sim_ns < self.stamp_ns + self.step_ns:
             self._clock_pub.publish(clock_msg(self._sim_ns))
+            if (self._setpoint_gate.latest_ns != self.stamp_ns and self._steady_ns()
+                    - self._last_publish_ns >= seconds_to_ns(self.params['heartbeat_period_s'])):
+                self._publish_state()  # no setpoint yet: the state again (it may have been lost)
             return
         decision = self._hold.controls_for(self._scenario_s(self.stamp_ns))
         if decision.source != 'setpoint':
