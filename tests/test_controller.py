@@ -119,7 +119,7 @@ def test_named_inputs_are_checked_against_the_model():
         offer_state(0, ['T_0', 'T_1'], [293.0, 294.0], 0, output_names=['Tc_0'],
                     output_values=[np.nan]),
     ]
-    assert [r.kind for r in rejected] == ['names', 'names', 'names', 'length', 'names',
+    assert [r.kind for r in rejected] == ['names', 'length', 'names', 'length', 'names',
                                           'out_of_range', 'non_finite']
     assert "state lacks ['T_1']" in rejected[0].reason
     assert "control has unknown ['q']" in rejected[4].reason

@@ -59,10 +59,11 @@ from mshoot_core.estimation import Estimate, estimation_needed, StateEstimator
 from mshoot_core.models.base import Model, ModelValueError
 from mshoot_core.models.registry import control_interface, ControlInterface
 from mshoot_core.mpc import MPC, MpcResult
-from mshoot_core.safety import (check_forecast, check_named, check_series, check_zone_state,
+from mshoot_core.safety import (applied_control_ranges, check_forecast, check_history,
+                                check_lengths, check_named, check_series, check_zone_state,
                                 COMFORT_SERIES, Decision, InputWait, LIMITS, NS_PER_S,
                                 PRICE_SERIES, Rejection, RejectionCounter, reorder,
-                                SetpointSupervisor, StampGate)
+                                SetpointSupervisor, StampGate, zone_state_caps)
 from mshoot_core.scenario import column_labels, forecast_window
 from mshoot_core.settings import BY_NAME, MpcSettings
 
@@ -190,8 +191,9 @@ class Controller:
         self.results: dict[int, MpcResult] = {}
         step_ns = int(round(self.settings.problem.step_s * NS_PER_S))
         self.step_ns = step_ns
-        self._state_gate = StampGate(step_ns)
-        self._forecast_gate = StampGate(step_ns)
+        # States and forecasts are stamped with the start of the step they are for.
+        self._state_gate = StampGate(step_ns, origin_ns=0)
+        self._forecast_gate = StampGate(step_ns, origin_ns=0)
         self._states: dict[int, np.ndarray] = {}
         self._forecasts: dict[int, pd.DataFrame] = {}
         self._last_step_ns: int | None = None
@@ -422,26 +424,45 @@ class Controller:
                           state_values: Sequence[float], now_ns: int, *,
                           output_names: Sequence[str] = (), output_values: Sequence[float] = (),
                           control_names: Sequence[str] = (),
-                          control_values: Sequence[float] = ()) -> Rejection | None:
+                          control_values: Sequence[float] = (),
+                          history: Sequence[Sequence[Any]] = ((), (), (), ())
+                          ) -> Rejection | None:
         """
         Offer a measured state as named values, with the measured outputs and applied controls.
 
         Names in any order, states in SI units (e.g. [K]); the controls are those applied over the
-        last step.
+        last step; ``history`` the warm-up a first state may carry (offsets [s], state values,
+        output names, output values: the fields of a ``ZoneState``).
 
-        The names are checked (:func:`~mshoot_core.safety.check_zone_state`: exactly the
-        model's states; applied controls among the controller's), then the state goes to
+        The whole message is checked before any of it is used or copied: the array lengths
+        against the model's dimensions (:func:`~mshoot_core.safety.zone_state_caps`), the names
+        and values (:func:`~mshoot_core.safety.check_zone_state`: exactly the model's states,
+        finite plausible outputs, applied controls among the controller's and near its bounds),
+        the history (:func:`~mshoot_core.safety.check_history`); then the state goes to
         :meth:`offer_state` in the model's order. With estimation the states must be
         among the model's and hold the measured ones (the others are ignored); the applied
         controls enter the prediction over the last step.
         """
+        controls = self.settings.problem.control_names
+        fields = dict(zip(('state_names', 'state_values', 'output_names', 'output_values',
+                           'control_names', 'control_values', 'history_offsets_s',
+                           'history_state_values', 'history_output_names',
+                           'history_output_values'),
+                          (state_names, state_values, output_names, output_values,
+                           control_names, control_values, *history)))
+        rejection = check_lengths('zone state', {k: len(v) for k, v in fields.items()},
+                                  zone_state_caps(len(self.model.state_names), len(controls)))
+        if rejection:
+            return self.reject('state', rejection)
+        ranges = applied_control_ranges(controls, self.settings.problem.control_bounds)
         if self.estimator is not None:
             measured = self.estimator.measured
             rejection = (check_named('state', state_names, state_values,
                                      allowed=self.model.state_names)
                          or check_zone_state((), (), output_names, output_values,
                                              control_names, control_values,
-                                             allowed_controls=self.settings.problem.control_names))
+                                             allowed_controls=controls, control_ranges=ranges)
+                         or check_history(state_names, *history))
             missing = [n for n in measured if n not in state_names]
             if rejection is None and missing:
                 rejection = Rejection('names', f'state: the measured states {missing} are '
@@ -451,10 +472,11 @@ class Controller:
             values = dict(zip(state_names, map(float, state_values)))
             return self._measure(stamp_ns, {n: values[n] for n in measured}, now_ns,
                                  dict(zip(control_names, map(float, control_values))))
-        rejection = check_zone_state(state_names, state_values, output_names, output_values,
-                                     control_names, control_values,
-                                     expected_states=self.model.state_names,
-                                     allowed_controls=self.settings.problem.control_names)
+        rejection = (check_zone_state(state_names, state_values, output_names, output_values,
+                                      control_names, control_values,
+                                      expected_states=self.model.state_names,
+                                      allowed_controls=controls, control_ranges=ranges)
+                     or check_history(state_names, *history))
         if rejection:
             return self.reject('state', rejection)
         return self.offer_state(stamp_ns, reorder(state_names, state_values,

@@ -39,8 +39,8 @@ logger = logging.getLogger(__name__)
 
 NS_PER_S = 1_000_000_000
 #: Why an input was rejected.
-REJECTION_KINDS = ('non_finite', 'out_of_range', 'length', 'band', 'step', 'stamp', 'future',
-                   'stale', 'backwards', 'names')
+REJECTION_KINDS = ('non_finite', 'out_of_range', 'length', 'band', 'step', 'stamp', 'grid',
+                   'future', 'stale', 'backwards', 'names')
 #: Why a setpoint is a fallback (codes of :attr:`Decision.code`).
 FALLBACK_CODES = ('solve_failed', 'budget', 'not_converged', 'invalid_plan', 'inputs_missing',
                   'deactivated')
@@ -101,6 +101,12 @@ class Limits:
         Longest forecast or plan accepted [-].
     max_names : int
         Most names in a named vector (states, outputs, controls, series) [-].
+    max_values : int
+        Most values in an array field whose length the receiver's model does not bound
+        (zone temperature plans, output histories) [-].
+    output_abs : float
+        Largest plausible |measured output| (the model's units: [degC], [J], ...); zone
+        temperature outputs are held to ``zone_temperature_c``.
 
     Series of other names (a model's own disturbances) are only required to be
     finite.
@@ -117,6 +123,8 @@ class Limits:
     heat_rate_abs_w: float = 1e7
     max_samples: int = 10_000
     max_names: int = 1000
+    max_values: int = 100_000
+    output_abs: float = 1e12
 
     @property
     def forecast_ranges(self) -> dict[str, tuple[float, float]]:
@@ -173,6 +181,75 @@ def check_stamp_fields(sec: int, nanosec: int) -> Rejection | None:
     return None
 
 
+def check_on_grid(stamp_ns: int, step_ns: int, origin_ns: int = 0) -> Rejection | None:
+    """
+    Check that a stamp lies on the step grid of its stream: ``origin_ns + k * step_ns``.
+
+    States, forecasts and setpoints are stamped with the start of the step they are for; a
+    stamp between two step starts is not one of them (kind 'grid').
+    """
+    offset = (int(stamp_ns) - int(origin_ns)) % int(step_ns)
+    if offset:
+        return Rejection('grid', f'stamp {_s(stamp_ns)} is {offset / NS_PER_S:g} s past the '
+                         f'start of its step on the {step_ns / NS_PER_S:g} s grid: expected a '
+                         'step start')
+    return None
+
+
+def check_lengths(message: str, lengths: Mapping[str, int],
+                  caps: Mapping[str, int]) -> Rejection | None:
+    """
+    Check the array fields of a message against their caps, before any of them is converted.
+
+    Parameters
+    ----------
+    message : str
+        What the message is (for the sentence), e.g. 'zone state'.
+    lengths : mapping
+        Field -> number of elements as received (``len()`` of the deserialised field).
+    caps : mapping
+        Field -> most elements the receiver takes (from its model's dimensions:
+        :func:`zone_state_caps`, :func:`forecast_caps`, :func:`setpoint_caps`); a field
+        without a cap is not limited here.
+
+    """
+    for field, cap in caps.items():
+        n = int(lengths.get(field, 0))
+        if n > cap:
+            return Rejection('length', f'{message} {field} has {n} elements, at most {cap} '
+                             "expected (the receiver's model dimensions)")
+    return None
+
+
+def zone_state_caps(n_states: int, n_controls: int, limits: Limits = LIMITS) -> dict[str, int]:
+    """Return the caps of the array fields of a zone state for a model of this size."""
+    return {'state_names': n_states, 'state_values': n_states,
+            'output_names': limits.max_names, 'output_values': limits.max_names,
+            'control_names': n_controls, 'control_values': n_controls,
+            'history_offsets_s': limits.max_samples,
+            'history_state_values': n_states * limits.max_samples,
+            'history_output_names': limits.max_names,
+            'history_output_values': limits.max_values}
+
+
+def forecast_caps(n_series: int, limits: Limits = LIMITS) -> dict[str, int]:
+    """Return the caps of a forecast's array fields for ``n_series`` known disturbance names."""
+    return {'series_names': n_series, 'series_values': n_series * limits.max_samples,
+            'comfort_min_c': limits.max_samples, 'comfort_max_c': limits.max_samples,
+            'price_per_kwh': limits.max_samples}
+
+
+def setpoint_caps(n_controls: int, limits: Limits = LIMITS) -> dict[str, int]:
+    """Return the caps of a setpoint's array fields for a model with ``n_controls`` controls."""
+    return {'control_names': n_controls, 'control_values': n_controls,
+            'temperature_names': limits.max_names,
+            'temperature_setpoints_c': limits.max_names,
+            'plan_controls': n_controls * limits.max_samples,
+            'plan_temperatures_c': limits.max_values,
+            'schedule_offsets_s': limits.max_samples,
+            'schedule_values': n_controls * limits.max_samples}
+
+
 def check_names(field: str, names: Sequence[str], *, expected: Sequence[str] | None = None,
                 allowed: Sequence[str] | None = None,
                 limits: Limits = LIMITS) -> Rejection | None:
@@ -196,10 +273,10 @@ def check_names(field: str, names: Sequence[str], *, expected: Sequence[str] | N
         Plausible ranges (``max_names``: at most that many names).
 
     """
-    names = list(names)
-    if len(names) > limits.max_names:
+    if len(names) > limits.max_names:  # (before the names are copied)
         return Rejection('length', f'{field} has {len(names)} names, at most '
                          f'{limits.max_names} expected')
+    names = list(names)
     if not all(isinstance(n, str) and n for n in names):
         return Rejection('names', f'{field} must be non-empty names, got {names}')
     duplicates = sorted({n for n in names if names.count(n) > 1})
@@ -318,6 +395,7 @@ def check_zone_state(state_names: Sequence[str], state_values: Sequence[float],
                      control_names: Sequence[str] = (), control_values: Sequence[float] = (),
                      *, expected_states: Sequence[str] | None = None,
                      allowed_controls: Sequence[str] | None = None,
+                     control_ranges: Mapping[str, tuple[float, float]] | None = None,
                      limits: Limits = LIMITS) -> Rejection | None:
     """
     Check a measured state of a building's zones: named states, outputs and applied controls.
@@ -329,24 +407,92 @@ def check_zone_state(state_names: Sequence[str], state_values: Sequence[float],
         (their plausible ranges are the controller's, see
         :meth:`mshoot_core.controller.Controller.offer_state`).
     output_names, output_values : sequences
-        Measured outputs by name (the model's units); finite.
+        Measured outputs by name (the model's units); finite, within
+        ``limits.output_abs``.
     control_names, control_values : sequences
         The controls applied over the last step by name (heat rates [W]);
-        finite, within ``limits.heat_rate_abs_w``; empty before the first step.
+        finite, within ``limits.heat_rate_abs_w`` (or each within its
+        ``control_ranges``); empty before the first step.
     expected_states : sequence of str, optional
         The receiver's model states: exactly these names (any order).
     allowed_controls : sequence of str, optional
         The receiver's controls: the applied ones must be among them.
+    control_ranges : mapping, optional
+        Control name -> plausible (low, high) applied value [W] (see
+        :func:`applied_control_ranges`).
     limits : Limits
         Plausible ranges.
 
     """
     return (check_named('state', state_names, state_values, expected=expected_states,
                         limits=limits)
-            or check_named('output', output_names, output_values, limits=limits)
+            or check_named('output', output_names, output_values, -limits.output_abs,
+                           limits.output_abs, limits=limits)
             or check_named('control', control_names, control_values,
                            -limits.heat_rate_abs_w, limits.heat_rate_abs_w,
-                           allowed=allowed_controls, limits=limits))
+                           allowed=allowed_controls, ranges=control_ranges, limits=limits))
+
+
+def applied_control_ranges(control_names: Sequence[str],
+                           control_bounds: Sequence[tuple[float, float]]
+                           ) -> dict[str, tuple[float, float]]:
+    """
+    Return the plausible range of every applied control: its bounds widened by their span.
+
+    A building whose actuator limits differ somewhat from the control model's is not refused;
+    an applied heat rate a thousand times the model's limits is.
+    """
+    ranges = {}
+    for name, (low, high) in zip(control_names, control_bounds):
+        span = max(float(high) - float(low), abs(float(low)), abs(float(high)))
+        ranges[name] = (float(low) - span, float(high) + span)
+    return ranges
+
+
+def check_history(state_names: Sequence[str], offsets_s: Sequence[float],
+                  state_values: Sequence[float], output_names: Sequence[str] = (),
+                  output_values: Sequence[float] = (),
+                  limits: Limits = LIMITS) -> Rejection | None:
+    """
+    Check the history before the first step that a zone state may carry (a warm-up).
+
+    Parameters
+    ----------
+    state_names : sequence of str
+        The states of the message (the history's states are in their order).
+    offsets_s : sequence of float
+        m times [s from the stamp]: finite, increasing, <= 0.
+    state_values : sequence of float
+        The states at those times, flattened name-major (m values per state); finite.
+    output_names, output_values : sequences
+        Output means over the interval ending at each time, flattened name-major (m values
+        per output); finite within ``limits.output_abs``, NaN allowed at the first time only.
+    limits : Limits
+        Plausible ranges.
+
+    """
+    m = len(offsets_s)
+    if len(state_values) != m * len(state_names) or len(output_values) != m * len(output_names):
+        return Rejection('length', f'history: {m} times need {m * len(state_names)} state and '
+                         f'{m * len(output_names)} output values, got {len(state_values)} and '
+                         f'{len(output_values)}')
+    if not m:
+        return None
+    rejection = check_names('history_output_names', output_names, limits=limits)
+    if rejection:
+        return rejection
+    offsets = np.asarray(offsets_s, dtype=float)
+    rejection = (check_series('history_offsets_s', offsets, -math.inf, 0.0)
+                 or check_series('history_state_values', state_values))
+    if rejection:
+        return rejection
+    if m > 1 and not np.all(np.diff(offsets) > 0):
+        return Rejection('out_of_range', 'history_offsets_s must increase')
+    outputs = np.asarray(output_values, dtype=float).reshape(len(output_names), m)
+    first = outputs[:, :1]
+    return check_series('history_output_values', np.where(np.isnan(first), 0.0, first),
+                        -limits.output_abs, limits.output_abs) or check_series(
+        'history_output_values', outputs[:, 1:], -limits.output_abs, limits.output_abs)
 
 
 def check_disturbances(names: Sequence[str], values: Sequence[float],
@@ -432,6 +578,8 @@ def check_setpoint(step_s: float, control_names: Sequence[str],
                    plan_temperatures_c: Sequence[float] = (), *,
                    expected_step_s: float | None = None,
                    expected_controls: Sequence[str] | None = None,
+                   schedule_offsets_s: Sequence[float] = (),
+                   schedule_values: Sequence[float] = (), schedules: bool = True,
                    limits: Limits = LIMITS) -> Rejection | None:
     """
     Check a supervisory setpoint: named controls, zone temperature setpoints, the plan.
@@ -455,6 +603,11 @@ def check_setpoint(step_s: float, control_names: Sequence[str],
         The receiver's control step [s].
     expected_controls : sequence of str, optional
         The receiver's controls: exactly these names (any order).
+    schedule_offsets_s, schedule_values : sequences
+        An optional schedule within the step (:func:`check_schedule`).
+    schedules : bool
+        Whether the receiver takes a schedule within the step (else a setpoint with one is
+        rejected).
     limits : Limits
         Plausible ranges.
 
@@ -487,7 +640,53 @@ def check_setpoint(step_s: float, control_names: Sequence[str],
     return (check_series('plan_controls', plan_controls, -limits.heat_rate_abs_w,
                          limits.heat_rate_abs_w)
             or check_series('plan_temperatures_c', plan_temperatures_c,
-                            *limits.zone_temperature_c))
+                            *limits.zone_temperature_c)
+            or (check_schedule(schedule_offsets_s, schedule_values, nc, float(step_s),
+                               schedules, limits)
+                if len(schedule_offsets_s) or len(schedule_values) else None))
+
+
+def check_schedule(offsets_s: Sequence[float], values: Sequence[float], n_controls: int,
+                   step_s: float, allowed: bool = True,
+                   limits: Limits = LIMITS) -> Rejection | None:
+    """
+    Check a schedule within a step: n pieces, every control's value over each.
+
+    Parameters
+    ----------
+    offsets_s : sequence of float
+        Start of every piece [s from the step start]: the first 0, increasing, within the step.
+    values : sequence of float
+        n values per control, flattened name-major [W]; finite within
+        ``limits.heat_rate_abs_w``.
+    n_controls : int
+        Controls of the setpoint.
+    step_s : float
+        Control step [s].
+    allowed : bool
+        Whether the receiver takes schedules at all.
+    limits : Limits
+        Plausible ranges.
+
+    """
+    n = len(offsets_s)
+    if not allowed:
+        return Rejection('length', 'a schedule within the step needs lockstep mode, got '
+                         f'{n} offsets')
+    if n == 0 or len(values) != n * n_controls:
+        return Rejection('length', f'a schedule within the step needs n offsets and n values '
+                         f'per control ({n_controls}), got {n} offsets and {len(values)} values')
+    offsets = np.asarray(offsets_s, dtype=float)
+    rejection = (check_series('schedule_offsets_s', offsets, 0.0, step_s)
+                 or check_series('schedule_values', values, -limits.heat_rate_abs_w,
+                                 limits.heat_rate_abs_w))
+    if rejection:
+        return rejection
+    if offsets[0] != 0.0 or (n > 1 and not np.all(np.diff(offsets) > 0)) \
+            or offsets[-1] >= step_s:
+        return Rejection('out_of_range', f'schedule_offsets_s must start at 0 and increase '
+                         f'within the {step_s:g} s step, got {offsets.tolist()[:10]}')
+    return None
 
 
 # -- time stamps --------------------------------------------------------------------------
@@ -497,13 +696,18 @@ class StampGate:
 
     One gate per input stream. The rules, in order, for a stamp ``t`` when the
     receiver's clock reads ``now`` (0: no clock yet, e.g. simulated time before
-    the first /clock; then only the order is checked):
+    the first /clock; then only the grid and the order are checked):
 
+    0. with a grid (``origin_ns`` given), ``t`` not a step start
+       ``origin_ns + k * step_ns``: 'grid' (:func:`check_on_grid`);
     1. ``t`` equal to the newest accepted stamp: accepted (a repeat, e.g. a
        heartbeat or a re-delivered latched message);
     2. ``t`` before the newest accepted stamp: 'backwards';
     3. ``t > now + max_future_ns``: 'future';
     4. ``t`` before the start of the current step minus ``max_age_ns``: 'stale'.
+
+    :meth:`check` moves nothing: a message is checked whole (every field and its stamp)
+    before :meth:`accept` records its stamp.
 
     Parameters
     ----------
@@ -514,21 +718,30 @@ class StampGate:
     max_future_ns : int
         Largest lead over the clock [ns] (data and clock topics are not
         ordered, so a stamp one step ahead is normal in simulated time).
+    origin_ns : int, optional
+        A step start [ns]: stamps must lie on the grid ``origin_ns + k * step_ns``
+        (None: any stamp).
 
     """
 
-    def __init__(self, step_ns: int, max_age_ns: int = 0, max_future_ns: int = 0) -> None:
+    def __init__(self, step_ns: int, max_age_ns: int = 0, max_future_ns: int = 0,
+                 origin_ns: int | None = None) -> None:
         if step_ns <= 0 or max_age_ns < 0 or max_future_ns < 0:
             raise ValueError(f'step_ns must be > 0 and the tolerances >= 0, got {step_ns}, '
                              f'{max_age_ns}, {max_future_ns}')
         self.step_ns = int(step_ns)
         self.max_age_ns = int(max_age_ns)
         self.max_future_ns = int(max_future_ns)
+        self.origin_ns = None if origin_ns is None else int(origin_ns)
         self.latest_ns: int | None = None
 
     def check(self, stamp_ns: int, now_ns: int) -> Rejection | None:
         """Return the rejection of a stamp, None if acceptable (see the class docstring)."""
         stamp_ns, now_ns = int(stamp_ns), int(now_ns)
+        if self.origin_ns is not None:
+            rejection = check_on_grid(stamp_ns, self.step_ns, self.origin_ns)
+            if rejection:
+                return rejection
         if self.latest_ns is not None:
             if stamp_ns == self.latest_ns:
                 return None

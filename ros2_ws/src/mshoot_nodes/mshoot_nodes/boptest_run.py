@@ -213,6 +213,8 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
                                 **mshoot_params(period, price, hours,
                                                 mshoot_mode)['controller']}
         controller_cls = EconomicNode
+    # The one writer of /mpc/setpoint the emulator expects (another one is an intruder).
+    params['emulator']['setpoint_writer'] = 'economic' if controller == 'mshoot' else 'rule'
     nodes: list[Any] = []
     executor = SingleThreadedExecutor(context=context)
 

@@ -37,6 +37,11 @@ FORECAST_DISTURBANCES = ('Tout', 'solrad', 'occ')
 
 
 # -- time ---------------------------------------------------------------------------------
+def field_lengths(msg: object, fields: Iterable[str]) -> dict[str, int]:
+    """Return the number of elements of array fields of a message (nothing is converted)."""
+    return {field: len(getattr(msg, field)) for field in fields}
+
+
 def seconds_to_ns(seconds: float) -> int:
     """Seconds -> integer nanoseconds (rounded to the nearest ns)."""
     return int(round(float(seconds) * NS_PER_S))

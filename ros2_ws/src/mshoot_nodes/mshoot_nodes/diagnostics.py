@@ -1,7 +1,7 @@
 """
 Health on ``/diagnostics``: one ``diagnostic_msgs/DiagnosticStatus`` per node.
 
-Every mshoot node publishes a ``DiagnosticArray`` holding one status named
+Every mshoot node publishes a ``DiagnosticArray`` holding first one status named
 ``mshoot/<node>`` (``mshoot/emulator``, ``mshoot/mpc``, with the namespace when
 there is one): a level (OK, WARN, ERROR, STALE), a one-line message and key
 values (counters, the last solve time, fallbacks, rejected inputs, ...), the
@@ -10,7 +10,9 @@ convention that ``diagnostic_aggregator``, ``rqt_robot_monitor`` and
 wall time (a steady timer: it also reports a node whose simulated clock
 stands still) and on demand (:meth:`DiagnosticsPublisher.publish`); lifecycle
 nodes (:mod:`mshoot_nodes.lifecycle`) also publish after every transition and
-get a ``lifecycle_state`` key value.
+get a ``lifecycle_state`` key value. After it come the statuses of the node's peers
+(:mod:`mshoot_nodes.peers`): one per peer it expects, STALE when not heard from within its
+timeout, ERROR when an intruder writes its topic.
 
 A node gives a function that builds its :class:`Report`::
 
@@ -30,6 +32,8 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from mshoot_nodes.peers import PeerMonitor
 
 #: The topic diagnostic aggregators and monitors read.
 DIAGNOSTICS = '/diagnostics'
@@ -113,6 +117,9 @@ class DiagnosticsPublisher:
     name : str, optional
         Status name (default ``mshoot/<node's fully qualified name without the
         leading slash>``).
+    peers : PeerMonitor, optional
+        The node's peers: one more status each, ``<name>/peer/<peer>``, after the
+        node's own (:mod:`mshoot_nodes.peers`).
 
     Attributes
     ----------
@@ -124,11 +131,13 @@ class DiagnosticsPublisher:
     """
 
     def __init__(self, node: Node, report: Callable[[], Report], *, period_s: float = 1.0,
-                 hardware_id: str = '', name: str | None = None) -> None:
+                 hardware_id: str = '', name: str | None = None,
+                 peers: PeerMonitor | None = None) -> None:
         if period_s < 0 or not math.isfinite(period_s):
             raise ValueError(f'period_s must be >= 0 and finite, got {period_s}')
         self.node = node
         self.report = report
+        self.peers = peers
         self.hardware_id = hardware_id
         self.name = name or f'{PREFIX}{node.get_fully_qualified_name()}'
         self.published = 0
@@ -153,8 +162,17 @@ class DiagnosticsPublisher:
                                         for k, v in values.items()])
 
     def publish(self) -> DiagnosticArray:
-        """Publish the status now; returns the array sent."""
-        array = DiagnosticArray(status=[self.status()])
+        """Publish the status now (the node's first, then its peers'); returns the array sent."""
+        statuses = [self.status()]
+        if self.peers is not None:
+            try:
+                statuses += self.peers.statuses(self.name, self.hardware_id)
+            except Exception as exc:  # noqa: BLE001 - reported, not raised
+                statuses.append(DiagnosticStatus(level=Level.ERROR.to_msg(),
+                                                 name=f'{self.name}/peer',
+                                                 message=f'peer watch failed: {exc!r}',
+                                                 hardware_id=self.hardware_id))
+        array = DiagnosticArray(status=statuses)
         array.header.stamp = self.node.get_clock().now().to_msg()
         self._publisher.publish(array)
         self.published += 1

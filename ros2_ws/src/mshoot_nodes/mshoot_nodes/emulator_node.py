@@ -20,16 +20,25 @@ Modes (parameter ``mode``):
   re-publishes clock, state and disturbances every ``heartbeat_period_s`` (lost
   messages during discovery cannot stall the loop).
 - ``free``: simulated time runs at ``speedup`` times the wall clock; at the
-  end of each step the setpoint of the step is applied.
+  end of each step the setpoint of the step is applied. While it has not come,
+  state and disturbances are re-published every ``heartbeat_period_s`` (a
+  message lost, e.g. displaced from a reader's queue by a flood, is sent again;
+  the MPC answers a repeated state with its setpoint again).
 
 Safety (the rules are in :mod:`mshoot_core.safety`):
 
-- every setpoint is validated (exactly the model's controls by name, finite,
-  plausible, the control step, consistent plan arrays, stamped neither for a
-  future step nor going backwards, nor, in lockstep, for a step already done;
+- every setpoint is validated whole before any of it is used (array lengths
+  within the model's dimensions before anything is converted, exactly the
+  model's controls by name, finite, plausible, the control step, consistent
+  plan and schedule arrays, stamped with a step start, neither for a future
+  step nor going backwards, nor, in lockstep, for a step already done;
   :func:`mshoot_core.safety.check_setpoint`); a rejected one is
   counted (``rejections``, ``run.json``) and logged one line each,
-  rate-limited, and never reaches the building;
+  rate-limited, never reaches the building and moves nothing (the newest
+  stamp, the held setpoint);
+- a second publisher of ``/mpc/setpoint`` (any node but ``setpoint_writer``)
+  is reported as an intruder on /diagnostics (:mod:`mshoot_nodes.peers`), and
+  the MPC as STALE when no setpoint came for ``peer_timeout_s``;
 - when a step has no setpoint (free mode, or lockstep after
   ``lockstep_timeout_s`` of wall time with ``on_lockstep_timeout`` 'hold'),
   the last setpoint is held for ``hold_s`` of simulated time, then the safe
@@ -81,19 +90,21 @@ from mshoot_core.estimation import Sensors
 from mshoot_core.models.card import time_origin_seconds
 from mshoot_core.models.registry import (control_interface, ControlInterface,
                                          EMULATOR_TOLERANCE)
-from mshoot_core.safety import (check_setpoint, check_stamp_fields, Rejection, reorder,
-                                SetpointHold, StampGate)
+from mshoot_core.peers import Peer
+from mshoot_core.safety import (check_lengths, check_setpoint, check_stamp_fields, Rejection,
+                                reorder, setpoint_caps, SetpointHold, StampGate)
 from mshoot_msgs.msg import Disturbances, Setpoint, ZoneState
 import numpy as np
 import pandas as pd
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from mshoot_nodes import contract, sources
-from mshoot_nodes.conversions import (clock_msg, disturbances_msg, NS_PER_S, seconds_to_ns,
-                                      stamp_to_ns, zone_state_msg)
+from mshoot_nodes.conversions import (clock_msg, disturbances_msg, field_lengths, NS_PER_S,
+                                      seconds_to_ns, stamp_to_ns, zone_state_msg)
 from mshoot_nodes.diagnostics import DiagnosticsPublisher, Level, Report
 from mshoot_nodes.lifecycle import ManagedNode
 from mshoot_nodes.params import declare, ordered, ParamSpec, values
+from mshoot_nodes.peers import PeerMonitor
 from mshoot_nodes.readiness import check_requirements, parse_requirements, ReadinessGate
 from mshoot_nodes.startup import run_node
 from mshoot_nodes.validation import RejectionLog
@@ -146,9 +157,9 @@ PARAMS = (
               low=1e-3, high=1e9),
     ParamSpec('clock_period_s', 0.02, 'free mode: wall time between /clock ticks [s]',
               low=1e-3, high=10.0, read_only=True),
-    ParamSpec('heartbeat_period_s', 0.5, 'lockstep: wall time without a setpoint after which '
-              'clock, state and disturbances are published again [s]', low=0.01, high=600.0,
-              read_only=True),
+    ParamSpec('heartbeat_period_s', 0.5, 'wall time without the setpoint of the step after '
+              'which state and disturbances (and, in lockstep, the clock) are published again '
+              '[s]', low=0.01, high=600.0, read_only=True),
     ParamSpec('lockstep_timeout_s', 60.0, 'lockstep: wall time a step waits for its setpoint '
               'before on_lockstep_timeout applies [s]', low=0.01, high=86400.0),
     ParamSpec('on_lockstep_timeout', 'stop', "lockstep, no setpoint in time: 'stop' ends the "
@@ -171,6 +182,11 @@ PARAMS = (
     ParamSpec('start_delay_s', 0.0, 'wall time to wait once the endpoints are there, so that '
               'the peers also find each other (separate processes) [s]', low=0.0, high=600.0,
               read_only=True),
+    ParamSpec('setpoint_writer', 'mpc', 'name of the one node expected to publish '
+              '/mpc/setpoint: any other is reported as an intruder on /diagnostics',
+              read_only=True),
+    ParamSpec('peer_timeout_s', 30.0, 'wall time without a setpoint after which the MPC is '
+              'reported STALE on /diagnostics [s]', low=0.1, high=1e6, read_only=True),
     ParamSpec('output_dir', '', 'folder for trajectories.csv, applied.csv and run.json when '
               "the scenario ends ('' = write nothing)", read_only=True),
     ParamSpec('plant_state_file', '', 'file of the FMU plant state: saved after every step '
@@ -292,7 +308,10 @@ class EmulatorNode(ManagedNode):
         self.gate: ReadinessGate | None = None
         self._run_timer = None
         self._reset_run()
-        self.diagnostics = DiagnosticsPublisher(self, self.health, hardware_id=p['zone'])
+        self.peers = PeerMonitor(self, [Peer('setpoint', contract.SETPOINT, p['setpoint_writer'],
+                                             p['peer_timeout_s'])])
+        self.diagnostics = DiagnosticsPublisher(self, self.health, hardware_id=p['zone'],
+                                                peers=self.peers)
         self.autostart()
 
     def _reset_run(self) -> None:
@@ -312,7 +331,8 @@ class EmulatorNode(ManagedNode):
         self._reported_rejections = 0
         self._hold = SetpointHold(self._safe_controls(), p['hold_s'])
         self._setpoint_gate = StampGate(self.step_ns, max_age_ns=(
-            0 if p['mode'] == 'lockstep' else seconds_to_ns(p['hold_s'])))
+            0 if p['mode'] == 'lockstep' else seconds_to_ns(p['hold_s'])),
+            origin_ns=self.epoch_ns)  # setpoints are stamped with their step's start
         self._sim_ns = self.stamp_ns if self.emulator is not None else 0
         self._last_publish_ns = 0
         self._step_started_ns = 0
@@ -487,11 +507,15 @@ class EmulatorNode(ManagedNode):
     # -- publishing -----------------------------------------------------------------------
     def _publish_step(self) -> None:
         """Publish clock, disturbances and state of the current step."""
+        self._clock_pub.publish(clock_msg(self.stamp_ns))
+        self._sim_ns = self.stamp_ns
+        self._publish_state()
+
+    def _publish_state(self) -> None:
+        """Publish disturbances and state of the current step."""
         stamp = self.stamp_ns
         zone = self.params['zone']
         emulator = self.emulator
-        self._clock_pub.publish(clock_msg(stamp))
-        self._sim_ns = stamp
         row = emulator.scenario.iloc[emulator.index]
         self._disturbance_pub.publish(disturbances_msg(stamp, {
             name: float(row[name]) for name in emulator.model.input_names
@@ -567,43 +591,41 @@ class EmulatorNode(ManagedNode):
         lockstep = self.params['mode'] == 'lockstep'
         now = self.stamp_ns if lockstep else max(self._sim_ns, self.stamp_ns)
         controls = self.emulator.control_names
+        # The whole message is checked (lengths first, before anything is converted) before
+        # any of it moves a stamp or a held setpoint.
+        caps = setpoint_caps(len(controls))
         rejection = (check_stamp_fields(msg.header.stamp.sec, msg.header.stamp.nanosec)
+                     or check_lengths('setpoint', field_lengths(msg, caps), caps)
                      or check_setpoint(msg.step_s, msg.control_names, msg.control_values,
                                        msg.temperature_names, msg.temperature_setpoints_c,
                                        msg.plan_controls, msg.plan_temperatures_c,
                                        expected_step_s=self.params['step_s'],
-                                       expected_controls=controls)
+                                       expected_controls=controls,
+                                       schedule_offsets_s=msg.schedule_offsets_s,
+                                       schedule_values=msg.schedule_values, schedules=lockstep)
                      or self._setpoint_gate.check(stamp, now))
         if rejection:
             self._reject(stamp, rejection)
             return
         if stamp == self._setpoint_gate.latest_ns:
+            self.peers.heard('setpoint')
             return  # a repeat (the MPC answers a heartbeat with its last setpoint)
         if not self.started:
             return
-        if lockstep and stamp != self.stamp_ns:  # off the step grid
+        if lockstep and stamp != self.stamp_ns:  # a step other than the current one
             self._reject(stamp, Rejection('stale', f'stamp {stamp / NS_PER_S:.3f} s is not '
                                           f'the current step {self.stamp_ns / NS_PER_S:.3f} s'))
             return
-        self._setpoint_gate.accept(stamp, now)
         applied = reorder(msg.control_names, msg.control_values, controls)
         schedule = None
-        if len(msg.schedule_offsets_s) or len(msg.schedule_values):
+        if len(msg.schedule_offsets_s):
             n = len(msg.schedule_offsets_s)
-            values = np.asarray(msg.schedule_values, dtype=float)
-            if not lockstep or n == 0 or values.size != n * len(msg.control_names):
-                self._reject(stamp, Rejection('length', (
-                    'a schedule within the step needs lockstep mode and n offsets with n '
-                    f'values per control, got {n} offsets and {values.size} values')))
-                return
-            if not np.all(np.isfinite(values)) or not np.all(
-                    np.isfinite(np.asarray(msg.schedule_offsets_s, dtype=float))):
-                self._reject(stamp, Rejection('non_finite', 'non-finite schedule within the '
-                                              'step'))
-                return
-            per_control = values.reshape(len(msg.control_names), n)
+            per_control = np.asarray(msg.schedule_values, dtype=float).reshape(
+                len(msg.control_names), n)
             schedule = [(float(offset), reorder(msg.control_names, per_control[:, k], controls))
                         for k, offset in enumerate(msg.schedule_offsets_s)]
+        self._setpoint_gate.accept(stamp, now)
+        self.peers.heard('setpoint')
         self._hold.offer(self._scenario_s(stamp), applied)
         if lockstep:
             self.setpoint_waits_s.append((self._steady_ns() - self._step_started_ns) / NS_PER_S)
@@ -620,6 +642,9 @@ class EmulatorNode(ManagedNode):
         self._sim_ns += int(self.params['clock_period_s'] * self._speedup * NS_PER_S)
         if self._sim_ns < self.stamp_ns + self.step_ns:
             self._clock_pub.publish(clock_msg(self._sim_ns))
+            if (self._setpoint_gate.latest_ns != self.stamp_ns and self._steady_ns()
+                    - self._last_publish_ns >= seconds_to_ns(self.params['heartbeat_period_s'])):
+                self._publish_state()  # no setpoint yet: the state again (it may have been lost)
             return
         decision = self._hold.controls_for(self._scenario_s(self.stamp_ns))
         if decision.source != 'setpoint':

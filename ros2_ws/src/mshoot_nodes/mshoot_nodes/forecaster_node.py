@@ -16,25 +16,30 @@ one instead). By default the forecasts are perfect; ``temperature_uncertainty``,
 ``TDryBul`` and ``HGloHor`` at the step's FMU time, as BOPTEST serves them).
 
 Health on ``/diagnostics`` (``mshoot/forecaster``): forecasts published, the
-last forecast's step, whether forecasts are paused (WARN).
+last forecast's step, whether forecasts are paused (WARN); with use_sim_time the
+clock as a peer (``mshoot/forecaster/peer/clock``: STALE, or ERROR for a second
+writer of ``/clock``, :mod:`mshoot_nodes.peers`).
 """
 from __future__ import annotations
 
 from typing import Any
 
 from mshoot_core.forecast import horizon_problem, ScenarioForecasts
+from mshoot_core.peers import Peer
 from mshoot_core.safety import COMFORT_SERIES, PRICE_SERIES
 from mshoot_core.settings import fields_of, ForecastErrorSettings
 from mshoot_msgs.msg import Forecast
 import numpy as np
 import pandas as pd
 from rclpy.node import Node
+from rosgraph_msgs.msg import Clock as ClockMsg
 
 from mshoot_nodes import contract, sources
 from mshoot_nodes.conversions import (floor_to_step, FORECAST_DISTURBANCES, forecast_msg,
                                       NS_PER_S, seconds_to_ns)
 from mshoot_nodes.diagnostics import DiagnosticsPublisher, Level, Report
 from mshoot_nodes.params import declare, ParamSpec, values
+from mshoot_nodes.peers import PeerMonitor
 from mshoot_nodes.startup import run_node
 
 PARAMS = (
@@ -62,6 +67,12 @@ PARAMS = (
     ParamSpec('enabled', True, 'publish forecasts (false: pause them, e.g. to exercise the '
               "MPC's fallback when the forecast stops)"),
     ParamSpec('zone', 'zone', 'zone name (header.frame_id)', read_only=True),
+    ParamSpec('clock_writer', 'emulator', 'with use_sim_time: name of the one node expected to '
+              'publish /clock (any other is reported as an intruder on /diagnostics)',
+              read_only=True),
+    ParamSpec('peer_timeout_s', 30.0, 'with use_sim_time: wall time without /clock after which '
+              'the clock is reported STALE on /diagnostics [s]', low=0.1, high=1e6,
+              read_only=True),
 )
 
 
@@ -114,7 +125,14 @@ class ForecasterNode(Node):
         self._publisher = self.create_publisher(Forecast, contract.FORECAST, contract.LATCHED_QOS)
         # Fires on whole simulated steps when use_sim_time is true (never before a /clock).
         self._timer = self.create_timer(p['step_s'], self._on_step)
-        self.diagnostics = DiagnosticsPublisher(self, self.health, hardware_id=p['zone'])
+        self.peers = None
+        if self.get_parameter('use_sim_time').value:
+            self.peers = PeerMonitor(self, [Peer('clock', contract.CLOCK, p['clock_writer'],
+                                                 p['peer_timeout_s'])])
+            self.create_subscription(ClockMsg, contract.CLOCK,
+                                     lambda _: self.peers.heard('clock'), contract.CLOCK_QOS)
+        self.diagnostics = DiagnosticsPublisher(self, self.health, hardware_id=p['zone'],
+                                                peers=self.peers)
         self.get_logger().info(
             f"{p['scenario']} scenario from {pd.Timestamp(self.epoch_ns, tz='UTC').isoformat()}: "
             f"{p['horizon_steps'] + 1}-sample forecasts of {p['series']} every "

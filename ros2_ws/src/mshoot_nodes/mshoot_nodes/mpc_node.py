@@ -23,8 +23,15 @@ waits and budgets). Solves run in a worker thread, so the node keeps taking
 messages and parameter changes; the controller is polled from the executor
 thread on whole steps, on every input, every 50 ms and when a solve finishes.
 
-- a rejected message is counted (``rejected_states``, ``rejected_forecasts``
-  in the status) and logged one line each, rate-limited;
+- every message is checked whole before any of it is used or copied (array
+  lengths within the model's dimensions first, then every field; stamps on the
+  step grid, at most ``max_future_s`` ahead of the clock); a rejected message
+  moves nothing, is counted (``rejected_states``, ``rejected_forecasts`` in the
+  status) and logged one line each, rate-limited;
+- a second publisher of ``/zone/state`` or ``/forecast`` (any node but
+  ``state_writer``, ``forecast_writer``) is reported as an intruder on
+  /diagnostics, and each peer (state, forecast, with use_sim_time the clock) as
+  STALE when not heard from for ``peer_timeout_s`` (:mod:`mshoot_nodes.peers`);
 - a step always gets a setpoint; ``fallback``, ``source``,
   ``fallback_reason`` and the reason in ``message`` say where it came from. No
   published number is ever non-finite.
@@ -48,16 +55,20 @@ from mshoot_core.controller import Controller, controller_for, StepOutcome
 from mshoot_core.models.base import Model
 from mshoot_core.models.registry import MODEL_PARAMETERS, ModelSettings
 from mshoot_core.mpc import MpcResult
-from mshoot_core.safety import check_setpoint, check_stamp_fields, Rejection
+from mshoot_core.peers import Peer
+from mshoot_core.safety import (check_lengths, check_setpoint, check_stamp_fields,
+                                forecast_caps, Rejection)
 from mshoot_core.settings import MpcSettings, PARAMETERS, SettingsError
 from mshoot_msgs.msg import Forecast, MpcStatus, Setpoint, ZoneState
+from rosgraph_msgs.msg import Clock as ClockMsg
 
 from mshoot_nodes import contract
 from mshoot_nodes.conversions import (decision_setpoint_msg, decision_status_msg,
-                                      forecast_series, NS_PER_S, stamp_to_ns)
+                                      field_lengths, forecast_series, NS_PER_S, stamp_to_ns)
 from mshoot_nodes.diagnostics import DiagnosticsPublisher, Level, Report
 from mshoot_nodes.lifecycle import ManagedNode
 from mshoot_nodes.params import declare, ParamSpec, values
+from mshoot_nodes.peers import PeerMonitor
 from mshoot_nodes.startup import run_node
 from mshoot_nodes.validation import RejectionLog
 
@@ -75,6 +86,16 @@ PARAMS = (
     ParamSpec('async_solve', True, 'solve in a worker thread (the node stays responsive)',
               read_only=True),
     ParamSpec('zone', 'zone', 'zone name (header.frame_id of the setpoints)', read_only=True),
+    ParamSpec('state_writer', 'emulator', 'name of the one node expected to publish '
+              '/zone/state (and, with use_sim_time, /clock): any other is reported as an '
+              'intruder on /diagnostics',
+              read_only=True),
+    ParamSpec('forecast_writer', 'forecaster', 'name of the one node expected to publish '
+              '/forecast: any other is reported as an intruder on /diagnostics',
+              read_only=True),
+    ParamSpec('peer_timeout_s', 30.0, 'wall time without a zone state, forecast or (with '
+              'use_sim_time) clock after which that peer is reported STALE on /diagnostics '
+              '[s]', low=0.1, high=1e6, read_only=True),
 )
 SETTING_NAMES = tuple(f.name for f in PARAMETERS)
 DEFAULTS = {spec.name: spec.default for spec in PARAMS}
@@ -146,7 +167,16 @@ class MpcNode(ManagedNode):
         self._last_setpoint: Setpoint | None = None
         self._steady = self.steady_clock
         self._done_gc = self.create_guard_condition(self.try_solve)
-        self.diagnostics = DiagnosticsPublisher(self, self.health, hardware_id=p['zone'])
+        timeout = p['peer_timeout_s']
+        peers = [Peer('state', contract.ZONE_STATE, p['state_writer'], timeout),
+                 Peer('forecast', contract.FORECAST, p['forecast_writer'], timeout)]
+        if self.get_parameter('use_sim_time').value:
+            peers.append(Peer('clock', contract.CLOCK, p['state_writer'], timeout))
+            self.create_subscription(ClockMsg, contract.CLOCK,
+                                     lambda _: self.peers.heard('clock'), contract.CLOCK_QOS)
+        self.peers = PeerMonitor(self, peers)
+        self.diagnostics = DiagnosticsPublisher(self, self.health, hardware_id=p['zone'],
+                                                peers=self.peers)
         self.autostart()
 
     # -- lifecycle ------------------------------------------------------------------------
@@ -283,8 +313,11 @@ class MpcNode(ManagedNode):
                 self.controller.offer_named_state(
                     stamp, msg.state_names, msg.state_values, self._now_ns(),
                     output_names=msg.output_names, output_values=msg.output_values,
-                    control_names=msg.control_names, control_values=msg.control_values))):
+                    control_names=msg.control_names, control_values=msg.control_values,
+                    history=(msg.history_offsets_s, msg.history_state_values,
+                             msg.history_output_names, msg.history_output_values)))):
             return
+        self.peers.heard('state')
         last = self._last_setpoint
         if repeat and last is not None and stamp_to_ns(last.header.stamp) == stamp:
             # The same state again (an emulator heartbeat): our setpoint may have been lost.
@@ -294,11 +327,14 @@ class MpcNode(ManagedNode):
 
     def _on_forecast(self, msg: Forecast) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
-        series, problem = forecast_series(msg)
-        problem = check_stamp_fields(msg.header.stamp.sec, msg.header.stamp.nanosec) or problem
+        caps = forecast_caps(len(self.controller.forecast_known))
+        problem = (check_stamp_fields(msg.header.stamp.sec, msg.header.stamp.nanosec)
+                   or check_lengths('forecast', field_lengths(msg, caps), caps))
+        series, problem = ({}, problem) if problem else forecast_series(msg)
         if self._rejected('forecast', contract.FORECAST, stamp, problem, lambda: (
                 self.controller.offer_forecast(stamp, msg.step_s, series, self._now_ns()))):
             return
+        self.peers.heard('forecast')
         self.try_solve()
 
     def _rejected(self, stream: str, topic: str, stamp_ns: int, problem: Rejection | None,

@@ -17,6 +17,7 @@ from rclpy.exceptions import InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
 
 from mshoot_nodes.logbridge import bridge_core_logging
+from mshoot_nodes.memory import bound_message_memory
 
 NodeT = TypeVar('NodeT')
 #: Exit code of a process whose configuration is invalid.
@@ -73,7 +74,7 @@ def construct(factory: Callable[[], NodeT], name: str) -> NodeT | None:
 def run_node(factory: Callable[[], NodeT], name: str, args: list[str] | None = None, *,
              until_done: bool = False, bridge_logging: bool = False) -> NodeT | None:
     """
-    Run a node process (its ``main``): init, construct, spin, clean up.
+    Run a node process (its ``main``): bound its message memory, init, construct, spin, clean up.
 
     Ctrl-C and an external shutdown end the spin quietly; the node is destroyed
     and the context shut down in every case. A configuration error exits with
@@ -100,6 +101,7 @@ def run_node(factory: Callable[[], NodeT], name: str, args: list[str] | None = N
         None when Ctrl-C came before it was built.
 
     """
+    bound_message_memory()
     rclpy.init(args=args)
     node = None
     try:
