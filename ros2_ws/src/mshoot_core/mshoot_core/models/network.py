@@ -412,6 +412,16 @@ def _entries(raw: Any, section: str, problems: list[str]) -> list[Mapping]:
     return raw
 
 
+def _terms(section: Mapping, key: str, keys: Sequence[str], names: set[str],
+           columns: dict[str, int], problems: list[str]) -> Any:
+    """Yield (where, entry, value, times) of every entry of a list of terms (None: a problem)."""
+    for k, entry in enumerate(_entries(section.get(key), key, problems)):
+        where = f'{key}[{k}]'
+        _unknown_keys(entry, keys, where, problems)
+        yield (where, entry, _expression(entry.get('value'), f'{where}.value', names, problems),
+               _times(entry.get('times'), columns, where, problems))
+
+
 def parse_network(section: Any) -> NetworkSpec:
     """
     Parse and check a network section (the YAML mapping; see the module docstring).
@@ -475,43 +485,36 @@ def parse_network(section: Any) -> NetworkSpec:
     node_names = [str(name) for name in raw_nodes]
     columns = {name: i for i, name in enumerate(inputs)}
     boundary_names = [str(name) for name in raw_boundaries]
+    node_index = {name: i for i, name in enumerate(node_names)}
+    boundary_index = {name: i for i, name in enumerate(boundary_names)}
     conductances = []
-    for k, entry in enumerate(_entries(section.get('conductances'), 'conductances', problems)):
-        where = f'conductances[{k}]'
-        _unknown_keys(entry, CONDUCTANCE_KEYS, where, problems)
+    for where, entry, value, times in _terms(section, 'conductances', CONDUCTANCE_KEYS, names,
+                                             columns, problems):
         between = entry.get('between')
-        value = _expression(entry.get('value'), f'{where}.value', names, problems)
-        times = _times(entry.get('times'), columns, where, problems)
         if (not isinstance(between, list) or len(between) != 2
                 or not all(isinstance(b, str) for b in between)):
             problems.append(f'{where}.between: expected [node, node or boundary], got '
                             f'{between!r}')
             continue
         a, b = between
-        if a not in node_names and b in node_names:
+        if a not in node_index and b in node_index:
             a, b = b, a
-        if a not in node_names or (b not in node_names and b not in boundary_names) or a == b:
+        if a not in node_index or (b not in node_index and b not in boundary_index) or a == b:
             problems.append(f'{where}.between: {between} must name a node and another node or '
                             f'a boundary; nodes {node_names}, boundaries {boundary_names}')
             continue
-        if value is None or times is None:
-            continue
-        conductances.append(Term(value, times, node=node_names.index(a),
-                                 other=node_names.index(b) if b in node_names else -1,
-                                 boundary=boundary_names.index(b) if b in boundary_names
-                                 else -1))
-    gains = []
-    for k, entry in enumerate(_entries(section.get('gains'), 'gains', problems)):
-        where = f'gains[{k}]'
-        _unknown_keys(entry, GAIN_KEYS, where, problems)
-        node = entry.get('node')
-        value = _expression(entry.get('value'), f'{where}.value', names, problems)
-        times = _times(entry.get('times'), columns, where, problems)
-        if node not in node_names:
-            problems.append(f'{where}.node: {node!r} is not a node {node_names}')
-            continue
         if value is not None and times is not None:
-            gains.append(Term(value, times, node=node_names.index(node)))
+            conductances.append(Term(value, times, node=node_index[a],
+                                     other=node_index.get(b, -1),
+                                     boundary=boundary_index.get(b, -1)))
+    gains = []
+    for where, entry, value, times in _terms(section, 'gains', GAIN_KEYS, names, columns,
+                                             problems):
+        node = entry.get('node')
+        if not isinstance(node, str) or node not in node_index:
+            problems.append(f'{where}.node: {node!r} is not a node {node_names}')
+        elif value is not None and times is not None:
+            gains.append(Term(value, times, node=node_index[node]))
     outputs = _outputs(section.get('outputs') or {}, node_names, columns, names, problems)
     if problems:
         raise NetworkError(problems)
@@ -958,11 +961,15 @@ class NetworkModel(Model):
         for t, g in zip(cond, self._g):
             if t.other < 0 and not t.times and g > 0:
                 reach.add(t.node)
-        for _ in range(n):
-            for t, g in zip(cond, self._g):
-                if t.other >= 0 and not t.times and g > 0 and (t.node in reach
-                                                               or t.other in reach):
-                    reach |= {t.node, t.other}
+        links = [(t.node, t.other) for t, g in zip(cond, self._g)
+                 if t.other >= 0 and not t.times and g > 0]
+        grown = True
+        while grown:  # (through the constant links between nodes)
+            grown = False
+            for a, b in links:
+                if (a in reach) != (b in reach):
+                    reach |= {a, b}
+                    grown = True
         self._hurwitz = len(reach) == n
         self._components = self._find_components()
         self._cy, self._y_offset, self._y_w = tables['cy'], tables['offset'], tables['w']
