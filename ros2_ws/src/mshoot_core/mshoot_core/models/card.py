@@ -234,7 +234,7 @@ class ModelCard:
     network : NetworkSpec or None
         For a thermal network (a card's ``network`` section, or ``builtin: r1c1`` /
         ``r2c2``: the built-in card's): the parsed network
-        (:class:`~mshoot_core.models.network.NetworkSpec`).
+        (:class:`~mshoot_core.models.network_spec.NetworkSpec`).
 
     """
 
@@ -454,7 +454,7 @@ def _fmu_catalogue(label: str, md: Any, interface: str) -> _Catalogue:
 
 
 def _network_catalogue(label: str, spec: Any) -> _Catalogue:
-    """Return the variables of a thermal network (a :class:`~.network.NetworkSpec`)."""
+    """Return the variables of a thermal network (a :class:`~.network_spec.NetworkSpec`)."""
     inputs = [ModelVariable(name, 'input', unit=unit) for name, unit in spec.inputs.items()]
     parameters = [ModelVariable(name, 'parameter', start=p.value, unit=p.unit)
                   for name, p in spec.parameters.items()]
@@ -470,7 +470,7 @@ def _network_spec(path: pathlib.Path, document: dict, problems: list[str]) -> An
 
     Problems of the section are appended, each prefixed with where it is.
     """
-    from mshoot_core.models.network import NetworkError, parse_network
+    from mshoot_core.models.network_spec import NetworkError, parse_network
     builtin = document.get('builtin')
     if 'network' in document:
         section, where = document['network'], 'network'
