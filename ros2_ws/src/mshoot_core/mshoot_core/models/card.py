@@ -76,6 +76,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from mshoot_core.models import network_spec
 from mshoot_core.models.base import IntervalJacobians, Model
 from mshoot_core.models.fmi import FmiModel
 from mshoot_core.models.registry import (CONTROL_TOLERANCE, EMULATOR_TOLERANCE,
@@ -92,7 +93,7 @@ logger = logging.getLogger(__name__)
 SCHEMA_PATH = pathlib.Path(__file__).resolve().parents[1] / 'schema' / 'model_card.schema.json'
 #: The built-in cards: ``r1c1.yaml`` and ``r2c2.yaml`` (thermal networks), ``r1c1_fmu.yaml``
 #: (built-in FMU, Model Exchange), ``r1c1_fmu_cs.yaml`` (Co-Simulation), ...
-CARDS_DIR = pathlib.Path(__file__).resolve().parents[1] / 'cards'
+CARDS_DIR = network_spec.CARDS_DIR
 #: The built-in model sources of ``builtin:``.
 BUILTIN_SOURCES = ('r1c1', 'r1c1-fmu', 'r2c2')
 #: The keys naming a card's model: exactly one of them.
@@ -470,7 +471,6 @@ def _network_spec(path: pathlib.Path, document: dict, problems: list[str]) -> An
 
     Problems of the section are appended, each prefixed with where it is.
     """
-    from mshoot_core.models.network_spec import NetworkError, parse_network
     builtin = document.get('builtin')
     if 'network' in document:
         section, where = document['network'], 'network'
@@ -479,8 +479,8 @@ def _network_spec(path: pathlib.Path, document: dict, problems: list[str]) -> An
     else:
         return None
     try:
-        return parse_network(section)
-    except NetworkError as exc:
+        return network_spec.parse_network(section)
+    except network_spec.NetworkError as exc:
         problems += [f'{where}: {problem}' for problem in exc.problems]
     return None
 

@@ -47,11 +47,12 @@ import pandas as pd
 import scipy.linalg
 
 from mshoot_core.models.base import IntervalJacobians, Model
-from mshoot_core.models.network_spec import (card_network, Expression, NetworkError,
-                                             NetworkSpec, Parameter, parse_network, Term)
+from mshoot_core.models.network_spec import (card_network, CARDS_DIR, Expression,
+                                             NetworkError, NetworkSpec, Parameter,
+                                             parse_network, Term)
 
-__all__ = ['card_network', 'expm2', 'expm_frechet_batch', 'NetworkError', 'NetworkModel',
-           'NetworkSpec', 'Parameter', 'parameters_class', 'parse_network']
+__all__ = ['card_network', 'CARDS_DIR', 'expm2', 'expm_frechet_batch', 'NetworkError',
+           'NetworkModel', 'NetworkSpec', 'Parameter', 'parameters_class', 'parse_network']
 
 
 def parameters_class(spec: NetworkSpec, name: str, doc: str, module: str,

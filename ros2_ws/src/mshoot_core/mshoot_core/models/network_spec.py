@@ -25,9 +25,11 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-__all__ = ['card_network', 'Expression', 'NetworkError', 'NetworkSpec', 'OutputSpec',
+__all__ = ['card_network', 'CARDS_DIR', 'Expression', 'NetworkError', 'NetworkSpec', 'OutputSpec',
            'Parameter', 'parse_network', 'Term']
 
+#: The built-in cards (R1C1, R2C2, the two-zone building, the FMU and BOPTEST cards).
+CARDS_DIR = pathlib.Path(__file__).resolve().parents[1] / 'cards'
 #: Functions an expression may call.
 FUNCTIONS = ('max', 'min', 'exp', 'sqrt')
 #: Keys of a network section and of its entries.

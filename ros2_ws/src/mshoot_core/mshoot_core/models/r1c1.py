@@ -14,15 +14,15 @@ analytic Jacobians and parameter sensitivities) with the parameters of an
 from __future__ import annotations
 
 import dataclasses
-import pathlib
 
 import numpy as np
 
-from mshoot_core.models.network import card_network, NetworkModel, parameters_class
+from mshoot_core.models.network import (card_network, CARDS_DIR, NetworkModel,
+                                        parameters_class)
 
 KELVIN = 273.15
 #: The card of the R1C1 zone.
-CARD = pathlib.Path(__file__).resolve().parents[1] / 'cards' / 'r1c1.yaml'
+CARD = CARDS_DIR / 'r1c1.yaml'
 #: Metabolic heat per occupant [W] at 293.15 K, falling linearly to 0 W at 325.15 K (the
 #: card's occupant conductance; for references written outside the network, e.g. CasADi's).
 OCC_HEAT_W = 84.0

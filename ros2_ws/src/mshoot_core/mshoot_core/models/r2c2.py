@@ -19,13 +19,13 @@ sensitivities).
 from __future__ import annotations
 
 import dataclasses
-import pathlib
 from typing import Sequence
 
-from mshoot_core.models.network import card_network, NetworkModel, parameters_class
+from mshoot_core.models.network import (card_network, CARDS_DIR, NetworkModel,
+                                        parameters_class)
 
 #: The card of the R2C2 zone.
-CARD = pathlib.Path(__file__).resolve().parents[1] / 'cards' / 'r2c2.yaml'
+CARD = CARDS_DIR / 'r2c2.yaml'
 _SPEC = card_network(CARD)
 
 #: Parameters of the R2C2 zone (a frozen dataclass; defaults: the card's, a classroom of the

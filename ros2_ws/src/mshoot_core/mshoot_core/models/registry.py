@@ -59,8 +59,6 @@ BUILTIN = ('python', 'fmu', 'fmu-cs', 'r2c2')
 MULTIZONE = {'r1c1x2': 2}
 #: The built-in models described by a built-in card (a thermal network): name -> card.
 CARD_MODELS = {'python': 'r1c1', 'r2c2': 'r2c2', 'r1c1x2': 'r1c1x2'}
-#: The folder of the built-in cards.
-CARDS_DIR = pathlib.Path(__file__).resolve().parents[1] / 'cards'
 #: Offset of a zone temperature state [K] over the comfort band [degC].
 KELVIN = 273.15
 
@@ -166,7 +164,7 @@ def build_model(name: str, tolerance: float = CONTROL_TOLERANCE,
         from mshoot_core.models.r2c2 import R2C2Model
         return R2C2Model()
     if name in MULTIZONE:  # the network of its card (no card check: a built-in, tested)
-        from mshoot_core.models.network import card_network, NetworkModel
+        from mshoot_core.models.network import card_network, CARDS_DIR, NetworkModel
         spec = card_network(CARDS_DIR / f'{CARD_MODELS[name]}.yaml')
         return NetworkModel(spec, control_names=tuple(f'q_{i}' for i in range(MULTIZONE[name])),
                             comfort_states=tuple(spec.nodes))
