@@ -566,7 +566,7 @@ def write_card(path: pathlib.Path, parameters: dict[str, float],
     if builtin is not None:  # the built-in network by name, its parameters here
         document = {'builtin': builtin, **{k: v for k, v in document.items()
                                            if k not in ('network', 'builtin')}}
-    elif card.fmu is not None:
+    elif card.builtin is None and card.fmu is not None:
         document['fmu'] = str(card.fmu)
     rmse = result.metrics
     what = 'R1C1 zone' if card is None else document.get('description', 'zone model')
