@@ -109,7 +109,7 @@ class ZoneParameters:
     @classmethod
     def from_multizone(cls, model: Any) -> 'ZoneParameters':
         """From a :class:`mshoot_core.models.multizone.MultiZoneModel` (its seeded zones)."""
-        return cls.from_r1c1(model.zones.parameters, model.solar_share, model.occupancy_share)
+        return cls.from_r1c1(model.zone_parameters, model.solar_share, model.occupancy_share)
 
 
 def zone_derivative(params: ZoneParameters, temperature_c: ca.SX, heat_w: ca.SX,

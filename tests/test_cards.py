@@ -17,6 +17,7 @@ from mshoot_core import fmu_build
 from mshoot_core.models import card as cards, registry
 from mshoot_core.models.card import CardError, CardFmiModel, load_card
 from mshoot_core.models.fmi import FmiModel
+from mshoot_core.models.network import NetworkModel
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import reference_scenario
@@ -83,7 +84,7 @@ def test_builtin_cards_are_the_registry_models(card_name, registry_name):
     card = load_card(cards.builtin_card(card_name))
     from_card = cards.build_model(card, 'control')
     reference = registry.build_model(registry_name)
-    assert type(from_card) is type(reference)
+    assert isinstance(reference, type(from_card))  # (R1C1Model: the network of its card)
     assert set(from_card.input_names) == set(reference.input_names)
     assert from_card.state_names == reference.state_names == ('T',)
     assert from_card.output_names == reference.output_names == ('T', 'Qr')
@@ -460,15 +461,17 @@ def test_python_r1c1_card_keeps_its_names_and_units(tmp_path):
     with pytest.raises(CardError) as caught:
         load_card(write_card(tmp_path, 'python.yaml', content))
     problems = caught.value.problems
-    for text in ("controls.heat: the Python R1C1 keeps its own names: use 'q'",
-                 "disturbances.Tout: unit 'K' differs from the unit 'degC' the Python R1C1",
+    for text in ("controls.heat: the network of python.yaml keeps its own names: use 'q'",
+                 "disturbances.Tout: unit 'K' differs from the unit 'degC' the network of "
+                 'python.yaml',
                  "states.T: unit 'degC' differs from the unit 'K'",
-                 'parameters.Rext: not a settable parameter of the Python R1C1; valid: RExt'):
+                 'parameters.Rext: not a settable parameter of the network of python.yaml; '
+                 'valid: RExt'):
         assert sum(text in p for p in problems) == 1, (text, problems)
     good = yaml.safe_load(cards.builtin_card('r1c1').read_text())
     good['parameters'] = {'shgc': 3.0}
     model = cards.build_model(write_card(tmp_path, 'good.yaml', good))
-    assert isinstance(model, R1C1Model) and model.parameters.shgc == 3.0
+    assert isinstance(model, NetworkModel) and model.parameters['shgc'] == 3.0
 
 
 def test_monotone_is_the_card_authors_claim(zone_cards, tmp_path, r1c1_fmu):
@@ -488,9 +491,9 @@ def test_monotone_is_the_card_authors_claim(zone_cards, tmp_path, r1c1_fmu):
     withdrawn = with_changes(yaml.safe_load(cards.builtin_card('r1c1').read_text()),
                              monotone=False)
     python = cards.build_model(write_card(tmp_path, 'r1c1.yaml', withdrawn))
-    assert isinstance(python, R1C1Model) and python.monotone_inputs == ()
+    assert isinstance(python, NetworkModel) and python.monotone_inputs == ()
     assert not MPC(python, horizon_steps=2).problem.monotone
-    assert R1C1Model().monotone_inputs == ('q',)  # (the class keeps its claim)
+    assert R1C1Model().monotone_inputs == ('q',)  # (derived from the network's structure)
     with pytest.raises(CardError, match='monotone'):
         load_card(write_card(tmp_path, 'bad.yaml', with_changes(withdrawn, monotone='yes')))
     # the built-in FMU claims it, another file of the same names does not
@@ -538,7 +541,7 @@ def test_schema_and_builtin_cards_ship_with_the_package():
     assert sorted(p.name for p in cards.CARDS_DIR.glob('*.yaml')) == [
         'boptest_baseline.yaml', 'boptest_modulation.yaml', 'boptest_setpoint.yaml',
         'boptest_tset.yaml', 'r1c1.yaml',
-        'r1c1_fmu.yaml', 'r1c1_fmu_cs.yaml', 'r2c2.yaml']
+        'r1c1_fmu.yaml', 'r1c1_fmu_cs.yaml', 'r1c1x2.yaml', 'r2c2.yaml']
 
 
 def test_readme_cards_follow_the_schema():

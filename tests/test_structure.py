@@ -1,4 +1,6 @@
 """Speed paths: naive vs fast agreement, grouped finite differences, sparse solvers, zones."""
+import dataclasses
+
 from mshoot_core.closed_loop import run_closed_loop
 from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis
@@ -114,8 +116,8 @@ def test_multizone_batch_equals_simulate_and_single_zone_equals_r1c1():
     ydf, xdf = model.simulate(udf, [293.0, 294.0, 295.0])
     x_end, _ = model.simulate_intervals(xdf.to_numpy()[:-1], udf.to_numpy()[:-1], 3600.0)
     np.testing.assert_array_equal(x_end, xdf.to_numpy()[1:])
-    zone = R1C1Model(model.zones.parameters.__class__(
-        **{**model.zones.parameters.__dict__, 'Vi': float(model.zones.parameters.Vi[1])}))
+    zone = R1C1Model(dataclasses.replace(model.zone_parameters,
+                                         Vi=float(model.zone_parameters.Vi[1])))
     zu = udf.to_numpy()[:-1, :5].copy()
     zu[:, 0] *= model.solar_share[1]
     zu[:, 2] *= model.occupancy_share[1]

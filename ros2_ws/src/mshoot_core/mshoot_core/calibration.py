@@ -56,6 +56,7 @@ from mshoot_core.models.base import Model
 from mshoot_core.scenario import OU44_COLUMNS, read_ou44
 
 __all__ = ['calibrate', 'CalibrationResult', 'card_builder', 'cross_validate', 'fmi_builder',
+           'NetworkBuilder',
            'fit_learned', 'FreeParameter', 'JACOBIANS', 'LearnedResult',
            'LEARNED_UNCERTAINTY', 'LOSSES', 'metrics', 'model_builder', 'ModelBuilder',
            'OU44_FIXED', 'OU44_FREE', 'OU44_MAX_HEAT_W', 'OU44_STUDY_BOUNDS', 'OU44_STUDY_FREE',
@@ -476,7 +477,8 @@ def card_builder(card: Any, tolerance: float | None = None,
     Return a builder of a model card's model with the given parameters.
 
     For an FMU the model is built once and its parameters replaced before
-    each simulation (:func:`fmi_builder`); the Python R1C1 and R2C2 are rebuilt.
+    each simulation (:func:`fmi_builder`); a thermal network is rebuilt
+    (:class:`NetworkBuilder`, analytic Jacobian).
 
     Parameters
     ----------
@@ -493,12 +495,52 @@ def card_builder(card: Any, tolerance: float | None = None,
     from mshoot_core.models import card as cards
     if not isinstance(card, cards.ModelCard):
         card = cards.load_card(card)
-    if card.builtin == 'r1c1':
-        return r1c1_builder({**card.parameters, **dict(fixed or {})})
-    if card.builtin == 'r2c2':
-        return r2c2_builder({**card.parameters, **dict(fixed or {})})
+    if card.network is not None:
+        return NetworkBuilder(card, fixed)
     model = cards.build_model(card, role='control', tolerance=tolerance)
     return fmi_builder(model, fixed)
+
+
+class NetworkBuilder:
+    """
+    Builder of a thermal network card's model with given parameters, for :func:`calibrate`.
+
+    ``build(parameters)`` is the card's model with the card's parameters, ``fixed`` and
+    ``parameters`` over the network's values; the Jacobian of a fit is analytic (the
+    network's ``parameter_sensitivities``).
+
+    Parameters
+    ----------
+    card : ModelCard
+        A card with a network (its own section or ``builtin: r1c1`` / ``r2c2``).
+    fixed : mapping, optional
+        Parameters held fixed over the card's.
+
+    Raises
+    ------
+    ValueError
+        For a name that is not a parameter of the network.
+
+    """
+
+    def __init__(self, card: Any, fixed: Mapping[str, float] | None = None) -> None:
+        self.card = card
+        self.names = tuple(card.network.parameters)
+        self.fixed = {**card.parameters, **dict(fixed or {})}
+        self._check(self.fixed)
+
+    def _check(self, parameters: Mapping[str, Any]) -> None:
+        unknown = sorted(set(parameters) - set(self.names))
+        if unknown:
+            raise ValueError(f'unknown network parameters {unknown}; expected names from '
+                             f'{list(self.names)}')
+
+    def __call__(self, parameters: Mapping[str, float]) -> Model:
+        """Return the model with ``parameters`` (name -> value) over the fixed ones."""
+        from mshoot_core.models import card as cards
+        self._check(parameters)
+        values = {**self.fixed, **{k: float(v) for k, v in parameters.items()}}
+        return cards.build_model(dataclasses.replace(self.card, parameters=values))
 
 
 def registry_builder(name: str, fixed: Mapping[str, float] | None = None,

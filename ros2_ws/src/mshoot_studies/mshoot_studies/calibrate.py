@@ -305,7 +305,7 @@ def run(args: argparse.Namespace) -> int:
         if model_arg is not None and str(model_arg) == 'r2c2':
             model_arg = cards.builtin_card('r2c2')
         card = None if model_arg is None else cards.load_card(model_arg)
-        r2c2 = card is not None and card.builtin == 'r2c2'
+        r2c2 = card is not None and builtin_network(card) == 'r2c2'
         free = free_parameters(args, 'r2c2' if r2c2 else 'r1c1')
         train, validation = calibration.ou44_periods(data, tuple(args.train),
                                                      tuple(args.validation), args.max_heat)
@@ -315,7 +315,7 @@ def run(args: argparse.Namespace) -> int:
             build = calibration.r2c2_builder(fixed)
             train, validation = (dataclasses.replace(p, x0=np.array([p.x0[0], p.x0[0]]))
                                  for p in (train, validation))
-        elif card is None or card.builtin == 'r1c1':
+        elif card is None or builtin_network(card) == 'r1c1':
             fixed = {k: v for k, v in PUBLISHED.items() if k not in {p.name for p in free}}
             build = calibration.r1c1_builder(fixed)
         else:
@@ -540,6 +540,16 @@ def _json_default(value: Any) -> Any:
     raise TypeError(f'not JSON serialisable: {type(value).__name__}')
 
 
+def builtin_network(card: cards.ModelCard) -> str | None:
+    """Return 'r1c1' or 'r2c2' for a card of a built-in network (by name or the card itself)."""
+    if card.builtin in cards.PYTHON_SOURCES:
+        return card.builtin
+    for name in cards.PYTHON_SOURCES:
+        if card.path.resolve() == cards.builtin_card(name).resolve():
+            return name
+    return None
+
+
 def write_card(path: pathlib.Path, parameters: dict[str, float],
                result: calibration.CalibrationResult,
                card: cards.ModelCard | None = None) -> pathlib.Path:
@@ -552,7 +562,11 @@ def write_card(path: pathlib.Path, parameters: dict[str, float],
     """
     source = cards.builtin_card('r1c1') if card is None else card.path
     document = yaml.safe_load(source.read_text())
-    if card is not None and card.builtin is None:
+    builtin = 'r1c1' if card is None else builtin_network(card)
+    if builtin is not None:  # the built-in network by name, its parameters here
+        document = {'builtin': builtin, **{k: v for k, v in document.items()
+                                           if k not in ('network', 'builtin')}}
+    elif card.builtin is None and card.fmu is not None:
         document['fmu'] = str(card.fmu)
     rmse = result.metrics
     what = 'R1C1 zone' if card is None else document.get('description', 'zone model')

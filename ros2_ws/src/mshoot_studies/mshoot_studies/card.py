@@ -77,8 +77,13 @@ def check(path: pathlib.Path, out: TextIO, err: TextIO) -> int:
     out.write(f'model card {card.path}: OK\n')
     if card.description:
         out.write(f'  {card.description}\n')
-    if card.builtin == 'r1c1':
-        out.write('model: the Python R1C1 (exact per-interval solution)\n')
+    if card.network is not None:
+        net = card.network
+        free = [f'{p.name} [{p.min:g}, {p.max:g}]' for p in net.free_parameters]
+        out.write(f"model: {f'builtin {card.builtin}: ' if card.builtin else ''}a thermal "
+                  f'network (exact per-interval solution): nodes {list(net.nodes)}, '
+                  f'{len(net.conductances)} conductances, {len(net.gains)} gains; free '
+                  f"parameters: {', '.join(free) or 'none'}\n")
     else:
         what = f'builtin {card.builtin}: ' if card.builtin else ''
         out.write(f'model: {what}{card.fmu} as {card.interface} (fmi_type {card.fmi_type})\n')

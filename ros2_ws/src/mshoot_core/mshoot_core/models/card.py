@@ -33,7 +33,10 @@ once in one :class:`CardError` naming the card, with the model's valid names
 an :class:`~mshoot_core.models.fmi.FmiModel` with the name mapping, the
 parameters, the overwrite switches held at 1 and, where a unit differs from
 the canonical one, the conversion at its boundary
-(:class:`CardFmiModel`); or the exact Python R1C1 or R2C2 (``builtin: r1c1``, ``r2c2``).
+(:class:`CardFmiModel`); or a thermal network with its exact solution
+(:class:`~mshoot_core.models.network.NetworkModel`): the card's own ``network``
+section, or ``builtin: r1c1`` / ``r2c2``, the networks of the built-in cards of those
+names (see ``docs/models.md``).
 
 A state no sensor measures says ``measured: false``: the model's
 ``measured_states`` leave it out and a controller estimates it
@@ -73,6 +76,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from mshoot_core.models import network_spec
 from mshoot_core.models.base import IntervalJacobians, Model
 from mshoot_core.models.fmi import FmiModel
 from mshoot_core.models.registry import (CONTROL_TOLERANCE, EMULATOR_TOLERANCE,
@@ -87,13 +91,15 @@ logger = logging.getLogger(__name__)
 
 #: The JSON Schema of a card, shipped with the package.
 SCHEMA_PATH = pathlib.Path(__file__).resolve().parents[1] / 'schema' / 'model_card.schema.json'
-#: The built-in cards: ``r1c1.yaml`` (Python), ``r1c1_fmu.yaml`` (built-in FMU, Model
-#: Exchange), ``r1c1_fmu_cs.yaml`` (Co-Simulation).
-CARDS_DIR = pathlib.Path(__file__).resolve().parents[1] / 'cards'
+#: The built-in cards: ``r1c1.yaml`` and ``r2c2.yaml`` (thermal networks), ``r1c1_fmu.yaml``
+#: (built-in FMU, Model Exchange), ``r1c1_fmu_cs.yaml`` (Co-Simulation), ...
+CARDS_DIR = network_spec.CARDS_DIR
 #: The built-in model sources of ``builtin:``.
 BUILTIN_SOURCES = ('r1c1', 'r1c1-fmu', 'r2c2')
-#: The built-in Python models of ``builtin:``: name -> label.
-PYTHON_SOURCES = {'r1c1': 'the Python R1C1', 'r2c2': 'the Python R2C2'}
+#: The keys naming a card's model: exactly one of them.
+SOURCES = ('fmu', 'builtin', 'boptest', 'network')
+#: The built-in networks of ``builtin:`` (the cards of the same name): name -> label.
+PYTHON_SOURCES = {'r1c1': 'the R1C1 network', 'r2c2': 'the R2C2 network'}
 #: Card ``fmi_type`` -> FMI interface name (``auto`` resolves to one of them).
 FMI_TYPES = {'model-exchange': 'ModelExchange', 'co-simulation': 'CoSimulation'}
 #: Roles a card's model is built for.
@@ -209,7 +215,7 @@ class ModelCard:
         As written: 'auto', 'model-exchange' or 'co-simulation'.
     interface : str or None
         The FMI interface used ('ModelExchange' or 'CoSimulation'; None for
-        the Python R1C1).
+        a thermal network).
     tolerance : float or None
         Relative integrator tolerance, or None for the role's default.
     time_origin : str
@@ -226,6 +232,10 @@ class ModelCard:
     boptest : dict or None
         For a card of kind ``boptest``: ``test_case_dir`` (absolute), ``warmup_days`` and
         ``history_step_s``.
+    network : NetworkSpec or None
+        For a thermal network (a card's ``network`` section, or ``builtin: r1c1`` /
+        ``r2c2``: the built-in card's): the parsed network
+        (:class:`~mshoot_core.models.network_spec.NetworkSpec`).
 
     """
 
@@ -244,13 +254,16 @@ class ModelCard:
     description: str = ''
     boptest: dict[str, Any] | None = None
     monotone: bool | None = None
+    network: Any = None
 
     @property
     def source(self) -> str:
-        """'fmu' (an FMU file named by the card), 'builtin' or 'boptest'."""
+        """'fmu' (an FMU file named by the card), 'builtin', 'network' or 'boptest'."""
         if self.boptest is not None:
             return 'boptest'
-        return 'builtin' if self.builtin is not None else 'fmu'
+        if self.builtin is not None:
+            return 'builtin'
+        return 'network' if self.network is not None else 'fmu'
 
     @property
     def control_names(self) -> tuple[str, ...]:
@@ -441,23 +454,35 @@ def _fmu_catalogue(label: str, md: Any, interface: str) -> _Catalogue:
     return _Catalogue(label, inputs, states, outputs, switches, parameters, state_kind)
 
 
-def _python_catalogue(builtin: str = 'r1c1') -> _Catalogue:
-    from mshoot_core.models.r1c1 import R1C1Parameters
-    from mshoot_core.models.r2c2 import R2C2Parameters
-    label = PYTHON_SOURCES[builtin]
-    inputs = [ModelVariable('solrad', 'input', unit='W/m2'),
-              ModelVariable('Tout', 'input', unit='degC'),
-              ModelVariable('occ', 'input', unit='1'), ModelVariable('dpos', 'input', unit='%'),
-              ModelVariable('q', 'input', unit='W')]
-    fields = dataclasses.fields(R1C1Parameters if builtin == 'r1c1' else R2C2Parameters)
-    parameters = [ModelVariable(f.name, 'parameter', start=f.default) for f in fields]
-    states = [ModelVariable('T', 'state', unit='K')]
-    if builtin == 'r2c2':
-        states.append(ModelVariable('Tw', 'state', unit='K'))
-    return _Catalogue(label, inputs, states,
-                      [ModelVariable('T', 'output', unit='degC'),
-                       ModelVariable('Qr', 'output', unit='J')], [], parameters,
-                      f'states of {label}', python=True)
+def _network_catalogue(label: str, spec: Any) -> _Catalogue:
+    """Return the variables of a thermal network (a :class:`~.network_spec.NetworkSpec`)."""
+    inputs = [ModelVariable(name, 'input', unit=unit) for name, unit in spec.inputs.items()]
+    parameters = [ModelVariable(name, 'parameter', start=p.value, unit=p.unit)
+                  for name, p in spec.parameters.items()]
+    states = [ModelVariable(name, 'state', unit='K') for name in spec.nodes]
+    outputs = [ModelVariable(name, 'output', unit=o.unit) for name, o in spec.outputs.items()]
+    return _Catalogue(label, inputs, states, outputs, [], parameters, f'nodes of {label}',
+                      python=True)
+
+
+def _network_spec(path: pathlib.Path, document: dict, problems: list[str]) -> Any:
+    """
+    Return the card's thermal network (its own section or a built-in card's), or None.
+
+    Problems of the section are appended, each prefixed with where it is.
+    """
+    builtin = document.get('builtin')
+    if 'network' in document:
+        section, where = document['network'], 'network'
+    elif builtin in PYTHON_SOURCES:
+        section, where = _read_yaml(builtin_card(builtin)).get('network'), f'builtin {builtin}'
+    else:
+        return None
+    try:
+        return network_spec.parse_network(section)
+    except network_spec.NetworkError as exc:
+        problems += [f'{where}: {problem}' for problem in exc.problems]
+    return None
 
 
 def _listing(variables: Sequence[ModelVariable], wanted: str = '') -> str:
@@ -524,13 +549,13 @@ def schema_problems(document: Any) -> list[str]:
         where = _where(list(error.path))
         kind = error.validator
         if kind == 'oneOf' and not error.path:
-            both = isinstance(document, dict) and 'fmu' in document and 'builtin' in document
-            both = both or (isinstance(document, dict) and 'boptest' in document
-                            and ('fmu' in document or 'builtin' in document))
+            given = [key for key in SOURCES if isinstance(document, dict) and key in document]
+            both = len(given) > 1
             problems.append(f"give {'only ' if both else ''}one of 'fmu' (path of an FMU, "
                             f"relative to the card), 'builtin' (one of "
-                            f"{list(BUILTIN_SOURCES)}) or 'boptest' (a BOPTEST test case)"
-                            + (', not several' if both else ''))
+                            f"{list(BUILTIN_SOURCES)}), 'boptest' (a BOPTEST test case) or "
+                            f"'network' (a thermal network)"
+                            + (f', not several (got {given})' if both else ''))
         elif kind == 'additionalProperties':
             allowed = sorted(error.schema.get('properties', {}))
             extra = sorted(set(error.instance) - set(allowed))
@@ -636,7 +661,8 @@ def load_card(path: str | pathlib.Path) -> ModelCard:
         if fmu_name is not None:
             document = {**document, 'fmu': fmu_name, 'fmi_type': 'co-simulation'}
             fmi_type = 'co-simulation'
-    catalogue, fmu, interface = _catalogue(path, document, fmi_type, problems)
+    network = _network_spec(path, document, problems)
+    catalogue, fmu, interface = _catalogue(path, document, fmi_type, problems, network)
     if catalogue is not None and boptest is not None:
         # a BOPTEST plant's states are measured: its outputs
         catalogue = dataclasses.replace(
@@ -653,7 +679,7 @@ def load_card(path: str | pathlib.Path) -> ModelCard:
         interface=interface, tolerance=None if tolerance is None else float(tolerance),
         time_origin=time_origin, parameters=dict(parameters),
         description=document.get('description', ''), boptest=boptest,
-        monotone=document.get('monotone'), **variables)
+        monotone=document.get('monotone'), network=network, **variables)
 
 
 def _boptest_spec(path: pathlib.Path, spec: dict,
@@ -690,18 +716,20 @@ def _time_origin_problem(value: str) -> str | None:
     return None
 
 
-def _catalogue(path: pathlib.Path, document: dict, fmi_type: Any,
-               problems: list[str]) -> tuple[_Catalogue | None, pathlib.Path | None,
+def _catalogue(path: pathlib.Path, document: dict, fmi_type: Any, problems: list[str],
+               network: Any = None) -> tuple[_Catalogue | None, pathlib.Path | None,
                                              str | None]:
     """Return the model's variables, its FMU (absolute) and the FMI interface used."""
     builtin, fmu_name = document.get('builtin'), document.get('fmu')
-    if (builtin is None) == (fmu_name is None) or fmi_type not in ('auto', *FMI_TYPES):
+    own = 'network' in document
+    if network is not None and fmu_name is None and (builtin is not None) != own:
+        label = PYTHON_SOURCES.get(builtin, f'the network of {path.name}')
+        if 'fmi_type' in document and fmi_type != 'auto':
+            problems.append(f'fmi_type: {label} is not an FMU; leave fmi_type out')
+        return _network_catalogue(label, network), None, None
+    if ((builtin is None) == (fmu_name is None) or 'network' in document
+            or builtin in PYTHON_SOURCES or fmi_type not in ('auto', *FMI_TYPES)):
         return None, None, None
-    if builtin in PYTHON_SOURCES:
-        if fmu_name is None and 'fmi_type' in document and fmi_type != 'auto':
-            problems.append(f'fmi_type: {PYTHON_SOURCES[builtin]} (builtin: {builtin}) is not '
-                            'an FMU; leave fmi_type out')
-        return _python_catalogue(builtin), None, None
     if builtin == 'r1c1-fmu':
         from mshoot_core.fmu_cache import find_fmu
         try:
@@ -947,8 +975,8 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
     -------
     Model
         An :class:`~mshoot_core.models.fmi.FmiModel` (a :class:`CardFmiModel`
-        where a unit converts) with inputs ``controls + disturbances``, or the
-        Python :class:`~mshoot_core.models.r1c1.R1C1Model`.
+        where a unit converts) with inputs ``controls + disturbances``, or a
+        :class:`~mshoot_core.models.network.NetworkModel` with the network's inputs.
 
     Raises
     ------
@@ -973,13 +1001,13 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
         model = BoptestPlantModel(card, instance_name=f'mshoot-{role}')
         model.time_origin_s = float(time_origin_s)
         return model
-    if card.builtin == 'r1c1':
-        from mshoot_core.models.r1c1 import R1C1Model, R1C1Parameters
-        return _claim_monotone(R1C1Model(R1C1Parameters(**card.parameters)), card)
-    if card.builtin == 'r2c2':
-        from mshoot_core.models.r2c2 import R2C2Model, R2C2Parameters
-        return _claim_monotone(R2C2Model(R2C2Parameters(**card.parameters),
-                                         card.measured_states), card)
+    if card.network is not None:
+        from mshoot_core.models.network import NetworkModel
+        model = NetworkModel(card.network, values=card.parameters,
+                             control_names=card.control_names,
+                             comfort_states=_comfort_states(card),
+                             measured_states=card.measured_states)
+        return _claim_monotone(model, card)
     options: dict[str, Any] = {}
     if 'time_origin_s' in inspect.signature(FmiModel).parameters:
         options['time_origin_s'] = float(time_origin_s)
@@ -1000,10 +1028,15 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
     # What controllers and nodes read (registry.control_interface): the card's controls, and
     # its zone air temperatures (T, T_<zone>) as the states the comfort band bounds.
     model.control_names = tuple(card.control_names)
-    model.comfort_states = tuple(n for n in card.state_names if n == 'T' or n.startswith('T_'))
+    model.comfort_states = _comfort_states(card)
     model.measured_states = card.measured_states  # the others are estimated
     logger.debug('built %r from %s for the %s', model, card.path, role)
     return _claim_monotone(model, card)
+
+
+def _comfort_states(card: ModelCard) -> tuple[str, ...]:
+    """Return the card's zone air temperatures (``T``, ``T_<zone>``): bounded by the band."""
+    return tuple(n for n in card.state_names if n == 'T' or n.startswith('T_'))
 
 
 def _claim_monotone(model: Model, card: ModelCard) -> Model:

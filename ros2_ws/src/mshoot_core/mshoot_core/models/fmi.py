@@ -902,8 +902,8 @@ def r1c1_fmi_model(parameters: Any = None, fmi_type: str | None = 'CoSimulation'
     builtin = fmu_path is None
     if builtin:
         fmu_path = find_fmu('r1c1')
-    # the built-in FMU is the RC network of R1C1Model: monotone in T and q (another file of the
-    # same names makes no such claim)
+    # the built-in FMU is the RC network of R1C1Model: monotone as that network's structure
+    # says, in T and q (another file of the same names makes no such claim)
     return FmiModel(fmu_path, parameters=values, tolerance=tolerance, fmi_type=fmi_type,
-                    monotone_inputs=R1C1Model.monotone_inputs if builtin else (),
+                    monotone_inputs=R1C1Model().monotone_inputs if builtin else (),
                     **R1C1_VARIABLES)

@@ -4,8 +4,9 @@ One registry of zone models: one vocabulary and one set of defaults everywhere.
 The case command, the study, the benchmarks and the ROS nodes build their
 models here, by name:
 
-- ``'python'``: the exact R1C1 (:class:`~mshoot_core.models.r1c1.R1C1Model`);
-- ``'r2c2'``: the exact two-node R2C2 (:class:`~mshoot_core.models.r2c2.R2C2Model`: air
+- ``'python'``: the exact R1C1, the thermal network of the built-in card ``r1c1.yaml``
+  (:class:`~mshoot_core.models.network.NetworkModel`);
+- ``'r2c2'``: the exact two-node R2C2, the network of the card ``r2c2.yaml`` (air
   ``T`` and envelope ``Tw`` [K], the R1C1's inputs; only ``T`` measured);
 - ``'fmu'``: the built-in R1C1 FMU as Model Exchange (integrated at the given
   relative tolerance); ``'fmu-cs'``: the same FMU as Co-Simulation;
@@ -16,8 +17,8 @@ models here, by name:
   (:mod:`mshoot_core.models.card`): any FMU with its names mapped, or a
   built-in model; the card's tolerance, if it sets one, wins over the
   ``tolerance`` given here;
-- ``'r1c1x2'``: two independent R1C1 zones
-  (:class:`~mshoot_core.models.multizone.MultiZoneModel`, seed 0): controls
+- ``'r1c1x2'``: two independent R1C1 zones, the network of the card ``r1c1x2.yaml``
+  (:func:`~mshoot_core.models.multizone.multizone_network` of 2 zones, seed 0): controls
   ``q_0``, ``q_1`` [W], states ``T_0``, ``T_1`` [K] (the multi-zone case over ROS);
 - names that applications add with :func:`register` (e.g. the data-driven
   models of Setup 2, trained on data the application holds).
@@ -56,6 +57,8 @@ EMULATOR_TOLERANCE = 1e-10
 BUILTIN = ('python', 'fmu', 'fmu-cs', 'r2c2')
 #: The built-in multi-zone models: name -> number of independent R1C1 zones.
 MULTIZONE = {'r1c1x2': 2}
+#: The built-in models described by a built-in card (a thermal network): name -> card.
+CARD_MODELS = {'python': 'r1c1', 'r2c2': 'r2c2', 'r1c1x2': 'r1c1x2'}
 #: Offset of a zone temperature state [K] over the comfort band [degC].
 KELVIN = 273.15
 
@@ -160,9 +163,11 @@ def build_model(name: str, tolerance: float = CONTROL_TOLERANCE,
     if name == 'r2c2':
         from mshoot_core.models.r2c2 import R2C2Model
         return R2C2Model()
-    if name in MULTIZONE:
-        from mshoot_core.models.multizone import MultiZoneModel
-        return MultiZoneModel(MULTIZONE[name], seed=0)
+    if name in MULTIZONE:  # the network of its card (no card check: a built-in, tested)
+        from mshoot_core.models.network import card_network, CARDS_DIR, NetworkModel
+        spec = card_network(CARDS_DIR / f'{CARD_MODELS[name]}.yaml')
+        return NetworkModel(spec, control_names=tuple(f'q_{i}' for i in range(MULTIZONE[name])),
+                            comfort_states=tuple(spec.nodes))
     if name in _REGISTERED:
         return _REGISTERED[name][0](tolerance)
     try:
