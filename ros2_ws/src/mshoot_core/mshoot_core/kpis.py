@@ -112,3 +112,33 @@ def closed_loop_kpis(steps: pd.DataFrame, fine: pd.DataFrame, step_s: float,
                 solve_per_control_step=float(solve.sum() / (len(steps) * step_s)),
                 solver_failures=int((~steps['success'].astype(bool)).sum()))
     return kpis
+
+
+def fallback_problem(fallback: Sequence[bool], max_share: float) -> str | None:
+    """
+    Say why a run controlled too little: more of its steps were fallbacks than ``max_share``.
+
+    Parameters
+    ----------
+    fallback : sequence of bool
+        Whether each step's setpoint was a fallback (``steps['fallback']``).
+    max_share : float
+        Largest share of fallback steps of a run that controlled [-] (the
+        ``max_fallback_share`` setting); 1 accepts every run.
+
+    Returns
+    -------
+    str or None
+        One sentence (the count, the share and the limit), or None for a run within it (or
+        without steps).
+
+    """
+    flags = np.asarray(fallback, dtype=bool)
+    if flags.size == 0:
+        return None
+    share = float(flags.mean())
+    if share <= max_share:
+        return None
+    every = 'every step' if flags.all() else f'{int(flags.sum())} of {flags.size} steps'
+    return (f'{every} fell back ({share:.0%}, more than max_fallback_share {max_share:.0%}): '
+            'the MPC did not control this run')
