@@ -12,6 +12,7 @@ import os
 import pathlib
 import shutil
 import subprocess
+import sys
 import uuid
 import zipfile
 
@@ -41,7 +42,9 @@ R1C1_CARD = {
     'states': {'T': {'variable': 'heatCapacitor.T', 'unit': 'K'}},
     'outputs': {'T': {'variable': 'T', 'unit': 'degC'}, 'Qr': {'variable': 'Qr', 'unit': 'J'}},
 }
-MULTIZONE = pathlib.Path('/work/shared/boptest/multizone_office_simple_hydronic')  # TMP
+#: The multizone office test case beside the repository (its binary needs libgfortran.so.3).
+MULTIZONE = (pathlib.Path(__file__).resolve().parents[2] / 'shared' / 'boptest'
+             / 'multizone_office_simple_hydronic')
 
 
 def mshoot(*args: str, timeout: float = 300.0, **options) -> subprocess.CompletedProcess:
@@ -297,11 +300,11 @@ def test_unsorted_data_rows_are_a_warning(ou44_csv, tmp_path):
 
 # -- exit codes ---------------------------------------------------------------------------------
 def test_fallback_problem_counts_the_share():
-    assert fallback_problem([], 0.5) is None
-    assert fallback_problem([True, False], 0.5) is None
-    assert fallback_problem([True, True, False], 0.5).startswith('2 of 3 steps fell back (67%')
-    assert fallback_problem([True] * 4, 0.9).startswith('every step fell back (100%')
-    assert fallback_problem([True] * 4, 1.0) is None
+    assert fallback_problem(0, 0, 0.5) is None
+    assert fallback_problem(1, 2, 0.5) is None
+    assert fallback_problem(2, 3, 0.5).startswith('2 of 3 steps fell back (67%')
+    assert fallback_problem(4, 4, 0.9).startswith('every step fell back (100%')
+    assert fallback_problem(4, 4, 1.0) is None
 
 
 def test_a_run_that_never_controlled_exits_3(tmp_path):
@@ -323,6 +326,15 @@ def test_a_run_that_never_controlled_exits_3(tmp_path):
                      str(tmp_path / 'allowed'))
     assert allowed.returncode == 0, allowed.stderr
     assert ' WARNING ' not in allowed.stderr
+    # the demo's bring-up (over ROS, in one process) takes the same decision
+    demo = subprocess.run([sys.executable, '-m', 'mshoot_nodes.bringup', '--scenario',
+                           'synthetic', '--hours', '3', '--horizon', '3', '--control-model',
+                           str(failing), '--no-bag', '--out', str(tmp_path / 'demo')],
+                          capture_output=True, text=True, timeout=300)
+    assert demo.returncode == 3, demo.stderr
+    assert error_lines(demo.stderr)[-1] == (
+        '[demo] WARNING: every step fell back (100%, more than max_fallback_share 50%): the MPC '
+        'did not control this run; exit code 3')
     usage = ' '.join(mshoot('case', '--help').stdout.split())
     assert '--max-fallback-share' in usage and '3 the run ended but the MPC did not control it' \
         in usage

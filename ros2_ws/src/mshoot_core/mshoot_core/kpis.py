@@ -114,14 +114,21 @@ def closed_loop_kpis(steps: pd.DataFrame, fine: pd.DataFrame, step_s: float,
     return kpis
 
 
-def fallback_problem(fallback: Sequence[bool], max_share: float) -> str | None:
+#: Exit code of a command whose run ended but was not controlled: more of its steps fell back
+#: than ``max_fallback_share`` (:func:`fallback_problem`).
+FALLBACK_EXIT = 3
+
+
+def fallback_problem(fallbacks: int, steps: int, max_share: float) -> str | None:
     """
     Say why a run controlled too little: more of its steps were fallbacks than ``max_share``.
 
+    The decision behind :data:`FALLBACK_EXIT` of ``mshoot case`` and the demo's bring-up.
+
     Parameters
     ----------
-    fallback : sequence of bool
-        Whether each step's setpoint was a fallback (``steps['fallback']``).
+    fallbacks, steps : int
+        Steps whose setpoint was a fallback, and all steps of the run.
     max_share : float
         Largest share of fallback steps of a run that controlled [-] (the
         ``max_fallback_share`` setting); 1 accepts every run.
@@ -133,12 +140,11 @@ def fallback_problem(fallback: Sequence[bool], max_share: float) -> str | None:
         without steps).
 
     """
-    flags = np.asarray(fallback, dtype=bool)
-    if flags.size == 0:
+    if steps <= 0:
         return None
-    share = float(flags.mean())
+    share = fallbacks / steps
     if share <= max_share:
         return None
-    every = 'every step' if flags.all() else f'{int(flags.sum())} of {flags.size} steps'
+    every = 'every step' if fallbacks == steps else f'{fallbacks} of {steps} steps'
     return (f'{every} fell back ({share:.0%}, more than max_fallback_share {max_share:.0%}): '
             'the MPC did not control this run')

@@ -35,7 +35,7 @@ from typing import Any, Sequence
 from mshoot_core.closed_loop import ClosedLoopResult, EmulationStopped, run_closed_loop
 from mshoot_core.controller import Controller
 from mshoot_core.emulation import Emulator
-from mshoot_core.kpis import closed_loop_kpis, fallback_problem
+from mshoot_core.kpis import closed_loop_kpis, FALLBACK_EXIT, fallback_problem
 from mshoot_core.models.base import Model
 from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.models.registry import (build_model, BUILTIN, check_model, CONTROL_TOLERANCE,
@@ -54,8 +54,6 @@ logger = logging.getLogger(__name__)
 #: Data-driven control models (scikit-learn estimators trained as in Setup 2).
 DATA_DRIVEN = ('svr', 'linear', 'ridge', 'knn', 'random_forest', 'mlp')
 CONTROL_MODELS = BUILTIN + DATA_DRIVEN
-#: Exit code of a run whose steps were fallbacks more than ``max_fallback_share`` of the time.
-FALLBACK_EXIT = 3
 #: Initial zone temperature of the case [degC].
 INITIAL_C = 20.0
 
@@ -373,7 +371,8 @@ def _run(args: argparse.Namespace, settings: MpcSettings, plotter: PlotWorker) -
     if args.scenario == 'ou44' and args.hours == 72 and horizon in PUBLISHED:
         kpis['published'] = PUBLISHED[horizon]
     too_few = None if stopped is not None or result is None else fallback_problem(
-        result.steps['fallback'], settings.supervisor.max_fallback_share)
+        int(result.steps['fallback'].sum()), len(result.steps),
+        settings.supervisor.max_fallback_share)
     if too_few:
         kpis['fallback_problem'] = too_few
     if stopped is not None:
