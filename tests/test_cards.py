@@ -630,7 +630,7 @@ def test_case_options_accept_names_and_cards(tmp_path, caplog):
     for option, name in (('--control', 'x.yaml'), ('--emulator', 'x.yml')):
         caplog.clear()
         assert case.main([*common, option, str(tmp_path / name)]) == 2
-        assert f"{option}: model card {tmp_path / name}: file not found" in caplog.text
+        assert f'{option}: model card {tmp_path / name}: file not found' in caplog.text
     with pytest.raises(SystemExit) as stop:
         case.main([*common, '--control', 'nope'])
     assert stop.value.code == 2

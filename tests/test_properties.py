@@ -52,6 +52,7 @@ def _check_thrown(node: str, thrown: int) -> None:
     print(f'malformed messages thrown at the {node}: {thrown}')
     assert thrown >= MIN_THROWN[node], (node, thrown)
 
+
 floats = st.floats(allow_nan=True, allow_infinity=True, width=64)
 
 

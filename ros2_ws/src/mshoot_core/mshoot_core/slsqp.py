@@ -138,8 +138,8 @@ class ConstraintBlock:
     """
     One block of constraint rows: values ``fun(x)`` and Jacobian ``jac``.
 
-    ``jac`` is a :class:`~mshoot_core.sparse_jacobian.SparseJacobian` (entries written at their fixed
-    positions) or a callable returning a dense array or a SciPy sparse matrix.
+    ``jac`` is a :class:`~mshoot_core.sparse_jacobian.SparseJacobian` (entries written at
+    their fixed positions) or a callable returning a dense array or a SciPy sparse matrix.
     """
 
     def __init__(self, fun: Callable[[np.ndarray], np.ndarray], jac: Any) -> None:
@@ -290,9 +290,10 @@ def _jacobian_writers(blocks: list[ConstraintBlock], sizes: list[int],
     """
     Return a function per block that writes its Jacobian at a point into its rows of ``C``.
 
-    A :class:`~mshoot_core.sparse_jacobian.SparseJacobian`'s entries go to their fixed positions of the
-    Fortran-ordered ``C`` (the other entries of its rows stay zero; the core does not change
-    ``C``), a constant one's once, here; others' dense arrays to the block's rows.
+    A :class:`~mshoot_core.sparse_jacobian.SparseJacobian`'s entries go to their fixed
+    positions of the Fortran-ordered ``C`` (the other entries of its rows stay zero; the core
+    does not change ``C``), a constant one's once, here; others' dense arrays to the block's
+    rows.
     """
     m = C.shape[0]
     flat = C.T.reshape(-1)  # a view: C is Fortran-ordered

@@ -24,15 +24,12 @@ import abc
 import dataclasses
 import logging
 import time
-from typing import Any, Callable, TYPE_CHECKING
+from typing import Any, Callable
 
 import numpy as np
 
 from mshoot_core.slsqp import ConstraintBlock, core, minimize_slsqp, SolverResult
-from mshoot_core.sparse_jacobian import SparseJacobian  # noqa: F401 (part of this interface)
-
-if TYPE_CHECKING:
-    from scipy import sparse
+from mshoot_core.sparse_jacobian import SparseJacobian
 
 logger = logging.getLogger(__name__)
 
