@@ -186,6 +186,16 @@ def test_a_missing_library_is_named_and_a_stand_in_provides_it(tmp_path):
     assert any(p.endswith(f'/{soname}') for p in fmu_binary.preloaded())
 
 
+def test_a_boptest_card_takes_its_stand_ins_from_the_test_case(tmp_path):
+    """The test case folder's shim/ is what its FMU gets: a card's preload would be ignored."""
+    document = yaml.safe_load(cards.builtin_card('boptest_tset').read_text())
+    (tmp_path / 'shim').mkdir()
+    card = write_card(tmp_path, {**document, 'preload': [{'source': 'shim'}]})
+    with pytest.raises(cards.CardError, match="preload: a BOPTEST test case's FMU takes its "
+                                              'stand-ins from the test case folder'):
+        cards.load_card(card)
+
+
 @pytest.mark.skipif(not (MULTIZONE / 'wrapped.fmu').is_file(), reason='no multizone office')
 def test_multizone_office_binary_gets_its_libgfortran3_stand_in():
     folder = fmu_cache.extract_fmu(MULTIZONE / 'wrapped.fmu')

@@ -644,6 +644,9 @@ def load_card(path: str | pathlib.Path) -> ModelCard:
         parameters = {}
     boptest = None
     if isinstance(document.get('boptest'), dict):
+        if preload:
+            problems.append("preload: a BOPTEST test case's FMU takes its stand-ins from the "
+                            "test case folder's shim/ (one C file and a version script)")
         boptest, fmu_name = _boptest_spec(path, document['boptest'], problems)
         if fmu_name is not None:
             document = {**document, 'fmu': fmu_name, 'fmi_type': 'co-simulation'}
