@@ -11,6 +11,7 @@ import json
 import pathlib
 import shutil
 import subprocess
+import sys
 import zipfile
 
 from mshoot_core import fmu_build
@@ -18,7 +19,7 @@ from mshoot_core.models import card as cards, registry
 from mshoot_core.models.card import CardError, CardFmiModel, load_card
 from mshoot_core.models.fmi import FmiModel
 from mshoot_core.models.network import NetworkModel
-from mshoot_core.models.r1c1 import KELVIN, R1C1Model
+from mshoot_core.models.r1c1 import KELVIN, R1C1Model, R1C1Parameters
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import reference_scenario
 from mshoot_studies import card as card_cli, case
@@ -102,6 +103,27 @@ def test_builtin_cards_are_the_registry_models(card_name, registry_name):
 
     for got, want in zip(run(from_card), run(reference)):
         np.testing.assert_array_equal(got, want)
+    # against another implementation: the Python R1C1 against the FMU (at the emulator's
+    # tolerance), the FMU cards against the Python R1C1
+    other = registry.build_model('fmu' if registry_name == 'python' else 'python', 1e-10)
+    for got, want in zip(run(from_card), run(other)):
+        np.testing.assert_allclose(got, want, rtol=1e-6)
+
+
+def test_a_cards_parameters_reach_its_model(tmp_path):
+    """The built-in Python card with a parameter of its own is that R1C1, not the default."""
+    document = yaml.safe_load(cards.builtin_card('r1c1').read_text())
+    changed = write_card(tmp_path, 'r1c1.yaml', {**document, 'parameters': {'shgc': 1.5}})
+    x0, u = np.array([[293.15]]), np.array([[400.0, 5.0, 0.0, 0.0, 0.0]])  # solrad first
+
+    def end_state(model):
+        order = ['solrad', 'Tout', 'occ', 'dpos', 'q']
+        return model.simulate_intervals(x0, u[:, [order.index(n) for n in model.input_names]],
+                                        HOUR)[0]
+
+    got = end_state(cards.build_model(changed))
+    np.testing.assert_array_equal(got, end_state(R1C1Model(R1C1Parameters(shgc=1.5))))
+    assert not np.allclose(got, end_state(R1C1Model()))
 
 
 def test_registry_takes_card_paths(zone_cards, tmp_path):
@@ -424,12 +446,12 @@ def test_card_problems_without_a_model(tmp_path):
     with pytest.raises(CardError, match='file not found'):
         load_card(tmp_path / 'nothing.yaml')
     (tmp_path / 'junk.fmu').write_text('not a zip')
-    with pytest.raises(CardError, match='fmu: cannot read the model description of .*junk'):
+    with pytest.raises(CardError, match=r'fmu: .*junk.fmu is not an FMU: not a ZIP archive'):
         load_card(write_card(tmp_path, 'junk.yaml', with_changes(ZONE_CARD, fmu='junk.fmu')))
     with zipfile.ZipFile(tmp_path / 'fmi3.fmu', 'w') as archive:
         archive.writestr('modelDescription.xml', FMI3_DESCRIPTION)
-    with pytest.raises(CardError, match=r'fmu: fmi3.fmu is an FMI 3.0 FMU: FMI 3.0 FMUs are not '
-                                        r'supported yet \(FMI 2.0 only\)'):
+    with pytest.raises(CardError, match=r'fmu: fmi3.fmu: FMI 3.0 FMUs are not supported yet '
+                                        r"\(fmiVersion '3.0'\); export the model as an FMI 2.0"):
         load_card(write_card(tmp_path, 'fmi3.yaml', with_changes(ZONE_CARD, fmu='fmi3.fmu')))
     twice = tmp_path / 'twice.yaml'
     twice.write_text('fmu: a.fmu\nfmu: b.fmu\n')
@@ -532,13 +554,20 @@ def test_time_origin(zone_cards):
     assert load_card(unquoted).time_origin == '2018-01-01T00:00:00'
 
 
-def test_schema_and_builtin_cards_ship_with_the_package():
+def test_schema_and_builtin_cards_ship_with_the_package(tmp_path):
+    """The package's build (setuptools build_py, as a wheel is made) holds the cards and schema."""
     schema = cards.schema()
     assert schema['title'] == 'mshoot model card'
     assert {'fmu', 'builtin', 'controls', 'states', 'outputs'} <= set(schema['properties'])
-    setup_py = (pathlib.Path(cards.__file__).resolve().parents[2] / 'setup.py').read_text()
-    assert "'cards/*.yaml'" in setup_py and "'schema/*.json'" in setup_py
-    assert sorted(p.name for p in cards.CARDS_DIR.glob('*.yaml')) == [
+    package = pathlib.Path(cards.__file__).resolve().parents[2]
+    subprocess.run([sys.executable, 'setup.py', '-q', 'build_py', '--build-lib',
+                    str(tmp_path / 'lib')], cwd=package, check=True, capture_output=True,
+                   timeout=300)
+    built = tmp_path / 'lib' / 'mshoot_core'
+    for source in (*cards.CARDS_DIR.glob('*.yaml'), cards.SCHEMA_PATH):
+        shipped = built / source.relative_to(package / 'mshoot_core')
+        assert shipped.read_bytes() == source.read_bytes(), shipped
+    assert sorted(p.name for p in (built / 'cards').glob('*.yaml')) == [
         'boptest_baseline.yaml', 'boptest_modulation.yaml', 'boptest_setpoint.yaml',
         'boptest_tset.yaml', 'r1c1.yaml',
         'r1c1_fmu.yaml', 'r1c1_fmu_cs.yaml', 'r1c1x2.yaml', 'r2c2.yaml']
@@ -597,19 +626,36 @@ def test_mshoot_card_executable(zone_cards, zone_fmu, tmp_path):
     assert names == ['solrad', 'Tout', 'occ', 'q']
 
 
-def test_case_options_accept_names_and_cards():
-    parser = case.build_parser()
-    assert parser.parse_args(['synthetic', '--control', 'x.yaml']).control == 'x.yaml'
-    assert parser.parse_args(['synthetic', '--emulator', 'x.yml']).emulator == 'x.yml'
-    with pytest.raises(SystemExit):
-        parser.parse_args(['synthetic', '--control', 'nope'])
+def test_case_options_accept_names_and_cards(tmp_path, caplog):
+    """A card path reaches the card loader (its problem, exit 2); an unknown name is refused."""
+    common = ['synthetic', '--hours', '2', '--out', str(tmp_path / 'out')]
+    for option, name in (('--control', 'x.yaml'), ('--emulator', 'x.yml')):
+        caplog.clear()
+        assert case.main([*common, option, str(tmp_path / name)]) == 2
+        assert f'{option}: model card {tmp_path / name}: file not found' in caplog.text
+    with pytest.raises(SystemExit) as stop:
+        case.main([*common, '--control', 'nope'])
+    assert stop.value.code == 2
 
 
-def test_case_scenario_has_the_series_of_the_zone_card(zone_cards):
-    """The zone card's disturbances are series of the scenarios (no dpos needed)."""
+def test_case_scenario_has_the_series_of_the_zone_card(zone_cards, tmp_path):
+    """The case feeds the zone card's disturbances from the scenario's series (no dpos)."""
     card = load_card(zone_cards[0])
-    scenario = reference_scenario('synthetic', hours=3)
-    assert set(card.disturbance_names) <= set(scenario.columns)
+    assert 'dpos' not in card.disturbance_names
+    assert case.main(['synthetic', '--hours', '2', '--horizon', '2', '--control',
+                      str(zone_cards[0]), '--emulator', str(zone_cards[0]), '--out',
+                      str(tmp_path / 'out')]) == 0
+    # the emulated zone (an R1C1 with names of its own) followed the Python R1C1 driven by the
+    # scenario's series and the applied heat rates
+    fine = pd.read_csv(tmp_path / 'out' / 'trajectories.csv', index_col='time_s')
+    steps = pd.read_csv(tmp_path / 'out' / 'steps.csv', index_col='time_s')
+    scenario = reference_scenario('synthetic', hours=2)
+    reference, x = R1C1Model(), np.array([[case.INITIAL_C + KELVIN]])
+    for t, q in steps['q'].items():
+        row = {**scenario.loc[t].to_dict(), 'q': q}
+        x, _ = reference.simulate_intervals(x, np.array([[row[n] for n in
+                                                          reference.input_names]]), HOUR)
+        assert fine.loc[t + HOUR, 'x_T'] == pytest.approx(x[0, 0], abs=1e-5)
 
 
 def test_co_simulation_only_fmu_runs_from_its_card(tmp_path):

@@ -14,9 +14,11 @@ import time
 from mshoot_core.closed_loop import run_closed_loop
 from mshoot_core.controller import Controller, controller_for
 from mshoot_core.emulation import Emulator
+from mshoot_core.kpis import closed_loop_kpis
 from mshoot_core.models.multizone import MultiZoneModel
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
 from mshoot_core.mpc import MPC
+from mshoot_core.outputs import write_outputs
 from mshoot_core.scenario import forecast_window, reference_scenario, synthetic_scenario
 from mshoot_core.settings import MpcSettings
 from mshoot_core.solvers import make_solver
@@ -255,7 +257,7 @@ def fault_setup(fault):
     return FaultyModel(inner), FaultySolver(make_solver('slsqp'))
 
 
-def core_decisions(fault, hours=HOURS, fault_steps=(FAULT_STEP,)):
+def core_decisions(fault, hours=HOURS, fault_steps=(FAULT_STEP,), whole=False):
     model, solver = fault_setup(fault)
     mpc = MPC(model, MpcSettings.from_flat(FAULT_MPC))
     mpc.set_solver(solver)
@@ -269,7 +271,7 @@ def core_decisions(fault, hours=HOURS, fault_steps=(FAULT_STEP,)):
 
     result = run_closed_loop(Controller(mpc=mpc), Emulator(R1C1Model(), scenario, [293.15]),
                              progress=progress, log_every=0)
-    return result.steps
+    return result if whole else result.steps
 
 
 @pytest.mark.parametrize('fault', ['raise', 'nan', 'fail', 'late'])
@@ -338,12 +340,14 @@ def test_core_run_whose_model_raises_from_hour_20_completes(tmp_path):
     The last good plan for max_plan_age_steps steps, then the safe setpoint, all recorded in
     steps.csv.
     """
-    steps = core_decisions('raise', hours=72, fault_steps=(20, 72))
-    steps.to_csv(tmp_path / 'steps.csv')
+    result = core_decisions('raise', hours=72, fault_steps=(20, 72), whole=True)
+    kpis = closed_loop_kpis(result.steps, result.fine, 3600.0, result.wall_s)
+    write_outputs(tmp_path, result, kpis, 'the model raises from hour 20')  # the case's writer
     read = pd.read_csv(tmp_path / 'steps.csv', index_col='time_s', keep_default_na=False)
     assert len(read) == 72
     assert read['source'].tolist() == ['optimum'] * 20 + ['plan'] * 2 + ['safe'] * 50
     assert set(read['fallback_code'].iloc[20:]) == {'solve_failed'}
+    assert read['fallback'].tolist() == [False] * 20 + [True] * 52
     assert read['fallback_reason'].iloc[25].startswith(
         'solve failed: InjectedModelError: injected model error')
     assert (read['q'].iloc[22:] == 0.0).all()  # the safe setpoint

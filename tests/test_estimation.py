@@ -320,11 +320,27 @@ def test_a_failed_prediction_backs_off_by_the_estimates_std(caplog):
     assert result.steps['q'].iloc[0] < propagated.steps['q'].iloc[0]
 
 
+class _EnvelopeGuessed(Sensors):
+    """The air sensor, and the envelope 'read' as the first guess: the states taken as measured."""
+
+    def read(self, x, step):
+        return {**super().read(x, step), 'Tw': float(GUESS[1])}
+
+
 def test_without_estimation_the_guess_is_what_the_mpc_gets():
     """The same sensors, the states taken as measured: the envelope error is never corrected."""
     model = R2C2Model(measured_states=('T', 'Tw'))
-    controller = controller_for(model, MpcSettings.from_flat(horizon_steps=4))
+    controller = controller_for(model, MpcSettings.from_flat(horizon_steps=6))
     assert controller.estimator is None and controller.estimate is None
+    emulator = Emulator(R2C2Model(), synthetic_scenario(13), X0)
+    result = run_closed_loop(controller, emulator, log_every=0,
+                             sensors=_EnvelopeGuessed(emulator.model.state_names))
+    guessed = (result.steps['Tw_predicted'] - result.steps['Tw_end']).to_numpy()
+    assert np.all(guessed > 2.5)  # every step planned from the 3 K error, never corrected
+    # the filter on the same air sensor corrects it within a step
+    estimated, _, _ = closed_loop(('T',), 0.0, hours=12)
+    corrected = (estimated.steps['Tw_predicted'] - estimated.steps['Tw_end']).to_numpy()
+    assert corrected[0] == pytest.approx(guessed[0]) and np.all(np.abs(corrected[1:]) < 0.1)
     with pytest.raises(ValueError, match="estimation 'off' needs every state measured"):
         controller_for(R2C2Model(), MpcSettings.from_flat(estimation='off'))
 

@@ -9,6 +9,7 @@ overruns, a model that raises), through the forecaster's ``enabled`` parameter
 Each test runs a short lockstep loop (:class:`mshoot_testing.harness.ClosedLoop`,
 python R1C1 emulator) in a private context, with wall-clock guards.
 """
+import re
 import time
 
 from mshoot_core.closed_loop import run_closed_loop
@@ -189,9 +190,7 @@ def test_forecast_that_stops(context):
     try:
         loop.run_steps(2)
         loop.forecaster.set_parameters([Parameter('enabled', value=False)])
-        started = time.monotonic()
         loop.run_steps(4, timeout_s=10.0)
-        waited = time.monotonic() - started
         loop.forecaster.set_parameters([Parameter('enabled', value=True)])
         loop.run_to_end(30.0)
         history = loop.mpc_history()
@@ -200,7 +199,10 @@ def test_forecast_that_stops(context):
         for _, status in history[2:6]:
             assert status.fallback_reason == 'inputs_missing'
             assert 'the forecast is stale' in status.message
-        assert 0.8 <= waited < 4.0  # four steps of about input_wait_s each
+            # each step waited input_wait_s for the forecast before its fallback (the wait the
+            # controller measured; no bound on how long the machine took)
+            waited = re.search(r'after ([0-9.]+) s', status.message)
+            assert waited is not None and float(waited.group(1)) >= 0.2, status.message
         assert_one_sane_setpoint_per_step(loop, 8)
     finally:
         loop.close()

@@ -10,7 +10,7 @@ import re
 import shutil
 import subprocess
 
-from mshoot_core import fmu_build, fmu_cache
+from mshoot_core import fmu_binary, fmu_build, fmu_cache
 from mshoot_core.fmu_cache import NotBuiltError
 from mshoot_core.models.fmi import FmiModel, r1c1_fmi_model
 from mshoot_nodes.processes import executable
@@ -74,8 +74,10 @@ def test_missing_driver_stops_the_model_at_construction(tmp_path, monkeypatch, r
     with pytest.raises(NotBuiltError, match='mshoot_me_batch'):  # no FMU states, another FMU
         FmiModel(r2c2_fmu, inputs=['Tamb', 'Qhvac', 'Qsun'], states=['air.T', 'wall.T'],
                  outputs=['Tair'])
-    # nothing was built: the cache only holds the FMUs' extractions
-    assert [p.name for p in tmp_path.iterdir()] == [fmu_cache.EXTRACTED]
+    # nothing was built: the cache only holds the FMUs' extractions and the records of their
+    # binaries that loaded (mshoot_core.fmu_binary)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([fmu_cache.EXTRACTED,
+                                                                 fmu_binary.CHECKED])
 
 
 def test_missing_driver_raises_at_the_first_batch_after_the_cache_changed(
@@ -136,5 +138,5 @@ def test_node_with_a_missing_build_exits_with_the_command_that_builds_it(tmp_pat
         assert 'Traceback' not in output, output
     assert list(no_fmu.iterdir()) == []
     built = [p.relative_to(no_driver) for p in no_driver.rglob('*') if p.is_file()]
-    assert [p for p in built if p.parts[0] != fmu_cache.EXTRACTED] == [  # not extractions
-        fmu_copy.relative_to(no_driver)]
+    assert [p for p in built if p.parts[0] not in (fmu_cache.EXTRACTED, fmu_binary.CHECKED)
+            ] == [fmu_copy.relative_to(no_driver)]  # not extractions nor binary checks

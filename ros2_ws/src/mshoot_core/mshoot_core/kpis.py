@@ -112,3 +112,39 @@ def closed_loop_kpis(steps: pd.DataFrame, fine: pd.DataFrame, step_s: float,
                 solve_per_control_step=float(solve.sum() / (len(steps) * step_s)),
                 solver_failures=int((~steps['success'].astype(bool)).sum()))
     return kpis
+
+
+#: Exit code of a command whose run ended but was not controlled: more of its steps fell back
+#: than ``max_fallback_share`` (:func:`fallback_problem`).
+FALLBACK_EXIT = 3
+
+
+def fallback_problem(fallbacks: int, steps: int, max_share: float) -> str | None:
+    """
+    Say why a run controlled too little: more of its steps were fallbacks than ``max_share``.
+
+    The decision behind :data:`FALLBACK_EXIT` of ``mshoot case`` and the demo's bring-up.
+
+    Parameters
+    ----------
+    fallbacks, steps : int
+        Steps whose setpoint was a fallback, and all steps of the run.
+    max_share : float
+        Largest share of fallback steps of a run that controlled [-] (the
+        ``max_fallback_share`` setting); 1 accepts every run.
+
+    Returns
+    -------
+    str or None
+        One sentence (the count, the share and the limit), or None for a run within it (or
+        without steps).
+
+    """
+    if steps <= 0:
+        return None
+    share = fallbacks / steps
+    if share <= max_share:
+        return None
+    every = 'every step' if fallbacks == steps else f'{fallbacks} of {steps} steps'
+    return (f'{every} fell back ({share:.0%}, more than max_fallback_share {max_share:.0%}): '
+            'the MPC did not control this run')

@@ -86,7 +86,8 @@ def read_ou44(path: str | pathlib.Path,
     Raises
     ------
     FileNotFoundError, ValueError
-        If the file is missing or lacks one of ``columns``.
+        If the file is missing, lacks one of ``columns``, or holds a time twice
+        (:func:`check_time_order`; rows out of order are sorted, with a warning).
 
     """
     path = pathlib.Path(path)
@@ -98,7 +99,58 @@ def read_ou44(path: str | pathlib.Path,
         raise ValueError(f'{path}: missing columns {missing}; expected {list(columns)}, '
                          f'got {list(raw.columns)}')
     raw['datetime'] = pd.to_datetime(raw['datetime'])
-    return raw.set_index('datetime').sort_index()
+    check_time_order(raw['datetime'], path)
+    return raw.set_index('datetime').sort_index(kind='stable')
+
+
+#: Duplicate times quoted in one error message (then their count).
+MAX_QUOTED_ROWS = 5
+
+
+def check_time_order(times: pd.Series, path: str | pathlib.Path) -> bool:
+    """
+    Refuse a data file that holds a time twice; warn when its rows are out of time order.
+
+    A repeated time is ambiguous (which row holds?) and changes results silently, so it is an
+    error naming the file's lines; rows out of order are only sorted, with a warning.
+
+    Parameters
+    ----------
+    times : Series
+        The file's time column, in file order (row k is line k + 2 of the file: one header).
+    path : path-like
+        The file, for messages.
+
+    Returns
+    -------
+    bool
+        Whether the rows were in time order.
+
+    Raises
+    ------
+    ValueError
+        One line: the lines of the first repeated times and how many there are.
+
+    """
+    values = pd.Series(np.asarray(times), index=np.arange(len(times)) + 2)  # file lines
+    repeated = values[values.duplicated(keep=False)]
+    if len(repeated):
+        groups = [f'lines {" and ".join(str(n) for n in lines)} ({time})' for time, lines in
+                  repeated.groupby(repeated, sort=False).groups.items()]
+        more = (f' (and {len(groups) - MAX_QUOTED_ROWS} more times)'
+                if len(groups) > MAX_QUOTED_ROWS else '')
+        raise ValueError(f'{path}: {len(groups)} time{"s" if len(groups) != 1 else ""} '
+                         f'given twice or more: {"; ".join(groups[:MAX_QUOTED_ROWS])}{more}; '
+                         'each time must appear once')
+    later = values.to_numpy()
+    backwards = np.flatnonzero(later[1:] < later[:-1])
+    if backwards.size:
+        line = int(values.index[backwards[0] + 1])
+        logger.warning('%s: %d row%s out of time order (the first at line %d: %s after %s); '
+                       'sorted by time', path, backwards.size, 's' if backwards.size > 1 else '',
+                       line, values.iloc[backwards[0] + 1], values.iloc[backwards[0]])
+        return False
+    return True
 
 
 def load_ou44(path: str | pathlib.Path, start: str = '2018-04-05 00:00',

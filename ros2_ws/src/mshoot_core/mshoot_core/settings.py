@@ -254,6 +254,10 @@ class SupervisorSettings(SettingsGroup):
                                       'while it is at most this many steps old, then on the '
                                       'safe setpoint [-]', low=0, high=10_000,
                                       apply='supervisor')
+    max_fallback_share: float = setting(0.5, "largest share of a run's steps that may be "
+                                        'fallbacks: a run with more ends with a WARNING '
+                                        'summary and a non-zero exit code (1 = never) [-]',
+                                        low=0.0, high=1.0, apply='inputs')
 
 
 @dataclasses.dataclass(frozen=True)

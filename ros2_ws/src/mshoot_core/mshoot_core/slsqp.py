@@ -14,7 +14,7 @@ saved:
   not already loaded;
 - per iteration the SciPy wrappers (``ScalarFunction``, the constraint dicts,
   a dense Jacobian built per call): the constraint Jacobians of a
-  :class:`~mshoot_core.solvers.SparseJacobian` are written into the core's
+  :class:`~mshoot_core.sparse_jacobian.SparseJacobian` are written into the core's
   matrix at their fixed positions.
 
 ``tests/test_core.py`` checks it against ``scipy.optimize.minimize`` (the
@@ -33,6 +33,8 @@ import time
 from typing import Any, Callable
 
 import numpy as np
+
+from mshoot_core.sparse_jacobian import SparseJacobian
 
 logger = logging.getLogger(__name__)
 
@@ -136,8 +138,8 @@ class ConstraintBlock:
     """
     One block of constraint rows: values ``fun(x)`` and Jacobian ``jac``.
 
-    ``jac`` is a :class:`~mshoot_core.solvers.SparseJacobian` (entries written at their fixed
-    positions) or a callable returning a dense array or a SciPy sparse matrix.
+    ``jac`` is a :class:`~mshoot_core.sparse_jacobian.SparseJacobian` (entries written at
+    their fixed positions) or a callable returning a dense array or a SciPy sparse matrix.
     """
 
     def __init__(self, fun: Callable[[np.ndarray], np.ndarray], jac: Any) -> None:
@@ -288,11 +290,11 @@ def _jacobian_writers(blocks: list[ConstraintBlock], sizes: list[int],
     """
     Return a function per block that writes its Jacobian at a point into its rows of ``C``.
 
-    A :class:`~mshoot_core.solvers.SparseJacobian`'s entries go to their fixed positions of the
-    Fortran-ordered ``C`` (the other entries of its rows stay zero; the core does not change
-    ``C``), a constant one's once, here; others' dense arrays to the block's rows.
+    A :class:`~mshoot_core.sparse_jacobian.SparseJacobian`'s entries go to their fixed
+    positions of the Fortran-ordered ``C`` (the other entries of its rows stay zero; the core
+    does not change ``C``), a constant one's once, here; others' dense arrays to the block's
+    rows.
     """
-    from mshoot_core.solvers import SparseJacobian  # (solvers imports this module)
     m = C.shape[0]
     flat = C.T.reshape(-1)  # a view: C is Fortran-ordered
     writers = []

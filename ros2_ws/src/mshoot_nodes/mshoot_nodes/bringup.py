@@ -11,6 +11,9 @@ as fast as the MPC solves and the run equals the core-only loop. Writes to
 ``mshoot case``), ``steps.csv``, ``trajectories.csv`` and
 ``plot.png``; prints progress and the KPIs. Parameters come from the YAML
 files in the package's ``config/`` (or ``--params-file``), then the flags.
+
+Exit codes: 0 done; 1 the run failed or stopped; 2 bad configuration; 3 the run ended but
+more than ``max_fallback_share`` of its steps fell back (a WARNING line says how many).
 """
 from __future__ import annotations
 
@@ -25,6 +28,7 @@ from typing import Any, Callable, Sequence
 
 from mshoot_core.closed_loop import run_closed_loop
 from mshoot_core.controller import controller_for
+from mshoot_core.kpis import FALLBACK_EXIT, fallback_problem
 from mshoot_core.scenario import PUBLISHED
 import rclpy
 from rclpy.context import Context
@@ -342,6 +346,11 @@ def main(argv: Sequence[str] | None = None) -> int:
               f"{kpis['max_abs_diff_vs_core_k']:.2e} K")
     print(f'[demo] wrote {args.out}/: kpis.json, steps.csv, trajectories.csv, plot.png'
           + (', bag/' if run.recorder is not None else ''))
+    too_few = fallback_problem(kpis.get('fallbacks', 0), kpis['steps'],
+                               p_mpc['max_fallback_share'])
+    if too_few:
+        print(f'[demo] WARNING: {too_few}; exit code {FALLBACK_EXIT}', file=sys.stderr)
+        return FALLBACK_EXIT
     return 0
 
 

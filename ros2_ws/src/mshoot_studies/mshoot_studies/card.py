@@ -4,6 +4,13 @@ Model cards from the command line: check a card against its model, list an FMU's
     mshoot card check CARD.yaml      # validate; print what the card maps (exit 2: every problem)
     mshoot card variables MODEL.fmu  # every variable of an FMU: causality, type, unit, start
 
+``card check`` validates the card against the JSON Schema and against its model, with the
+modelDescription validated as a run validates it (a card's ``validate: false`` relaxes
+both), and loads the FMU's binary once in a child process, with the card's ``preload``
+libraries, as a run will (a missing library is named, with how to provide it; a damaged
+binary is one line, not a signal). Exit codes: 0 the card is good; 2 every problem, on
+stderr (a long list: the first 20 and the count).
+
 A card (YAML, see :mod:`mshoot_core.models.card`) describes a zone model once
 for the case command (``mshoot case ... --control CARD.yaml --emulator
 CARD.yaml``), the Python API and the ROS nodes. The built-in cards are in
@@ -19,6 +26,8 @@ from typing import Sequence, TextIO
 from mshoot_core.models import card as cards
 from mshoot_core.models.registry import CONTROL_TOLERANCE, EMULATOR_TOLERANCE
 
+#: Longest list of a card's problems printed by ``card check`` (then their count).
+MAX_PROBLEMS = 20
 #: Columns of the mapping table of ``card check``.
 COLUMNS = (('section', 'section'), ('name', 'name'), ('variable', 'model variable'),
            ('causality', 'causality'), ('unit', 'unit'), ('canonical', 'canonical'),
@@ -69,10 +78,14 @@ def check(path: pathlib.Path, out: TextIO, err: TextIO) -> int:
     """
     try:
         card = cards.load_card(path)
+        preloaded = cards.check_binary(card)
     except cards.CardError as exc:
         count = len(exc.problems)
         err.write(f'model card {exc.path}: {count} problem{"s" if count != 1 else ""}\n')
-        err.write(''.join(f'  - {problem}\n' for problem in exc.problems))
+        err.write(''.join(f'  - {problem}\n' for problem in exc.problems[:MAX_PROBLEMS]))
+        if count > MAX_PROBLEMS:
+            err.write(f'  ... and {count - MAX_PROBLEMS} more (the first {MAX_PROBLEMS} '
+                      'shown)\n')
         return 2
     out.write(f'model card {card.path}: OK\n')
     if card.description:
@@ -91,6 +104,10 @@ def check(path: pathlib.Path, out: TextIO, err: TextIO) -> int:
                      f'that of the role (control {CONTROL_TOLERANCE:g}, emulator '
                      f'{EMULATOR_TOLERANCE:g})')
         out.write(f'tolerance: {tolerance}; time origin: {card.time_origin}\n')
+        out.write('binary: loads in a test process'
+                  + (f' (preloading {", ".join(preloaded)})' if preloaded else '')
+                  + ('' if card.validate else '; modelDescription not validated '
+                     '(validate: false)') + '\n')
     if card.parameters:
         out.write('parameters: ' + ', '.join(f'{k} = {v!r}' for k, v in card.parameters.items())
                   + '\n')

@@ -14,9 +14,13 @@ built-in scenario, which needs no data file.
 the card's controls (bounded by their min/max) and the emulated building gets
 its start state and actuator limits from the emulator's card.
 
-Exit codes: 0 done; 2 bad options or inputs (one line); 1 the emulated
-building failed (non-finite values): the files are still written for the
-steps done, ``kpis.json`` with the reason under ``stopped``.
+Exit codes: 0 done; 2 bad options or inputs (one line: a bad card, an FMU
+whose binary does not load, a data file with a time given twice); 1 the
+emulated building failed (non-finite values): the files are still written for
+the steps done, ``kpis.json`` with the reason under ``stopped``; 3 the run
+ended but the MPC did not control it: more than ``--max-fallback-share`` of
+its steps (default 50 %) were fallbacks (a WARNING says how many; the files
+are written, ``kpis.json`` with the sentence under ``fallback_problem``).
 """
 from __future__ import annotations
 
@@ -31,7 +35,7 @@ from typing import Any, Sequence
 from mshoot_core.closed_loop import ClosedLoopResult, EmulationStopped, run_closed_loop
 from mshoot_core.controller import Controller
 from mshoot_core.emulation import Emulator
-from mshoot_core.kpis import closed_loop_kpis
+from mshoot_core.kpis import closed_loop_kpis, FALLBACK_EXIT, fallback_problem
 from mshoot_core.models.base import Model
 from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.models.registry import (build_model, BUILTIN, check_model, CONTROL_TOLERANCE,
@@ -224,6 +228,7 @@ def _case_kpis(result: ClosedLoopResult, settings: MpcSettings) -> dict:
 #: Controller settings offered as options of the case command.
 CASE_SETTINGS = ('horizon_steps', 'cost', 'comfort', 'soft_penalty', 'solver', 'mode',
                  'relaxation', 'solver_max_iter', 'time_budget_s', 'on_failure',
+                 'max_fallback_share',
                  'estimation', 'measured_states', 'measurement_noise_k', 'process_noise_k',
                  'comfort_margin_std')
 
@@ -303,7 +308,8 @@ def run(args: argparse.Namespace) -> int:
     """
     Run the case as parsed by :func:`build_parser`.
 
-    Return 0, 2 on bad input, 1 if the emulated building failed (partial outputs written); the
+    Return 0, 2 on bad input, 1 if the emulated building failed (partial outputs written), 3
+    (:data:`FALLBACK_EXIT`) if more than ``max_fallback_share`` of the steps fell back; the
     reason is logged.
     """
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
@@ -364,6 +370,11 @@ def _run(args: argparse.Namespace, settings: MpcSettings, plotter: PlotWorker) -
         kpis['training'] = report
     if args.scenario == 'ou44' and args.hours == 72 and horizon in PUBLISHED:
         kpis['published'] = PUBLISHED[horizon]
+    too_few = None if stopped is not None or result is None else fallback_problem(
+        int(result.steps['fallback'].sum()), len(result.steps),
+        settings.supervisor.max_fallback_share)
+    if too_few:
+        kpis['fallback_problem'] = too_few
     if stopped is not None:
         _write_stopped(args.out, result, kpis, f'{args.scenario}: H = {horizon} h, control '
                                                f'{args.control}, stopped')
@@ -378,7 +389,17 @@ def _run(args: argparse.Namespace, settings: MpcSettings, plotter: PlotWorker) -
                 kpis['discomfort_kh'], kpis['discomfort_kh_hourly'], kpis['wall_s'],
                 kpis['solve_s_median'], kpis['solver_failures'])
     logger.info('wrote %s', args.out / 'kpis.json')
+    if too_few:
+        logger.warning('%s (%s); exit code %d', too_few,
+                       _fallback_reasons(result.steps), FALLBACK_EXIT)
+        return FALLBACK_EXIT
     return 0
+
+
+def _fallback_reasons(steps: pd.DataFrame) -> str:
+    """Return the fallback codes of a run's steps with their counts (``solve_failed x 24``)."""
+    codes = steps.loc[steps['fallback'].astype(bool), 'fallback_code'].value_counts()
+    return ', '.join(f'{code} x {count}' for code, count in codes.items())
 
 
 def card_setup(args: argparse.Namespace, settings: MpcSettings, control: Model,

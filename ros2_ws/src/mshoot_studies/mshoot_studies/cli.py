@@ -137,6 +137,25 @@ def exit_now(code: int) -> None:
     os._exit(code)
 
 
+#: Exit code when the reader of stdout closed the pipe early (as a process killed by SIGPIPE).
+BROKEN_PIPE_EXIT = 141
+
+
+def reader_gone() -> int:
+    """
+    Quietly end the output of a command whose reader closed the pipe (``| head``).
+
+    Points stdout at ``/dev/null``, so that no later flush raises (and no traceback or
+    "Exception ignored" appears); returns :data:`BROKEN_PIPE_EXIT`.
+    """
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, sys.stdout.fileno())
+    finally:
+        os.close(devnull)
+    return BROKEN_PIPE_EXIT
+
+
 def import_verb(verb: str) -> None:
     """
     Import the module of a verb without the cyclic garbage collector, then freeze its objects.
@@ -176,6 +195,8 @@ def console_main() -> None:
             import_verb(verb)
         try:
             code = main(plot_worker=worker)
+        except BrokenPipeError:  # `mshoot card check ... | head`: the reader has had enough
+            code = reader_gone()
         except SystemExit as stop:  # argparse errors and --help: as sys.exit reports them
             code = stop.code if isinstance(stop.code, int) else (0 if stop.code is None else 1)
             if stop.code is not None and not isinstance(stop.code, int):

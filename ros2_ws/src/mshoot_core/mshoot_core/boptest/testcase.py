@@ -11,7 +11,7 @@ Stable API (other modules build on it)::
     case.lookup('LowerSetp[1]', times_s) -> np.ndarray   # forward-filled
     case.lookup_frame(['TDryBul', 'HGloHor'], times_s) -> pd.DataFrame (index: time [s])
     case.price_column('dynamic') -> 'PriceElectricPowerDynamic'
-    load_shim(case.directory) -> pathlib.Path             # libgfortran.so.4, loaded RTLD_GLOBAL
+    load_shim(case.directory) -> tuple[str, ...]          # stand-ins (shim/), loaded RTLD_GLOBAL
 
 The test case folder (``bestest_hydronic_heat_pump`` of BOPTEST, read-only) is found by
 :func:`default_directory`: the environment variable ``MSHOOT_BOPTEST_DIR`` or else
@@ -22,26 +22,21 @@ The test case folder (``bestest_hydronic_heat_pump`` of BOPTEST, read-only) is f
 (``dataFromModel.csv``), prices, emissions and weather. Between their rows these data are held
 constant (forward-filled), as BOPTEST's KPI calculator does.
 
-The FMU's binary needs ``libgfortran.so.4`` (GCC 7), which current Debian does not ship; the test
-case carries the source of a stand-in (``shim/``). :func:`load_shim` compiles it once into the
-project's cache (``<cache>/boptest/<hash>/libgfortran.so.4``, where ``<cache>`` is that of
-:mod:`mshoot_core.fmu_cache`), never into the test case folder, and loads it with
+The FMU's binary may need a library the host lacks (the heat pump house's ``libgfortran.so.4``,
+GCC 7, which current Debian does not ship); the test case carries the source of a stand-in
+(``shim/``). :func:`load_shim` checks the binary in a child process and compiles the stand-in
+once into the project's cache for the library found missing (see
+:mod:`mshoot_core.fmu_binary`), never into the test case folder, and loads it with
 ``RTLD_GLOBAL`` so the FMU's binary resolves against it.
 """
 from __future__ import annotations
 
-import ctypes
 import dataclasses
 import functools
-import hashlib
 import json
 import logging
 import os
 import pathlib
-import shutil
-import subprocess
-import tempfile
-import threading
 from typing import Sequence
 
 import numpy as np
@@ -77,12 +72,6 @@ WEATHER_POINTS = frozenset({
     'pAtm', 'nTot', 'nOpa', 'HGloHor', 'HDifHor', 'HDirNor', 'ceiHei', 'winSpe', 'HHorIR',
     'winDir', 'cloTim', 'solTim', 'TDewPoi', 'relHum', 'TDryBul', 'TWetBul', 'solAlt', 'solZen',
     'solDec', 'solHouAng', 'lon', 'lat', 'TBlaSky'})
-#: The shim's shared library name and its sources in ``<test case>/shim``.
-SHIM_LIBRARY = 'libgfortran.so.4'
-SHIM_SOURCES = ('gfortran4_shim.c', 'v.map')
-
-_shim_lock = threading.Lock()
-_shim_loaded: dict[pathlib.Path, ctypes.CDLL] = {}
 
 
 def default_directory() -> pathlib.Path:
@@ -363,64 +352,37 @@ def _read_resources(directory: str) -> dict[str, pd.DataFrame]:
     return frames
 
 
-# -- the libgfortran.so.4 stand-in ------------------------------------------------------------
-def shim_path(directory: str | os.PathLike | None = None) -> pathlib.Path:
-    """Where :func:`load_shim` builds the shim of a test case (whether or not it exists)."""
-    folder = pathlib.Path(directory) if directory is not None else default_directory()
-    digest = hashlib.sha256()
-    for name in SHIM_SOURCES:
-        source = folder / 'shim' / name
-        if not source.is_file():
-            raise FileNotFoundError(f'BOPTEST shim source missing: {source}')
-        digest.update(name.encode())
-        digest.update(source.read_bytes())
-    return fmu_cache.cache_dir() / 'boptest' / digest.hexdigest()[:16] / SHIM_LIBRARY
-
-
-def load_shim(directory: str | os.PathLike | None = None) -> pathlib.Path:
+# -- the libraries the FMU's binary needs ----------------------------------------------------
+def load_shim(directory: str | os.PathLike | None = None) -> tuple[str, ...]:
     """
-    Build (once, into the cache) and load the ``libgfortran.so.4`` stand-in, ``RTLD_GLOBAL``.
+    Check the test case's binary in a child process, with its stand-ins; preload them here.
 
-    Idempotent within a process. The build is staged in a temporary folder and renamed into
-    place, so concurrent processes never see a half-written library.
+    The folder's ``shim/`` (one C file and a version script), if there is one, is built into
+    the cache as the library the binary lacks (whichever soname that is), and loaded
+    ``RTLD_GLOBAL`` (:func:`mshoot_core.fmu_binary.check_binary`; cached per binary).
 
     Parameters
     ----------
     directory : path, optional
-        The test case folder (its ``shim/`` holds the sources); default
-        :func:`default_directory`.
+        The test case folder; default :func:`default_directory`.
 
     Returns
     -------
-    pathlib.Path
-        The loaded library.
+    tuple of str
+        The libraries preloaded for the binary.
 
     Raises
     ------
-    RuntimeError
-        If gcc fails.
+    mshoot_core.fmu_binary.FmuBinaryError
+        A ValueError, one line: the binary lacks a library (named) or is damaged.
 
     """
-    target = shim_path(directory)
-    with _shim_lock:
-        if target in _shim_loaded:
-            return target
-        if not target.is_file():
-            folder = pathlib.Path(directory) if directory is not None else default_directory()
-            target.parent.mkdir(parents=True, exist_ok=True)
-            staging = pathlib.Path(tempfile.mkdtemp(prefix='.staging-', dir=target.parent))
-            try:
-                built = staging / SHIM_LIBRARY
-                command = ['gcc', '-O2', '-shared', '-fPIC', f'-Wl,-soname,{SHIM_LIBRARY}',
-                           f'-Wl,--version-script={folder / "shim" / "v.map"}', '-o', str(built),
-                           str(folder / 'shim' / 'gfortran4_shim.c')]
-                result = subprocess.run(command, capture_output=True, text=True, check=False)
-                if result.returncode != 0:
-                    raise RuntimeError(f'building the BOPTEST libgfortran shim failed: '
-                                       f'{" ".join(command)}\n{result.stderr}')
-                os.replace(built, target)
-                logger.info('built the libgfortran.so.4 stand-in: %s', target)
-            finally:
-                shutil.rmtree(staging, ignore_errors=True)
-        _shim_loaded[target] = ctypes.CDLL(str(target), mode=ctypes.RTLD_GLOBAL)
-    return target
+    from mshoot_core import fmu_binary
+    folder = pathlib.Path(directory) if directory is not None else default_directory()
+    shim = folder / 'shim'
+    libraries = [fmu_binary.Library(source=shim)] if shim.is_dir() else []
+    unzipped = fmu_cache.extract_fmu(folder / 'wrapped.fmu')
+    preloaded: tuple[str, ...] = ()
+    for identifier in fmu_binary.model_identifiers(unzipped):
+        preloaded += fmu_binary.check_binary(unzipped, identifier, libraries, label=folder.name)
+    return preloaded

@@ -70,17 +70,19 @@ import math
 import pathlib
 from typing import Any, Mapping, Sequence
 
-import fmpy
 import jsonschema
 import numpy as np
 import pandas as pd
 import yaml
 
+from mshoot_core import fmu_binary
+from mshoot_core.fmu_binary import Library
+from mshoot_core.fmu_cache import extract_fmu
 from mshoot_core.models import network_spec
 from mshoot_core.models.base import IntervalJacobians, Model
-from mshoot_core.models.fmi import FmiModel
-from mshoot_core.models.registry import (CONTROL_TOLERANCE, EMULATOR_TOLERANCE,
-                                         is_card_path)
+from mshoot_core.models.defaults import (CONTROL_TOLERANCE, EMULATOR_TOLERANCE,
+                                         FINITE_DIFFERENCE_TOLERANCE, is_card_path)
+from mshoot_core.models.fmi import FmiModel, read_cached_description, read_fmu_description
 
 __all__ = ['builtin_card', 'build_model', 'CardError', 'CardFmiModel', 'CardVariable',
            'CARDS_DIR', 'conversion', 'describe', 'fmu_variables', 'is_card_path', 'load_card',
@@ -236,6 +238,12 @@ class ModelCard:
         For a thermal network (a card's ``network`` section, or ``builtin: r1c1`` /
         ``r2c2``: the built-in card's): the parsed network
         (:class:`~mshoot_core.models.network_spec.NetworkSpec`).
+    validate : bool
+        Whether fmpy validates the FMU's modelDescription against the FMI schema (the card
+        check and every model built alike; ``validate: false`` relaxes it).
+    preload : tuple of Library
+        Libraries loaded before the FMU's binary (paths, names, stand-in sources; see
+        :mod:`mshoot_core.fmu_binary`).
 
     """
 
@@ -255,6 +263,8 @@ class ModelCard:
     boptest: dict[str, Any] | None = None
     monotone: bool | None = None
     network: Any = None
+    validate: bool = True
+    preload: tuple[Library, ...] = ()
 
     @property
     def source(self) -> str:
@@ -652,17 +662,23 @@ def load_card(path: str | pathlib.Path) -> ModelCard:
             problems.append(problem)
     fmi_type = document.get('fmi_type', 'auto')
     tolerance = document.get('tolerance')
+    validate = document.get('validate', True) is not False
+    preload = _preload(path, document.get('preload'), problems)
     parameters = document.get('parameters') or {}
     if not isinstance(parameters, dict):
         parameters = {}
     boptest = None
     if isinstance(document.get('boptest'), dict):
+        if preload:
+            problems.append("preload: a BOPTEST test case's FMU takes its stand-ins from the "
+                            "test case folder's shim/ (one C file and a version script)")
         boptest, fmu_name = _boptest_spec(path, document['boptest'], problems)
         if fmu_name is not None:
             document = {**document, 'fmu': fmu_name, 'fmi_type': 'co-simulation'}
             fmi_type = 'co-simulation'
     network = _network_spec(path, document, problems)
-    catalogue, fmu, interface = _catalogue(path, document, fmi_type, problems, network)
+    catalogue, fmu, interface = _catalogue(path, document, fmi_type, problems, network,
+                                           validate)
     if catalogue is not None and boptest is not None:
         # a BOPTEST plant's states are measured: its outputs
         catalogue = dataclasses.replace(
@@ -679,7 +695,37 @@ def load_card(path: str | pathlib.Path) -> ModelCard:
         interface=interface, tolerance=None if tolerance is None else float(tolerance),
         time_origin=time_origin, parameters=dict(parameters),
         description=document.get('description', ''), boptest=boptest,
-        monotone=document.get('monotone'), network=network, **variables)
+        monotone=document.get('monotone'), network=network, validate=validate,
+        preload=preload, **variables)
+
+
+def _preload(path: pathlib.Path, entries: Any, problems: list[str]) -> tuple[Library, ...]:
+    """Resolve a card's ``preload`` list (paths and sources relative to the card)."""
+    if not isinstance(entries, list):
+        return ()  # absent, or the schema reported it
+    out = []
+    for k, entry in enumerate(entries):
+        where = f'preload.{k}'
+        if isinstance(entry, str) and entry:
+            if '/' not in entry:  # a name the dynamic linker finds
+                out.append(Library(path=entry))
+                continue
+            file = (path.parent / pathlib.Path(entry).expanduser()).resolve()
+            if not file.is_file():
+                problems.append(f'{where}: library not found: {file} (the path is relative to '
+                                "the card's folder)")
+                continue
+            out.append(Library(path=str(file)))
+        elif isinstance(entry, dict) and isinstance(entry.get('source'), str):
+            folder = (path.parent / pathlib.Path(entry['source']).expanduser()).resolve()
+            soname = entry.get('soname')
+            if not folder.is_dir():
+                problems.append(f'{where}.source: folder not found: {folder} (the path is '
+                                "relative to the card's folder)")
+                continue
+            out.append(Library(source=folder,
+                               soname=soname if isinstance(soname, str) else None))
+    return tuple(out)
 
 
 def _boptest_spec(path: pathlib.Path, spec: dict,
@@ -717,8 +763,8 @@ def _time_origin_problem(value: str) -> str | None:
 
 
 def _catalogue(path: pathlib.Path, document: dict, fmi_type: Any, problems: list[str],
-               network: Any = None) -> tuple[_Catalogue | None, pathlib.Path | None,
-                                             str | None]:
+               network: Any = None, validate: bool = True
+               ) -> tuple[_Catalogue | None, pathlib.Path | None, str | None]:
     """Return the model's variables, its FMU (absolute) and the FMI interface used."""
     builtin, fmu_name = document.get('builtin'), document.get('fmu')
     own = 'network' in document
@@ -746,14 +792,17 @@ def _catalogue(path: pathlib.Path, document: dict, fmi_type: Any, problems: list
     else:
         return None, None, None
     try:
-        md = fmpy.read_model_description(str(fmu), validate=False)
+        md = _description(fmu, validate)
+    except ValueError as exc:  # not a zip, not readable, FMI 3.0, breaks the schema: labelled
+        problems.append(f'fmu: {" ".join(str(exc).split())}')
+        return None, None, None
     except Exception as exc:  # noqa: BLE001 - any unreadable FMU is a problem of the card
         problems.append(f'fmu: cannot read the model description of {fmu}: '
                         f'{" ".join(str(exc).split())}')
         return None, None, None
-    if md.fmiVersion != '2.0':
-        problems.append(f'fmu: {fmu.name} is an FMI {md.fmiVersion} FMU: FMI {md.fmiVersion} '
-                        'FMUs are not supported yet (FMI 2.0 only)')
+    if md.fmiVersion != '2.0':  # (an FMI 3.0 FMU is refused as one when it is read)
+        problems.append(f'fmu: {fmu.name} is an FMI {md.fmiVersion} FMU: only FMI 2.0 FMUs are '
+                        'supported')
         return None, None, None
     available = [name for name, kind in (('ModelExchange', md.modelExchange),
                                          ('CoSimulation', md.coSimulation)) if kind]
@@ -766,6 +815,18 @@ def _catalogue(path: pathlib.Path, document: dict, fmi_type: Any, problems: list
             return None, fmu, None
     label = f"{fmu.name} ({'Model Exchange' if interface == 'ModelExchange' else 'Co-Simulation'})"
     return _fmu_catalogue(label, md, interface), fmu, interface
+
+
+def _description(fmu: pathlib.Path, validate: bool) -> Any:
+    """
+    Return an FMU's modelDescription as every model of it reads it (one validation policy).
+
+    An FMU file is extracted into the cache and read as :class:`FmiModel` reads it
+    (validated once per file, then kept); an FMU folder is read in place.
+    """
+    if fmu.is_dir():
+        return read_fmu_description(fmu, fmu.name, validate)
+    return read_cached_description(extract_fmu(fmu), fmu.name, validate)
 
 
 def _check_variables(catalogue: _Catalogue, sections: dict[str, dict[str, dict]],
@@ -1024,7 +1085,10 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
                 states={n: v.variable for n, v in card.states.items()},
                 outputs={n: v.variable for n, v in card.outputs.items()},
                 parameters=card.parameters, tolerance=float(tol), fmi_type=card.interface,
-                instance_name=f'mshoot-{role}', fixed_inputs=fixed, **extra, **options)
+                instance_name=f'mshoot-{role}', fixed_inputs=fixed, validate=card.validate,
+                libraries=card.preload, **extra, **options)
+    if role == 'control':
+        finite_difference_tolerance(model, card)
     # What controllers and nodes read (registry.control_interface): the card's controls, and
     # its zone air temperatures (T, T_<zone>) as the states the comfort band bounds.
     model.control_names = tuple(card.control_names)
@@ -1037,6 +1101,77 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
 def _comfort_states(card: ModelCard) -> tuple[str, ...]:
     """Return the card's zone air temperatures (``T``, ``T_<zone>``): bounded by the band."""
     return tuple(n for n in card.state_names if n == 'T' or n.startswith('T_'))
+
+
+def finite_difference_tolerance(model: FmiModel, card: ModelCard) -> str | None:
+    """
+    Keep the finite differences of a control FMU without sensitivities accurate; say which.
+
+    A Model Exchange FMU without forward sensitivities (no directional derivatives, event
+    indicators, ...) gives the MPC finite differences of its integrated states, which are only
+    as good as the integrator: at the control default (1e-6) many solves fail. Its tolerance
+    is tightened to :data:`~mshoot_core.models.defaults.FINITE_DIFFERENCE_TOLERANCE` (logged)
+    unless the card sets one; a card's looser tolerance is kept with a warning.
+
+    Returns
+    -------
+    str or None
+        What was done (the message logged), or None for a model with sensitivities (or a
+        Co-Simulation FMU, whose tolerance is its own solver's).
+
+    """
+    if not getattr(model, 'is_model_exchange', False):
+        return None
+    reason = model._sensitivity_plan(())
+    if reason is None or model.tolerance <= FINITE_DIFFERENCE_TOLERANCE:
+        return None
+    if card.tolerance is not None:
+        message = (f'control model {card.path}: finite-difference sensitivities ({reason}) at '
+                   f"the card's integrator tolerance {model.tolerance:g}: the differences may "
+                   f'be too coarse for the solver (tolerance <= '
+                   f'{FINITE_DIFFERENCE_TOLERANCE:g} keeps them accurate)')
+        logger.warning('%s', message)
+        return message
+    message = (f'control model {card.path}: finite-difference sensitivities ({reason}): '
+               f'integrator tolerance {FINITE_DIFFERENCE_TOLERANCE:g} instead of '
+               f'{model.tolerance:g}, so that the differences stay accurate')
+    logger.info('%s', message)
+    model.tolerance = FINITE_DIFFERENCE_TOLERANCE
+    return message
+
+
+def check_binary(card: ModelCard) -> tuple[str, ...]:
+    """
+    Load the binary of a card's FMU once in a child process, as a run will load it.
+
+    With the card's ``preload`` libraries (a ``boptest`` card: its test case's ``shim/``);
+    cached per binary (:func:`mshoot_core.fmu_binary.check_binary`).
+
+    Returns
+    -------
+    tuple of str
+        The libraries preloaded for it (none for a Python model).
+
+    Raises
+    ------
+    CardError
+        One problem: the binary lacks a library (named, with how to provide it), is
+        damaged (it killed the child with a signal) or does not load.
+
+    """
+    try:
+        if card.boptest is not None:
+            from mshoot_core.boptest.testcase import load_shim
+            return load_shim(card.boptest['test_case_dir'])
+        if card.fmu is None:
+            return ()
+        folder = card.fmu if card.fmu.is_dir() else extract_fmu(card.fmu)
+        md = _description(card.fmu, card.validate)
+        interface = md.modelExchange if card.interface == 'ModelExchange' else md.coSimulation
+        return fmu_binary.check_binary(folder, interface.modelIdentifier, card.preload,
+                                       label=card.fmu.name)
+    except (ValueError, FileNotFoundError) as exc:
+        raise CardError(card.path, [f'fmu: {exc}']) from None
 
 
 def _claim_monotone(model: Model, card: ModelCard) -> Model:

@@ -71,9 +71,11 @@ from typing import Any, Mapping, Sequence, Union
 import fmpy
 from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, FMU2Model, FMU2Slave)
+from fmpy.model_description import ValidationError
 import numpy as np
 import pandas as pd
 
+from mshoot_core.fmu_binary import check_binary, Library
 from mshoot_core.fmu_cache import extract_fmu, find_fmu
 from mshoot_core.models.base import interval_start_times, Model
 from mshoot_core.models.fmi_drivers import (CsBatchDriver, MeBatchDriver, MeProblem,
@@ -88,8 +90,8 @@ from mshoot_core.models.r1c1 import R1C1Model
 
 __all__ = ['DESCRIPTION_PICKLE', 'FMI_TYPES', 'FmiModel', 'FmuValueError', 'MAX_SOLVER_STEPS',
            'ME_MAX_STEPS', 'R1C1_VARIABLES', 'r1c1_fmi_model', 'read_cached_description',
-           'read_fmu_description', 'SENSITIVITY_NOMINAL_FACTOR', 'VALIDATED_MARKER',
-           'VariableNames']
+           'read_fmu_description', 'SENSITIVITY_NOMINAL_FACTOR', 'summarise',
+           'VALIDATED_MARKER', 'VariableNames']
 
 logger = logging.getLogger(__name__)
 
@@ -99,6 +101,8 @@ FMI_TYPES = ('ModelExchange', 'CoSimulation')
 VariableNames = Union[Sequence[str], Mapping[str, str]]
 #: Longest list of valid names quoted in an error message.
 _MAX_LISTED = 60
+#: Problems of a long list (fmpy's schema validation) quoted in a one-line message.
+SHOWN_PROBLEMS = 3
 
 _FMU_LOG_LEVELS = {0: logging.DEBUG, 1: logging.WARNING, 2: logging.WARNING, 3: logging.ERROR,
                    4: logging.CRITICAL}
@@ -167,22 +171,23 @@ VALIDATED_MARKER = '.mshoot-validated'
 DESCRIPTION_PICKLE = '.mshoot-description-fmpy{fmpy}-py{python}.pickle'
 
 
-def read_cached_description(folder: pathlib.Path, label: str) -> Any:
+def read_cached_description(folder: pathlib.Path, label: str, validate: bool = True) -> Any:
     """
     :func:`read_fmu_description` of an FMU in the cache: validated once, then marked.
 
-    Validated unless the folder holds :data:`VALIDATED_MARKER`, which a validated read leaves
-    there (where the cache can be written), with the description read
+    Validated (when ``validate``) unless the folder holds :data:`VALIDATED_MARKER`, which a
+    validated read leaves there (where the cache can be written), with the description read
     (:data:`DESCRIPTION_PICKLE`): a marked folder's description is loaded from it, when it
-    is there and loads; else read from the XML again. The cache is trusted as for the
-    FMU's own binaries, which it holds and which are loaded and run.
+    is there and loads; else read from the XML again. Without ``validate`` (a card's
+    ``validate: false``) the pickle is used whether or not the folder is marked. The cache is
+    trusted as for the FMU's own binaries, which it holds and which are loaded and run.
     """
     folder = pathlib.Path(folder)
     marker = folder / VALIDATED_MARKER
     cached = folder / DESCRIPTION_PICKLE.format(
         fmpy=fmpy.__version__, python=f'{sys.version_info[0]}.{sys.version_info[1]}')
     validated = marker.is_file()
-    if validated:
+    if validated or not validate:
         try:
             with open(cached, 'rb') as stream:
                 return pickle.load(stream)
@@ -191,9 +196,9 @@ def read_cached_description(folder: pathlib.Path, label: str) -> Any:
         except Exception as error:  # noqa: BLE001 - a damaged pickle: read the XML again
             logger.debug('cached modelDescription of %s not loaded (%s: %s)', label,
                          type(error).__name__, error)
-    md = read_fmu_description(folder, label, validate=not validated)
+    md = read_fmu_description(folder, label, validate=validate and not validated)
     try:
-        if not validated:
+        if validate and not validated:
             marker.touch()
         _write_whole(cached, pickle.dumps(md, protocol=pickle.HIGHEST_PROTOCOL))
     except (OSError, pickle.PicklingError, TypeError, AttributeError) as error:
@@ -219,6 +224,20 @@ def _write_whole(path: pathlib.Path, payload: bytes) -> None:
         raise
 
 
+def summarise(problems: Sequence[str], shown: int = SHOWN_PROBLEMS) -> str:
+    """
+    Return a long list of problems as one short line: the count and the first ``shown``.
+
+    ``'3 problems: a; b; c'``, or ``'151 problems, the first 3: a; b; c (and 148 more)'``.
+    """
+    items = [' '.join(str(p).split()) for p in problems]
+    count = f'{len(items)} problem{"s" if len(items) != 1 else ""}'
+    if len(items) <= shown:
+        return f'{count}: ' + '; '.join(items)
+    return (f'{count}, the first {shown}: ' + '; '.join(items[:shown])
+            + f' (and {len(items) - shown} more)')
+
+
 def read_fmu_description(folder: str | pathlib.Path, label: str, validate: bool = True) -> Any:
     """
     Read the modelDescription of an extracted FMU; refuse what FmiModel cannot run.
@@ -239,16 +258,26 @@ def read_fmu_description(folder: str | pathlib.Path, label: str, validate: bool 
         FMI 3.0 FMU (not supported yet).
 
     """
+    invalid = None
     try:
-        md = fmpy.read_model_description(str(folder), validate=validate)
+        try:
+            md = fmpy.read_model_description(str(folder), validate=validate)
+        except ValidationError as error:  # an FMI 3.0 FMU is refused as one, valid or not
+            invalid = error
+            md = fmpy.read_model_description(str(folder), validate=False)
     except Exception as error:  # noqa: BLE001 - fmpy raises plain Exceptions, lxml, KeyError
         raise ValueError(f'{label} is not a readable FMU: its modelDescription.xml '
-                         f'could not be read ({type(error).__name__}: {error})') from error
+                         f'could not be read ({type(error).__name__}: '
+                         f'{" ".join(str(error).split())})') from error
     version = str(md.fmiVersion)
     if version.startswith('3'):
         raise ValueError(f'{label}: FMI 3.0 FMUs are not supported yet (fmiVersion '
                          f'{version!r}); export the model as an FMI 2.0 FMU (Model Exchange or '
                          'Co-Simulation)')
+    if invalid is not None:
+        raise ValueError(f'{label}: its modelDescription.xml breaks the FMI schema '
+                         f"({summarise(invalid.problems)}); a card relaxes fmpy's schema "
+                         f'validation with `validate: false`') from invalid
     return md
 
 
@@ -293,6 +322,12 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         Model inputs in which the FMU is a monotone system
         (:attr:`~mshoot_core.models.base.Model.monotone_inputs`): a claim about
         its physics that only its author can make (default: none).
+    validate : bool
+        Validate the modelDescription against the FMI schema (fmpy's ``validate``; a card's
+        ``validate: false`` relaxes it).
+    libraries : sequence of Library
+        Libraries to preload before the FMU's binary (a card's ``preload``); the binary is
+        loaded in a child process first (:func:`mshoot_core.fmu_binary.check_binary`).
 
     Raises
     ------
@@ -304,7 +339,8 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
     ValueError
         For unknown variable names (the message lists the valid ones), an
         FMI type the FMU lacks, a bad tolerance or time origin, a file that is
-        not an FMU, an FMI 3.0 FMU, or monotone inputs that are not inputs.
+        not an FMU, an FMI 3.0 FMU, or monotone inputs that are not inputs; a binary that
+        does not load (:class:`~mshoot_core.fmu_binary.FmuBinaryError`).
 
     Notes
     -----
@@ -324,7 +360,8 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
                  parameters: Mapping[str, Any] | None = None, tolerance: float = 1e-8,
                  fmi_type: str | None = None, instance_name: str = 'mshoot',
                  fixed_inputs: Mapping[str, Any] | None = None,
-                 time_origin_s: float = 0.0, monotone_inputs: Sequence[str] = ()) -> None:
+                 time_origin_s: float = 0.0, monotone_inputs: Sequence[str] = (),
+                 validate: bool = True, libraries: Sequence[Library] = ()) -> None:
         self._fmu: FMU2Model | FMU2Slave | None = None
         self._unzip_dir: pathlib.Path | None = None
         self._snapshot: Any = None
@@ -355,12 +392,13 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
             described: list[Any] = []  # read while checking a new extraction: not again
             if path.is_dir():
                 self._unzip_dir = path
-                described.append(read_fmu_description(path, path.name))
+                described.append(read_fmu_description(path, path.name, validate))
             else:
                 self._unzip_dir = extract_fmu(path, check=lambda folder: described.append(
-                    read_cached_description(folder, path.name)))
-            self.model_description = (described[0] if described
-                                      else read_cached_description(self._unzip_dir, path.name))
+                    read_cached_description(folder, path.name, validate)))
+            self.model_description = (described[0] if described else read_cached_description(
+                self._unzip_dir, path.name, validate))
+            self.libraries = tuple(libraries)
             self._configure(inputs, states, outputs, dict(parameters or {}), fmi_type,
                             dict(fixed_inputs or {}))
             monotone = tuple(monotone_inputs)
@@ -487,6 +525,9 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
     def _instantiate(self, instance_name: str) -> None:
         md = self.model_description
         cls = FMU2Model if self.is_model_exchange else FMU2Slave
+        # a damaged binary or a missing library: a clear error, not a signal in this process
+        check_binary(self._unzip_dir, self._interface.modelIdentifier, self.libraries,
+                     label=self.fmu_path.name)
         try:
             fmu = cls(guid=md.guid, unzipDirectory=str(self._unzip_dir),
                       modelIdentifier=self._interface.modelIdentifier,

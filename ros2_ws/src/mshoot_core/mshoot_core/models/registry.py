@@ -45,14 +45,12 @@ from typing import Callable
 import numpy as np
 
 from mshoot_core.models.base import Model
+from mshoot_core.models.defaults import (CONTROL_TOLERANCE, EMULATOR_TOLERANCE,  # noqa: F401
+                                         is_card_path)
 from mshoot_core.settings import fields_of, setting, SettingField, SettingsGroup
 
 logger = logging.getLogger(__name__)
 
-#: Relative tolerance of an FMU integrator for a control model [-].
-CONTROL_TOLERANCE = 1e-6
-#: Relative tolerance of an FMU integrator for an emulated building [-].
-EMULATOR_TOLERANCE = 1e-10
 #: The built-in single-zone models.
 BUILTIN = ('python', 'fmu', 'fmu-cs', 'r2c2')
 #: The built-in multi-zone models: name -> number of independent R1C1 zones.
@@ -89,11 +87,6 @@ def register(name: str, factory: Callable[[float], Model], description: str) -> 
 def model_names() -> tuple[str, ...]:
     """Every model name understood (besides a path to an .fmu file or a model card)."""
     return BUILTIN + tuple(MULTIZONE) + tuple(sorted(_REGISTERED))
-
-
-def is_card_path(name: str) -> bool:
-    """Whether ``name`` is a path to a model card (ends in .yaml or .yml)."""
-    return str(name).lower().endswith(('.yaml', '.yml'))
 
 
 @functools.lru_cache(maxsize=16)
