@@ -28,7 +28,10 @@ exclude_patterns = ['_build', '_ext', 'README.md']
 myst_enable_extensions = ['colon_fence', 'deflist']
 myst_heading_anchors = 3
 # A page may skip a heading level (# then ###): Markdown allows it; the site need not warn.
-suppress_warnings = ['myst.header']
+# A docstring's type field names a type by its short name ("str or path"); where two classes
+# have an attribute of that name (Library.path, ModelCard.path) the link is ambiguous, and the
+# site leaves such a type unlinked rather than fail: ref.python is only that ambiguity.
+suppress_warnings = ['myst.header', 'ref.python']
 
 # autodoc + napoleon: the numpydoc docstrings of mshoot_core.
 autodoc_default_options = {'members': True, 'show-inheritance': True}
