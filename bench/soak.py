@@ -22,9 +22,15 @@ against the steps expected, their sources and fallback reasons, what the
 building applied, malformed messages injected against rejections counted,
 non-finite values seen on the setpoint and status topics, the process RSS over
 the run (growth and slope per simulated day), and messages lost between the
-publishers and the bag (after reading it back). Exit code 1 when a step went
+publishers and the bag (after reading it back). Every rejected input is logged
+(``<out>/rejections.json``: node, stream, kind, stamp, clock, injected or not);
+legitimate ones are counted apart only by an exact rule: a setpoint published
+after the building's lockstep timeout (late), and a state or forecast of a step
+already over that reaches a restarted MPC before it took one of its stream
+(stale, see :meth:`RejectionWatch.after_restart`). Exit code 1 when a step went
 without a setpoint, a non-finite value was published, a rejection was not
-counted or a message was lost from the bag.
+counted, a legitimate input was rejected outside those rules or a message was
+lost from the bag.
 """
 from __future__ import annotations
 
