@@ -115,6 +115,10 @@ class RejectionWatch:
 
     def __init__(self) -> None:
         self.rows: list[dict] = []
+        #: (node, stream) -> injected messages rejected.
+        self.injected: collections.Counter[tuple[str, str]] = collections.Counter()
+        #: Injected messages a node took (must stay empty): node, stream, stamp.
+        self.injected_taken: list[dict] = []
 
     def watch(self, node: Any, name: str, step: int) -> None:
         """Log the rejections of ``node`` (``name``, started before control step ``step``)."""
@@ -133,12 +137,18 @@ class RejectionWatch:
                 kinds = [k for (s, k), n in counts.items() if n > before.get((s, k), 0)]
                 clock_ns = (getattr(node, 'stamp_ns', None)  # the emulator's: its step
                             or node.get_clock().now().nanoseconds)
+                injected = msg.header.frame_id == MALFORMED
+                if injected and not kinds:
+                    self.injected_taken.append({'node': name, 'stream': _stream,
+                                                'stamp_s': stamp_to_ns(msg.header.stamp)
+                                                / NS_PER_S})
+                self.injected[(name, _stream)] += injected and bool(kinds)
                 for kind in kinds:
                     self.rows.append({
                         'node': name, 'started_step': step, 'stream': _stream, 'kind': kind,
                         'stamp_s': stamp_to_ns(msg.header.stamp) / NS_PER_S,
                         'clock_s': clock_ns / NS_PER_S,
-                        'injected': msg.header.frame_id == MALFORMED,
+                        'injected': injected,
                         'received_before': received[_stream], 'taken_before': taken[_stream]})
                 received[_stream] += 1
                 taken[_stream] += not kinds
@@ -260,16 +270,18 @@ class Soak:
     def malformed_burst(self) -> None:
         """1-5 malformed states, forecasts and setpoints; wait until all are counted."""
         mpc, emulator, rng = self.loop.mpc, self.loop.emulator, self.rng
-        want_mpc = {'state': mpc.rejections.total('state'),
-                    'forecast': mpc.rejections.total('forecast')}
-        want_emulator = emulator.rejections.total()
+        # Counted by the watch, injected ones only: a legitimate rejection in the meantime
+        # (e.g. a restarted MPC's first forecast, stale) must not stand in for one of these.
+        counted = self.rejections.injected
+        want = {key: counted[key] for key in (('mpc', 'state'), ('mpc', 'forecast'),
+                                              ('emulator', 'setpoint'))}
         now = mpc.get_clock().now().nanoseconds
         floor = (now // STEP_NS) * STEP_NS
         latest = mpc.controller._state_gate.latest_ns or floor  # noqa: SLF001 - the soak knows it
         for _ in range(int(rng.integers(1, 6))):
             defect = str(rng.choice(STATE_DEFECTS))
             self.chaos_state.publish(malformed_zone_state(defect, now, latest, STEP_NS, rng))
-            want_mpc['state'] += 1
+            want[('mpc', 'state')] += 1
             self.injected['state'] += 1
         # A latched publisher of its own, destroyed after use: a restarted MPC must not get
         # these again (they would be counted twice).
@@ -282,18 +294,17 @@ class Soak:
         for _ in range(int(rng.integers(1, 4))):
             defect = str(rng.choice(FORECAST_DEFECTS))
             forecasts.publish(malformed_forecast(defect, now, latest_forecast, STEP_NS, rng))
-            want_mpc['forecast'] += 1
+            want[('mpc', 'forecast')] += 1
             self.injected['forecast'] += 1
         step = emulator.stamp_ns
         last = emulator._setpoint_gate.latest_ns or step - STEP_NS  # noqa: SLF001
         for _ in range(int(rng.integers(1, 6))):
             defect = str(rng.choice(SETPOINT_DEFECTS))
             self.chaos_setpoint.publish(malformed_setpoint(defect, step, last, STEP_NS, rng))
-            want_emulator += 1
+            want[('emulator', 'setpoint')] += 1
             self.injected['setpoint'] += 1
-        self.loop.spin_until(
-            lambda: all(mpc.rejections.total(s) >= n for s, n in want_mpc.items())
-            and emulator.rejections.total() >= want_emulator, 10.0, 'the burst to be counted')
+        self.loop.spin_until(lambda: all(counted[key] >= n for key, n in want.items()), 10.0,
+                             'the burst to be counted')
         self.chaos.destroy_publisher(forecasts)
 
     # -- the run --------------------------------------------------------------------------
@@ -397,6 +408,7 @@ class Soak:
                                         counts.items()}
                                  for node, counts in self.rejected_kinds.items()},
             'rejected_after_restart': after_restart, 'rejected_legitimate': legitimate,
+            'injected_taken': self.rejections.injected_taken,
             'non_finite_published': non_finite,
             'rss_mb': {'start': mb[0], 'day_2': dict(self.rss).get(2, float('nan')),
                        'end': mb[-1], 'growth_after_day_2': mb[-1] - dict(self.rss).get(
@@ -414,7 +426,7 @@ class Soak:
         summary['ok'] = bool(
             not failed and summary['steps_applied'] == self.hours and late >= 0
             and non_finite == 0
-            and not unexplained
+            and not unexplained and not self.rejections.injected_taken
             and rejected['state'] == self.injected.get('state', 0) + after_restart['state']
             and rejected['forecast'] == (self.injected.get('forecast', 0)
                                          + after_restart['forecast'])
@@ -447,6 +459,7 @@ def print_summary(s: dict) -> None:
         log('    legitimate %s rejected by the %s (started at step %d): %s, stamp %.0f s, '
             'clock %.0f s, %d taken before', row['stream'], row['node'], row['started_step'],
             row['kind'], row['stamp_s'], row['clock_s'], row['taken_before'])
+    log('  injected messages taken by a node (must be none): %s', s['injected_taken'] or 'none')
     log('  non-finite values published: %d', s['non_finite_published'])
     r = s['rss_mb']
     log('  RSS %.1f MB at start, %.1f MB after day 2, %.1f MB at the end: %+.1f MB after '
