@@ -164,10 +164,11 @@ class RejectionWatch:
         Whether a rejection is that of a legitimate input of a step already over at a restart.
 
         A restarted MPC has no newest stamp yet, so the repeat rule (a stamp equal to the
-        newest accepted one is taken) does not cover what reaches it first: the emulator's
-        state of the step the building waited on while the MPC was down (queued behind the
-        /clock of the next step, taken after it) or the forecaster's latched forecast of a
-        step already over (re-delivered to a new reader; the forecaster may be paused).
+        newest accepted one is taken) does not cover what reaches it first: the forecaster's
+        latched forecast of a step already over (re-delivered to a new reader while the
+        forecaster is paused or has not yet published for the step), or the emulator's state
+        of the step the building gave up on (lockstep timeout) when the new MPC takes it
+        after the next step's /clock.
         Stale by ``max_state_age_s`` / ``max_forecast_age_s``, rightly rejected; the rule:
         not injected, kind 'stale', an MPC started by a restart, before that MPC took any
         message of the stream.
