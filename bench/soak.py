@@ -22,9 +22,15 @@ against the steps expected, their sources and fallback reasons, what the
 building applied, malformed messages injected against rejections counted,
 non-finite values seen on the setpoint and status topics, the process RSS over
 the run (growth and slope per simulated day), and messages lost between the
-publishers and the bag (after reading it back). Exit code 1 when a step went
+publishers and the bag (after reading it back). Every rejected input is logged
+(``<out>/rejections.json``: node, stream, kind, stamp, clock, injected or not);
+legitimate ones are counted apart only by an exact rule: a setpoint published
+after the building's lockstep timeout (late), and a state or forecast of a step
+already over that reaches a restarted MPC before it took one of its stream
+(stale, see :meth:`RejectionWatch.after_restart`). Exit code 1 when a step went
 without a setpoint, a non-finite value was published, a rejection was not
-counted or a message was lost from the bag.
+counted, a legitimate input was rejected outside those rules or a message was
+lost from the bag.
 """
 from __future__ import annotations
 
@@ -95,6 +101,82 @@ class PublishCounter:
                 publisher.publish = counted
 
 
+class RejectionWatch:
+    """
+    Logs every input a node rejects: stream, kind, stamp, injected or legitimate.
+
+    Wraps the callbacks of the node's subscriptions to the input topics; a message
+    counted as a rejection during its callback is one row. A message is injected when
+    the chaos node marked it (``frame_id`` :data:`MALFORMED`), legitimate otherwise.
+    """
+
+    STREAMS = {contract.ZONE_STATE: 'state', contract.FORECAST: 'forecast',
+               contract.SETPOINT: 'setpoint'}
+
+    def __init__(self) -> None:
+        self.rows: list[dict] = []
+        #: (node, stream) -> injected messages rejected.
+        self.injected: collections.Counter[tuple[str, str]] = collections.Counter()
+        #: Injected messages a node took (must stay empty): node, stream, stamp.
+        self.injected_taken: list[dict] = []
+
+    def watch(self, node: Any, name: str, step: int) -> None:
+        """Log the rejections of ``node`` (``name``, started before control step ``step``)."""
+        counts = node.rejections.counter.counts
+        received: collections.Counter[str] = collections.Counter()
+        taken: collections.Counter[str] = collections.Counter()
+        for subscription in node.subscriptions:
+            stream = self.STREAMS.get(subscription.topic_name)
+            if stream is None:
+                continue
+
+            def logged(msg: Any, _callback: Any = subscription.callback,
+                       _stream: str = stream) -> None:
+                before = dict(counts)
+                _callback(msg)
+                kinds = [k for (s, k), n in counts.items() if n > before.get((s, k), 0)]
+                clock_ns = (getattr(node, 'stamp_ns', None)  # the emulator's: its step
+                            or node.get_clock().now().nanoseconds)
+                injected = msg.header.frame_id == MALFORMED
+                if injected and not kinds:
+                    self.injected_taken.append({'node': name, 'stream': _stream,
+                                                'stamp_s': stamp_to_ns(msg.header.stamp)
+                                                / NS_PER_S})
+                self.injected[(name, _stream)] += injected and bool(kinds)
+                for kind in kinds:
+                    self.rows.append({
+                        'node': name, 'started_step': step, 'stream': _stream, 'kind': kind,
+                        'stamp_s': stamp_to_ns(msg.header.stamp) / NS_PER_S,
+                        'clock_s': clock_ns / NS_PER_S,
+                        'injected': injected,
+                        'received_before': received[_stream], 'taken_before': taken[_stream]})
+                received[_stream] += 1
+                taken[_stream] += not kinds
+            subscription.callback = logged
+
+    def legitimate(self) -> list[dict]:
+        """Return the rejected messages that were not injected."""
+        return [r for r in self.rows if not r['injected']]
+
+    @staticmethod
+    def after_restart(row: dict) -> bool:
+        """
+        Whether a rejection is that of a legitimate input of a step already over at a restart.
+
+        A restarted MPC has no newest stamp yet, so the repeat rule (a stamp equal to the
+        newest accepted one is taken) does not cover what reaches it first: the forecaster's
+        latched forecast of a step already over (re-delivered to a new reader while the
+        forecaster is paused or has not yet published for the step), or the emulator's state
+        of the step the building gave up on (lockstep timeout) when the new MPC takes it
+        after the next step's /clock.
+        Stale by ``max_state_age_s`` / ``max_forecast_age_s``, rightly rejected; the rule:
+        not injected, kind 'stale', an MPC started by a restart, before that MPC took any
+        message of the stream.
+        """
+        return (not row['injected'] and row['node'] == 'mpc' and row['started_step'] > 0
+                and row['kind'] == 'stale' and row['taken_before'] == 0)
+
+
 class Soak:
     """The run: a closed loop, its fault injector and the bookkeeping."""
 
@@ -134,6 +216,9 @@ class Soak:
         self.published = PublishCounter()
         for node in (self.loop.emulator, self.loop.forecaster, self.loop.mpc, self.chaos):
             self.published.watch(node)
+        self.rejections = RejectionWatch()
+        self.rejections.watch(self.loop.emulator, 'emulator', 0)
+        self.rejections.watch(self.loop.mpc, 'mpc', 0)
         self.faults: collections.Counter[str] = collections.Counter()
         self.injected: collections.Counter[str] = collections.Counter()
         self.resume_forecasts_at = -1
@@ -181,20 +266,23 @@ class Soak:
         mpc = self.loop.start_mpc()
         mpc.mpc.set_solver(self.solver)
         self.published.watch(mpc)
+        self.rejections.watch(mpc, 'mpc', self.loop.steps_done)
 
     def malformed_burst(self) -> None:
         """1-5 malformed states, forecasts and setpoints; wait until all are counted."""
         mpc, emulator, rng = self.loop.mpc, self.loop.emulator, self.rng
-        want_mpc = {'state': mpc.rejections.total('state'),
-                    'forecast': mpc.rejections.total('forecast')}
-        want_emulator = emulator.rejections.total()
+        # Counted by the watch, injected ones only: a legitimate rejection in the meantime
+        # (e.g. a restarted MPC's first forecast, stale) must not stand in for one of these.
+        counted = self.rejections.injected
+        want = {key: counted[key] for key in (('mpc', 'state'), ('mpc', 'forecast'),
+                                              ('emulator', 'setpoint'))}
         now = mpc.get_clock().now().nanoseconds
         floor = (now // STEP_NS) * STEP_NS
         latest = mpc.controller._state_gate.latest_ns or floor  # noqa: SLF001 - the soak knows it
         for _ in range(int(rng.integers(1, 6))):
             defect = str(rng.choice(STATE_DEFECTS))
             self.chaos_state.publish(malformed_zone_state(defect, now, latest, STEP_NS, rng))
-            want_mpc['state'] += 1
+            want[('mpc', 'state')] += 1
             self.injected['state'] += 1
         # A latched publisher of its own, destroyed after use: a restarted MPC must not get
         # these again (they would be counted twice).
@@ -207,18 +295,17 @@ class Soak:
         for _ in range(int(rng.integers(1, 4))):
             defect = str(rng.choice(FORECAST_DEFECTS))
             forecasts.publish(malformed_forecast(defect, now, latest_forecast, STEP_NS, rng))
-            want_mpc['forecast'] += 1
+            want[('mpc', 'forecast')] += 1
             self.injected['forecast'] += 1
         step = emulator.stamp_ns
         last = emulator._setpoint_gate.latest_ns or step - STEP_NS  # noqa: SLF001
         for _ in range(int(rng.integers(1, 6))):
             defect = str(rng.choice(SETPOINT_DEFECTS))
             self.chaos_setpoint.publish(malformed_setpoint(defect, step, last, STEP_NS, rng))
-            want_emulator += 1
+            want[('emulator', 'setpoint')] += 1
             self.injected['setpoint'] += 1
-        self.loop.spin_until(
-            lambda: all(mpc.rejections.total(s) >= n for s, n in want_mpc.items())
-            and emulator.rejections.total() >= want_emulator, 10.0, 'the burst to be counted')
+        self.loop.spin_until(lambda: all(counted[key] >= n for key, n in want.items()), 10.0,
+                             'the burst to be counted')
         self.chaos.destroy_publisher(forecasts)
 
     # -- the run --------------------------------------------------------------------------
@@ -266,6 +353,8 @@ class Soak:
     def report(self, wall_s: float, recorder_counts: dict, rejected: dict,
                applied: collections.Counter, records_mb: float, failed: str) -> dict:
         bag = read_bag(self.out / 'bag')
+        (self.out / 'rejections.json').write_text(json.dumps(self.rejections.rows, indent=1)
+                                                  + '\n')
         setpoints, statuses = [], []
         for message in bag.messages:
             if message.topic in (contract.SETPOINT, contract.STATUS):
@@ -291,6 +380,11 @@ class Soak:
         published = dict(self.published.counts)
         lost = {topic: published.get(topic, 0) - bag.counts.get(topic, 0)
                 for topic in contract.TOPIC_TYPES}
+        legitimate = self.rejections.legitimate()
+        after_restart = {stream: sum(r['stream'] == stream and self.rejections.after_restart(r)
+                                     for r in legitimate) for stream in ('state', 'forecast')}
+        unexplained = [r for r in legitimate if r['node'] == 'mpc'
+                       and not self.rejections.after_restart(r)]
         days = [d for d, _ in self.rss]
         mb = [m for _, m in self.rss]
         tail = [(d, m) for d, m in self.rss if d >= 2]
@@ -314,6 +408,8 @@ class Soak:
             'rejected_by_kind': {node: {f'{stream}/{kind}': n for (stream, kind), n in
                                         counts.items()}
                                  for node, counts in self.rejected_kinds.items()},
+            'rejected_after_restart': after_restart, 'rejected_legitimate': legitimate,
+            'injected_taken': self.rejections.injected_taken,
             'non_finite_published': non_finite,
             'rss_mb': {'start': mb[0], 'day_2': dict(self.rss).get(2, float('nan')),
                        'end': mb[-1], 'growth_after_day_2': mb[-1] - dict(self.rss).get(
@@ -331,8 +427,10 @@ class Soak:
         summary['ok'] = bool(
             not failed and summary['steps_applied'] == self.hours and late >= 0
             and non_finite == 0
-            and rejected['state'] == self.injected.get('state', 0)
-            and rejected['forecast'] == self.injected.get('forecast', 0)
+            and not unexplained and not self.rejections.injected_taken
+            and rejected['state'] == self.injected.get('state', 0) + after_restart['state']
+            and rejected['forecast'] == (self.injected.get('forecast', 0)
+                                         + after_restart['forecast'])
             and rejected['setpoint'] == self.injected.get('setpoint', 0) + late
             and not any(lost.values()))
         return summary
@@ -356,6 +454,13 @@ def print_summary(s: dict) -> None:
         s['faults_injected'], s['solver_faults_taken'], s['model_faults_taken'])
     log('  malformed messages injected %s, rejected and counted %s (setpoints: plus the %d '
         'late ones)', s['malformed_injected'], s['malformed_rejected'], s['setpoints_late'])
+    log('  state and forecast rejected after an MPC restart (legitimate, of a step already '
+        'over: stale) %s', s['rejected_after_restart'])
+    for row in s['rejected_legitimate']:
+        log('    legitimate %s rejected by the %s (started at step %d): %s, stamp %.0f s, '
+            'clock %.0f s, %d taken before', row['stream'], row['node'], row['started_step'],
+            row['kind'], row['stamp_s'], row['clock_s'], row['taken_before'])
+    log('  injected messages taken by a node (must be none): %s', s['injected_taken'] or 'none')
     log('  non-finite values published: %d', s['non_finite_published'])
     r = s['rss_mb']
     log('  RSS %.1f MB at start, %.1f MB after day 2, %.1f MB at the end: %+.1f MB after '
