@@ -208,8 +208,14 @@ class _Incidence:
     """
     Sums of K terms into ``size`` bins per row: ``values (B, K) -> (B, size)``.
 
-    A dense matrix product for small networks, a sparse one for large ones.
+    A dense matrix product for small networks; for large ones a sum of a few gathers where
+    every bin receives few terms (independent zones: three or so each), else a sparse
+    product. The gathers add each bin's terms in the sparse product's order (by term, from
+    zero), so both give the same values.
     """
+
+    #: Most terms into one bin summed by gathers (one gather per term of the fullest bin).
+    GATHERS = 8
 
     def __init__(self, index: tuple[Sequence[int], Sequence[int]], weights: Sequence[float],
                  terms: int, size: int) -> None:
@@ -217,16 +223,35 @@ class _Incidence:
         values = np.asarray(weights, dtype=float)
         self.size = size
         self.empty = terms == 0
+        self.gathers: list[tuple[np.ndarray, np.ndarray]] = []
         if terms * size <= 4096:
             self.matrix = np.zeros((terms, size))
             np.add.at(self.matrix, (rows, cols), values)
-        else:  # (scipy.sparse only where a network is large)
-            import scipy.sparse
-            self.matrix = scipy.sparse.csr_matrix((values, (rows, cols)), shape=(terms, size))
+            return
+        import scipy.sparse  # (only where a network is large)
+        self.matrix = scipy.sparse.csr_matrix((values, (rows, cols)), shape=(terms, size))
+        by_bin = self.matrix.tocsc()  # duplicates summed, each bin's terms in term order
+        by_bin.sort_indices()
+        counts = np.diff(by_bin.indptr)
+        if self.empty or counts.max() > self.GATHERS:
+            return
+        for k in range(counts.max()):  # the k-th term of every bin, weight 0 where none
+            has = counts > k
+            term = np.zeros(size, dtype=int)
+            weight = np.zeros(size)
+            term[has] = by_bin.indices[by_bin.indptr[:-1][has] + k]
+            weight[has] = by_bin.data[by_bin.indptr[:-1][has] + k]
+            self.gathers.append((term, weight))
 
     def __call__(self, values: np.ndarray) -> np.ndarray:
         if self.empty:
             return np.zeros((values.shape[0], self.size))
+        if self.gathers:
+            term, weight = self.gathers[0]
+            out = values[:, term] * weight
+            for term, weight in self.gathers[1:]:
+                out += values[:, term] * weight
+            return out
         return np.asarray(values @ self.matrix)
 
 
