@@ -140,6 +140,23 @@ def test_closed_form_batch_rewrites_its_entries_and_matches_a_fresh_evaluation(b
                 got.dx_dx0[0, 0, 0] = 1.0
 
 
+def test_a_network_subclass_with_its_own_interval_jacobians_gets_the_batch_that_calls_it():
+    # the batch gives what interval_jacobians gives, also where a subclass changes it (a
+    # model converting units, a test's slow model): no closed-form batch around it
+    class Shifted(NetworkModel):
+
+        def interval_jacobians(self, x_start, u, dt_s, wrt_inputs, t_start_s=None):
+            jac = super().interval_jacobians(x_start, u, dt_s, wrt_inputs)
+            return dataclasses.replace(jac, x_end=jac.x_end + 1.0)
+
+    model = Shifted(INDEPENDENT_NODES)
+    batch = model.interval_batch(2, 3600.0, [4, 6])
+    batch.x_start[:] = 293.0
+    batch.u[:] = 100.0
+    x_end, _ = model.simulate_intervals(batch.x_start, batch.u, 3600.0)
+    np.testing.assert_array_equal(batch.jacobians().x_end, x_end + 1.0)
+
+
 def test_multizone_batch_equals_simulate_and_single_zone_equals_r1c1():
     model = MultiZoneModel(3)
     s = synthetic_scenario(hours=5)

@@ -722,7 +722,7 @@ class NetworkModel(Model):
         dt = float(dt_s)
         wrt = self._input_columns(wrt_inputs)
         if not self.coupled:  # the closed form: a fresh batch, evaluated once
-            batch = self.interval_batch(x_start.shape[0], dt, wrt)
+            batch = _ClosedFormBatch(self, x_start.shape[0], dt, wrt)
             batch.x_start[:], batch.u[:] = x_start, u
             return batch.jacobians()
         batch, n = x_start.shape
@@ -754,9 +754,10 @@ class NetworkModel(Model):
         Return a batch of ``batch`` intervals (``t_start_s`` ignored: time-invariant).
 
         Where no conductance joins two nodes, a :class:`_ClosedFormBatch`: its derivative
-        arrays allocated once, only their nonzero entries rewritten at each evaluation.
+        arrays allocated once, only their nonzero entries rewritten at each evaluation. A
+        subclass with its own :meth:`interval_jacobians` gets the batch that calls it.
         """
-        if self.coupled:
+        if self.coupled or type(self).interval_jacobians is not NetworkModel.interval_jacobians:
             return IntervalBatch(self, batch, dt_s, wrt_inputs)
         return _ClosedFormBatch(self, batch, dt_s, self._input_columns(wrt_inputs))
 
