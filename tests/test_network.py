@@ -9,8 +9,8 @@ import math
 
 from mshoot_core.models import card as cards
 from mshoot_core.models.multizone import multizone_network, MultiZoneModel
-from mshoot_core.models.network import (card_network, NetworkError, NetworkModel,
-                                        parse_network)
+from mshoot_core.models.network import (_Incidence, card_network, NetworkError,
+                                        NetworkModel, parse_network)
 from mshoot_core.models.r1c1 import R1C1Model, R1C1Parameters
 from mshoot_core.models.r2c2 import R2C2Model, R2C2Parameters
 from mshoot_core.models.registry import build_model
@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import scipy.linalg
+import scipy.sparse
 import yaml
 
 HOUR = 3600.0
@@ -357,3 +358,22 @@ def test_the_heat_pump_house_is_a_network():
     for name in ('x_end', 'y_end', 'dx_dx0', 'dx_du', 'dy_dx0', 'dy_du'):
         np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=1e-12,
                                    atol=1e-12 * np.abs(getattr(a, name)).max(), err_msg=name)
+
+
+def test_large_incidences_sum_by_gathers_as_the_sparse_product_does():
+    # a large network's sums into nodes: gathers where every node receives few terms, with
+    # the sparse product's values to the last bit (the same additions in the same order)
+    rng = np.random.default_rng(3)
+    terms, size = 700, 200
+    bins = rng.permutation(np.concatenate([np.arange(size)] * 3
+                                          + [rng.integers(0, size, terms - 3 * size)]))
+    weights = rng.uniform(-2.0, 2.0, terms)
+    incidence = _Incidence((np.arange(terms), bins), weights, terms, size)
+    assert 1 < len(incidence.gathers) <= _Incidence.GATHERS
+    values = rng.uniform(-1e3, 1e3, (6, terms))
+    product = values @ scipy.sparse.csr_matrix((weights, (np.arange(terms), bins)),
+                                               shape=(terms, size))
+    np.testing.assert_array_equal(incidence(values), product)
+    crowded = _Incidence((np.arange(terms), np.zeros(terms, int)), weights, terms, size)
+    assert not crowded.gathers  # one node of 700 terms: the sparse product
+    np.testing.assert_allclose(crowded(values)[:, 0], values @ weights, rtol=1e-12)

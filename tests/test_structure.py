@@ -8,6 +8,7 @@ from mshoot_core.models import R1C1Model
 from mshoot_core.models.base import Model
 from mshoot_core.models.fmi import r1c1_fmi_model
 from mshoot_core.models.multizone import multizone_mpc_options, MultiZoneModel
+from mshoot_core.models.network import NetworkModel
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import forecast_window, reference_scenario, synthetic_scenario
 from mshoot_core.sensitivities import column_groups, finite_difference_jacobians
@@ -77,19 +78,48 @@ def test_grouped_finite_differences_match_analytic_multizone():
     assert spent_dense == batch * 41  # base + 20 states + 20 controls
 
 
-def test_multizone_interval_batch_rewrites_its_diagonals_and_matches_the_model():
-    # the optimiser's batch keeps its derivative arrays across calls: every call must give
-    # what a fresh interval_jacobians gives (no stale entry from the call before), on a
-    # subset of the heat rates in another order too, and its arrays must not be writable
-    model = MultiZoneModel(6, seed=4)
+# independent nodes beyond the zones: a gain into two nodes, a heat rate with two gains, a
+# node without conductance, an output mixing states and one with an input term
+INDEPENDENT_NODES = {
+    'inputs': {'solrad': 'W/m2', 'Tout': 'degC', 'occ': '1', 'dpos': '%', 'q_0': 'W',
+               'q_1': 'W', 'q_2': 'W'},
+    'parameters': {'C': 2e6},
+    'nodes': {'T_0': {'capacity': 'C'}, 'T_1': {'capacity': '2 * C'},
+              'T_2': {'capacity': 'C'}},
+    'boundaries': {'outdoor': 'Tout + 273.15', 'supply': 'max(Tout, 16) + 273.15'},
+    'conductances': [{'between': ['T_0', 'outdoor'], 'value': 80},
+                     {'between': ['T_1', 'outdoor'], 'value': 40},
+                     {'between': ['T_0', 'supply'], 'value': 3, 'times': ['dpos']}],
+    'gains': [{'node': 'T_0', 'value': 1, 'times': ['q_0']},
+              {'node': 'T_1', 'value': 0.5, 'times': ['q_0']},
+              {'node': 'T_1', 'value': 2, 'times': ['solrad']},
+              {'node': 'T_2', 'value': 1, 'times': ['q_2']},
+              {'node': 'T_2', 'value': 1, 'times': ['q_2']},
+              {'node': 'T_1', 'value': 1, 'times': ['q_1']}],
+    'outputs': {'mean': {'terms': [{'state': 'T_0', 'value': 0.5},
+                                   {'state': 'T_2', 'value': 0.5}]},
+                'T_1': {'terms': [{'state': 'T_1'}], 'offset': -273.15},
+                'E': {'integral': True, 'terms': [{'value': 1, 'times': ['q_1']}]}}}
+
+
+@pytest.mark.parametrize('build', [lambda: MultiZoneModel(6, seed=4),
+                                   lambda: NetworkModel(INDEPENDENT_NODES)])
+def test_closed_form_batch_rewrites_its_entries_and_matches_a_fresh_evaluation(build):
+    # the optimiser's batch of a network of independent nodes keeps its derivative arrays
+    # across calls: every call must give what a fresh interval_jacobians gives (no stale
+    # entry from the call before), on a subset of the heat rates in another order and with
+    # a shared input too, and its arrays must not be writable
+    model = build()
+    nx, nu = len(model.state_names), len(model.input_names)
+    heat_rates = list(range(4, nu))
     rng = np.random.default_rng(5)
-    for wrt in (list(range(4, 10)), [9, 5, 6]):
+    for wrt in (heat_rates, heat_rates[::-2], [1, 3] + heat_rates[:2]):
         batch = model.interval_batch(3, 3600.0, wrt)
         for _ in range(3):
-            x = rng.uniform(291, 297, (3, 6))
-            u = np.column_stack([rng.uniform(0, 400, (3, 1)), rng.uniform(0, 10, (3, 1)),
-                                 rng.uniform(0, 20, (3, 1)), np.zeros((3, 1)),
-                                 rng.uniform(-2000, 2000, (3, 6))])
+            x = rng.uniform(291, 297, (3, nx))
+            u = np.column_stack([rng.uniform(0, 400, (3, 1)), rng.uniform(0, 20, (3, 1)),
+                                 rng.uniform(0, 20, (3, 1)), rng.uniform(0, 50, (3, 1)),
+                                 rng.uniform(-2000, 2000, (3, nu - 4))])
             batch.x_start[:] = x
             batch.u[:] = u
             got = batch.jacobians()
@@ -100,11 +130,31 @@ def test_multizone_interval_batch_rewrites_its_diagonals_and_matches_the_model()
             for name in ('dx_dx0', 'dx_du', 'dy_dx0', 'dy_du'):
                 np.testing.assert_array_equal(getattr(got, name), getattr(fresh, name))
             decay = np.diagonal(got.dx_dx0, axis1=1, axis2=2)
-            assert np.count_nonzero(got.dx_dx0) == 3 * 6 and (decay > 0).all()
-            assert np.count_nonzero(got.dx_du) == 3 * len(wrt)
+            assert np.count_nonzero(got.dx_dx0) == 3 * nx and (decay > 0).all()
+            heated = sum(np.count_nonzero(model._gain_only[c]) for c in wrt if c >= 4)
+            shared = np.count_nonzero(got.dx_du[:, :, [j for j, c in enumerate(wrt) if c < 4]])
+            assert np.count_nonzero(got.dx_du) == 3 * heated + shared
             with pytest.raises(ValueError):
                 got.dx_du[0, 0, 0] = 1.0
-    assert model.interval_batch(2, 3600.0, [1, 4]).jacobians() is None  # Tout: no analytic
+            with pytest.raises(ValueError):
+                got.dx_dx0[0, 0, 0] = 1.0
+
+
+def test_a_network_subclass_with_its_own_interval_jacobians_gets_the_batch_that_calls_it():
+    # the batch gives what interval_jacobians gives, also where a subclass changes it (a
+    # model converting units, a test's slow model): no closed-form batch around it
+    class Shifted(NetworkModel):
+
+        def interval_jacobians(self, x_start, u, dt_s, wrt_inputs, t_start_s=None):
+            jac = super().interval_jacobians(x_start, u, dt_s, wrt_inputs)
+            return dataclasses.replace(jac, x_end=jac.x_end + 1.0)
+
+    model = Shifted(INDEPENDENT_NODES)
+    batch = model.interval_batch(2, 3600.0, [4, 6])
+    batch.x_start[:] = 293.0
+    batch.u[:] = 100.0
+    x_end, _ = model.simulate_intervals(batch.x_start, batch.u, 3600.0)
+    np.testing.assert_array_equal(batch.jacobians().x_end, x_end + 1.0)
 
 
 def test_multizone_batch_equals_simulate_and_single_zone_equals_r1c1():

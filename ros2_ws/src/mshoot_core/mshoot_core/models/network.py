@@ -46,7 +46,7 @@ import numpy as np
 import pandas as pd
 import scipy.linalg
 
-from mshoot_core.models.base import IntervalJacobians, Model
+from mshoot_core.models.base import IntervalBatch, IntervalJacobians, Model
 from mshoot_core.models.network_spec import (card_network, CARDS_DIR, Expression,
                                              NetworkError, NetworkSpec, Parameter,
                                              parse_network, Term)
@@ -208,8 +208,14 @@ class _Incidence:
     """
     Sums of K terms into ``size`` bins per row: ``values (B, K) -> (B, size)``.
 
-    A dense matrix product for small networks, a sparse one for large ones.
+    A dense matrix product for small networks; for large ones a sum of a few gathers where
+    every bin receives few terms (independent zones: three or so each), else a sparse
+    product. The gathers add each bin's terms in the sparse product's order (by term, from
+    zero), so both give the same values.
     """
+
+    #: Most terms into one bin summed by gathers (one gather per term of the fullest bin).
+    GATHERS = 8
 
     def __init__(self, index: tuple[Sequence[int], Sequence[int]], weights: Sequence[float],
                  terms: int, size: int) -> None:
@@ -217,16 +223,35 @@ class _Incidence:
         values = np.asarray(weights, dtype=float)
         self.size = size
         self.empty = terms == 0
+        self.gathers: list[tuple[np.ndarray, np.ndarray]] = []
         if terms * size <= 4096:
             self.matrix = np.zeros((terms, size))
             np.add.at(self.matrix, (rows, cols), values)
-        else:  # (scipy.sparse only where a network is large)
-            import scipy.sparse
-            self.matrix = scipy.sparse.csr_matrix((values, (rows, cols)), shape=(terms, size))
+            return
+        import scipy.sparse  # (only where a network is large)
+        self.matrix = scipy.sparse.csr_matrix((values, (rows, cols)), shape=(terms, size))
+        by_bin = self.matrix.tocsc()  # duplicates summed, each bin's terms in term order
+        by_bin.sort_indices()
+        counts = np.diff(by_bin.indptr)
+        if self.empty or counts.max() > self.GATHERS:
+            return
+        for k in range(counts.max()):  # the k-th term of every bin, weight 0 where none
+            has = counts > k
+            term = np.zeros(size, dtype=int)
+            weight = np.zeros(size)
+            term[has] = by_bin.indices[by_bin.indptr[:-1][has] + k]
+            weight[has] = by_bin.data[by_bin.indptr[:-1][has] + k]
+            self.gathers.append((term, weight))
 
     def __call__(self, values: np.ndarray) -> np.ndarray:
         if self.empty:
             return np.zeros((values.shape[0], self.size))
+        if self.gathers:
+            term, weight = self.gathers[0]
+            out = values[:, term] * weight
+            for term, weight in self.gathers[1:]:
+                out += values[:, term] * weight
+            return out
         return np.asarray(values @ self.matrix)
 
 
@@ -445,6 +470,12 @@ class NetworkModel(Model):
         self._hurwitz = len(reach) == n
         self._components = self._find_components()
         self._cy, self._y_offset, self._y_w = tables['cy'], tables['offset'], tables['w']
+        # outputs of at most one state each (a zone temperature): a gather, not a product
+        # with a mostly zero matrix (the same values: one term of weight w, the rest 0)
+        self._cy_pick = None
+        if np.all(np.count_nonzero(self._cy, axis=1) <= 1):
+            picked = np.argmax(self._cy != 0, axis=1)
+            self._cy_pick = (picked, self._cy[np.arange(self._cy.shape[0]), picked])
         outputs = list(spec.outputs.values())
         self._y_integral = np.array([o.integral for o in outputs], dtype=bool)
         self._y_prod = _Products([t.times for o in outputs for t in o.terms if t.state < 0])
@@ -608,10 +639,17 @@ class NetworkModel(Model):
 
     def _outputs(self, x: np.ndarray, u: np.ndarray, dt: Any) -> np.ndarray:
         """Return the outputs (B, ny) at ``x`` after inputs ``u`` held over ``dt``."""
-        y = x @ self._cy.T + self._y_offset
+        y = self._through_outputs(x) + self._y_offset
         if self._y_w.size:
             y = y + (self._y_prod.of(u) @ self._y_w.T) * self._output_scale(dt)
         return y
+
+    def _through_outputs(self, states: np.ndarray) -> np.ndarray:
+        """Return ``Cy`` times the states' axis 1 of (B, n) or (B, n, m): (B, ny[, m])."""
+        if self._cy_pick is None:
+            return states @ self._cy.T if states.ndim == 2 else self._cy @ states
+        picked, weights = self._cy_pick
+        return states[:, picked] * weights.reshape((-1,) + (1,) * (states.ndim - 2))
 
     def _end_states(self, x0: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
         if not self.coupled:
@@ -682,57 +720,67 @@ class NetworkModel(Model):
         """Exact end values and derivatives (``t_start_s`` ignored: time-invariant)."""
         x_start, u = self._check_batch(x_start, u)
         dt = float(dt_s)
+        wrt = self._input_columns(wrt_inputs)
+        if not self.coupled:  # the closed form: a fresh batch, evaluated once
+            batch = _ClosedFormBatch(self, x_start.shape[0], dt, wrt)
+            batch.x_start[:], batch.u[:] = x_start, u
+            return batch.jacobians()
         batch, n = x_start.shape
+        dx_du = np.zeros((batch, n, len(wrt)))
+        a, b = self.system(u)
+        phi, gamma = self._transition(a, dt)
+        x_end = np.einsum('bij,bj->bi', phi, x_start) + np.einsum('bij,bj->bi', gamma, b)
+        dx_dx0 = np.array(phi)
+        for j, col in enumerate(wrt):
+            if col not in self._b_inputs:
+                continue
+            vector = self._gain_only.get(col)
+            if vector is not None:  # a heat rate: Gamma db
+                dx_du[:, :, j] = np.einsum('bij,j->bi', gamma, vector / self.capacity)
+                continue
+            dloss, dforcing = self._input_derivative(u, col, full=True)
+            db = dforcing / self.capacity
+            if col not in self._a_inputs:
+                dx_du[:, :, j] = np.einsum('bij,bj->bi', gamma, db)
+            else:
+                da = -dloss / self.capacity[None, :, None]
+                dx_du[:, :, j] = self._frechet_step(a, b, da, db, x_start, dt)
+        return IntervalJacobians(x_end, self._outputs(x_end, u, dt), dx_dx0, dx_du,
+                                 *self._output_jacobians(u, dt, wrt, dx_dx0, dx_du))
+
+    def interval_batch(self, batch: int, dt_s: float, wrt_inputs: Sequence[int],
+                       t_start_s: np.ndarray | None = None) -> IntervalBatch:
+        """
+        Return a batch of ``batch`` intervals (``t_start_s`` ignored: time-invariant).
+
+        Where no conductance joins two nodes, a :class:`_ClosedFormBatch`: its derivative
+        arrays allocated once, only their nonzero entries rewritten at each evaluation. A
+        subclass with its own :meth:`interval_jacobians` gets the batch that calls it.
+        """
+        if self.coupled or type(self).interval_jacobians is not NetworkModel.interval_jacobians:
+            return IntervalBatch(self, batch, dt_s, wrt_inputs)
+        return _ClosedFormBatch(self, batch, dt_s, self._input_columns(wrt_inputs))
+
+    def _input_columns(self, wrt_inputs: Sequence[int]) -> list[int]:
+        """Return the columns ``wrt_inputs`` as ints, checked against the inputs."""
         wrt = [int(c) for c in wrt_inputs]
         for col in wrt:
             if not 0 <= col < len(self.input_names):
                 raise ValueError(f'input column {col} out of range [0, {len(self.input_names)})')
-        dx_du = np.zeros((batch, n, len(wrt)))
-        if not self.coupled:
-            loss, forcing = self._assemble(*self._coefficients(u), full=False)
-            x_end, decay = self._decoupled(x_start, loss, forcing, dt)
-            dx_dx0 = decay[:, :, None] * np.eye(n)
-            positive = loss > 0
-            g = np.where(positive, loss, 1.0)
-            for j, col in enumerate(wrt):
-                if col not in self._b_inputs:
-                    continue
-                vector = self._gain_only.get(col)
-                if vector is not None:  # a heat rate: dT_end/dq = (1 - a) / g
-                    dx_du[:, :, j] = np.where(positive, (1.0 - decay) / g * vector,
-                                              vector * dt / self.capacity)
-                    continue
-                dloss, dforcing = self._input_derivative(u, col, full=False)
-                dx_du[:, :, j] = self._decoupled_derivative(
-                    x_start, forcing, g, decay, positive, dloss, dforcing, 0.0, dt)
-        else:
-            a, b = self.system(u)
-            phi, gamma = self._transition(a, dt)
-            x_end = np.einsum('bij,bj->bi', phi, x_start) + np.einsum('bij,bj->bi', gamma, b)
-            dx_dx0 = np.array(phi)
-            for j, col in enumerate(wrt):
-                if col not in self._b_inputs:
-                    continue
-                vector = self._gain_only.get(col)
-                if vector is not None:  # a heat rate: Gamma db
-                    dx_du[:, :, j] = np.einsum('bij,j->bi', gamma, vector / self.capacity)
-                    continue
-                dloss, dforcing = self._input_derivative(u, col, full=True)
-                db = dforcing / self.capacity
-                if col not in self._a_inputs:
-                    dx_du[:, :, j] = np.einsum('bij,bj->bi', gamma, db)
-                else:
-                    da = -dloss / self.capacity[None, :, None]
-                    dx_du[:, :, j] = self._frechet_step(a, b, da, db, x_start, dt)
-        y_end = self._outputs(x_end, u, dt)
-        dy_dx0 = self._cy @ dx_dx0
-        dy_du = self._cy @ dx_du
+        return wrt
+
+    def _output_jacobians(self, u: np.ndarray, dt: float, wrt: Sequence[int],
+                          dx_dx0: np.ndarray, dx_du: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray]:
+        """Return d y_end / d x_start (B, ny, nx) and d y_end / d u (B, ny, len(wrt))."""
+        dy_dx0 = self._through_outputs(dx_dx0)
+        dy_du = self._through_outputs(dx_du)
         if self._y_w.size:
             scale = self._output_scale(dt)
             for j, col in enumerate(wrt):
                 if self._y_prod.involves(col):
                     dy_du[:, :, j] += (self._y_prod.derivative(u, col) @ self._y_w.T) * scale
-        return IntervalJacobians(x_end, y_end, dx_dx0, dx_du, dy_dx0, dy_du)
+        return dy_dx0, dy_du
 
     def _decoupled_derivative(self, x0: np.ndarray, forcing: np.ndarray, g: np.ndarray,
                               decay: np.ndarray, positive: np.ndarray, dloss: np.ndarray,
@@ -891,3 +939,71 @@ class NetworkModel(Model):
     def __repr__(self) -> str:
         return (f'NetworkModel(nodes={list(self.state_names)}, inputs={list(self.input_names)}, '
                 f'outputs={list(self.output_names)})')
+
+
+class _ClosedFormBatch(IntervalBatch):
+    """
+    B intervals of a :class:`NetworkModel` without node-node conductances, evaluated again.
+
+    Every node then follows its own closed form, so d x_end / d x_start is diagonal and a
+    heat rate moves only the nodes it heats. The derivative arrays (B, n, n) and
+    (B, n, len(wrt_inputs)) are allocated once, zero but for those entries, which each
+    :meth:`jacobians` writes by index arrays (no loop over nodes); the columns of other
+    inputs (a boundary temperature, a modulated conductance) are written whole. The
+    arrays it returns are read-only and the batch's own, valid until its next call;
+    where the outputs are the states (an offset aside) and no output term involves a
+    differentiated input, the outputs' derivatives are the same arrays.
+    """
+
+    def __init__(self, model: NetworkModel, batch: int, dt_s: float,
+                 wrt_inputs: Sequence[int]) -> None:
+        super().__init__(model, batch, dt_s, wrt_inputs)
+        n, wrt = len(model.state_names), self.wrt_inputs
+        self._nodes = np.arange(n)
+        rows, cols, weights = [], [], []  # the nonzero entries of the heat rates' columns
+        for j, col in enumerate(wrt):
+            vector = model._gain_only.get(col)
+            if vector is not None:
+                heated = np.flatnonzero(vector)
+                rows.append(heated)
+                cols.append(np.full(heated.size, j))
+                weights.append(vector[heated])
+        self._rows = np.concatenate(rows) if rows else np.zeros(0, int)
+        self._cols = np.concatenate(cols) if cols else np.zeros(0, int)
+        self._weights = np.concatenate(weights) if weights else np.zeros(0)
+        self._capacity = model.capacity[self._rows]
+        self._others = [(j, col) for j, col in enumerate(wrt)
+                        if col in model._b_inputs and col not in model._gain_only]
+        self._dx_dx0 = np.zeros((int(batch), n, n))
+        self._dx_du = np.zeros((int(batch), n, len(wrt)))
+        self._dx_dx0.flags.writeable = self._dx_du.flags.writeable = False
+        self._same_outputs = (model._cy.shape == (n, n)
+                              and np.array_equal(model._cy, np.eye(n))
+                              and not any(model._y_prod.involves(c) for c in wrt))
+
+    def jacobians(self) -> IntervalJacobians:
+        model, dt = self.model, self.dt_s
+        x_start, u = model._check_batch(self.x_start, self.u)
+        loss, forcing = model._assemble(*model._coefficients(u), full=False)
+        x_end, decay = model._decoupled(x_start, loss, forcing, dt)
+        positive = loss > 0
+        g = np.where(positive, loss, 1.0)
+        dx_dx0, dx_du, rows = self._dx_dx0, self._dx_du, self._rows
+        dx_dx0.flags.writeable = dx_du.flags.writeable = True
+        try:
+            dx_dx0[:, self._nodes, self._nodes] = decay
+            if rows.size:  # a heat rate: dT_end/dq = (1 - a) / g, or dt / C without loss
+                dx_du[:, rows, self._cols] = np.where(
+                    positive[:, rows], (1.0 - decay[:, rows]) / g[:, rows] * self._weights,
+                    self._weights * dt / self._capacity)
+            for j, col in self._others:
+                dloss, dforcing = model._input_derivative(u, col, full=False)
+                dx_du[:, :, j] = model._decoupled_derivative(
+                    x_start, forcing, g, decay, positive, dloss, dforcing, 0.0, dt)
+        finally:
+            dx_dx0.flags.writeable = dx_du.flags.writeable = False
+        y_end = model._outputs(x_end, u, dt)
+        if self._same_outputs:
+            return IntervalJacobians(x_end, y_end, dx_dx0, dx_du, dx_dx0, dx_du)
+        return IntervalJacobians(x_end, y_end, dx_dx0, dx_du,
+                                 *model._output_jacobians(u, dt, self.wrt_inputs, dx_dx0, dx_du))
