@@ -111,8 +111,10 @@ def test_tutorial_runs(page: pathlib.Path, request: pytest.FixtureRequest) -> No
     text = page.read_text(encoding='utf-8')
     blocks = code_blocks(text, 'bash')
     assert blocks, f'{page.name} has no bash block to run'
+    # the processes of a tutorial find each other as a user's do: discovery on this host, a
+    # domain of its own (other tests of this session turn discovery OFF in os.environ)
     env = {**os.environ, 'ROS_DOMAIN_ID': str(random.randint(1, 100)),
-           'PYTHONUNBUFFERED': '1'}
+           'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', 'PYTHONUNBUFFERED': '1'}
     if 'OU44_CSV' in text:
         env['OU44_CSV'] = str(request.getfixturevalue('ou44_csv'))
     if 'MSHOOT_BOPTEST_DIR' in text:
