@@ -18,11 +18,11 @@ import pathlib
 
 from mshoot_core.boptest.testcase import default_directory, TestCase
 from mshoot_core.forecast import ForecastSource
+from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.settings import ForecastErrorSettings, UNCERTAINTY_LEVELS
 import numpy as np
 
 OUT = pathlib.Path(__file__).resolve().parents[1] / 'docs' / 'forecasts' / 'forecast_band.png'
-KELVIN = 273.15
 #: Spacing of the seeds drawn.
 SEED_SPACING = 1000
 

@@ -1,6 +1,7 @@
 """The forecaster node serves BOPTEST's forecast uncertainty: what it publishes is the core's."""
 from mshoot_core.boptest.testcase import TestCase
 from mshoot_core.forecast import ForecastSource
+from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.settings import ForecastErrorSettings
 import numpy as np
 import pytest
@@ -8,8 +9,6 @@ import pytest
 from conftest import spin_until
 
 pytestmark = pytest.mark.ros
-
-KELVIN = 273.15
 
 
 def test_the_published_forecast_is_the_core_sources(boptest_case: TestCase, context,
