@@ -374,7 +374,7 @@ def test_a_short_hostile_flood_against_the_three_executables(tmp_path):
     """
     env = dict(os.environ, PYTHONUNBUFFERED='1')
     done = subprocess.run([sys.executable, str(ROOT / 'bench' / 'hostile.py'), '--seconds', '4',
-                           '--settle', '1', '--mode', 'lockstep', '--rate', '500',
+                           '--settle', '3', '--mode', 'lockstep', '--rate', '500',
                            '--max-growth-mb', '1000', '--out', str(tmp_path)],
                           env=env, capture_output=True, text=True, timeout=300)
     logs = '\n'.join(p.read_text()[-1500:] for p in tmp_path.glob('*.log'))
