@@ -5,7 +5,7 @@ import pathlib
 
 from mshoot_core.boptest.kpis import compute_kpis
 from mshoot_core.boptest.plant import BoptestPlant
-from mshoot_core.boptest.testcase import default_directory, TestCase
+from mshoot_core.boptest.testcase import DIR_ENV, TestCase
 import numpy as np
 import pandas as pd
 import pytest
@@ -127,7 +127,8 @@ def test_a_missing_price_column_is_named(two_zone_case: TestCase) -> None:
 @pytest.fixture(scope='module')
 def office() -> TestCase:
     """Return the two-zone office beside the repository; skip (fail under CI) when absent."""
-    folder = default_directory().parent / 'multizone_office_simple_hydronic'
+    folder = (pathlib.Path(os.environ.get(DIR_ENV, '/nonexistent')).parent
+              / 'multizone_office_simple_hydronic')
     if not (folder / 'wrapped.fmu').is_file():
         if os.environ.get('CI') == 'true':
             pytest.fail(f'BOPTEST test case missing at {folder} (required under CI)')

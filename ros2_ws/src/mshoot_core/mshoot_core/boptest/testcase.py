@@ -57,9 +57,6 @@ logger = logging.getLogger(__name__)
 
 #: Environment variable naming the test case folder.
 DIR_ENV = 'MSHOOT_BOPTEST_DIR'
-#: The test case beside the repository (a checkout with ``shared/`` next to it).
-DEFAULT_DIR = (pathlib.Path(__file__).resolve().parents[5] / '..' / 'shared' / 'boptest'
-               / 'bestest_hydronic_heat_pump')
 #: BOPTEST's warm-up before a test period and the period's length [days].
 WARMUP_DAYS = 7.0
 LENGTH_DAYS = 14.0
@@ -90,11 +87,20 @@ WEATHER_POINTS = frozenset({
 
 
 def default_directory() -> pathlib.Path:
-    """Return the test case folder: ``$MSHOOT_BOPTEST_DIR`` or :data:`DEFAULT_DIR`."""
+    """
+    Return the test case folder named by ``$MSHOOT_BOPTEST_DIR``.
+
+    Raises
+    ------
+    FileNotFoundError
+        When the variable is not set (``env.sh`` sets it; or pass the folder).
+
+    """
     value = os.environ.get(DIR_ENV)
-    if value:
-        return pathlib.Path(value).expanduser().resolve()
-    return DEFAULT_DIR.resolve()
+    if not value:
+        raise FileNotFoundError(f'no BOPTEST test case folder: pass one, or set ${DIR_ENV} '
+                                '(env.sh sets it to the heat pump house beside the repository)')
+    return pathlib.Path(value).expanduser().resolve()
 
 
 def _read_json(path: pathlib.Path) -> dict:

@@ -732,8 +732,12 @@ def _boptest_spec(path: pathlib.Path, spec: dict,
     """Resolve a card's ``boptest`` entry: (spec with the absolute folder, its FMU) or Nones."""
     from mshoot_core.boptest.testcase import default_directory, find_fmu
     folder = spec.get('test_case')
-    directory = ((path.parent / pathlib.Path(folder).expanduser()).resolve()
-                 if isinstance(folder, str) else default_directory())
+    try:
+        directory = ((path.parent / pathlib.Path(folder).expanduser()).resolve()
+                     if isinstance(folder, str) else default_directory())
+    except FileNotFoundError as error:  # no folder given and $MSHOOT_BOPTEST_DIR unset
+        problems.append(f'boptest.test_case: {error}')
+        return None, None
     try:
         fmu = find_fmu(directory)
     except FileNotFoundError:
