@@ -146,6 +146,27 @@ def test_office_folder(office: TestCase) -> None:
     assert plant.inputs['bms_oveTZonSetMinNz_u'].lower == 288.15
 
 
+def test_office_overwrite_is_an_event_that_acts(office: TestCase) -> None:
+    """Model Exchange: a setpoint overwrite and its switch take effect (events), then release."""
+    t0 = (office.days['peak_heat_day'] - 7) * DAY + 21 * 3600.0
+    applied = 'bms_oveTZonSetMinNz_y'  # the FMU's reading of the signal its BMS follows
+    with BoptestPlant(office, record=['structure_reaTZonNz_y', applied]) as plant:
+        plant.start(t0)
+        plant.advance(t0 + 3600.0)
+        own = plant.records(t0 + 60.0, t0 + 3600.0)
+        plant.advance(t0 + 3 * 3600.0, {'bms_oveTZonSetMinNz_u': 303.15})
+        forced = plant.records(t0 + 3660.0, t0 + 3 * 3600.0)
+        plant.advance(t0 + 4 * 3600.0)
+        released = plant.records(t0 + 3 * 3600.0 + 60.0, t0 + 4 * 3600.0)
+        assert plant.read([applied])[applied] == released[applied].iloc[-1]
+        with pytest.raises(ValueError, match='not Real variables'):
+            plant.read(['no_such_variable'])
+    assert (own[applied] == 289.15).all()  # the night set-back of the BMS
+    assert (forced['bms_oveTZonSetMinNz_u'] == 303.15).all()
+    assert (forced[applied] == 303.15).all()
+    assert released['bms_oveTZonSetMinNz_u'].isna().all() and (released[applied] == 289.15).all()
+
+
 def test_office_baseline_through_mshoot_boptest(office: TestCase, tmp_path: pathlib.Path,
                                                 capsys: pytest.CaptureFixture) -> None:
     """

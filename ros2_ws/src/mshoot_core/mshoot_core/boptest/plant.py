@@ -49,7 +49,7 @@ import numpy as np
 import pandas as pd
 
 from mshoot_core import fmu_cache
-from mshoot_core.boptest.testcase import TestCase
+from mshoot_core.boptest.testcase import shim_libraries, TestCase
 
 logger = logging.getLogger(__name__)
 
@@ -105,14 +105,6 @@ def recorded_outputs(case: TestCase, variables: Iterable[str] = ()) -> list[str]
 
     """
     return list(dict.fromkeys([*case.kpi_output_names, *variables]))
-
-
-def shim_libraries(directory: Any) -> list:
-    """Return the stand-in libraries of a test case folder (its ``shim/``), for the FMU."""
-    import pathlib
-    from mshoot_core.fmu_binary import Library
-    shim = pathlib.Path(directory) / 'shim'
-    return [Library(source=shim)] if shim.is_dir() else []
 
 
 class BoptestPlant:
@@ -381,12 +373,7 @@ class BoptestPlant:
         """
         if self._model is None:
             raise RuntimeError('the plant is not running: call start() first')
-        variables = self._model._variables
-        unknown = [n for n in names if n not in variables]
-        if unknown:
-            raise ValueError(f'unknown variables of {self.case.name}: {unknown}')
-        fmu = self._model.fmu
-        return dict(zip(names, fmu.getReal([variables[n].valueReference for n in names])))
+        return self._model.plant_get(list(names))
 
     def records(self, start_s: float | None = None, end_s: float | None = None) -> pd.DataFrame:
         """

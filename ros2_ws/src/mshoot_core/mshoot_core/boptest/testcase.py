@@ -461,6 +461,13 @@ def _read_resources(directory: str) -> dict[str, pd.DataFrame]:
 
 
 # -- the libraries the FMU's binary needs ----------------------------------------------------
+def shim_libraries(directory: str | os.PathLike) -> list:
+    """Return the stand-ins of a test case folder (its ``shim/``) as libraries for the FMU."""
+    from mshoot_core.fmu_binary import Library
+    shim = pathlib.Path(directory) / 'shim'
+    return [Library(source=shim)] if shim.is_dir() else []
+
+
 def load_shim(directory: str | os.PathLike | None = None) -> tuple[str, ...]:
     """
     Check the test case's binary in a child process, with its stand-ins; preload them here.
@@ -487,8 +494,7 @@ def load_shim(directory: str | os.PathLike | None = None) -> tuple[str, ...]:
     """
     from mshoot_core import fmu_binary
     folder = pathlib.Path(directory) if directory is not None else default_directory()
-    shim = folder / 'shim'
-    libraries = [fmu_binary.Library(source=shim)] if shim.is_dir() else []
+    libraries = shim_libraries(folder)
     unzipped = fmu_cache.extract_fmu(find_fmu(folder))
     preloaded: tuple[str, ...] = ()
     for identifier in fmu_binary.model_identifiers(unzipped):

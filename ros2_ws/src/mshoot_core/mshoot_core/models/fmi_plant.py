@@ -11,7 +11,8 @@ next. :class:`FmuPlant` gives :class:`~mshoot_core.models.fmi.FmiModel`:
 - :meth:`FmuPlant.plant_step`: apply inputs (held over the step) and advance:
   Co-Simulation ``fmi2DoStep``; Model Exchange integrated on (CVode, events
   handled; an input change is an event). Never re-initialised;
-- :meth:`FmuPlant.plant_set`: set FMU variables that are not model inputs (Real or
+- :meth:`FmuPlant.plant_get` / :meth:`FmuPlant.plant_set`: read any Real variable; set FMU
+  variables that are not model inputs (Real or
   Boolean: an overwrite's value and its ``activate`` switch) from now on; in Model Exchange
   an event;
 - :meth:`FmuPlant.plant_save` / :meth:`FmuPlant.plant_restore`: the whole FMU
@@ -191,6 +192,26 @@ class FmuPlant:
             self._event_iteration()
             fmu.enterContinuousTimeMode()
             self._ensure_solver(plant.time)
+
+    def plant_get(self, names: Sequence[str]) -> dict[str, float]:
+        """
+        Return any Real variables of the FMU now (name -> value), mapped or not.
+
+        Raises
+        ------
+        ValueError
+            For a name that is not a Real variable of the FMU.
+        RuntimeError
+            Without a plant run.
+
+        """
+        self._require_plant()
+        variables = [self._variables.get(name) for name in names]
+        unknown = [n for n, v in zip(names, variables) if v is None or v.type != 'Real']
+        if unknown:
+            raise ValueError(f'{self.fmu_path.name}: not Real variables of the FMU: {unknown}')
+        values = self.fmu.getReal([v.valueReference for v in variables])
+        return {name: float(value) for name, value in zip(names, values)}
 
     def plant_read(self) -> tuple[np.ndarray, np.ndarray]:
         """Return the plant's current (states, outputs)."""
