@@ -203,10 +203,12 @@ def compute_kpis(table: pd.DataFrame, case: TestCase, start_s: float, end_s: flo
                              times)
         emissions += np.trapezoid(watts * case.lookup(case.emission_column(vector), times),
                                   times)
+    per_zone = zone_discomfort(period, case)
     zones = {zone: float((np.trapezoid(below, times) + np.trapezoid(above, times)) / 3600.0)
-             for zone, (below, above) in zone_discomfort(period, case).items()}
+             for zone, (below, above) in per_zone.items()}
+    mean_excess = np.mean([below + above for below, above in per_zone.values()], axis=0)
     kpis: dict = {
-        'tdis_tot': float(np.trapezoid(thermal_discomfort(period, case), times) / 3600.0),
+        'tdis_tot': float(np.trapezoid(mean_excess, times) / 3600.0),
         'idis_tot': float(np.trapezoid(co2_discomfort(period, case), times) / 3600.0),
         'ener_tot': float(energy / scale),
         'cost_tot': float(cost / scale),
