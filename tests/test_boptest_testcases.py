@@ -223,3 +223,24 @@ def test_office_baseline_through_mshoot_boptest(office: TestCase, tmp_path: path
         assert record['pgas_tot'] > 0 and record['pele_tot'] > 0 and record['pdih_tot'] is None
     # a March day in Brussels: the boiler heats
     assert gas.max() > 1000.0
+
+
+def test_mshoot_boptest_refuses_bad_input_in_one_line(boptest_case: TestCase,
+                                                      tmp_path: pathlib.Path,
+                                                      capsys: pytest.CaptureFixture) -> None:
+    from mshoot_studies import cli
+    card = CARDS / 'bestest_hydronic_heat_pump.yaml'
+    base = ['boptest', '--testcase', str(boptest_case.directory), '--out', str(tmp_path)]
+    cases = [
+        (['--card', str(card), '--controllers', 'mshoot'], 'runs over ROS'),
+        (['--card', str(card), '--controllers', 'baseline,fancy'], 'expected some of'),
+        (['--card', str(card), '--periods', 'peak_cool_day'], 'unknown test period'),
+        (['--card', str(CARDS.parent / 'index.md')], 'kind boptest'),
+    ]
+    no_zones = tmp_path / 'no_zones.yaml'
+    no_zones.write_text(card.read_text().replace("setpoint_zones: {TSet: '1'}", ''))
+    cases.append((['--card', str(no_zones), '--controllers', 'rule'], 'setpoint_zones'))
+    for extra, message in cases:
+        assert cli.main([*base, *extra]) == 2, extra
+        err = capsys.readouterr().err
+        assert message in err and err.count('\n') == 1, (extra, err)

@@ -126,11 +126,17 @@ def prepare_card(card_path: pathlib.Path, testcase: pathlib.Path,
     Raises
     ------
     ValueError
-        For a card that is not a mapping with a ``boptest`` section.
+        For a card that is not YAML, or not a mapping with a ``boptest`` section.
+    FileNotFoundError
+        For a card that does not exist.
 
     """
     import yaml
-    document = yaml.safe_load(card_path.read_text())
+    try:
+        document = yaml.safe_load(card_path.read_text())
+    except yaml.YAMLError as error:
+        raise ValueError(f'{card_path}: not a YAML model card of kind boptest ('
+                         f'{str(error).splitlines()[0]})') from error
     if not isinstance(document, dict) or not isinstance(document.get('boptest'), dict):
         raise ValueError(f'{card_path}: expected a model card of kind boptest (a "boptest:" '
                          'section)')
