@@ -12,4 +12,6 @@ export CMAKE_PREFIX_PATH="$_mshoot_root/.venv${CMAKE_PREFIX_PATH:+:$CMAKE_PREFIX
 # shellcheck disable=SC1091
 COLCON_TRACE= source "$_mshoot_root/ros2_ws/install/local_setup.bash"
 export MSHOOT_ROOT="$_mshoot_root"
+# the BOPTEST test case of the benchmark (any folder in BOPTEST's layout; a value set wins)
+export MSHOOT_BOPTEST_DIR="${MSHOOT_BOPTEST_DIR:-$(dirname "$_mshoot_root")/shared/boptest/bestest_hydronic_heat_pump}"
 unset _mshoot_root

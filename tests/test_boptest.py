@@ -1,9 +1,9 @@
 """BOPTEST test case in core: the test case folder, the plant (real FMU), the starts count."""
 import math
 
-from mshoot_core.boptest import plant as plant_module
-from mshoot_core.boptest.plant import BoptestPlant, heat_pump_starts
+from mshoot_core.boptest.plant import BoptestPlant, recorded_outputs
 from mshoot_core.boptest.testcase import PRICE_SCENARIOS, TestCase
+from mshoot_studies.boptest_report import count_starts
 import numpy as np
 import pandas as pd
 import pytest
@@ -14,8 +14,12 @@ def test_test_case_files(boptest_case: TestCase) -> None:
     assert case.area_m2 == 192.0
     assert case.days == {'peak_heat_day': 23, 'typical_heat_day': 115}
     assert sorted(case.power_outputs) == ['reaPFan_y', 'reaPHeaPum_y', 'reaPPumEmi_y']
-    assert case.zone_temperature_outputs == ['reaTZon_y']
-    assert case.co2_outputs == ['reaCO2RooAir_y']
+    assert case.zone_temperature_outputs == {'1': ['reaTZon_y']}
+    assert case.co2_outputs == {'1': ['reaCO2RooAir_y']}
+    assert case.zones == ['1'] and list(case.energy_outputs) == ['ElectricPower']
+    assert case.fmu_path == case.directory / 'wrapped.fmu'
+    assert case.price_column('dynamic', 'GasPower') == 'PriceGasPower'
+    assert case.emission_column('ElectricPower') == 'EmissionsElectricPower'
 
 
 def test_test_periods(boptest_case: TestCase) -> None:
@@ -57,6 +61,7 @@ def test_plant_overwrites_and_records(boptest_case: TestCase) -> None:
     """The real FMU: a setpoint overwrite stops the heat pump, releasing it hands control back."""
     warmup_start, start, _ = boptest_case.test_period('peak_heat_day', 0.25, 1)
     with BoptestPlant(boptest_case) as plant:
+        assert plant.interface == 'CoSimulation'
         with pytest.raises(RuntimeError, match='call start'):
             plant.advance(start)
         plant.start(warmup_start)
@@ -99,17 +104,22 @@ def test_plant_overwrites_and_records(boptest_case: TestCase) -> None:
 def test_record_names_checked(boptest_case: TestCase) -> None:
     with pytest.raises(ValueError, match='not outputs'):
         BoptestPlant(boptest_case, record=['reaTZon_y', 'TZone'])
-    assert 'reaTZon_y' in plant_module.RECORDED
+    # by default every output, as BOPTEST stores them; a run records kpis.json's and a card's
+    plant = BoptestPlant(boptest_case)
+    assert plant.recorded == tuple(plant.outputs_available) and len(plant.recorded) > 40
+    assert recorded_outputs(boptest_case, ['reaTSet_y', 'reaTZon_y']) == [
+        'reaTZon_y', 'reaPFan_y', 'reaPHeaPum_y', 'reaPPumEmi_y', 'reaCO2RooAir_y',
+        'reaTSet_y']
 
 
-def test_heat_pump_starts_by_hand() -> None:
+def test_starts_by_hand() -> None:
     day = 86400.0
     y = [0.0, 0.5, 0.5, 0.0, 0.005, 1.0, 0.0, 0.2, 0.2]
     table = pd.DataFrame({'time': np.arange(len(y)) * day / 4, 'reaHeaPumY_y': y})
     # rising edges at samples 1, 5, 7 (0.005 is below the threshold 0.01)
-    assert heat_pump_starts(table) == (3, 3 / 2.0)
+    assert count_starts(table, 'reaHeaPumY_y') == (3, 3 / 2.0)
     # window (t0, t1]: the edge at sample 1 is excluded when the window starts there
-    assert heat_pump_starts(table, start_s=day / 4, end_s=2 * day) == (2, 2 / 1.75)
-    assert heat_pump_starts(table, threshold=0.3)[0] == 2  # edges at 1 and 5 only
+    assert count_starts(table, 'reaHeaPumY_y', start_s=day / 4, end_s=2 * day) == (2, 2 / 1.75)
+    assert count_starts(table, 'reaHeaPumY_y', threshold=0.3)[0] == 2  # edges at 1 and 5 only
     with pytest.raises(ValueError, match='lacks the column'):
-        heat_pump_starts(table.drop(columns='reaHeaPumY_y'))
+        count_starts(table.drop(columns='reaHeaPumY_y'), 'reaHeaPumY_y')

@@ -82,8 +82,8 @@ def test_kpis_hand_computed(tiny_case: TestCase) -> None:
     # 15 min bins: the largest mean is 3120 W (bins made of k >= 6 samples only)
     assert kpis['pele_tot'] == pytest.approx(3120 / 2.0 / 1000)
     assert kpis['time_rat'] == pytest.approx(2.0 / 3600)
-    # starts at k = 3 and k = 9 over 2 h
-    assert kpis['starts_per_day'] == pytest.approx(2 / (7200 / DAY))
+    assert kpis['tdis_zones'] == {'1': pytest.approx(kpis['tdis_tot'])}
+    assert kpis['pgas_tot'] is None and kpis['pdih_tot'] is None
     constant = compute_kpis(table, tiny_case, start, end)
     assert constant['cost_tot'] == pytest.approx(0.2 * energy_j / 3.6e6 / 2.0)
     assert constant['time_rat'] is None

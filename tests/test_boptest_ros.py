@@ -4,9 +4,9 @@ import pathlib
 from mshoot_core.boptest.emulation import boptest_scenario
 from mshoot_core.boptest.kpis import compute_kpis
 from mshoot_core.boptest.plant import run_period
-from mshoot_core.boptest.rule import PreheatRule
 from mshoot_core.boptest.testcase import TestCase
 from mshoot_core.models.card import build_model, builtin_card, CardError, load_card
+from mshoot_studies.boptest_rule import PreheatRule
 import numpy as np
 import pytest
 import yaml
@@ -46,7 +46,9 @@ def test_ros_run_equals_the_core_run(boptest_case: TestCase, ros_runs: dict,
     """The emulator node steps the FMU exactly as the core loop does: same outputs, same KPIs."""
     run = ros_runs['runs'][controller]
     assert not run.failed and run.steps == 48
-    rule = PreheatRule(boptest_case, LEAD_H, MARGIN_K) if controller == 'rule' else None
+    from mshoot_nodes.boptest_run import rule_targets
+    rule = (PreheatRule(boptest_case, rule_targets(boptest_case), LEAD_H, MARGIN_K)
+            if controller == 'rule' else None)
     core = run_period(boptest_case, 'peak_heat_day', rule, warmup_days=1, length_days=2)
     assert (run.start_s, run.end_s) == (core.start_s, core.end_s)
     columns = ['time', 'reaTZon_y', 'reaPHeaPum_y', 'reaPFan_y', 'reaPPumEmi_y', 'reaTSet_y',
@@ -172,7 +174,7 @@ def test_boptest_cards(tmp_path: pathlib.Path, boptest_case: TestCase) -> None:
     card = load_card(builtin_card('boptest_tset'))
     assert card.source == 'boptest' and card.controls['TSet'].activate == 'oveTSet_activate'
     assert card.boptest == {'test_case_dir': str(boptest_case.directory), 'warmup_days': 7.0,
-                            'history_step_s': 0.0}
+                            'history_step_s': 0.0, 'setpoint_zones': {}}
     assert load_card(builtin_card('boptest_baseline')).controls['TSet'].activate is None
     with pytest.raises(ValueError, match='emulator'):
         build_model(card, role='control')

@@ -14,7 +14,7 @@ price scenario) and the controller answers each step:
   switch, so the building's own controller is in charge; the rule node (mode ``baseline``) only
   clocks the lockstep emulator;
 - ``rule``: the rule node with the lead and margin tuned offline, in core, beforehand
-  (:func:`mshoot_core.boptest.rule.tune_rule` over the full period; cached in
+  (:func:`mshoot_studies.boptest_rule.tune_rule` over the full period; cached in
   ``<out>/rule_tuning.json``), on the card ``boptest_tset.yaml``;
 - ``mshoot``: the economic node (:mod:`mshoot_nodes.economic_node`: the core
   :class:`~mshoot_core.boptest.economic.EconomicController`, mode ``modulation``, margin
@@ -44,10 +44,12 @@ import sys
 import time
 from typing import Any, Callable, Sequence
 
-from mshoot_core.boptest.kpis import kpi_records
-from mshoot_core.boptest.rule import LEADS_H, MARGINS_K, RuleTuning, tune_rule
+from mshoot_core.boptest.kpis import kpi_records, zone_discomfort
 from mshoot_core.boptest.testcase import PRICE_SCENARIOS, TestCase
-from mshoot_core.models.card import builtin_card
+from mshoot_core.models.card import builtin_card, load_card
+from mshoot_studies.boptest_report import count_starts
+from mshoot_studies.boptest_rule import (LEADS_H, MARGINS_K, RuleTarget, RuleTuning,
+                                         setpoint_targets, tune_rule)
 import pandas as pd
 import rclpy
 from rclpy.context import Context
@@ -66,6 +68,16 @@ logger = logging.getLogger(__name__)
 
 CONTROLLERS = ('baseline', 'rule', 'mshoot')
 PERIODS = ('peak_heat_day', 'typical_heat_day')
+#: The heat pump's modulation: its off -> on transitions are the runs' ``starts_per_day``.
+STARTS_OUTPUT = 'reaHeaPumY_y'
+#: The built-in card of the rule's runs and its setpoint control.
+RULE_CARD, RULE_CONTROL = 'tset', 'TSet'
+
+
+def rule_targets(case: TestCase) -> dict[str, RuleTarget]:
+    """Return the rule's target: the rule card's setpoint input, the first zone's band."""
+    variable = load_card(builtin_card(f'boptest_{RULE_CARD}')).controls[RULE_CONTROL].variable
+    return setpoint_targets(case, {variable: case.zones[0]})
 
 
 #: The economic MPC of the mshoot runs (issue 15: mode, margin, minimum run time).
@@ -196,7 +208,7 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
               'hours': hours}
     params: dict[str, dict[str, Any]] = {
         'emulator': {**common, 'output_dir': str(out) if out is not None else '',
-                     'model': str(write_card({'baseline': 'baseline', 'rule': 'tset',
+                     'model': str(write_card({'baseline': 'baseline', 'rule': RULE_CARD,
                                               'mshoot': mshoot_mode}[controller],
                                              cards, case, warmup_days)),
                      'ready_endpoints': [f'{contract.ZONE_STATE} subscribers>=1',
@@ -283,7 +295,7 @@ def load_or_tune(case: TestCase, periods: Sequence[str], path: pathlib.Path, *,
             out[period] = entry
             continue
         began = time.perf_counter()
-        tuning: RuleTuning = tune_rule(case, period, leads_h, margins_k,
+        tuning: RuleTuning = tune_rule(case, rule_targets(case), period, leads_h, margins_k,
                                        warmup_days=warmup_days, length_days=length_days,
                                        progress=progress, workers=workers)
         out[period] = {'settings': key, 'weight': tuning.weight,
@@ -383,8 +395,10 @@ def run_benchmark(args: argparse.Namespace, context: Context,
                 waits = run.setpoint_waits_s if controller != 'baseline' else None
                 new = kpi_records(run.records, case, run.start_s, run.end_s, prices, waits,
                                   controller=controller, period=period)
+                starts = count_starts(run.records, STARTS_OUTPUT, run.start_s, run.end_s)[1]
                 for record in new:
                     record['wall_s'] = run.wall_s
+                    record['starts_per_day'] = starts
                     if controller == 'rule':
                         record.update(lead_h=lead, margin_k=margin)
                 records += new
@@ -432,13 +446,13 @@ def _tuning_lines(tunings: dict, periods: Sequence[str]) -> list[str]:
 
 def discomfort_split(table: pd.DataFrame, case: TestCase, start_s: float,
                      end_s: float) -> tuple[float, float]:
-    """Return the discomfort below and above the band over [start, end] [K h] (trapezoid)."""
+    """Return the discomfort below and above the bands over [start, end] [K h], zone mean."""
     import numpy as np
     window = table[(table['time'] >= start_s) & (table['time'] <= end_s)]
     t = window['time'].to_numpy()
-    tz = window['reaTZon_y'].to_numpy()
-    below = np.maximum(case.lookup('LowerSetp[1]', t) - tz, 0.0)
-    above = np.maximum(tz - case.lookup('UpperSetp[1]', t), 0.0)
+    zones = zone_discomfort(window, case).values()
+    below = np.mean([b for b, _ in zones], axis=0)
+    above = np.mean([a for _, a in zones], axis=0)
     area = (lambda y: float(np.sum((y[1:] + y[:-1]) * np.diff(t)) / 2.0 / 3600.0))
     return area(below), area(above)
 
@@ -493,7 +507,7 @@ def _closing_lines(records: list[dict], periods: Sequence[str], prices: Sequence
 def write_docs(args: argparse.Namespace, records: list[dict], runs: list[dict],
                wall_s: float | None) -> pathlib.Path:
     """Write ``<docs>/boptest.md`` and its figures from the benchmark's records and runs."""
-    from mshoot_core.boptest.report import kpi_table, plot_kpi_bars, plot_run
+    from mshoot_studies.boptest_report import kpi_table, plot_kpi_bars, plot_run
     case = TestCase.load(args.test_case or None)
     docs = args.docs
     figures = docs / 'boptest'
@@ -529,7 +543,7 @@ def write_docs(args: argparse.Namespace, records: list[dict], runs: list[dict],
              'setpoint without its `oveTSet_activate` switch).',
              '- `rule`: the zone setpoint `oveTSet_u` every hour = the highest lower bound of '
              'the comfort band over the coming hour and the `lead` after it, plus a `margin` '
-             '(`mshoot_core.boptest.rule`). Lead and margin tuned per period and price on a '
+             '(`mshoot_studies.boptest_rule`). Lead and margin tuned per period and price on a '
              'grid (leads ' + ', '.join(f'{v:g}' for v in args.leads) + ' h; margins '
              + ', '.join(f'{v:g}' for v in args.margins) + ' K), each a full run of the period '
              'in core, for the smallest `cost_tot + 0.1 EUR/m2 per K h x tdis_tot`.',
@@ -578,11 +592,14 @@ def write_docs(args: argparse.Namespace, records: list[dict], runs: list[dict],
         if not path.is_file():
             continue
         table = pd.read_csv(path)
+        modulated = ('oveHeaPumY_u' in table and bool(table['oveHeaPumY_u'].notna().any()))
+        label = ('local setpoint (not in charge: heat pump modulation overwritten)'
+                 if modulated else 'setpoint followed')
         figure = plot_run(table, case, run['start_s'], run['end_s'],
                           f'{run["name"]} (prices: {", ".join(run["prices"])})',
                           figures / f'{run["name"]}.png',
                           prices=run['prices'] if run['controller'] == 'mshoot'
-                          else tuple(args.prices))
+                          else tuple(args.prices), setpoints={label: 'reaTSet_y'})
         lines += [f'### {run["name"]}', '', f'![{run["name"]}](boptest/{figure.name})', '']
     path = docs / 'boptest.md'
     path.write_text('\n'.join(lines))

@@ -3,10 +3,11 @@ The rule node: BOPTEST's rule-based supervisory controller (and the baseline's c
 
 Answers every zone state on ``/zone/state`` with a setpoint on ``/mpc/setpoint`` stamped like
 the state: the zone temperature setpoint of the pre-heating rule
-(:class:`mshoot_core.boptest.rule.PreheatRule`: the comfort band's lower bound over the coming
-step and ``lead_h`` after it, plus ``margin_k``) as the control ``control`` [degC] and as the
-zone's temperature setpoint. The scenario parameters are the emulator's (a
-``boptest:<period>[:<price>]`` scenario), so both place the test period at the same ROS time.
+(:class:`mshoot_studies.boptest_rule.PreheatRule`: the comfort band's lower bound of zone
+``band_zone`` over the coming step and ``lead_h`` after it, plus ``margin_k``) as the control
+``control`` [degC] and as the zone's temperature setpoint; the emulator's card limits it. The
+scenario parameters are the emulator's (a ``boptest:<period>[:<price>]`` scenario), so both
+place the test period at the same ROS time.
 
 ``mode``: ``rule`` sends the rule's setpoint; ``baseline`` sends the band's lower bound (lead 0,
 margin 0), which the baseline card (``boptest_baseline.yaml``: the setpoint without its
@@ -17,9 +18,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from mshoot_core.boptest.rule import PreheatRule
 from mshoot_core.boptest.testcase import TestCase
 from mshoot_msgs.msg import Setpoint, ZoneState
+from mshoot_studies.boptest_rule import PreheatRule
 from rclpy.node import Node
 
 from mshoot_nodes import contract, sources
@@ -45,6 +46,8 @@ PARAMS = (
     ParamSpec('zone_temperature', 'T', 'name of the zone temperature setpoint sent',
               read_only=True),
     ParamSpec('zone', 'zone', 'zone name (header.frame_id)', read_only=True),
+    ParamSpec('band_zone', '', "the test case's zone whose comfort band the rule follows "
+              "(LowerSetp[<zone>]; '': the first zone of its kpis.json)", read_only=True),
 )
 
 
@@ -60,7 +63,8 @@ class RuleNode(Node):
         self.start_fmu_s = float(scenario.attrs['boptest']['start_s'])
         case = TestCase.load(p['data'] or None)
         rule = p['mode'] == 'rule'
-        self.rule = PreheatRule(case, p['lead_h'] if rule else 0.0,
+        self.band_zone = p['band_zone'] or case.zones[0]
+        self.rule = PreheatRule(case, {}, p['lead_h'] if rule else 0.0,
                                 p['margin_k'] if rule else 0.0, p['step_s'])
         self.answered = 0
         self._publisher = self.create_publisher(Setpoint, contract.SETPOINT, contract.DATA_QOS)
@@ -73,7 +77,7 @@ class RuleNode(Node):
     def setpoint_c(self, stamp_ns: int) -> float:
         """Return the setpoint [degC] of the step starting at a ROS stamp [ns]."""
         fmu_s = self.start_fmu_s + (stamp_ns - self.epoch_ns) / NS_PER_S
-        return self.rule.setpoint(fmu_s) - KELVIN
+        return self.rule.setpoint(fmu_s, self.band_zone) - KELVIN
 
     def _on_state(self, msg: ZoneState) -> None:
         stamp = stamp_to_ns(msg.header.stamp)

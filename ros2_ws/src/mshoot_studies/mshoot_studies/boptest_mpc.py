@@ -6,7 +6,7 @@ The economic MPC on BOPTEST's heat pump house, in core (no ROS): identify, then 
         identification.json (parameters, RMSE per period, power model) and, with --install,
         the packaged fit mshoot_core/boptest/house_fit.json
     python -m mshoot_studies.boptest_mpc evaluate [--periods ...] [--prices ...] [--modes ...]
-        run the MPC (and the baseline and the pre-heating rule of mshoot_core.boptest.rule,
+        run the MPC (and the baseline and the pre-heating rule of mshoot_studies.boptest_rule,
         tuned on its default grid, for comparison) on the test periods and write kpis.json
         and a markdown table (kpis.md) to --out
 
@@ -70,11 +70,16 @@ def identify_command(args: argparse.Namespace) -> int:
     return 0
 
 
+#: The heat pump's modulation: its off -> on transitions are the runs' starts per day.
+STARTS_OUTPUT = 'reaHeaPumY_y'
+
+
 def evaluate_command(args: argparse.Namespace) -> int:
     from mshoot_core.boptest import economic
     from mshoot_core.boptest.kpis import compute_kpis, kpi_records
     from mshoot_core.boptest.plant import BoptestPlant
     from mshoot_core.boptest.testcase import TestCase
+    from mshoot_studies.boptest_report import count_starts
     case = TestCase.load(args.case)
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -83,6 +88,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
     def keep(records: list[dict], wall_s: float) -> None:
         for r in records:
             r['wall_s'] = wall_s
+            r.setdefault('starts_per_day', float('nan'))
             rows.append(r)
             _say(f'  {r["controller"]:>22} {r["period"]:>16} {r["price"]:>14}: tdis '
                  f'{r["tdis_tot"]:7.3f} K h, cost {r["cost_tot"]:.4f} EUR/m2, ener '
@@ -97,11 +103,16 @@ def evaluate_command(args: argparse.Namespace) -> int:
                 plant.start(warmup_start)
                 plant.advance(end)
                 table = plant.records(start, end)
-            keep(kpi_records(table, case, start, end, args.prices, controller='baseline',
-                             period=period), time.perf_counter() - began)
-        if args.rule:  # the pre-heating rule of mshoot_core.boptest.rule, tuned per price
-            from mshoot_core.boptest.rule import LEADS_H, MARGINS_K, tune_rule
-            tuning = tune_rule(case, period, LEADS_H, MARGINS_K, prices=args.prices,
+            starts = count_starts(table, STARTS_OUTPUT, start, end)[1]
+            keep([dict(r, starts_per_day=starts)
+                  for r in kpi_records(table, case, start, end, args.prices,
+                                       controller='baseline', period=period)],
+                 time.perf_counter() - began)
+        if args.rule:  # the pre-heating rule of mshoot_studies.boptest_rule, tuned per price
+            from mshoot_studies.boptest_rule import LEADS_H, MARGINS_K, setpoint_targets, \
+                tune_rule
+            targets = setpoint_targets(case, {'oveTSet_u': case.zones[0]})
+            tuning = tune_rule(case, targets, period, LEADS_H, MARGINS_K, prices=args.prices,
                                warmup_days=args.warmup_days, length_days=args.days,
                                progress=_say if args.verbose else None, workers=args.workers)
             for price in args.prices:
@@ -124,6 +135,8 @@ def evaluate_command(args: argparse.Namespace) -> int:
                                     control_step_s=config.settings.problem.step_s)
                 name = f'mshoot ({mode}' + (f', min run {args.min_run_h:g} h'
                                             if args.min_run_h else '') + ')'
+                kpis['starts_per_day'] = count_starts(result.records, STARTS_OUTPUT,
+                                                      result.start_s, result.end_s)[1]
                 keep([{'controller': name, 'period': period, 'price': price, **kpis,
                        'mean_solve_s': float(result.steps['solve_s'].mean()),
                        'max_solve_s': float(result.steps['solve_s'].max()),

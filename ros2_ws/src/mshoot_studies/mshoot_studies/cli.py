@@ -6,6 +6,7 @@ The ``mshoot`` command: one entry point, one verb per application.
     mshoot card check zone.yaml
     mshoot study --data PATH --out docs --jobs 2
     mshoot forecast --testcase DIR --time 0 --temperature-uncertainty high --seed 1
+    mshoot boptest --testcase DIR --card CARD.yaml --controllers baseline rule --out OUT
     mshoot VERB --help
 
 Each verb's options are those of its module's own ``build_parser`` (so
@@ -39,6 +40,8 @@ VERBS: dict[str, tuple[str, str]] = {
                                               'reference calibration): RMSEs, card, figure'),
     'forecast': ('mshoot_studies.forecast', 'the forecast a BOPTEST test case serves at a time, '
                                             "with BOPTEST's forecast uncertainty, as CSV"),
+    'boptest': ('mshoot_studies.boptest', 'any BOPTEST test case folder and a card: baseline '
+                                          "and rule runs, BOPTEST's KPIs per zone and energy"),
 }
 
 

@@ -19,7 +19,7 @@ import os
 import sys
 from typing import Sequence, TextIO
 
-from mshoot_core.boptest.testcase import default_directory, TestCase
+from mshoot_core.boptest.testcase import TestCase
 from mshoot_core.forecast import ForecastSource
 from mshoot_core.settings import (add_arguments, fields_of, ForecastErrorSettings,
                                   option_wording, SettingsError)
@@ -46,7 +46,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.error = error  # type: ignore[method-assign]  # one line, no usage block
     parser.add_argument('--testcase', default=None,
                         help='the BOPTEST test case folder (Resources/*.csv; default '
-                             f'$MSHOOT_BOPTEST_DIR or {default_directory()})')
+                             '$MSHOOT_BOPTEST_DIR)')
     parser.add_argument('--time', type=float, required=True,
                         help='time of the request [s from 1 January], as BOPTEST counts it')
     parser.add_argument('--horizon', type=float, default=86400.0,

@@ -5,12 +5,14 @@ The BOPTEST test case as mshoot's emulated building: its scenario and a plant mo
   seconds since the start, the scenario convention; ``attrs['start']`` the ISO date-time of the
   start in :data:`YEAR`): ``Tout`` [degC] and ``solrad`` [W/m2] from ``weather.csv`` (what the
   building sees), ``occ`` [persons], ``dpos`` 0, the band ``comfort_min``/``comfort_max``
-  [degC] from ``LowerSetp[1]``/``UpperSetp[1]`` (each row: the band at its time), the
+  [degC] from ``LowerSetp[z]``/``UpperSetp[z]`` of one zone (the first of ``kpis.json`` unless
+  named; each row: the band at its time), the
   electricity price ``price`` [EUR/kWh] of the chosen scenario, and ``fmu_time_s`` (the FMU
   clock, seconds from 1 January).
 - :class:`BoptestPlantModel`: what :func:`mshoot_core.models.card.build_model` makes of a card
-  of kind ``boptest``: the test case's FMU as one persistent
-  :class:`~mshoot_core.boptest.plant.BoptestPlant` with the plant interface the emulator drives
+  of kind ``boptest``: the test case's FMU (Co-Simulation or Model Exchange, at the card's
+  ``tolerance``) as one persistent :class:`~mshoot_core.boptest.plant.BoptestPlant` with the
+  plant interface the emulator drives
   (``plant_start``, ``plant_step``). ``plant_start`` runs the warm-up under the building's own
   control (``warmup_days`` of the card) up to the scenario's first time; every ``plant_step``
   applies the controls as overwrites (the card's canonical units converted to the FMU's; a
@@ -30,8 +32,8 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
-from mshoot_core.boptest.plant import BoptestPlant, MAX_SAMPLE_S, RECORDED
-from mshoot_core.boptest.testcase import LOWER_SETPOINT, TestCase, UPPER_SETPOINT
+from mshoot_core.boptest.plant import BoptestPlant, MAX_SAMPLE_S, ME_TOLERANCE
+from mshoot_core.boptest.testcase import TestCase
 
 logger = logging.getLogger(__name__)
 
@@ -51,7 +53,8 @@ def year_start() -> pd.Timestamp:
 
 
 def boptest_scenario(case: TestCase, period: str, hours: int | None = None,
-                     price: str = 'constant', step_s: float | None = None) -> pd.DataFrame:
+                     price: str = 'constant', step_s: float | None = None,
+                     zone: str | None = None) -> pd.DataFrame:
     """
     Return the scenario of a test period (module docstring): ``hours`` steps, ``hours + 1`` rows.
 
@@ -67,6 +70,8 @@ def boptest_scenario(case: TestCase, period: str, hours: int | None = None,
         Price scenario of the ``price`` column.
     step_s : float, optional
         Row spacing [s] (default the test case's control step).
+    zone : str, optional
+        The zone of the band and the occupancy (default the first of ``kpis.json``).
 
     Raises
     ------
@@ -80,21 +85,25 @@ def boptest_scenario(case: TestCase, period: str, hours: int | None = None,
     if steps < 1:
         raise ValueError(f'hours must be >= 1, got {hours!r}')
     fmu_times = start + np.arange(steps + 1) * step
-    data = case.lookup_frame([*(c for c, _ in SCENARIO_WEATHER.values()), 'Occupancy[1]',
-                              LOWER_SETPOINT, UPPER_SETPOINT, case.price_column(price)],
-                             fmu_times)
+    zone = case.zones[0] if zone is None else str(zone)
+    lower, upper = case.band_columns(zone)
+    occupancy = f'Occupancy[{zone}]'
+    data = case.lookup_frame([*(c for c, _ in SCENARIO_WEATHER.values()), lower, upper,
+                              case.price_column(price)], fmu_times)
+    occupants = (case.lookup(occupancy, fmu_times) if occupancy in case.columns
+                 else np.zeros(fmu_times.size))
     weather = {name: data[column].to_numpy() + offset
                for name, (column, offset) in SCENARIO_WEATHER.items()}
     scenario = pd.DataFrame({
         'solrad': weather['solrad'], 'Tout': weather['Tout'],
-        'occ': data['Occupancy[1]'].to_numpy(), 'dpos': np.zeros(fmu_times.size),
-        'comfort_min': data[LOWER_SETPOINT].to_numpy() - KELVIN,
-        'comfort_max': data[UPPER_SETPOINT].to_numpy() - KELVIN,
+        'occ': occupants, 'dpos': np.zeros(fmu_times.size),
+        'comfort_min': data[lower].to_numpy() - KELVIN,
+        'comfort_max': data[upper].to_numpy() - KELVIN,
         'price': data[case.price_column(price)].to_numpy(), 'fmu_time_s': fmu_times,
     }, index=pd.Index(fmu_times - start, name='time_s'))
     scenario.attrs['start'] = (year_start() + pd.Timedelta(seconds=start)).isoformat()
     scenario.attrs['boptest'] = {'test_case': str(case.directory), 'period': period,
-                                 'price': price, 'start_s': start,
+                                 'price': price, 'start_s': start, 'zone': zone,
                                  'weather': {k: list(v) for k, v in SCENARIO_WEATHER.items()}}
     return scenario
 
@@ -146,9 +155,8 @@ class BoptestPlantModel:
         self.control_limits = card.control_bounds((-np.inf, np.inf))
         self.time_origin_s = 0.0
         self.instance_name = instance_name
-        variables = [*card.states.values(), *card.outputs.values()]
-        extra = [v.variable for v in variables]
-        self.plant = BoptestPlant(self.case, record=list(dict.fromkeys([*RECORDED, *extra])))
+        # every output recorded, as BOPTEST stores them (the card's and kpis.json's among them)
+        self.plant = BoptestPlant(self.case, tolerance=card.tolerance or ME_TOLERANCE)
         self._controls = [card.controls[n] for n in self.control_names]
         self._states = list(card.states.values())
         self._outputs = list(card.outputs.values())

@@ -6,57 +6,54 @@ Stable API::
     from mshoot_core.boptest.kpis import compute_kpis, kpi_records, KPI_NAMES
     kpis = compute_kpis(table, case, start_s, end_s, price='dynamic', step_wall_s=walls)
     # {'tdis_tot': K h, 'idis_tot': ppm h, 'ener_tot': kWh/m2, 'cost_tot': EUR/m2,
-    #  'emis_tot': kgCO2/m2, 'pele_tot': kW/m2, 'time_rat': -, 'starts_per_day': 1/d}
+    #  'emis_tot': kgCO2/m2, 'pele_tot': kW/m2, 'pgas_tot': kW/m2, 'pdih_tot': kW/m2,
+    #  'time_rat': -, 'tdis_zones': {zone: K h}}
 
-The definitions are those of the test case's README (BOPTEST's KPI calculator), over the test
-period ``[start_s, end_s]``, from the outputs stored during the run (``table``: a ``time``
-column [s from 1 January] and the outputs named in the test case's ``kpis.json``, sampled at
+The definitions are those of BOPTEST's KPI calculator (``kpis/kpi_calculator.py`` of
+``ibpsa/project1-boptest``, as the test cases' READMEs write them out), over the test period
+``[start_s, end_s]``, from the outputs stored during the run (``table``: a ``time`` column
+[s from 1 January] and the outputs named in the test case's ``kpis.json``, sampled at
 <= 60 s as :class:`~mshoot_core.boptest.plant.BoptestPlant` records them), with the test case's
-data (band, CO2 limit, prices, emissions) held constant between their rows (forward fill) and
-integrals by the trapezoid rule over the samples:
+data (band, CO2 limit, prices, emission factors) held constant between their rows (forward
+fill) and integrals by the trapezoid rule over the samples:
 
-- ``tdis_tot`` [K h]: ∫ (max(0, LowerSetp[z] - T_z) + max(0, T_z - UpperSetp[z])) dt / 3600,
-  averaged over the zones z (``OperativeZoneTemperature[z]`` of ``kpis.json``);
-- ``idis_tot`` [ppm h]: ∫ max(0, CO2_z - UpperCO2[z]) dt / 3600, averaged over the zones;
-- ``ener_tot`` [kWh/m2]: ∫ P dt / 3.6e6 / area, P [W] the sum of the ``ElectricPower`` outputs;
-- ``cost_tot`` [EUR/m2]: ∫ P * price dt / 3.6e6 / area (price [EUR/kWh] of the scenario);
-- ``emis_tot`` [kgCO2/m2]: ∫ P * EmissionsElectricPower dt / 3.6e6 / area;
-- ``pele_tot`` [kW/m2]: the largest 15-minute mean of P / area / 1000; the means are over the
-  samples in each 900 s bin [k 900, (k + 1) 900) of FMU time (as pandas' ``resample('15min')``
-  of BOPTEST), within the period;
+- ``tdis_tot`` [K h]: for each zone z of ``kpis.json`` (``OperativeZoneTemperature[z]`` or
+  ``AirZoneTemperature[z]``), ∫ (max(0, LowerSetp[z] - T_z) + max(0, T_z - UpperSetp[z])) dt
+  / 3600 (``tdis_zones``), averaged over the zones;
+- ``idis_tot`` [ppm h]: ∫ max(0, CO2_z - UpperCO2[z]) dt / 3600, averaged over the zones
+  (``CO2Concentration[z]``);
+- ``ener_tot`` [kWh/m2]: ∫ Σ P dt / 3.6e6 / area, P [W] every output of every energy vector
+  of ``kpis.json`` (``ElectricPower``, ``GasPower``, ``DistrictHeatingPower``, ...:
+  :data:`~mshoot_core.boptest.testcase.ENERGY_VECTORS`);
+- ``cost_tot`` [EUR/m2]: ∫ Σ_v P_v * price_v dt / 3.6e6 / area, the price of electricity that
+  of the scenario (``PriceElectricPower<Scenario>``), of every other vector ``Price<vector>``;
+- ``emis_tot`` [kgCO2/m2]: the same with the emission factors ``Emissions<vector>``;
+- ``pele_tot``, ``pgas_tot``, ``pdih_tot`` [kW/m2]: the largest 15-minute mean of the electric,
+  gas, district heating power / area / 1000 (None when the test case has no such vector); the
+  means are over the samples in each 900 s bin [k 900, (k + 1) 900) of FMU time (as pandas'
+  ``resample('15min')`` of BOPTEST), within the period;
 - ``time_rat`` [-]: the mean over control steps of the controller's wall time between two
-  emulator advances divided by the control step (None when no wall times are given);
-- ``starts_per_day`` [1/day]: not a BOPTEST KPI: the heat pump's off -> on transitions per day
-  (:func:`~mshoot_core.boptest.plant.heat_pump_starts`), when the table has ``reaHeaPumY_y``.
+  emulator advances divided by the control step (None when no wall times are given).
 """
 from __future__ import annotations
 
 import logging
-import re
 from typing import Sequence
 
 import numpy as np
 import pandas as pd
 
-from mshoot_core.boptest.plant import heat_pump_starts
-from mshoot_core.boptest.testcase import EMISSIONS_COLUMN, PRICE_SCENARIOS, TestCase
+from mshoot_core.boptest.testcase import PEAK_KPIS, PRICE_SCENARIOS, TestCase
 
 logger = logging.getLogger(__name__)
 
 #: BOPTEST's KPIs, in the order of its reports.
-KPI_NAMES = ('tdis_tot', 'idis_tot', 'ener_tot', 'cost_tot', 'emis_tot', 'pele_tot', 'time_rat')
+KPI_NAMES = ('tdis_tot', 'idis_tot', 'ener_tot', 'cost_tot', 'emis_tot', 'pele_tot',
+             'pgas_tot', 'pdih_tot', 'time_rat')
 #: Joules per kWh.
 J_PER_KWH = 3.6e6
 #: Bin of the peak power KPI [s].
 PEAK_BIN_S = 900.0
-_ZONE = re.compile(r'\[(\w+)\]$')
-
-
-def _zone(key: str) -> str:
-    match = _ZONE.search(key)
-    if match is None:
-        raise ValueError(f'kpis.json key {key!r} names no zone ("...[z]")')
-    return match.group(1)
 
 
 def _window(table: pd.DataFrame, start_s: float, end_s: float) -> pd.DataFrame:
@@ -86,39 +83,53 @@ def _columns(table: pd.DataFrame, names: Sequence[str]) -> np.ndarray:
     return values
 
 
+def vector_power(table: pd.DataFrame, case: TestCase, vector: str) -> np.ndarray:
+    """Return the power of one energy vector [W]: the sum of its ``kpis.json`` outputs, per row."""
+    return _columns(table, case.energy_outputs.get(vector, [])).sum(axis=1)
+
+
 def electric_power(table: pd.DataFrame, case: TestCase) -> np.ndarray:
     """Return the electric power P [W]: the sum of the ``ElectricPower`` outputs, per row."""
-    return _columns(table, case.power_outputs).sum(axis=1)
+    return vector_power(table, case, 'ElectricPower')
+
+
+def zone_discomfort(table: pd.DataFrame, case: TestCase) -> dict[str, tuple[np.ndarray, ...]]:
+    """
+    Return zone -> (below, above) the band [K] per row (the ``tdis`` integrands).
+
+    Raises
+    ------
+    ValueError
+        When ``kpis.json`` names no zone temperature, or for missing columns.
+
+    """
+    times = table['time'].to_numpy(dtype=float)
+    out = {}
+    for zone, outputs in case.zone_temperature_outputs.items():
+        lower_column, upper_column = case.band_columns(zone)
+        lower, upper = case.lookup(lower_column, times), case.lookup(upper_column, times)
+        temperatures = _columns(table, outputs)
+        out[zone] = (np.maximum(0.0, lower[:, None] - temperatures).sum(axis=1),
+                     np.maximum(0.0, temperatures - upper[:, None]).sum(axis=1))
+    if not out:
+        raise ValueError(f'{case.name}: kpis.json names no OperativeZoneTemperature[z]')
+    return out
 
 
 def thermal_discomfort(table: pd.DataFrame, case: TestCase) -> np.ndarray:
     """Return the band violation [K] per row, averaged over the zones (``tdis_tot`` integrand)."""
-    times = table['time'].to_numpy(dtype=float)
-    per_zone = []
-    for key, outputs in case.kpi_outputs.items():
-        if not key.startswith('OperativeZoneTemperature'):
-            continue
-        zone = _zone(key)
-        temperature = _columns(table, outputs)[:, 0]
-        lower = case.lookup(f'LowerSetp[{zone}]', times)
-        upper = case.lookup(f'UpperSetp[{zone}]', times)
-        per_zone.append(np.maximum(0.0, lower - temperature)
-                        + np.maximum(0.0, temperature - upper))
-    if not per_zone:
-        raise ValueError(f'{case.name}: kpis.json names no OperativeZoneTemperature')
-    return np.mean(per_zone, axis=0)
+    return np.mean([below + above for below, above in zone_discomfort(table, case).values()],
+                   axis=0)
 
 
 def co2_discomfort(table: pd.DataFrame, case: TestCase) -> np.ndarray:
     """Return the CO2 excess [ppm] per row, averaged over the zones (``idis_tot`` integrand)."""
     times = table['time'].to_numpy(dtype=float)
     per_zone = []
-    for key, outputs in case.kpi_outputs.items():
-        if not key.startswith('CO2Concentration'):
-            continue
-        zone = _zone(key)
-        co2 = _columns(table, outputs)[:, 0]
-        per_zone.append(np.maximum(0.0, co2 - case.lookup(f'UpperCO2[{zone}]', times)))
+    for zone, outputs in case.co2_outputs.items():
+        co2 = _columns(table, outputs)
+        limit = case.lookup(f'UpperCO2[{zone}]', times)
+        per_zone.append(np.maximum(0.0, co2 - limit[:, None]).sum(axis=1))
     if not per_zone:
         return np.zeros(len(table))
     return np.mean(per_zone, axis=0)
@@ -152,7 +163,7 @@ def compute_kpis(table: pd.DataFrame, case: TestCase, start_s: float, end_s: flo
     ----------
     table : pd.DataFrame
         Records: ``time`` [s from 1 January] increasing, covering [start_s, end_s], and the
-        test case's KPI outputs (FMU units: K, W, ppm); ``reaHeaPumY_y`` for the starts.
+        test case's KPI outputs (FMU units: K, W, ppm).
     case : TestCase
         The test case (area, KPI map, data).
     start_s, end_s : float
@@ -167,8 +178,8 @@ def compute_kpis(table: pd.DataFrame, case: TestCase, start_s: float, end_s: flo
     Returns
     -------
     dict
-        :data:`KPI_NAMES` -> value (``time_rat`` None without wall times), plus
-        ``starts_per_day`` (None without ``reaHeaPumY_y``).
+        :data:`KPI_NAMES` -> value (``time_rat`` None without wall times; a peak None
+        without its energy vector), plus ``tdis_zones``: zone -> its discomfort [K h].
 
     Raises
     ------
@@ -176,19 +187,34 @@ def compute_kpis(table: pd.DataFrame, case: TestCase, start_s: float, end_s: flo
         For missing columns, a period the records do not cover or an unknown price scenario.
 
     """
-    price_column = case.price_column(price)
+    case.price_column(price)  # an unknown scenario fails here
     period = _window(table, start_s, end_s)
     times = period['time'].to_numpy(dtype=float)
-    power = electric_power(period, case)
+    vectors = case.energy_outputs
+    if not vectors:
+        raise ValueError(f'{case.name}: kpis.json names no energy vector (expected one of '
+                         'ElectricPower, GasPower, DistrictHeatingPower, ...)')
     scale = J_PER_KWH * case.area_m2
-    kpis: dict[str, float | None] = {
-        'tdis_tot': float(np.trapezoid(thermal_discomfort(period, case), times) / 3600.0),
+    power = {vector: vector_power(period, case, vector) for vector in vectors}
+    energy = cost = emissions = 0.0
+    for vector, watts in power.items():
+        energy += np.trapezoid(watts, times)
+        cost += np.trapezoid(watts * case.lookup(case.price_column(price, vector), times),
+                             times)
+        emissions += np.trapezoid(watts * case.lookup(case.emission_column(vector), times),
+                                  times)
+    per_zone = zone_discomfort(period, case)
+    zones = {zone: float((np.trapezoid(below, times) + np.trapezoid(above, times)) / 3600.0)
+             for zone, (below, above) in per_zone.items()}
+    mean_excess = np.mean([below + above for below, above in per_zone.values()], axis=0)
+    kpis: dict = {
+        'tdis_tot': float(np.trapezoid(mean_excess, times) / 3600.0),
         'idis_tot': float(np.trapezoid(co2_discomfort(period, case), times) / 3600.0),
-        'ener_tot': float(np.trapezoid(power, times) / scale),
-        'cost_tot': float(np.trapezoid(power * case.lookup(price_column, times), times) / scale),
-        'emis_tot': float(np.trapezoid(power * case.lookup(EMISSIONS_COLUMN, times), times)
-                          / scale),
-        'pele_tot': peak_power(times, power) / case.area_m2 / 1000.0,
+        'ener_tot': float(energy / scale),
+        'cost_tot': float(cost / scale),
+        'emis_tot': float(emissions / scale),
+        **{name: (peak_power(times, power[vector]) / case.area_m2 / 1000.0
+                  if vector in power else None) for vector, name in PEAK_KPIS.items()},
         'time_rat': None,
     }
     if step_wall_s is not None:
@@ -197,8 +223,7 @@ def compute_kpis(table: pd.DataFrame, case: TestCase, start_s: float, end_s: flo
         if walls.size == 0 or not np.all(np.isfinite(walls)) or not step > 0:
             raise ValueError('time_rat needs finite wall times and a positive control step')
         kpis['time_rat'] = float(walls.mean() / step)
-    kpis['starts_per_day'] = (heat_pump_starts(period, start_s, end_s)[1]
-                              if 'reaHeaPumY_y' in period.columns else None)
+    kpis['tdis_zones'] = zones
     return kpis
 
 

@@ -1,33 +1,40 @@
 """
-The BOPTEST test case's FMU as a plant: one persistent instance stepped for a whole run.
+A BOPTEST test case's FMU as a plant: one persistent instance stepped for a whole run.
 
 Stable API (other modules build on it)::
 
-    from mshoot_core.boptest.plant import BoptestPlant, RECORDED, heat_pump_starts
-    with BoptestPlant(case) as plant:             # case: TestCase (default TestCase.load())
+    from mshoot_core.boptest.plant import BoptestPlant, run_period
+    with BoptestPlant(case) as plant:             # case: TestCase
         plant.start(warmup_start_s)               # instantiate + initialise at FMU time [s]
         plant.advance(start_s)                    # baseline control (no overwrite)
-        plant.advance(start_s + 3600, {'oveTSet_u': 294.15})   # overwrite over the hour
+        plant.advance(start_s + 3600, {'<X>_u': value})   # overwrite X over the hour
         plant.time_s, plant.outputs               # now, and the outputs now (dict)
-        table = plant.records()                   # DataFrame: 'time' [s] + RECORDED + overwrites
-    heat_pump_starts(table, start_s, end_s)       # -> (count, per day)
+        table = plant.records()                   # DataFrame: 'time' [s] + recorded + overwrites
     run = run_period(case, 'peak_heat_day', controller=None)   # baseline; PeriodRun
-    run = run_period(case, 'peak_heat_day', lambda t_s, outputs: {'oveTSet_u': 294.15})
+    run = run_period(case, 'peak_heat_day', lambda t_s, outputs: {'<X>_u': value})
+
+The FMU is Co-Simulation or Model Exchange (Co-Simulation when it has both), run by one
+:class:`~mshoot_core.models.fmi.FmiModel` as its plant (:mod:`mshoot_core.models.fmi_plant`:
+``fmi2DoStep``, or CVode with the FMU's events and no stop time). Co-Simulation FMUs keep their
+own integrator tolerance (BOPTEST gives them none); Model Exchange is integrated at
+``tolerance`` (default :data:`ME_TOLERANCE`).
 
 FMU time is seconds from 1 January (the clock of the test case's data). :meth:`advance` steps
-``fmi2DoStep`` every ``sample_s`` (default 60 s, at most 60 s: BOPTEST's KPIs need a fine grid)
-and records :data:`RECORDED` (the KPI outputs, the weather the building sees, the heat pump and
-the baseline setpoints) plus the overwrite values applied (NaN where the building's own control
-held) after every step; the row of the start time is recorded by :meth:`start`.
+every ``sample_s`` (default 60 s, at most 60 s: BOPTEST's KPIs need a fine grid) and records
+the outputs :attr:`BoptestPlant.recorded` (default: every output of the FMU, as BOPTEST stores
+them; or those a caller names, e.g. :func:`recorded_outputs` of a card and ``kpis.json``) plus
+the overwrite values applied (NaN where the building's own control held) after every step; the
+row of the start time is recorded by :meth:`start`.
 
 Overwrites follow BOPTEST's ``/advance``: a dict of ``X_u`` input -> value applied (held) over the
 advance, each with its ``X_activate`` Boolean set true; every overwrite input *not* in the dict
 (or given as None) is released to the building's own controller (``X_activate`` false). Unknown
 names and values outside the input's declared [min, max] raise :class:`ValueError`.
 
-The FMU allows one instance per process (``canBeInstantiatedOnlyOncePerProcess``): starting a
-plant while another one of this process holds an instance raises :class:`RuntimeError`; close it
-first (:meth:`BoptestPlant.close`, or use the plant as a context manager).
+BOPTEST's FMUs allow one instance per process (``canBeInstantiatedOnlyOncePerProcess``):
+starting a plant while another one of this process holds an instance raises
+:class:`RuntimeError`; close it first (:meth:`BoptestPlant.close`, or use the plant as a
+context manager).
 """
 from __future__ import annotations
 
@@ -36,25 +43,20 @@ import logging
 import math
 import threading
 import time
-from typing import Callable, Mapping, Optional, Sequence
+from typing import Any, Callable, Iterable, Mapping, Optional, Sequence
 
 import numpy as np
 import pandas as pd
 
 from mshoot_core import fmu_cache
-from mshoot_core.boptest.testcase import load_shim, TestCase
+from mshoot_core.boptest.testcase import shim_libraries, TestCase
 
 logger = logging.getLogger(__name__)
 
-#: Outputs recorded at every step (those the KPIs, the figures and the identification read).
-RECORDED = ('reaTZon_y', 'reaPHeaPum_y', 'reaPFan_y', 'reaPPumEmi_y', 'reaCO2RooAir_y',
-            'weaSta_reaWeaTDryBul_y', 'weaSta_reaWeaHGloHor_y', 'reaHeaPumY_y', 'reaCOP_y',
-            'reaQFloHea_y', 'reaQHeaPumCon_y', 'reaTSetHea_y', 'reaTSetCoo_y', 'reaTSet_y',
-            'reaTSup_y', 'reaTRet_y', 'reaPum_y', 'reaFan_y')
 #: Largest step between two recorded samples [s].
 MAX_SAMPLE_S = 60.0
-#: Modulation above which the heat pump counts as on [-] (:func:`heat_pump_starts`).
-ON_THRESHOLD = 0.01
+#: Relative tolerance of the Model Exchange integration (CVode) [-].
+ME_TOLERANCE = 1e-6
 #: Time tolerance [s].
 _EPS_S = 1e-6
 
@@ -70,9 +72,9 @@ class OverwriteInput:
     Attributes
     ----------
     name : str
-        The value input (``oveTSet_u``).
+        The value input (``X_u``).
     activate : str
-        Its Boolean switch (``oveTSet_activate``).
+        Its Boolean switch (``X_activate``).
     unit : str
         Declared unit ('' if none).
     lower, upper : float
@@ -90,41 +92,59 @@ class OverwriteInput:
     description: str
 
 
+def recorded_outputs(case: TestCase, variables: Iterable[str] = ()) -> list[str]:
+    """
+    Return what a run must record: the outputs ``kpis.json`` names, then ``variables``.
+
+    Parameters
+    ----------
+    case : TestCase
+        The test case.
+    variables : iterable of str
+        More FMU outputs (e.g. the variables a card maps).
+
+    """
+    return list(dict.fromkeys([*case.kpi_output_names, *variables]))
+
+
 class BoptestPlant:
     """
-    The test case's FMU, one persistent ``fmpy.fmi2.FMU2Slave`` instance (see the module).
+    A test case's FMU as one persistent plant instance (see the module).
 
     Parameters
     ----------
     case : TestCase, optional
         The test case; default :meth:`TestCase.load`.
     record : sequence of str, optional
-        Outputs recorded at every step; default :data:`RECORDED`.
+        Outputs recorded at every step; default every output of the FMU.
+    tolerance : float
+        Relative tolerance of a Model Exchange integration [-].
 
     Attributes
     ----------
     inputs : dict of str to OverwriteInput
-        The overwrite inputs by value name (``oveTSet_u``, ``oveHeaPumY_u``, ``ovePum_u``,
-        ``oveFan_u``).
+        The overwrite inputs by value name (``X_u``).
     outputs_available : list of str
         Every output of the FMU.
+    interface : str
+        'CoSimulation' or 'ModelExchange'.
 
     """
 
-    def __init__(self, case: TestCase | None = None,
-                 record: Sequence[str] | None = None) -> None:
-        import fmpy  # noqa: F401 (imported where used)
+    def __init__(self, case: TestCase | None = None, record: Sequence[str] | None = None,
+                 tolerance: float = ME_TOLERANCE) -> None:
+        from mshoot_core.models.fmi import read_cached_description
         self.case = case if case is not None else TestCase.load()
-        load_shim(self.case.directory)
+        self.tolerance = float(tolerance)
         self._unzipped = fmu_cache.extract_fmu(self.case.fmu_path)
-        self.model_description = fmpy.read_model_description(
-            str(self._unzipped), validate=False)
-        variables = {v.name: v for v in self.model_description.modelVariables}
-        self._refs = {name: v.valueReference for name, v in variables.items()}
-        self.outputs_available = [v.name for v in self.model_description.modelVariables
-                                  if v.causality == 'output']
+        self.model_description = read_cached_description(
+            self._unzipped, self.case.fmu_path.name, validate=False)
+        md = self.model_description
+        self.interface = 'CoSimulation' if md.coSimulation is not None else 'ModelExchange'
+        variables = {v.name: v for v in md.modelVariables}
+        self.outputs_available = [v.name for v in md.modelVariables if v.causality == 'output']
         self.inputs: dict[str, OverwriteInput] = {}
-        for v in self.model_description.modelVariables:
+        for v in md.modelVariables:
             if v.causality != 'input' or not v.name.endswith('_u'):
                 continue
             activate = v.name[:-2] + '_activate'
@@ -134,15 +154,16 @@ class BoptestPlant:
                 v.name, activate, v.unit or '',
                 float(v.min) if v.min is not None else -math.inf,
                 float(v.max) if v.max is not None else math.inf, v.description or '')
-        self.recorded = tuple(record) if record is not None else RECORDED
+        self.recorded = (tuple(record) if record is not None
+                         else tuple(self.outputs_available))
         unknown = [n for n in self.recorded if n not in self.outputs_available]
         if unknown:
             raise ValueError(f'not outputs of {self.case.name}: {unknown}; outputs: '
                              f'{self.outputs_available}')
-        self._record_refs = [self._refs[n] for n in self.recorded]
-        self._fmu = None
+        self._model: Any = None
         self._time_s: float | None = None
         self._applied: dict[str, float] = {}
+        self._switches: dict[str, float | bool] = {}
         self._rows: list[list[float]] = []
         self._last: list[float] = []
 
@@ -150,7 +171,7 @@ class BoptestPlant:
     @property
     def running(self) -> bool:
         """Whether this plant holds an FMU instance."""
-        return self._fmu is not None
+        return self._model is not None
 
     @property
     def time_s(self) -> float | None:
@@ -179,7 +200,7 @@ class BoptestPlant:
             For a negative or non-finite time.
 
         """
-        from fmpy.fmi2 import FMU2Slave
+        from mshoot_core.models.fmi import FmiModel
         if not (math.isfinite(t0_s) and t0_s >= 0):
             raise ValueError(f'expected a start time >= 0 s, got {t0_s!r}')
         with _instance_lock:
@@ -187,37 +208,36 @@ class BoptestPlant:
                 which = 'this plant' if _instance_owner[0] is self else 'another BoptestPlant'
                 raise RuntimeError(f'{which} of this process holds the instance of '
                                    f'{self.case.name} (one instance per process): close it first')
-            md = self.model_description
-            fmu = FMU2Slave(guid=md.guid, unzipDirectory=str(self._unzipped),
-                            modelIdentifier=md.coSimulation.modelIdentifier,
-                            instanceName='boptest')
-            fmu.instantiate()
+            model = FmiModel(self.case.fmu_path, inputs=[], states=[],
+                             outputs=list(self.recorded),
+                             tolerance=self.tolerance, fmi_type=self.interface,
+                             instance_name='boptest', validate=False,
+                             libraries=shim_libraries(self.case.directory), own_tolerance=True)
             _instance_owner.append(self)
-        self._fmu = fmu
+        self._model = model
         try:
-            fmu.setupExperiment(startTime=float(t0_s))
-            fmu.enterInitializationMode()
-            fmu.exitInitializationMode()
+            _, values = model.plant_start([], float(t0_s), [])
         except BaseException:
             self.close()
             raise
         self._time_s = float(t0_s)
         self._applied = {}
+        self._switches = {}
         self._rows = []
-        self._record()
-        logger.debug('%s started at t = %g s', self.case.name, t0_s)
+        self._record(values)
+        logger.debug('%s started at t = %g s (%s)', self.case.name, t0_s, self.interface)
         return self.outputs
 
     def close(self) -> None:
         """Terminate and free the instance (idempotent); the records stay."""
-        fmu, self._fmu = self._fmu, None
-        if fmu is None:
+        model, self._model = self._model, None
+        if model is None:
             return
         try:
             try:
-                fmu.terminate()
+                model.fmu.terminate()
             finally:
-                fmu.freeInstance()
+                model.close()
         finally:
             with _instance_lock:
                 if self in _instance_owner:
@@ -271,13 +291,16 @@ class BoptestPlant:
         return active
 
     def _apply(self, active: dict[str, float]) -> None:
-        fmu = self._fmu
+        """Set the overwrites and switches that change (each change an event in ME)."""
+        wanted: dict[str, float | bool] = {}
         for name, spec in self.inputs.items():
             if name in active:
-                fmu.setReal([self._refs[name]], [active[name]])
-                fmu.setBoolean([self._refs[spec.activate]], [True])
-            else:
-                fmu.setBoolean([self._refs[spec.activate]], [False])
+                wanted[name] = active[name]
+            wanted[spec.activate] = name in active
+        changed = {k: v for k, v in wanted.items() if self._switches.get(k) != v}
+        if changed:
+            self._model.plant_set(changed)
+            self._switches.update(changed)
         self._applied = active
 
     # -- stepping ------------------------------------------------------------------------------
@@ -309,7 +332,7 @@ class BoptestPlant:
             For bad overwrites, a time in the past or a bad sample step.
 
         """
-        if self._fmu is None:
+        if self._model is None:
             raise RuntimeError('the plant is not running: call start() first')
         if not (math.isfinite(sample_s) and 0 < sample_s <= MAX_SAMPLE_S):
             raise ValueError(f'expected 0 < sample_s <= {MAX_SAMPLE_S:g} s, got {sample_s!r}')
@@ -320,14 +343,13 @@ class BoptestPlant:
         steps = max(0, math.ceil((to_s - t_begin) / sample_s - 1e-9))
         for k in range(steps):
             t_next = min(t_begin + (k + 1) * sample_s, to_s)
-            self._fmu.doStep(currentCommunicationPoint=self._time_s,
-                             communicationStepSize=t_next - self._time_s)
+            _, values = self._model.plant_step([], t_next - self._time_s)
             self._time_s = t_next
-            self._record()
+            self._record(values)
         return self.outputs
 
-    def _record(self) -> None:
-        values = self._fmu.getReal(self._record_refs)
+    def _record(self, values: np.ndarray) -> None:
+        values = [float(v) for v in values]
         self._last = values
         applied = [self._applied.get(name, math.nan) for name in self.inputs]
         self._rows.append([self._time_s, *values, *applied])
@@ -349,12 +371,9 @@ class BoptestPlant:
             When not running.
 
         """
-        if self._fmu is None:
+        if self._model is None:
             raise RuntimeError('the plant is not running: call start() first')
-        unknown = [n for n in names if n not in self._refs]
-        if unknown:
-            raise ValueError(f'unknown variables of {self.case.name}: {unknown}')
-        return dict(zip(names, self._fmu.getReal([self._refs[n] for n in names])))
+        return self._model.plant_get(list(names))
 
     def records(self, start_s: float | None = None, end_s: float | None = None) -> pd.DataFrame:
         """
@@ -384,56 +403,9 @@ class BoptestPlant:
         return table[keep].reset_index(drop=True)
 
 
-def heat_pump_starts(records: pd.DataFrame, start_s: float | None = None,
-                     end_s: float | None = None, threshold: float = ON_THRESHOLD,
-                     column: str = 'reaHeaPumY_y') -> tuple[int, float]:
-    """
-    Count the heat pump's starts: off -> on transitions of its modulation.
-
-    A start is a sample above ``threshold`` whose previous sample is at or below it; only
-    starts at sample times in (start_s, end_s] count.
-
-    Parameters
-    ----------
-    records : pd.DataFrame
-        A record table (:meth:`BoptestPlant.records`) with ``time`` [s] and ``column``.
-    start_s, end_s : float, optional
-        The window [s]; default the table's span.
-    threshold : float
-        Modulation above which the heat pump is on [-].
-    column : str
-        The modulation column.
-
-    Returns
-    -------
-    tuple of (int, float)
-        The number of starts and the starts per day of the window.
-
-    Raises
-    ------
-    ValueError
-        For missing columns or an empty window.
-
-    """
-    for name in ('time', column):
-        if name not in records.columns:
-            raise ValueError(f'the record table lacks the column {name!r}')
-    times = records['time'].to_numpy(dtype=float)
-    on = records[column].to_numpy(dtype=float) > threshold
-    t0 = times[0] if start_s is None else float(start_s)
-    t1 = times[-1] if end_s is None else float(end_s)
-    if not t1 > t0:
-        raise ValueError(f'empty window [{t0:g}, {t1:g}] s')
-    rising = np.zeros_like(on)
-    rising[1:] = on[1:] & ~on[:-1]
-    inside = (times > t0 + _EPS_S) & (times <= t1 + _EPS_S)
-    count = int(np.count_nonzero(rising & inside))
-    return count, count / ((t1 - t0) / 86400.0)
-
-
-#: A controller of :func:`run_period`: (time [s], outputs now) -> overwrites over the next
+#: A step policy of :func:`run_period`: (time [s], outputs now) -> overwrites over the next
 #: control step (None: the building's own control).
-Controller = Callable[[float, Mapping[str, float]], Optional[Mapping[str, float]]]
+StepPolicy = Callable[[float, Mapping[str, float]], Optional[Mapping[str, float]]]
 
 
 @dataclasses.dataclass
@@ -462,10 +434,11 @@ class PeriodRun:
     wall_s: float
 
 
-def run_period(case: TestCase, period: str, controller: Controller | None = None,
+def run_period(case: TestCase, period: str, controller: StepPolicy | None = None,
                warmup_days: float = 7.0, length_days: float = 14.0,
                control_step_s: float | None = None,
-               sample_s: float = MAX_SAMPLE_S) -> PeriodRun:
+               sample_s: float = MAX_SAMPLE_S,
+               record: Sequence[str] | None = None) -> PeriodRun:
     """
     Run a test period in this process: warm-up under baseline control, then ``controller``.
 
@@ -477,13 +450,15 @@ def run_period(case: TestCase, period: str, controller: Controller | None = None
         A test period (:meth:`TestCase.test_period`).
     controller : callable, optional
         ``controller(t_s, outputs) -> overwrites`` called at every control step of the test
-        period (see :data:`Controller`); None: the baseline (no overwrite).
+        period (see :data:`StepPolicy`); None: the baseline (no overwrite).
     warmup_days, length_days : float
         Warm-up and test period lengths [days] (BOPTEST: 7 and 14).
     control_step_s : float, optional
         Control step [s]; default the test case's (3600 s).
     sample_s : float
         Record step [s], <= 60.
+    record : sequence of str, optional
+        The outputs recorded (:class:`BoptestPlant`; default every output).
 
     Returns
     -------
@@ -496,7 +471,7 @@ def run_period(case: TestCase, period: str, controller: Controller | None = None
         raise ValueError(f'expected a positive control step, got {control_step_s!r}')
     walls: list[float] = []
     began = time.perf_counter()
-    with BoptestPlant(case) as plant:
+    with BoptestPlant(case, record=record) as plant:
         plant.start(warmup_start)
         plant.advance(start, sample_s=sample_s)
         k = 0

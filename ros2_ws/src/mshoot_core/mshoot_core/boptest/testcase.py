@@ -1,29 +1,38 @@
 """
-A BOPTEST test case on disk: its FMU, configuration, test periods, KPI map and data.
+A BOPTEST test case folder on disk: its FMU, configuration, test periods, KPI map and data.
 
 Stable API (other modules build on it)::
 
     from mshoot_core.boptest.testcase import TestCase, PRICE_SCENARIOS, load_shim
-    case = TestCase.load()                 # or TestCase.load('/path/to/test_case')
+    case = TestCase.load('/path/to/test_case')   # or $MSHOOT_BOPTEST_DIR
     case.area_m2, case.control_step_s, case.fmu_path, case.days, case.kpi_outputs
+    case.zones                                   # ['1'] or ['nZ', 'sZ'] (from kpis.json)
+    case.energy_outputs                          # {'ElectricPower': [...], 'GasPower': [...]}
     warmup_start_s, start_s, end_s = case.test_period('peak_heat_day')
     case.test_period('peak_heat_day', warmup_days=1, length_days=2)   # shortened
     case.lookup('LowerSetp[1]', times_s) -> np.ndarray   # forward-filled
     case.lookup_frame(['TDryBul', 'HGloHor'], times_s) -> pd.DataFrame (index: time [s])
+    case.band_columns('1') -> ('LowerSetp[1]', 'UpperSetp[1]')
     case.price_column('dynamic') -> 'PriceElectricPowerDynamic'
+    case.price_column('dynamic', 'GasPower') -> 'PriceGasPower'
+    case.emission_column('GasPower') -> 'EmissionsGasPower'
     load_shim(case.directory) -> tuple[str, ...]          # stand-ins (shim/), loaded RTLD_GLOBAL
 
-The test case folder (``bestest_hydronic_heat_pump`` of BOPTEST, read-only) is found by
-:func:`default_directory`: the environment variable ``MSHOOT_BOPTEST_DIR`` or else
-``../shared/boptest/bestest_hydronic_heat_pump`` beside the repository. It holds
-``wrapped.fmu``, ``config.json`` (floor area, control step), ``days.json`` (test period days),
-``kpis.json`` (which outputs feed which KPI) and ``Resources/*.csv`` (900 s rows over one year,
-``time`` in seconds from 1 January, the FMU's clock): the comfort band and occupancy
-(``dataFromModel.csv``), prices, emissions and weather. Between their rows these data are held
-constant (forward-filled), as BOPTEST's KPI calculator does.
+Any folder in BOPTEST's layout: ``wrapped.fmu`` or ``models/wrapped.fmu`` (FMI 2.0, Model
+Exchange or Co-Simulation), ``config.json`` (floor area, control step), ``days.json`` (test
+period days), ``kpis.json`` (which outputs feed which KPI: ``OperativeZoneTemperature[z]``,
+``CO2Concentration[z]``, ``ElectricPower``, ``GasPower``, ``DistrictHeatingPower``, ...) and
+``Resources/*.csv`` (rows in time, a ``time`` column in seconds from 1 January, the FMU's
+clock). Every series is found by its BOPTEST column name in whichever CSV holds it (the band
+``LowerSetp[z]`` may be in ``dataFromModel.csv`` or in ``setpoints.csv``; the first file in
+name order wins a name two files share). Between their rows these data are held constant
+(forward-filled), as BOPTEST's KPI calculator does.
 
-The FMU's binary may need a library the host lacks (the heat pump house's ``libgfortran.so.4``,
-GCC 7, which current Debian does not ship); the test case carries the source of a stand-in
+The folder is found by :func:`default_directory`: the argument, else the environment variable
+``MSHOOT_BOPTEST_DIR`` (``env.sh`` sets it to the heat pump house beside the repository).
+
+The FMU's binary may need a library the host lacks (e.g. ``libgfortran.so.4`` or ``.so.3``,
+which current Debian does not ship); the test case may carry the source of a stand-in
 (``shim/``). :func:`load_shim` checks the binary in a child process and compiles the stand-in
 once into the project's cache for the library found missing (see
 :mod:`mshoot_core.fmu_binary`), never into the test case folder, and loads it with
@@ -48,23 +57,26 @@ logger = logging.getLogger(__name__)
 
 #: Environment variable naming the test case folder.
 DIR_ENV = 'MSHOOT_BOPTEST_DIR'
-#: The test case beside the repository (a checkout with ``shared/`` next to it).
-DEFAULT_DIR = (pathlib.Path(__file__).resolve().parents[5] / '..' / 'shared' / 'boptest'
-               / 'bestest_hydronic_heat_pump')
 #: BOPTEST's warm-up before a test period and the period's length [days].
 WARMUP_DAYS = 7.0
 LENGTH_DAYS = 14.0
-#: Price scenario name -> column of ``prices.csv`` [EUR/kWh].
+#: Price scenario name -> column of the electricity price [EUR/kWh] (BOPTEST's scenarios).
 PRICE_SCENARIOS = {'constant': 'PriceElectricPowerConstant',
                    'dynamic': 'PriceElectricPowerDynamic',
                    'highly_dynamic': 'PriceElectricPowerHighlyDynamic'}
-#: Column of ``emissions.csv`` [kgCO2/kWh].
-EMISSIONS_COLUMN = 'EmissionsElectricPower'
-#: Resource files read (``Resources/<name>``).
-RESOURCE_FILES = ('dataFromModel.csv', 'prices.csv', 'emissions.csv', 'weather.csv')
-#: Comfort band columns of zone 1 [K].
-LOWER_SETPOINT = 'LowerSetp[1]'
-UPPER_SETPOINT = 'UpperSetp[1]'
+#: BOPTEST's energy vectors (``kpis.json`` keys, its signal exchange names), each priced by
+#: ``Price<vector>`` (electricity: the scenario's column) and weighed by ``Emissions<vector>``
+#: [EUR/kWh, kgCO2/kWh]; the KPI of its peak power [kW/m2] where BOPTEST reports one.
+ENERGY_VECTORS = ('ElectricPower', 'DistrictHeatingPower', 'GasPower', 'BiomassPower',
+                  'SolarThermalPower')
+PEAK_KPIS = {'ElectricPower': 'pele_tot', 'GasPower': 'pgas_tot',
+             'DistrictHeatingPower': 'pdih_tot'}
+#: ``kpis.json`` keys of the zone temperatures the comfort KPI reads (``<key>[<zone>]``).
+ZONE_TEMPERATURE_KEYS = ('OperativeZoneTemperature', 'AirZoneTemperature')
+#: ``kpis.json`` key of the zones' CO2 concentrations (``CO2Concentration[<zone>]``).
+CO2_KEY = 'CO2Concentration'
+#: Where the FMU may be in the folder (BOPTEST's release layout and its parser's output).
+FMU_PATHS = ('wrapped.fmu', 'models/wrapped.fmu')
 SECONDS_PER_DAY = 86400.0
 #: BOPTEST's weather points (the ``weather`` category of its ``data/categories.json``): its
 #: forecasts interpolate them linearly between rows and hold every other series.
@@ -75,11 +87,20 @@ WEATHER_POINTS = frozenset({
 
 
 def default_directory() -> pathlib.Path:
-    """Return the test case folder: ``$MSHOOT_BOPTEST_DIR`` or :data:`DEFAULT_DIR`."""
+    """
+    Return the test case folder named by ``$MSHOOT_BOPTEST_DIR``.
+
+    Raises
+    ------
+    FileNotFoundError
+        When the variable is not set (``env.sh`` sets it; or pass the folder).
+
+    """
     value = os.environ.get(DIR_ENV)
-    if value:
-        return pathlib.Path(value).expanduser().resolve()
-    return DEFAULT_DIR.resolve()
+    if not value:
+        raise FileNotFoundError(f'no BOPTEST test case folder: pass one, or set ${DIR_ENV} '
+                                '(env.sh sets it to the heat pump house beside the repository)')
+    return pathlib.Path(value).expanduser().resolve()
 
 
 def _read_json(path: pathlib.Path) -> dict:
@@ -108,7 +129,9 @@ class TestCase:
         Test period name -> its day of the year (``days.json``).
     kpi_outputs : dict of str to list of str
         KPI quantity -> the FMU outputs that feed it (``kpis.json``), e.g.
-        ``'ElectricPower': ['reaPFan_y', 'reaPHeaPum_y', 'reaPPumEmi_y']``.
+        ``'ElectricPower': [<the outputs of electric power, W>]``.
+    fmu_path : pathlib.Path
+        The FMU (``wrapped.fmu`` or ``models/wrapped.fmu``).
 
     """
 
@@ -120,6 +143,7 @@ class TestCase:
     control_step_s: float
     days: dict[str, int]
     kpi_outputs: dict[str, list[str]]
+    fmu_path: pathlib.Path
 
     @classmethod
     def load(cls, directory: str | os.PathLike | None = None) -> TestCase:
@@ -145,8 +169,7 @@ class TestCase:
             raise FileNotFoundError(
                 f'BOPTEST test case folder not found: {folder} (set ${DIR_ENV} or pass the '
                 'folder)')
-        if not (folder / 'wrapped.fmu').is_file():
-            raise FileNotFoundError(f'BOPTEST test case without its FMU: {folder / "wrapped.fmu"}')
+        fmu = find_fmu(folder)
         config = _read_json(folder / 'config.json')
         area = float(config.get('area', float('nan')))
         if not area > 0:
@@ -156,13 +179,35 @@ class TestCase:
         kpis = {str(k): [str(n) for n in v]
                 for k, v in _read_json(folder / 'kpis.json').items()}
         return cls(folder, str(config.get('name', folder.name)), area,
-                   float(config.get('step', 3600.0)), days, kpis)
+                   float(config.get('step', 3600.0)), days, kpis, fmu)
 
     # -- files ---------------------------------------------------------------------------------
     @property
-    def fmu_path(self) -> pathlib.Path:
-        """Return the test case's FMI 2.0 Co-Simulation FMU."""
-        return self.directory / 'wrapped.fmu'
+    def zones(self) -> list[str]:
+        """Return the zones whose temperature the comfort KPI reads, in ``kpis.json``'s order."""
+        return [_zone(key) for key in self.kpi_outputs
+                if key.split('[')[0] in ZONE_TEMPERATURE_KEYS]
+
+    @property
+    def zone_temperature_outputs(self) -> dict[str, list[str]]:
+        """Return zone -> the FMU outputs of its temperature [K] (``kpis.json``)."""
+        out: dict[str, list[str]] = {}
+        for key, names in self.kpi_outputs.items():
+            if key.split('[')[0] in ZONE_TEMPERATURE_KEYS:
+                out.setdefault(_zone(key), []).extend(names)
+        return out
+
+    @property
+    def co2_outputs(self) -> dict[str, list[str]]:
+        """Return zone -> the FMU outputs of its CO2 concentration [ppm] (``kpis.json``)."""
+        return {_zone(key): list(names) for key, names in self.kpi_outputs.items()
+                if key.split('[')[0] == CO2_KEY}
+
+    @property
+    def energy_outputs(self) -> dict[str, list[str]]:
+        """Return energy vector -> the FMU outputs of its power [W], those ``kpis.json`` has."""
+        return {vector: list(self.kpi_outputs[vector]) for vector in ENERGY_VECTORS
+                if self.kpi_outputs.get(vector)}
 
     @property
     def power_outputs(self) -> list[str]:
@@ -170,16 +215,13 @@ class TestCase:
         return list(self.kpi_outputs.get('ElectricPower', []))
 
     @property
-    def zone_temperature_outputs(self) -> list[str]:
-        """Return the FMU outputs of the zones' operative temperatures [K] (``kpis.json``)."""
-        return [n for k, v in self.kpi_outputs.items()
-                if k.startswith('OperativeZoneTemperature') for n in v]
+    def kpi_output_names(self) -> list[str]:
+        """Return every FMU output ``kpis.json`` names, once, in its order."""
+        return list(dict.fromkeys(n for names in self.kpi_outputs.values() for n in names))
 
-    @property
-    def co2_outputs(self) -> list[str]:
-        """Return the FMU outputs of the zones' CO2 concentrations [ppm] (``kpis.json``)."""
-        return [n for k, v in self.kpi_outputs.items() if k.startswith('CO2Concentration')
-                for n in v]
+    def band_columns(self, zone: str) -> tuple[str, str]:
+        """Return the data columns of a zone's comfort band [K]: (lower, upper)."""
+        return f'LowerSetp[{zone}]', f'UpperSetp[{zone}]'
 
     # -- test periods --------------------------------------------------------------------------
     def test_period(self, name: str, warmup_days: float = WARMUP_DAYS,
@@ -241,6 +283,11 @@ class TestCase:
         """Every data column of the resource files (``time`` excluded)."""
         return list(self._column_file)
 
+    @property
+    def resource_files(self) -> list[str]:
+        """Return the data files read (``Resources/*.csv``, in name order)."""
+        return list(self._resources)
+
     def data(self, file: str) -> pd.DataFrame:
         """
         Return one resource file as read (index: time [s from 1 January]).
@@ -248,11 +295,12 @@ class TestCase:
         Parameters
         ----------
         file : str
-            One of :data:`RESOURCE_FILES`.
+            One of :attr:`resource_files` (e.g. ``prices.csv``).
 
         """
-        if file not in RESOURCE_FILES:
-            raise ValueError(f'unknown resource {file!r}: expected one of {RESOURCE_FILES}')
+        if file not in self._resources:
+            raise ValueError(f'unknown resource {file!r}: expected one of '
+                             f'{self.resource_files}')
         return self._resources[file]
 
     def lookup(self, column: str, times_s: Sequence[float] | np.ndarray | float) -> np.ndarray:
@@ -293,6 +341,13 @@ class TestCase:
         rows = np.clip(np.searchsorted(index, times, side='right') - 1, 0, index.size - 1)
         return frame[column].to_numpy(dtype=float)[rows]
 
+    def row_times(self, column: str) -> np.ndarray:
+        """Return the row times [s from 1 January] of the file holding a data column."""
+        if column not in self._column_file:
+            raise ValueError(f'unknown test case data column {column!r}: expected one of '
+                             f'{self.columns}')
+        return self._resources[self._column_file[column]].index.to_numpy(dtype=float)
+
     def forecast_values(self, column: str,
                         times_s: Sequence[float] | np.ndarray | float) -> np.ndarray:
         """
@@ -325,34 +380,94 @@ class TestCase:
         times = np.asarray(times_s, dtype=float).reshape(-1)
         return pd.DataFrame({c: self.lookup(c, times) for c in columns}, index=times)
 
-    def price_column(self, scenario: str) -> str:
-        """Return the price column [EUR/kWh] of a scenario of :data:`PRICE_SCENARIOS`."""
+    def price_column(self, scenario: str, vector: str = 'ElectricPower') -> str:
+        """
+        Return the price column [EUR/kWh] of an energy vector under a price scenario.
+
+        Electricity: the scenario's column (:data:`PRICE_SCENARIOS`); any other vector of
+        :data:`ENERGY_VECTORS`: ``Price<vector>`` (one price for every scenario).
+
+        Raises
+        ------
+        ValueError
+            For an unknown scenario or vector.
+
+        """
         if scenario not in PRICE_SCENARIOS:
             raise ValueError(f'unknown price scenario {scenario!r}: expected one of '
                              f'{list(PRICE_SCENARIOS)}')
-        return PRICE_SCENARIOS[scenario]
+        if vector not in ENERGY_VECTORS:
+            raise ValueError(f'unknown energy vector {vector!r}: expected one of '
+                             f'{list(ENERGY_VECTORS)}')
+        return PRICE_SCENARIOS[scenario] if vector == 'ElectricPower' else f'Price{vector}'
+
+    def emission_column(self, vector: str) -> str:
+        """Return the emission factor column [kgCO2/kWh] of an energy vector."""
+        if vector not in ENERGY_VECTORS:
+            raise ValueError(f'unknown energy vector {vector!r}: expected one of '
+                             f'{list(ENERGY_VECTORS)}')
+        return f'Emissions{vector}'
+
+
+def _zone(key: str) -> str:
+    """Return the zone of a ``kpis.json`` key ``<quantity>[<zone>]``."""
+    if not (key.endswith(']') and '[' in key) or not key[key.index('[') + 1:-1]:
+        raise ValueError(f'kpis.json key {key!r} names no zone ("<quantity>[<zone>]")')
+    return key[key.index('[') + 1:-1]
+
+
+def find_fmu(folder: pathlib.Path) -> pathlib.Path:
+    """
+    Return the FMU of a test case folder (:data:`FMU_PATHS`).
+
+    Raises
+    ------
+    FileNotFoundError
+        If neither exists.
+
+    """
+    for name in FMU_PATHS:
+        if (folder / name).is_file():
+            return folder / name
+    raise FileNotFoundError(f'BOPTEST test case without its FMU: expected one of '
+                            f'{[str(folder / n) for n in FMU_PATHS]}')
 
 
 @functools.lru_cache(maxsize=4)
 def _read_resources(directory: str) -> dict[str, pd.DataFrame]:
-    """Read the resource CSVs of a test case once per process (they are read-only)."""
+    """
+    Read the resource CSVs of a test case once per process (they are read-only).
+
+    Every ``Resources/*.csv`` with a time column (``time``, or ``Time`` as some BOPTEST files
+    spell it) [s from 1 January], strictly increasing.
+    """
+    folder = pathlib.Path(directory) / 'Resources'
+    files = sorted(folder.glob('*.csv'))
+    if not files:
+        raise FileNotFoundError(f'BOPTEST resources missing: no CSV file in {folder}')
     frames = {}
-    for file in RESOURCE_FILES:
-        path = pathlib.Path(directory) / 'Resources' / file
-        if not path.is_file():
-            raise FileNotFoundError(f'BOPTEST resource missing: {path}')
+    for path in files:
         frame = pd.read_csv(path)
-        if 'time' not in frame.columns:
-            raise ValueError(f'{path}: no "time" column')
-        times = frame['time'].to_numpy(dtype=float)
+        time_column = next((c for c in frame.columns if str(c).lower() == 'time'), None)
+        if time_column is None:
+            raise ValueError(f'{path}: no "time" column (seconds from 1 January)')
+        times = frame[time_column].to_numpy(dtype=float)
         if times.size == 0 or np.any(np.diff(times) <= 0):
-            raise ValueError(f'{path}: "time" must increase strictly')
-        frames[file] = frame.set_index('time')
-        frames[file].index = times
+            raise ValueError(f'{path}: "{time_column}" must increase strictly')
+        frame = frame.set_index(time_column)
+        frame.index = times
+        frames[path.name] = frame
     return frames
 
 
 # -- the libraries the FMU's binary needs ----------------------------------------------------
+def shim_libraries(directory: str | os.PathLike) -> list:
+    """Return the stand-ins of a test case folder (its ``shim/``) as libraries for the FMU."""
+    from mshoot_core.fmu_binary import Library
+    shim = pathlib.Path(directory) / 'shim'
+    return [Library(source=shim)] if shim.is_dir() else []
+
+
 def load_shim(directory: str | os.PathLike | None = None) -> tuple[str, ...]:
     """
     Check the test case's binary in a child process, with its stand-ins; preload them here.
@@ -379,9 +494,8 @@ def load_shim(directory: str | os.PathLike | None = None) -> tuple[str, ...]:
     """
     from mshoot_core import fmu_binary
     folder = pathlib.Path(directory) if directory is not None else default_directory()
-    shim = folder / 'shim'
-    libraries = [fmu_binary.Library(source=shim)] if shim.is_dir() else []
-    unzipped = fmu_cache.extract_fmu(folder / 'wrapped.fmu')
+    libraries = shim_libraries(folder)
+    unzipped = fmu_cache.extract_fmu(find_fmu(folder))
     preloaded: tuple[str, ...] = ()
     for identifier in fmu_binary.model_identifiers(unzipped):
         preloaded += fmu_binary.check_binary(unzipped, identifier, libraries, label=folder.name)

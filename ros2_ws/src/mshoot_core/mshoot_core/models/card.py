@@ -232,8 +232,8 @@ class ModelCard:
     description : str
         Free text.
     boptest : dict or None
-        For a card of kind ``boptest``: ``test_case_dir`` (absolute), ``warmup_days`` and
-        ``history_step_s``.
+        For a card of kind ``boptest``: ``test_case_dir`` (absolute), ``warmup_days``,
+        ``history_step_s`` and ``setpoint_zones`` (setpoint control -> zone).
     network : NetworkSpec or None
         For a thermal network (a card's ``network`` section, or ``builtin: r1c1`` /
         ``r2c2``: the built-in card's): the parsed network
@@ -674,8 +674,7 @@ def load_card(path: str | pathlib.Path) -> ModelCard:
                             "test case folder's shim/ (one C file and a version script)")
         boptest, fmu_name = _boptest_spec(path, document['boptest'], problems)
         if fmu_name is not None:
-            document = {**document, 'fmu': fmu_name, 'fmi_type': 'co-simulation'}
-            fmi_type = 'co-simulation'
+            document = {**document, 'fmu': fmu_name}
     network = _network_spec(path, document, problems)
     catalogue, fmu, interface = _catalogue(path, document, fmi_type, problems, network,
                                            validate)
@@ -731,13 +730,19 @@ def _preload(path: pathlib.Path, entries: Any, problems: list[str]) -> tuple[Lib
 def _boptest_spec(path: pathlib.Path, spec: dict,
                   problems: list[str]) -> tuple[dict[str, Any] | None, str | None]:
     """Resolve a card's ``boptest`` entry: (spec with the absolute folder, its FMU) or Nones."""
-    from mshoot_core.boptest.testcase import default_directory
+    from mshoot_core.boptest.testcase import default_directory, find_fmu
     folder = spec.get('test_case')
-    directory = ((path.parent / pathlib.Path(folder).expanduser()).resolve()
-                 if isinstance(folder, str) else default_directory())
-    fmu = directory / 'wrapped.fmu'
-    if not fmu.is_file():
-        problems.append(f'boptest.test_case: no BOPTEST test case (wrapped.fmu) in {directory}'
+    try:
+        directory = ((path.parent / pathlib.Path(folder).expanduser()).resolve()
+                     if isinstance(folder, str) else default_directory())
+    except FileNotFoundError as error:  # no folder given and $MSHOOT_BOPTEST_DIR unset
+        problems.append(f'boptest.test_case: {error}')
+        return None, None
+    try:
+        fmu = find_fmu(directory)
+    except FileNotFoundError:
+        problems.append(f'boptest.test_case: no BOPTEST test case (wrapped.fmu or '
+                        f'models/wrapped.fmu) in {directory}'
                         + ('' if isinstance(folder, str) else
                            ' (the default folder; set $MSHOOT_BOPTEST_DIR or test_case)'))
         return None, None
@@ -747,8 +752,11 @@ def _boptest_spec(path: pathlib.Path, spec: dict,
     history = spec.get('history_step_s', 0.0)
     if isinstance(history, bool) or not isinstance(history, (int, float)) or history < 0:
         return None, None  # the schema reported it
+    zones = spec.get('setpoint_zones') or {}
     return {'test_case_dir': str(directory), 'warmup_days': float(warmup),
-            'history_step_s': float(history)}, str(fmu)
+            'history_step_s': float(history),
+            'setpoint_zones': {str(k): str(v) for k, v in zones.items()}
+            if isinstance(zones, dict) else {}}, str(fmu)
 
 
 def _time_origin_problem(value: str) -> str | None:

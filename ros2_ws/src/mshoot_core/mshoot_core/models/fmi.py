@@ -328,6 +328,10 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
     libraries : sequence of Library
         Libraries to preload before the FMU's binary (a card's ``preload``); the binary is
         loaded in a child process first (:func:`mshoot_core.fmu_binary.check_binary`).
+    own_tolerance : bool
+        Co-Simulation: give ``fmi2SetupExperiment`` no tolerance, so the FMU's own integrator
+        keeps its own (as BOPTEST runs its test cases); ``tolerance`` then only serves Model
+        Exchange.
 
     Raises
     ------
@@ -361,7 +365,8 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
                  fmi_type: str | None = None, instance_name: str = 'mshoot',
                  fixed_inputs: Mapping[str, Any] | None = None,
                  time_origin_s: float = 0.0, monotone_inputs: Sequence[str] = (),
-                 validate: bool = True, libraries: Sequence[Library] = ()) -> None:
+                 validate: bool = True, libraries: Sequence[Library] = (),
+                 own_tolerance: bool = False) -> None:
         self._fmu: FMU2Model | FMU2Slave | None = None
         self._unzip_dir: pathlib.Path | None = None
         self._snapshot: Any = None
@@ -386,6 +391,7 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
             raise FileNotFoundError(f'FMU not found: {path}')
         self.fmu_path = path
         self.tolerance = float(tolerance)
+        self.own_tolerance = bool(own_tolerance)
         #: Time of FMU t = 0 in the caller's time base [s].
         self.time_origin_s = float(time_origin_s)
         try:
@@ -636,7 +642,8 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         if self._start_state_index:
             fmu.fmi2SetReal(fmu.component, self._start_state_refs, len(self._start_state_index),
                             real_array(x0[self._start_state_index]))
-        fmu.setupExperiment(tolerance=self.tolerance, startTime=t0)
+        own = self.own_tolerance and not self.is_model_exchange
+        fmu.setupExperiment(tolerance=None if own else self.tolerance, startTime=t0)
         fmu.enterInitializationMode()
         self._set_inputs(u0)
         fmu.exitInitializationMode()

@@ -11,6 +11,10 @@ next. :class:`FmuPlant` gives :class:`~mshoot_core.models.fmi.FmiModel`:
 - :meth:`FmuPlant.plant_step`: apply inputs (held over the step) and advance:
   Co-Simulation ``fmi2DoStep``; Model Exchange integrated on (CVode, events
   handled; an input change is an event). Never re-initialised;
+- :meth:`FmuPlant.plant_get` / :meth:`FmuPlant.plant_set`: read any Real variable; set FMU
+  variables that are not model inputs (Real or
+  Boolean: an overwrite's value and its ``activate`` switch) from now on; in Model Exchange
+  an event;
 - :meth:`FmuPlant.plant_save` / :meth:`FmuPlant.plant_restore`: the whole FMU
   state as bytes (``fmi2SerializeFMUstate``) with the plant's time and
   inputs, to resume a run where the FMU can serialise its state
@@ -29,7 +33,7 @@ import json
 import logging
 import math
 import struct
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -149,6 +153,65 @@ class FmuPlant:
         x, y = self._read()
         self._check_finite(x, y, t_end, ' (plant step)')
         return x, y
+
+    def plant_set(self, values: Mapping[str, float | bool]) -> None:
+        """
+        Set FMU variables that are not model inputs from now on (held until set again).
+
+        Real variables take a float, Boolean ones a bool; in Model Exchange the change is an
+        event at the plant's time (event mode, new discrete states, a solver re-start), in
+        Co-Simulation it takes effect over the next step.
+
+        Raises
+        ------
+        ValueError
+            For an unknown variable, or one neither Real nor Boolean.
+        RuntimeError
+            Without a plant run.
+
+        """
+        plant = self._require_plant()
+        groups: dict[str, tuple[list[int], list]] = {'Real': ([], []), 'Boolean': ([], [])}
+        for name, value in values.items():
+            variable = self._variables.get(name)
+            if variable is None or variable.type not in groups:
+                raise ValueError(f'{self.fmu_path.name}: {name!r} is not a Real or Boolean '
+                                 'variable of the FMU')
+            refs, numbers = groups[variable.type]
+            refs.append(variable.valueReference)
+            numbers.append(bool(value) if variable.type == 'Boolean' else float(value))
+        if not any(refs for refs, _ in groups.values()):
+            return
+        fmu = self.fmu
+        if self.is_model_exchange:
+            fmu.enterEventMode()
+        for kind, (refs, numbers) in groups.items():
+            if refs:
+                getattr(fmu, f'set{kind}')(refs, numbers)
+        if self.is_model_exchange:
+            self._event_iteration()
+            fmu.enterContinuousTimeMode()
+            self._ensure_solver(plant.time)
+
+    def plant_get(self, names: Sequence[str]) -> dict[str, float]:
+        """
+        Return any Real variables of the FMU now (name -> value), mapped or not.
+
+        Raises
+        ------
+        ValueError
+            For a name that is not a Real variable of the FMU.
+        RuntimeError
+            Without a plant run.
+
+        """
+        self._require_plant()
+        variables = [self._variables.get(name) for name in names]
+        unknown = [n for n, v in zip(names, variables) if v is None or v.type != 'Real']
+        if unknown:
+            raise ValueError(f'{self.fmu_path.name}: not Real variables of the FMU: {unknown}')
+        values = self.fmu.getReal([v.valueReference for v in variables])
+        return {name: float(value) for name, value in zip(names, values)}
 
     def plant_read(self) -> tuple[np.ndarray, np.ndarray]:
         """Return the plant's current (states, outputs)."""

@@ -1,38 +1,40 @@
 """
-A rule-based supervisory controller for BOPTEST: pre-heating ahead of the comfort band.
+A rule-based supervisory controller for BOPTEST test cases: pre-heating ahead of the band.
 
-The rule sends the zone temperature setpoint ``oveTSet_u`` every control step (1 h): the highest
-lower bound of the comfort band over the coming step and the ``lead`` after it, plus a
+The rule sends a zone temperature setpoint every control step (1 h) to each setpoint input it
+is given (``targets``: overwrite input -> its zone and the input's range): the highest lower
+bound of the zone's comfort band over the coming step and the ``lead`` after it, plus a
 ``margin``::
 
-    setpoint(t) = max { LowerSetp(s) : t <= s < t + step + lead } + margin    [K]
+    setpoint(t) = max { LowerSetp[z](s) : t <= s < t + step + lead } + margin    [K]
 
 clipped to the input's range. With a lead the building starts heating for the occupied band
-(21 degC) ``lead`` hours before it begins, and it holds that level until the band's end (the
-max over the window, rather than the bound ``lead`` ahead alone, which would drop the setpoint
-``lead`` before the occupied hours end). The band is read from the test case's data
-(``dataFromModel.csv``, forward-filled, at its 900 s rows in the window).
+``lead`` hours before it begins, and it holds that level until the band's end (the max over
+the window, rather than the bound ``lead`` ahead alone, which would drop the setpoint ``lead``
+before the occupied hours end). The band is read from the test case's data (forward-filled, at
+its rows in the window).
 
-:func:`tune_rule` runs a grid of leads and margins on a test period (each a full run of the FMU:
+:func:`rule_targets` finds the targets of a card: its ``boptest.setpoint_zones`` (control ->
+zone) with each control's FMU input and declared range. :func:`tune_rule` runs a grid of leads
+and margins on a test period (each a full run of the FMU:
 :func:`~mshoot_core.boptest.plant.run_period`) and picks, for each price scenario, the point
 with the smallest score ``cost_tot + weight * tdis_tot`` [EUR/m2], with ``weight`` the price
 given to one Kelvin-hour of discomfort [EUR/m2 per K h] (default :data:`DISCOMFORT_WEIGHT`
-= 0.1: about the cost of heating the house for 1.5 days in January). Only the cost depends on
-the price scenario, so one run per grid point serves the three scenarios.
+= 0.1). Only the cost depends on the price scenario, so one run per grid point serves every
+scenario.
 """
 from __future__ import annotations
 
 import dataclasses
 import logging
 import math
-from typing import Callable, Mapping, Sequence
-
-import numpy as np
-import pandas as pd
+from typing import Any, Callable, Mapping, Sequence
 
 from mshoot_core.boptest.kpis import kpi_records
 from mshoot_core.boptest.plant import run_period
-from mshoot_core.boptest.testcase import LOWER_SETPOINT, PRICE_SCENARIOS, TestCase
+from mshoot_core.boptest.testcase import PRICE_SCENARIOS, TestCase
+import numpy as np
+import pandas as pd
 
 logger = logging.getLogger(__name__)
 
@@ -41,12 +43,85 @@ LEADS_H = (0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0)
 MARGINS_K = (0.0, 0.25, 0.5, 0.75, 1.0)
 #: Price of one Kelvin-hour of discomfort in the tuning score [EUR/m2 per K h].
 DISCOMFORT_WEIGHT = 0.1
-#: The input the rule writes.
-SETPOINT_INPUT = 'oveTSet_u'
-#: Range of ``oveTSet_u`` [K] (the FMU's declared min/max).
-SETPOINT_RANGE_K = (278.15, 308.15)
-#: Row interval of the band data [s].
-DATA_STEP_S = 900.0
+
+
+@dataclasses.dataclass(frozen=True)
+class RuleTarget:
+    """
+    One setpoint the rule writes.
+
+    Attributes
+    ----------
+    zone : str
+        The zone whose band it follows (``LowerSetp[zone]``).
+    lower_k, upper_k : float
+        The input's range [K] (its declared min/max).
+
+    """
+
+    zone: str
+    lower_k: float = -math.inf
+    upper_k: float = math.inf
+
+
+def setpoint_targets(case: TestCase, zones: Mapping[str, str]) -> dict[str, RuleTarget]:
+    """
+    Return the rule's targets: FMU setpoint input -> its zone and its declared range [K].
+
+    Parameters
+    ----------
+    case : TestCase
+        The test case (its FMU's overwrite inputs).
+    zones : dict of str to str
+        Overwrite input (``X_u``) -> the zone of its band.
+
+    Raises
+    ------
+    ValueError
+        For an input that is not an overwrite input of the FMU.
+
+    """
+    from mshoot_core.boptest.plant import BoptestPlant
+    inputs = BoptestPlant(case, record=[]).inputs
+    unknown = [name for name in zones if name not in inputs]
+    if unknown:
+        raise ValueError(f'not overwrite inputs of {case.name}: {unknown}; expected some of '
+                         f'{sorted(inputs)}')
+    return {name: RuleTarget(str(zone), inputs[name].lower, inputs[name].upper)
+            for name, zone in zones.items()}
+
+
+def rule_targets(card: Any, case: TestCase) -> dict[str, RuleTarget]:
+    """
+    Return the rule's targets of a card: FMU input -> :class:`RuleTarget`.
+
+    Parameters
+    ----------
+    card : ModelCard
+        A card of kind ``boptest`` whose ``boptest.setpoint_zones`` maps setpoint controls to
+        zones.
+    case : TestCase
+        The test case (the declared ranges of its FMU's inputs [K]).
+
+    Raises
+    ------
+    ValueError
+        When the card names no setpoint zone, or a control without an overwrite switch.
+
+    """
+    zones = dict((card.boptest or {}).get('setpoint_zones') or {})
+    if not zones:
+        raise ValueError(f'model card {card.path}: the rule needs boptest.setpoint_zones '
+                         '(setpoint control -> zone of its comfort band)')
+    inputs = {}
+    for control, zone in zones.items():
+        variable = card.controls.get(control)
+        if variable is None or variable.activate is None:
+            raise ValueError(f'model card {card.path}: boptest.setpoint_zones names '
+                             f'{control!r}: expected a control with an overwrite switch '
+                             f'(activate), one of {sorted(card.controls)}')
+        inputs[variable.variable] = zone
+    return setpoint_targets(case, inputs)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,6 +133,8 @@ class PreheatRule:
     ----------
     case : TestCase
         The test case (its band).
+    targets : dict of str to RuleTarget
+        FMU setpoint input -> its zone and range.
     lead_h : float
         How far beyond the coming step the band is looked at [h], >= 0.
     margin_k : float
@@ -68,6 +145,7 @@ class PreheatRule:
     """
 
     case: TestCase
+    targets: Mapping[str, RuleTarget]
     lead_h: float = 0.0
     margin_k: float = 0.0
     step_s: float = 3600.0
@@ -80,26 +158,32 @@ class PreheatRule:
                 raise ValueError(f'expected {name} >= 0, got {value!r}')
         if not self.step_s > 0:
             raise ValueError(f'expected a positive step_s, got {self.step_s!r}')
+        unknown = [t.zone for t in self.targets.values() if t.zone not in self.case.zones]
+        if unknown:
+            raise ValueError(f'unknown zones {unknown}: expected zones of {self.case.name} '
+                             f'{self.case.zones}')
 
-    def setpoint(self, t_s: float) -> float:
+    def setpoint(self, t_s: float, zone: str, lower_k: float = -math.inf,
+                 upper_k: float = math.inf) -> float:
         """
-        Return the setpoint [K] over the control step starting at ``t_s`` [s from 1 January].
+        Return a zone's setpoint [K] over the control step starting at ``t_s`` [s].
 
         The band is looked up at ``t_s`` and at every data row time in the window
-        ``(t_s, t_s + step + lead)``.
+        ``(t_s, t_s + step + lead)``; the result is clipped to [lower_k, upper_k].
         """
+        column = self.case.band_columns(zone)[0]
         end = t_s + self.step_s + self.lead_h * 3600.0
-        first_row = math.floor(t_s / DATA_STEP_S) + 1
-        rows = np.arange(first_row, math.ceil(end / DATA_STEP_S)) * DATA_STEP_S
-        times = np.concatenate([[t_s], rows[rows < end]])
-        lower = float(np.max(self.case.lookup(LOWER_SETPOINT, times)))
-        low, high = SETPOINT_RANGE_K
-        return float(min(max(lower + self.margin_k, low), high))
+        index = self.case.row_times(column)
+        rows = index[(index > t_s) & (index < end)]
+        times = np.concatenate([[t_s], rows])
+        lower = float(np.max(self.case.lookup(column, times)))
+        return float(min(max(lower + self.margin_k, lower_k), upper_k))
 
     def __call__(self, t_s: float, outputs: Mapping[str, float] | None = None
                  ) -> dict[str, float]:
-        """Return the overwrites over the step from ``t_s`` (a plant controller)."""
-        return {SETPOINT_INPUT: self.setpoint(t_s)}
+        """Return the overwrites over the step from ``t_s`` (a step policy of run_period)."""
+        return {name: self.setpoint(t_s, t.zone, t.lower_k, t.upper_k)
+                for name, t in self.targets.items()}
 
 
 @dataclasses.dataclass
@@ -164,24 +248,25 @@ def choose(grid: pd.DataFrame, weight: float = DISCOMFORT_WEIGHT) -> dict[str, d
     return best
 
 
-def _grid_point(directory: str, period: str, lead: float, margin: float,
-                prices: Sequence[str], warmup_days: float,
-                length_days: float) -> tuple[list[dict], float]:
+def _grid_point(directory: str, targets: dict[str, RuleTarget], period: str, lead: float,
+                margin: float, prices: Sequence[str], warmup_days: float,
+                length_days: float, record: Sequence[str] | None) -> tuple[list[dict], float]:
     """Run one grid point (in this process or a worker): its KPI rows and wall time [s]."""
     case = TestCase.load(directory)
-    rule = PreheatRule(case, lead, margin, case.control_step_s)
-    run = run_period(case, period, rule, warmup_days, length_days)
+    rule = PreheatRule(case, targets, lead, margin, case.control_step_s)
+    run = run_period(case, period, rule, warmup_days, length_days, record=record)
     rows = [{**record, 'wall_s': run.wall_s}
             for record in kpi_records(run.records, case, run.start_s, run.end_s, prices,
                                       run.step_wall_s, lead_h=lead, margin_k=margin)]
     return rows, run.wall_s
 
 
-def tune_rule(case: TestCase, period: str, leads_h: Sequence[float] = LEADS_H,
+def tune_rule(case: TestCase, targets: Mapping[str, RuleTarget], period: str,
+              leads_h: Sequence[float] = LEADS_H,
               margins_k: Sequence[float] = MARGINS_K, weight: float = DISCOMFORT_WEIGHT,
               prices: Sequence[str] = tuple(PRICE_SCENARIOS), warmup_days: float = 7.0,
               length_days: float = 14.0, progress: Callable[[str], None] | None = None,
-              workers: int = 1) -> RuleTuning:
+              workers: int = 1, record: Sequence[str] | None = None) -> RuleTuning:
     """
     Tune the rule's lead and margin on a test period by a grid of full runs (module docstring).
 
@@ -189,6 +274,8 @@ def tune_rule(case: TestCase, period: str, leads_h: Sequence[float] = LEADS_H,
     ----------
     case : TestCase
         The test case.
+    targets : dict of str to RuleTarget
+        The setpoints the rule writes (:func:`rule_targets`).
     period : str
         The test period.
     leads_h, margins_k : sequence of float
@@ -204,6 +291,8 @@ def tune_rule(case: TestCase, period: str, leads_h: Sequence[float] = LEADS_H,
     workers : int
         Grid points run at once, each in its own process (one FMU instance per process;
         ``spawn`` start): the grid and the choice do not depend on it.
+    record : sequence of str, optional
+        The outputs the runs record (default every output of the FMU).
 
     Returns
     -------
@@ -215,8 +304,9 @@ def tune_rule(case: TestCase, period: str, leads_h: Sequence[float] = LEADS_H,
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f'workers must be an integer >= 1, got {workers!r}')
     points = [(float(lead), float(margin)) for lead in leads_h for margin in margins_k]
-    args = [(str(case.directory), period, lead, margin, tuple(prices), warmup_days,
-             length_days) for lead, margin in points]
+    args = [(str(case.directory), dict(targets), period, lead, margin, tuple(prices),
+             warmup_days, length_days, None if record is None else list(record))
+            for lead, margin in points]
     results: list[tuple[list[dict], float] | None] = [None] * len(points)
 
     def report(n: int, k: int) -> None:

@@ -1,0 +1,285 @@
+"""
+Any BOPTEST test case folder and a card: the baseline and the pre-heating rule, BOPTEST's KPIs.
+
+    mshoot boptest --testcase DIR --card CARD.yaml --out OUT
+        [--periods peak_heat_day typical_heat_day] [--prices constant dynamic]
+        [--controllers baseline rule] [--warmup-days 7] [--days 14]
+        [--lead 4 --margin 0.5 | --leads 0 2 4 --margins 0 0.5] [--workers 2]
+
+The folder is in BOPTEST's layout (``wrapped.fmu`` or ``models/wrapped.fmu``, Model Exchange or
+Co-Simulation; ``config.json``, ``days.json``, ``kpis.json``, ``Resources/*.csv``: see
+:mod:`mshoot_core.boptest.testcase` and ``docs/boptest_testcases.md``). The card (a model card of
+kind ``boptest``) is data about the building: its controls (overwrite inputs with their
+``activate`` switches, units, limits), the states and outputs it maps, ``boptest.warmup_days``,
+``tolerance`` (Model Exchange) and, for the rule, ``boptest.setpoint_zones`` (setpoint control
+-> zone). ``--testcase`` replaces the card's ``boptest.test_case``.
+
+Each run goes through the one period loop in core (:func:`mshoot_core.boptest.plant.run_period`:
+one persistent FMU instance, the warm-up under the building's own control, records every 60 s
+of ``kpis.json``'s outputs and the card's variables); runs go to worker processes (one FMU
+instance per process). Controllers:
+
+- ``baseline``: the building's own control (no overwrite);
+- ``rule``: each setpoint of ``boptest.setpoint_zones`` every control step = the highest lower
+  bound of its zone's band over the step and the lead after it, plus a margin
+  (:mod:`mshoot_studies.boptest_rule`); ``--lead``/``--margin`` fixed, else tuned per period and
+  price on the grid ``--leads`` x ``--margins`` (each a full run);
+- ``mshoot``: the MPC runs over ROS (``make boptest``: ``python -m mshoot_nodes.boptest_run``);
+  this command refuses it.
+
+The baseline and the rule never read the price: one run serves every price scenario (only
+``cost_tot`` differs). Writes ``OUT/kpis.json`` (one record per controller, period and price:
+BOPTEST's KPIs with ``tdis_zones``, the run's wall time), ``OUT/kpis.md`` (the table, also
+printed), ``OUT/runs/<controller>_<period>[...]/records.csv`` and, with ``--figures``,
+``OUT/<run>.png``. Bad options or a bad folder or card: one line on stderr, exit 2.
+"""
+from __future__ import annotations
+
+import argparse
+import concurrent.futures
+import json
+import logging
+import multiprocessing
+import pathlib
+import sys
+import time
+from typing import Sequence
+
+from mshoot_core.boptest.testcase import PRICE_SCENARIOS
+
+logger = logging.getLogger(__name__)
+
+#: The controllers of ``--controllers``.
+CONTROLLERS = ('baseline', 'rule', 'mshoot')
+
+
+def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    """
+    Build the command line of ``mshoot boptest``.
+
+    Fills ``parser`` (the ``boptest`` verb of ``mshoot``), or a new parser when None. Its errors
+    are one line (``<prog>: error: ...``) and exit 2.
+    """
+    from mshoot_studies.boptest_rule import LEADS_H, MARGINS_K
+    if parser is None:
+        parser = argparse.ArgumentParser(prog='python -m mshoot_studies.boptest',
+                                         description=__doc__,
+                                         formatter_class=argparse.RawDescriptionHelpFormatter)
+    prog = parser.prog
+
+    def error(message: str) -> None:
+        parser.exit(2, f'{prog}: error: {message}\n')
+    parser.error = error  # type: ignore[method-assign]  # one line, no usage block
+    parser.add_argument('--testcase', required=True, type=pathlib.Path,
+                        help='the BOPTEST test case folder')
+    parser.add_argument('--card', required=True, type=pathlib.Path,
+                        help='the model card of the building (kind boptest)')
+    parser.add_argument('--out', required=True, type=pathlib.Path, help='output folder')
+    parser.add_argument('--periods', nargs='+', default=None,
+                        help='test periods (keys of days.json; default all of them)')
+    parser.add_argument('--prices', nargs='+', default=list(PRICE_SCENARIOS),
+                        choices=list(PRICE_SCENARIOS), help='price scenarios')
+    parser.add_argument('--controllers', nargs='+', default=['baseline', 'rule'],
+                        help='baseline, rule (mshoot: over ROS, see make boptest); '
+                             'separated by spaces or commas')
+    parser.add_argument('--warmup-days', type=float, default=None,
+                        help="warm-up [days] (default the card's boptest.warmup_days)")
+    parser.add_argument('--days', type=float, default=14.0,
+                        help='test period length [days] (BOPTEST: 14)')
+    parser.add_argument('--lead', type=float, default=None, help='rule: a fixed lead [h]')
+    parser.add_argument('--margin', type=float, default=None, help='rule: a fixed margin [K]')
+    parser.add_argument('--leads', type=float, nargs='+', default=list(LEADS_H),
+                        help='rule tuning grid: leads [h]')
+    parser.add_argument('--margins', type=float, nargs='+', default=list(MARGINS_K),
+                        help='rule tuning grid: margins [K]')
+    parser.add_argument('--workers', type=int, default=2, choices=range(1, 9), metavar='N',
+                        help='runs at once, one process and FMU instance each (default 2)')
+    parser.add_argument('--starts-output', default='',
+                        help='an FMU output whose off -> on transitions are counted '
+                             '(starts_per_day, e.g. a heat pump modulation)')
+    parser.add_argument('--figures', action='store_true', help='draw OUT/<run>.png')
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Parse ``argv`` (default: the process arguments) and run; the exit code."""
+    return run(build_parser().parse_args(argv))
+
+
+def _controllers(values: Sequence[str]) -> list[str]:
+    names = [name for value in values for name in value.split(',') if name]
+    unknown = [name for name in names if name not in CONTROLLERS]
+    if unknown or not names:
+        raise ValueError(f'--controllers: expected some of {list(CONTROLLERS)}, got {values}')
+    if 'mshoot' in names:
+        raise ValueError('--controllers mshoot: the MPC on a test case runs over ROS '
+                         '(make boptest: python -m mshoot_nodes.boptest_run); this command '
+                         'runs baseline and rule')
+    return list(dict.fromkeys(names))
+
+
+def prepare_card(card_path: pathlib.Path, testcase: pathlib.Path,
+                 out: pathlib.Path) -> pathlib.Path:
+    """
+    Write the card with ``boptest.test_case`` = the test case folder into ``out``; its path.
+
+    Raises
+    ------
+    ValueError
+        For a card that is not YAML, or not a mapping with a ``boptest`` section.
+    FileNotFoundError
+        For a card that does not exist.
+
+    """
+    import yaml
+    try:
+        document = yaml.safe_load(card_path.read_text())
+    except yaml.YAMLError as error:
+        raise ValueError(f'{card_path}: not a YAML model card of kind boptest ('
+                         f'{str(error).splitlines()[0]})') from error
+    if not isinstance(document, dict) or not isinstance(document.get('boptest'), dict):
+        raise ValueError(f'{card_path}: expected a model card of kind boptest (a "boptest:" '
+                         'section)')
+    folder = card_path.resolve().parent
+    if isinstance(document.get('preload'), list):  # paths relative to the card's folder
+        document['preload'] = [str((folder / e).resolve()) if isinstance(e, str) and '/' in e
+                               else e for e in document['preload']]
+    document['boptest'] = {**document['boptest'], 'test_case': str(testcase.resolve())}
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f'card_{card_path.stem}.yaml'
+    path.write_text(yaml.safe_dump(document, sort_keys=False))
+    return path
+
+
+def _run_one(directory: str, card_path: str, controller: str, period: str, lead: float,
+             margin: float, warmup_days: float, length_days: float, prices: list[str],
+             record: list[str], records_csv: str, starts_output: str) -> list[dict]:
+    """Run one controller on one period (in a worker): its KPI records, the table written."""
+    from mshoot_core.boptest.kpis import kpi_records
+    from mshoot_core.boptest.plant import run_period
+    from mshoot_core.boptest.testcase import TestCase
+    from mshoot_core.models.card import load_card
+    from mshoot_studies.boptest_rule import PreheatRule, rule_targets
+    from mshoot_studies.boptest_report import count_starts
+    case = TestCase.load(directory)
+    policy = None
+    if controller == 'rule':
+        card = load_card(card_path)
+        targets = rule_targets(card, case)
+        policy = PreheatRule(case, targets, lead, margin, case.control_step_s)
+    began = time.perf_counter()
+    run = run_period(case, period, policy, warmup_days, length_days, record=record)
+    wall = time.perf_counter() - began
+    path = pathlib.Path(records_csv)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    run.records.to_csv(path, index=False)
+    walls = run.step_wall_s if controller != 'baseline' else None
+    extra = {'lead_h': lead, 'margin_k': margin} if controller == 'rule' else {}
+    records = kpi_records(run.records, case, run.start_s, run.end_s, prices, walls,
+                          controller=controller, period=period)
+    for entry in records:
+        entry.update(extra, wall_s=wall, start_s=run.start_s, end_s=run.end_s)
+        if starts_output:
+            entry['starts_per_day'] = count_starts(run.records, starts_output, run.start_s,
+                                                   run.end_s)[1]
+    return records
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the command (module docstring): 0, or 2 with one line on stderr."""
+    logging.basicConfig(level=logging.WARNING, format='%(levelname)s %(name)s: %(message)s')
+    try:
+        return _run(args)
+    except (ValueError, FileNotFoundError) as exc:
+        sys.stderr.write(f'mshoot boptest: error: {exc}\n')
+        return 2
+
+
+def _say(began: float, line: str) -> None:
+    print(f'[boptest {time.perf_counter() - began:6.1f} s] {line}', flush=True)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from mshoot_core.boptest.plant import BoptestPlant, recorded_outputs
+    from mshoot_core.boptest.testcase import TestCase
+    from mshoot_core.models.card import load_card
+    from mshoot_studies.boptest_report import kpi_table, plot_run
+    from mshoot_studies.boptest_rule import rule_targets, tune_rule
+    began = time.perf_counter()
+    controllers = _controllers(args.controllers)
+    case = TestCase.load(args.testcase)
+    card_path = prepare_card(args.card, args.testcase, args.out)
+    card = load_card(card_path)
+    warmup = card.boptest['warmup_days'] if args.warmup_days is None else args.warmup_days
+    periods = list(case.days) if args.periods is None else list(args.periods)
+    for period in periods:
+        case.test_period(period, warmup, args.days)  # bad names and lengths fail here
+    variables = [v.variable for v in (*card.states.values(), *card.outputs.values())]
+    record = recorded_outputs(case, [*variables, *([args.starts_output]
+                                                   if args.starts_output else [])])
+    plant = BoptestPlant(case, record=record)  # checks the names; no instance
+    targets = rule_targets(card, case) if 'rule' in controllers else {}
+    _say(began, f'{case.name} ({plant.interface}, zones {case.zones}, energy '
+                f'{list(case.energy_outputs)}): {controllers} on {periods}')
+    jobs: list[tuple[str, str, float, float, list[str]]] = []
+    for period in periods:
+        for controller in controllers:
+            if controller == 'baseline':
+                jobs.append((controller, period, 0.0, 0.0, list(args.prices)))
+                continue
+            if args.lead is not None or args.margin is not None:
+                groups = {(args.lead or 0.0, args.margin or 0.0): list(args.prices)}
+            else:
+                tuning = tune_rule(case, targets, period, args.leads, args.margins,
+                                   prices=args.prices, warmup_days=warmup,
+                                   length_days=args.days, workers=args.workers,
+                                   record=record, progress=lambda line: _say(began, line))
+                groups = {}
+                for price in args.prices:
+                    groups.setdefault(tuning.parameters(price), []).append(price)
+            for (lead, margin), prices in groups.items():
+                jobs.append((controller, period, lead, margin, prices))
+    names = [f'{c}_{p}' + (f'_lead{lead:g}_margin{margin:g}' if c == 'rule' else '')
+             for c, p, lead, margin, _ in jobs]
+    arguments = [(str(case.directory), str(card_path), c, p, lead, margin, warmup, args.days,
+                  prices, record, str(args.out / 'runs' / name / 'records.csv'),
+                  args.starts_output)
+                 for (c, p, lead, margin, prices), name in zip(jobs, names)]
+    results: list[list[dict]] = [[] for _ in jobs]
+    with concurrent.futures.ProcessPoolExecutor(
+            min(args.workers, len(jobs)), mp_context=multiprocessing.get_context('spawn')
+    ) as pool:
+        futures = {pool.submit(_run_one, *a): k for k, a in enumerate(arguments)}
+        for future in concurrent.futures.as_completed(futures):
+            k = futures[future]
+            results[k] = future.result()
+            first = results[k][0]
+            _say(began, f'{names[k]}: {first["wall_s"]:.1f} s wall: tdis '
+                        f'{first["tdis_tot"]:.3f} K h, ener {first["ener_tot"]:.4f} kWh/m2')
+    records = [entry for result in results for entry in result]
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / 'kpis.json').write_text(json.dumps(records, indent=1) + '\n')
+    extra = (('lead_h', 'lead [h]', '{:g}'), ('margin_k', 'margin [K]', '{:g}'),
+             ('wall_s', 'run wall [s]', '{:.1f}'))
+    table = kpi_table(records, extra)
+    zones = ['', '| run | price | ' + ' | '.join(f'tdis [{z}] [K h]' for z in case.zones)
+             + ' |', '|---|---|' + '---|' * len(case.zones)]
+    zones += [f'| {name} | {r["price"]} | '
+              + ' | '.join(f'{r["tdis_zones"][z]:.3f}' for z in case.zones) + ' |'
+              for name, result in zip(names, results) for r in result[:1]]
+    text = table + '\n'.join(zones) + '\n'
+    (args.out / 'kpis.md').write_text(text)
+    print(text, end='')
+    if args.figures:
+        import pandas as pd
+        for name, result in zip(names, results):
+            first = result[0]
+            plot_run(pd.read_csv(args.out / 'runs' / name / 'records.csv'), case,
+                     first['start_s'], first['end_s'], name, args.out / f'{name}.png',
+                     prices=args.prices)
+    _say(began, f'wrote {args.out / "kpis.json"} ({len(records)} records)')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

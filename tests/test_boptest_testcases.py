@@ -1,0 +1,246 @@
+"""Any BOPTEST folder and a card: several zones and energy vectors by hand, the real office."""
+import json
+import os
+import pathlib
+
+from mshoot_core.boptest.kpis import compute_kpis
+from mshoot_core.boptest.plant import BoptestPlant
+from mshoot_core.boptest.testcase import DIR_ENV, TestCase
+import numpy as np
+import pandas as pd
+import pytest
+
+DAY = 86400.0
+#: The example cards of docs/boptest_testcases.md.
+CARDS = pathlib.Path(__file__).resolve().parents[1] / 'docs' / 'boptest_cards'
+
+
+def _write(folder: pathlib.Path, name: str, rows: dict) -> None:
+    pd.DataFrame(rows).to_csv(folder / 'Resources' / name, index=False)
+
+
+@pytest.fixture
+def two_zone_case(tmp_path: pathlib.Path) -> TestCase:
+    """
+    Return a 10 m2 test case of two zones and three energy vectors.
+
+    Zones a and b, electricity, gas and district heat, its FMU in models/, the band in
+    setpoints.csv, one file with a 'Time' column; the data change at 1 d + 1 h.
+    """
+    (tmp_path / 'Resources').mkdir()
+    (tmp_path / 'models').mkdir()
+    (tmp_path / 'models' / 'wrapped.fmu').write_bytes(b'')  # never loaded here
+    (tmp_path / 'config.json').write_text(json.dumps({'name': 'two', 'area': 10.0}))
+    (tmp_path / 'days.json').write_text(json.dumps({'p': 8}))
+    (tmp_path / 'kpis.json').write_text(json.dumps({
+        'OperativeZoneTemperature[a]': ['Ta'], 'OperativeZoneTemperature[b]': ['Tb'],
+        'ElectricPower': ['Pfan', 'Ppump'], 'GasPower': ['Pboiler'],
+        'DistrictHeatingPower': ['Pdh'], 'CO2Concentration[a]': ['CO2a'],
+        'None': ['weather']}))
+    times = [0.0, DAY + 3600.0, 3 * DAY]
+    _write(tmp_path, 'setpoints.csv', {
+        'time': times, 'LowerSetp[a]': [294.15] * 3, 'UpperSetp[a]': [297.15] * 3,
+        'LowerSetp[b]': [293.15, 295.15, 295.15], 'UpperSetp[b]': [299.15] * 3,
+        'UpperCO2[a]': [800.0] * 3})
+    _write(tmp_path, 'internalGains.csv', {'Time': times, 'Gain[a]': [1.0] * 3})
+    _write(tmp_path, 'prices.csv', {
+        'time': times, 'PriceElectricPowerConstant': [0.2] * 3,
+        'PriceElectricPowerDynamic': [0.1, 0.3, 0.3],
+        'PriceElectricPowerHighlyDynamic': [0.1, 0.5, 0.5],
+        'PriceGasPower': [0.05] * 3, 'PriceDistrictHeatingPower': [0.07, 0.09, 0.09]})
+    _write(tmp_path, 'emissions.csv', {
+        'time': times, 'EmissionsElectricPower': [0.5] * 3, 'EmissionsGasPower': [0.2] * 3,
+        'EmissionsDistrictHeatingPower': [0.1] * 3})
+    return TestCase.load(tmp_path)
+
+
+def test_folder_layout(two_zone_case: TestCase) -> None:
+    case = two_zone_case
+    assert case.fmu_path == case.directory / 'models' / 'wrapped.fmu'
+    assert case.zones == ['a', 'b']
+    assert case.energy_outputs == {'ElectricPower': ['Pfan', 'Ppump'],
+                                   'DistrictHeatingPower': ['Pdh'], 'GasPower': ['Pboiler']}
+    assert case.resource_files == ['emissions.csv', 'internalGains.csv', 'prices.csv',
+                                   'setpoints.csv']
+    assert case.lookup('LowerSetp[b]', [DAY, DAY + 3600.0]).tolist() == [293.15, 295.15]
+    assert case.lookup('Gain[a]', [10.0]).tolist() == [1.0]  # the 'Time' column
+    assert case.band_columns('b') == ('LowerSetp[b]', 'UpperSetp[b]')
+    with pytest.raises(ValueError, match='unknown energy vector'):
+        case.price_column('constant', 'Coal')
+
+
+def test_bad_folders_are_named(tmp_path: pathlib.Path, two_zone_case: TestCase) -> None:
+    with pytest.raises(FileNotFoundError, match='models/wrapped.fmu'):
+        TestCase.load(tmp_path / 'Resources')
+    folder = two_zone_case.directory
+    (folder / 'Resources' / 'notes.csv').write_text('a,b\n1,2\n')
+    with pytest.raises(ValueError, match='notes.csv: no "time" column'):
+        TestCase.load(folder).lookup('LowerSetp[a]', [0.0])
+
+
+def _records() -> pd.DataFrame:
+    """Return records every 600 s over [1 d, 1 d + 2 h]; k >= 6 (from 1 h on) later values."""
+    k = np.arange(13)
+    late = k >= 6
+    return pd.DataFrame({
+        'time': DAY + 600.0 * k,
+        'Ta': np.where(late, 298.15, 293.65),      # 0.5 K below, then 1 K above [294.15, 297.15]
+        'Tb': np.full(k.size, 294.15),             # 1 K above 293.15, then 1 K below 295.15
+        'Pfan': np.full(k.size, 100.0), 'Ppump': np.full(k.size, 20.0),
+        'Pboiler': np.where(late, 5000.0, 1000.0), 'Pdh': np.full(k.size, 400.0),
+        'CO2a': np.where(late, 1000.0, 700.0), 'weather': np.zeros(k.size)})
+
+
+def test_zones_and_energy_vectors_by_hand(two_zone_case: TestCase) -> None:
+    """Discomfort averaged over zones (and per zone); each vector priced by its own column."""
+    kpis = compute_kpis(_records(), two_zone_case, DAY, DAY + 7200.0, 'dynamic')
+    zone_a = (5 * 600 * 0.5 + 600 * 0.75 + 6 * 600 * 1.0) / 3600
+    # zone b: 0 K inside [293.15, 299.15] until 1 h, then 1 K below 295.15 (interval 5-6: 0.5)
+    zone_b = (600 * 0.5 + 6 * 600 * 1.0) / 3600
+    assert kpis['tdis_zones'] == {'a': pytest.approx(zone_a), 'b': pytest.approx(zone_b)}
+    assert kpis['tdis_tot'] == pytest.approx((zone_a + zone_b) / 2)
+    gas_j = 5 * 600 * 1000 + 600 * 3000 + 6 * 600 * 5000
+    electric_j, heat_j = 120.0 * 7200, 400.0 * 7200
+    assert kpis['ener_tot'] == pytest.approx((gas_j + electric_j + heat_j) / 3.6e6 / 10.0)
+    electric_cost = (5 * 600 * 120 * 0.1 + 600 * 120 * 0.2 + 6 * 600 * 120 * 0.3)
+    heat_cost = (5 * 600 * 400 * 0.07 + 600 * 400 * 0.08 + 6 * 600 * 400 * 0.09)
+    assert kpis['cost_tot'] == pytest.approx(
+        (electric_cost + 0.05 * gas_j + heat_cost) / 3.6e6 / 10.0)
+    assert kpis['emis_tot'] == pytest.approx(
+        (0.5 * electric_j + 0.2 * gas_j + 0.1 * heat_j) / 3.6e6 / 10.0)
+    assert kpis['pele_tot'] == pytest.approx(120 / 10.0 / 1000)
+    assert kpis['pgas_tot'] == pytest.approx(5000 / 10.0 / 1000)
+    assert kpis['pdih_tot'] == pytest.approx(400 / 10.0 / 1000)
+    # one zone with CO2: its excess, not halved
+    assert kpis['idis_tot'] == pytest.approx((600 * 100 + 6 * 600 * 200) / 3600)
+
+
+def test_a_missing_price_column_is_named(two_zone_case: TestCase) -> None:
+    folder = two_zone_case.directory
+    frame = pd.read_csv(folder / 'Resources' / 'prices.csv').drop(columns='PriceGasPower')
+    frame.to_csv(folder / 'Resources' / 'prices.csv', index=False)
+    with pytest.raises(ValueError, match="'PriceGasPower'"):
+        compute_kpis(_records(), TestCase.load(folder), DAY, DAY + 7200.0)
+
+
+# -- the real office: Model Exchange, two zones, gas ---------------------------------------------
+@pytest.fixture(scope='module')
+def office() -> TestCase:
+    """Return the two-zone office beside the repository; skip (fail under CI) when absent."""
+    folder = (pathlib.Path(os.environ.get(DIR_ENV, '/nonexistent')).parent
+              / 'multizone_office_simple_hydronic')
+    if not (folder / 'wrapped.fmu').is_file():
+        if os.environ.get('CI') == 'true':
+            pytest.fail(f'BOPTEST test case missing at {folder} (required under CI)')
+        pytest.skip(f'BOPTEST test case not found at {folder}')
+    return TestCase.load(folder)
+
+
+def test_office_folder(office: TestCase) -> None:
+    assert office.zones == ['sZ', 'nZ'] and office.area_m2 == 5000.0
+    assert list(office.energy_outputs) == ['ElectricPower', 'GasPower']
+    assert 'setpoints.csv' in office.resource_files and 'weather.csv' not in office.resource_files
+    assert office.lookup('LowerSetp[nZ]', [0.0]).tolist() == [289.15]
+    plant = BoptestPlant(office, record=[])
+    assert plant.interface == 'ModelExchange'
+    assert plant.inputs['bms_oveTZonSetMinNz_u'].lower == 288.15
+
+
+def test_office_overwrite_is_an_event_that_acts(office: TestCase) -> None:
+    """Model Exchange: a setpoint overwrite and its switch take effect (events), then release."""
+    t0 = (office.days['peak_heat_day'] - 7) * DAY + 21 * 3600.0
+    applied = 'bms_oveTZonSetMinNz_y'  # the FMU's reading of the signal its BMS follows
+    with BoptestPlant(office, record=['structure_reaTZonNz_y', applied]) as plant:
+        plant.start(t0)
+        plant.advance(t0 + 3600.0)
+        own = plant.records(t0 + 60.0, t0 + 3600.0)
+        plant.advance(t0 + 3 * 3600.0, {'bms_oveTZonSetMinNz_u': 303.15})
+        forced = plant.records(t0 + 3660.0, t0 + 3 * 3600.0)
+        plant.advance(t0 + 4 * 3600.0)
+        released = plant.records(t0 + 3 * 3600.0 + 60.0, t0 + 4 * 3600.0)
+        assert plant.read([applied])[applied] == released[applied].iloc[-1]
+        with pytest.raises(ValueError, match='not Real variables'):
+            plant.read(['no_such_variable'])
+    assert (own[applied] == 289.15).all()  # the night set-back of the BMS
+    assert (forced['bms_oveTZonSetMinNz_u'] == 303.15).all()
+    assert (forced[applied] == 303.15).all()
+    assert released['bms_oveTZonSetMinNz_u'].isna().all() and (released[applied] == 289.15).all()
+
+
+def test_office_baseline_through_mshoot_boptest(office: TestCase, tmp_path: pathlib.Path,
+                                                capsys: pytest.CaptureFixture) -> None:
+    """
+    ``mshoot boptest`` runs the office's baseline (ME, libgfortran.so.3 stand-in) from its card.
+
+    A shortened run (1 day of warm-up, 1 day of test); its KPIs equal BOPTEST's definitions
+    written out again from the stored records (gas priced by PriceGasPower).
+    """
+    from mshoot_studies import cli
+    out = tmp_path / 'office'
+    code = cli.main(['boptest', '--testcase', str(office.directory), '--card',
+                     str(CARDS / 'multizone_office_simple_hydronic.yaml'), '--controllers',
+                     'baseline', '--periods', 'peak_heat_day', '--warmup-days', '1', '--days',
+                     '1', '--workers', '1', '--out', str(out)])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert '| baseline | peak_heat_day | constant |' in printed and 'tdis [nZ]' in printed
+    records = json.loads((out / 'kpis.json').read_text())
+    assert [r['price'] for r in records] == ['constant', 'dynamic', 'highly_dynamic']
+    table = pd.read_csv(out / 'runs' / 'baseline_peak_heat_day' / 'records.csv')
+    _, start, end = office.test_period('peak_heat_day', 1, 1)
+    period = table[(table['time'] >= start) & (table['time'] <= end)]
+    t = period['time'].to_numpy()
+    assert np.diff(t).max() == 60.0 and t[0] == start and t[-1] == end
+    raw = {name: pd.read_csv(office.directory / 'Resources' / name)
+           for name in ('setpoints.csv', 'prices.csv')}
+
+    def held(file: str, column: str) -> np.ndarray:
+        frame = raw[file]
+        rows = np.searchsorted(frame['time'].to_numpy(), t, side='right') - 1
+        return frame[column].to_numpy()[rows]
+
+    tdis = {}
+    for zone, output in (('nZ', 'structure_reaTZonNz_y'), ('sZ', 'structure_reaTZonSz_y')):
+        temperature = period[output].to_numpy()
+        excess = (np.clip(held('setpoints.csv', f'LowerSetp[{zone}]') - temperature, 0, None)
+                  + np.clip(temperature - held('setpoints.csv', f'UpperSetp[{zone}]'), 0, None))
+        tdis[zone] = float(np.sum((excess[1:] + excess[:-1]) / 2 * np.diff(t)) / 3600)
+    electric = period[office.energy_outputs['ElectricPower']].sum(axis=1).to_numpy()
+    gas = period['heating_cooling_reaPProHea_y'].to_numpy()
+    area_j = 3.6e6 * 5000.0
+    integral = (lambda y: float(np.sum((y[1:] + y[:-1]) / 2 * np.diff(t))))
+    for record in records:
+        assert record['tdis_zones'] == {z: pytest.approx(v, rel=1e-9, abs=1e-12)
+                                        for z, v in tdis.items()}
+        assert record['tdis_tot'] == pytest.approx((tdis['nZ'] + tdis['sZ']) / 2, rel=1e-9)
+        assert record['ener_tot'] == pytest.approx(integral(electric + gas) / area_j, rel=1e-9)
+        column = {'constant': 'PriceElectricPowerConstant',
+                  'dynamic': 'PriceElectricPowerDynamic',
+                  'highly_dynamic': 'PriceElectricPowerHighlyDynamic'}[record['price']]
+        cost = (integral(electric * held('prices.csv', column))
+                + integral(gas * held('prices.csv', 'PriceGasPower')))
+        assert record['cost_tot'] == pytest.approx(cost / area_j, rel=1e-9)
+        assert record['pgas_tot'] > 0 and record['pele_tot'] > 0 and record['pdih_tot'] is None
+    # a March day in Brussels: the boiler heats
+    assert gas.max() > 1000.0
+
+
+def test_mshoot_boptest_refuses_bad_input_in_one_line(boptest_case: TestCase,
+                                                      tmp_path: pathlib.Path,
+                                                      capsys: pytest.CaptureFixture) -> None:
+    from mshoot_studies import cli
+    card = CARDS / 'bestest_hydronic_heat_pump.yaml'
+    base = ['boptest', '--testcase', str(boptest_case.directory), '--out', str(tmp_path)]
+    cases = [
+        (['--card', str(card), '--controllers', 'mshoot'], 'runs over ROS'),
+        (['--card', str(card), '--controllers', 'baseline,fancy'], 'expected some of'),
+        (['--card', str(card), '--periods', 'peak_cool_day'], 'unknown test period'),
+        (['--card', str(CARDS.parent / 'index.md')], 'kind boptest'),
+    ]
+    no_zones = tmp_path / 'no_zones.yaml'
+    no_zones.write_text(card.read_text().replace("setpoint_zones: {TSet: '1'}", ''))
+    cases.append((['--card', str(no_zones), '--controllers', 'rule'], 'setpoint_zones'))
+    for extra, message in cases:
+        assert cli.main([*base, *extra]) == 2, extra
+        err = capsys.readouterr().err
+        assert message in err and err.count('\n') == 1, (extra, err)
