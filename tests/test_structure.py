@@ -267,6 +267,32 @@ def test_multizone_mpc_ipopt_matches_slsqp_and_relaxes_honestly():
     np.testing.assert_allclose(results['ipopt'].controls, results['slsqp'].controls, atol=5.0)
 
 
+def test_ipopt_runs_the_casadi_build_with_a_newer_mumps(tmp_path):
+    """IPOPT from cyipopt is CasADi's build (MUMPS >= 5.6, with METIS), not its own (5.5.1)."""
+    import re
+
+    from mshoot_core import solvers
+    import scipy.sparse
+
+    log = tmp_path / 'ipopt.out'
+    solver = solvers.IpoptSolver(options={'output_file': str(log), 'file_print_level': 5,
+                                          'sb': 'no'})
+    jac = scipy.sparse.coo_array(np.array([[1.0, 1.0, 0.0]]))
+    nlp = solvers.Nlp(fun=lambda z: float(np.sum((z - 1.0) ** 2)), grad=lambda z: 2 * (z - 1.0),
+                      eq_fun=lambda z: np.array([z[0] + z[1] - 1.0]), eq_jac=lambda z: jac,
+                      lb=np.full(3, -5.0), ub=np.full(3, 5.0),
+                      objective_hessian_diag=lambda z: np.full(3, 2.0))
+    result = solver.solve(nlp, np.zeros(3))
+    assert result.success
+    np.testing.assert_allclose(result.x, [0.5, 0.5, 1.0], atol=1e-7)
+    banner = re.search(r'Ipopt version (\d+)\.(\d+)\.(\d+), running with linear solver '
+                       r'MUMPS (\d+)\.(\d+)', log.read_text())
+    assert banner is not None, log.read_text()[:400]
+    ipopt, mumps = tuple(map(int, banner.groups()[:3])), tuple(map(int, banner.groups()[3:]))
+    assert solvers.ipopt_library is not None and solvers.ipopt_library.name == 'libipopt.so.3'
+    assert ipopt >= (3, 14, 19) and mumps >= (5, 6), banner.group(0)
+
+
 def test_model_without_sparsity_is_dense():
     assert Model.jacobian_sparsity(R1C1Model(), [4]) is None
 

@@ -21,9 +21,15 @@ returns its last iterate with ``success=False`` and ``budget_exceeded=True``.
 from __future__ import annotations
 
 import abc
+import ctypes
 import dataclasses
+import functools
+import importlib.util
 import logging
+import pathlib
+import sys
 import time
+from types import ModuleType
 from typing import Any, Callable
 
 import numpy as np
@@ -230,9 +236,59 @@ IPOPT_LARGE_PROBLEM_OPTIONS: dict[str, Any] = {'min_refinement_steps': 0,
                                                'mumps_pivot_order': 0}
 
 
+#: CasADi's IPOPT build, in its wheel's package folder, in load order (dependencies first).
+CASADI_IPOPT_LIBRARIES = ('libcoinmetis.so.2', 'libcoinmumps.so.3', 'libipopt.so.3')
+#: The IPOPT library cyipopt calls: CasADi's when :func:`import_cyipopt` bound it, else None
+#: (the one ``cyipopt-wheels`` bundles).
+ipopt_library: pathlib.Path | None = None
+
+
+@functools.cache
+def import_cyipopt() -> ModuleType:
+    """
+    Import cyipopt with its IPOPT calls bound to CasADi's IPOPT build where that is installed.
+
+    cyipopt calls IPOPT through its C interface (``CreateIpoptProblem``, ``IpoptSolve``, ...),
+    the same across IPOPT 3.14. The ``cyipopt-wheels`` package bundles IPOPT 3.14.11 with
+    MUMPS 5.5.1 built without METIS; CasADi's wheel (a requirement) IPOPT 3.14.19 with
+    MUMPS 5.8.2 and METIS, which factorises the KKT systems of multiple shooting in a
+    third of the time (docs/speed.md). Its libraries are loaded into the global symbol scope
+    before cyipopt's extension module, so that module's IPOPT symbols resolve to them; no
+    Python module of CasADi is imported. Without CasADi, or when cyipopt was imported before
+    (the binding is made when its extension loads), cyipopt's own IPOPT runs (a warning
+    says so in the second case). Done once per process.
+
+    Raises
+    ------
+    ValueError
+        cyipopt is not installed.
+
+    """
+    global ipopt_library
+    if 'cyipopt' not in sys.modules:
+        spec = importlib.util.find_spec('casadi')
+        folder = (pathlib.Path(spec.origin).parent if spec is not None and spec.origin
+                  else None)
+        paths = [folder / name for name in CASADI_IPOPT_LIBRARIES] if folder else []
+        if paths and all(path.is_file() for path in paths):
+            for path in paths:
+                ctypes.CDLL(str(path), mode=ctypes.RTLD_GLOBAL)
+            ipopt_library = paths[-1]
+    elif ipopt_library is None and importlib.util.find_spec('casadi') is not None:
+        logger.warning('cyipopt was imported before mshoot_core.solvers could bind it to the '
+                       'IPOPT build of CasADi: the slower one bundled with cyipopt runs')
+    try:
+        import cyipopt
+    except ImportError as exc:  # pragma: no cover - depends on the install
+        raise ValueError('solver "ipopt" needs cyipopt: pip install cyipopt-wheels') from exc
+    return cyipopt
+
+
 class IpoptSolver(Solver):
     """
     IPOPT through cyipopt (the ``cyipopt-wheels`` package), with sparse Jacobians.
+
+    The IPOPT build is CasADi's where its wheel is installed (:func:`import_cyipopt`).
 
     The pattern is taken once from a :class:`SparseJacobian`; the exact diagonal objective Hessian
     where the problem gives it, else a limited-memory approximation; ``options`` are IPOPT's (e.g.
@@ -244,10 +300,7 @@ class IpoptSolver(Solver):
     def __init__(self, max_iter: int = 200, tol: float = 1e-8,
                  options: dict | None = None) -> None:
         super().__init__(max_iter, tol)
-        try:
-            import cyipopt
-        except ImportError as exc:  # pragma: no cover - depends on the install
-            raise ValueError('solver "ipopt" needs cyipopt: pip install cyipopt-wheels') from exc
+        cyipopt = import_cyipopt()
         self.options = dict(options or {})
         # cyipopt logs every callback at INFO level: keep it to warnings
         cyipopt_logger = logging.getLogger('cyipopt')
