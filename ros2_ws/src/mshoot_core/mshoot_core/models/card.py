@@ -97,7 +97,9 @@ SCHEMA_PATH = pathlib.Path(__file__).resolve().parents[1] / 'schema' / 'model_ca
 #: (built-in FMU, Model Exchange), ``r1c1_fmu_cs.yaml`` (Co-Simulation), ...
 CARDS_DIR = network_spec.CARDS_DIR
 #: The built-in model sources of ``builtin:``.
-BUILTIN_SOURCES = ('r1c1', 'r1c1-fmu', 'r2c2')
+BUILTIN_SOURCES = ('r1c1', 'r1c1-fmu', 'r2c2', 'setpoint-zone-fmu')
+#: The built-in FMUs of ``builtin:`` -> their name in :data:`mshoot_core.fmu_cache.MODELS`.
+BUILTIN_FMUS = {'r1c1-fmu': 'r1c1', 'setpoint-zone-fmu': 'setpoint_zone'}
 #: The keys naming a card's model: exactly one of them.
 SOURCES = ('fmu', 'builtin', 'boptest', 'network')
 #: The built-in networks of ``builtin:`` (the cards of the same name): name -> label.
@@ -449,7 +451,10 @@ def _fmu_catalogue(label: str, md: Any, interface: str) -> _Catalogue:
     if interface == 'ModelExchange':
         states = [by_name[d.variable.derivative.name] for d in md.derivatives
                   if d.variable.derivative is not None]
-        state_kind = 'continuous states'
+        # and variables computed from them (read by a plant; see FmiModel.derived_states)
+        states += [v for v in real if v not in states and v.causality.split(',')[0] not in
+                   ('parameter', 'input', 'calculatedParameter')]
+        state_kind = 'continuous states, or variables computed from them (plant only)'
     else:
         states = [v for v in real if v.causality.split(',')[0] not in
                   ('parameter', 'input', 'calculatedParameter')
@@ -776,10 +781,10 @@ def _catalogue(path: pathlib.Path, document: dict, fmi_type: Any, problems: list
     if ((builtin is None) == (fmu_name is None) or 'network' in document
             or builtin in PYTHON_SOURCES or fmi_type not in ('auto', *FMI_TYPES)):
         return None, None, None
-    if builtin == 'r1c1-fmu':
+    if builtin in BUILTIN_FMUS:
         from mshoot_core.fmu_cache import find_fmu
         try:
-            fmu = find_fmu('r1c1')
+            fmu = find_fmu(BUILTIN_FMUS[builtin])
         except FileNotFoundError as exc:
             problems.append(f'builtin: {exc}')
             return None, None, None

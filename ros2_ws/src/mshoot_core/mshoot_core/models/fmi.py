@@ -437,8 +437,10 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
 
         self.input_names, self._input_vars = self._resolve(
             'inputs', inputs, [v.name for v in reals if v.causality == 'input'])
-        if self.is_model_exchange:
-            state_choices = [v.name for v in self._continuous_states]
+        if self.is_model_exchange:  # continuous states, or variables computed from them
+            state_choices = [v.name for v in self._continuous_states] + [
+                v.name for v in reals if v not in self._continuous_states
+                and v.causality not in ('parameter', 'input', 'calculatedParameter')]
         else:
             state_choices = [v.name for v in reals
                              if v.causality not in ('parameter', 'input', 'calculatedParameter')
@@ -459,8 +461,17 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         self._start_state_refs = vr_array(
             [self._state_vars[i].valueReference for i in self._start_state_index])
         self._n_continuous = md.numberOfContinuousStates if self.is_model_exchange else 0
-        self._state_positions = [self._continuous_states.index(v) for v in self._state_vars] \
+        # In Model Exchange a mapped state is a continuous state of the FMU (written at a
+        # start), or a variable computed from them (a zone temperature of an FMU whose air
+        # state is an energy): only read, so only a plant (plant_start/plant_step) can use it.
+        self._written_states = [i for i, v in enumerate(self._state_vars)
+                                if v in self._continuous_states] \
             if self.is_model_exchange else []
+        self._state_positions = [self._continuous_states.index(self._state_vars[i])
+                                 for i in self._written_states]
+        #: States read from variables computed by the FMU, not its continuous states.
+        self.derived_states = tuple(name for i, name in enumerate(self.state_names)
+                                    if self.is_model_exchange and i not in self._written_states)
         self._x_full = np.zeros(self._n_continuous)
         self._set_parameters_plan(parameters, fixed_inputs or {})
 
@@ -694,6 +705,12 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
 
     def _check_batch(self, x_start: np.ndarray, u: np.ndarray,
                      dt_s: float) -> tuple[np.ndarray, np.ndarray, float]:
+        if self.derived_states:
+            raise ValueError(f'{self.fmu_path.name}: states {list(self.derived_states)} are not '
+                             'continuous states of the FMU but variables computed from them: '
+                             'the FMU can be a plant (an emulator), not a control model started '
+                             'from given states; identify a control model from it instead '
+                             '(mshoot identify)')
         x_start, u = super()._check_batch(x_start, u)
         dt_s = float(dt_s)
         if not (math.isfinite(dt_s) and dt_s > 0.0):
