@@ -84,28 +84,37 @@ class Excitation:
                                  f'max, got ({lo}, {hi})')
 
 
-def control_limits(card: Any) -> tuple[tuple[float, float], ...]:
+def control_limits(card: Any, default: tuple[float, float] | None = None
+                   ) -> tuple[tuple[float, float], ...]:
     """
-    Return the (min, max) of every control of a plant card in its canonical unit.
+    Return the (min, max) of every control of a card in its canonical unit.
 
-    The card writes its limits in the control's unit (e.g. a setpoint in K); the models take
-    the canonical unit (:func:`mshoot_core.models.card.canonical_unit`).
+    The card writes its limits in the control's unit (a setpoint in K); the models take the
+    canonical unit (:func:`mshoot_core.models.card.canonical_unit`: degC for a temperature).
+
+    Parameters
+    ----------
+    card : ModelCard
+        The card.
+    default : (float, float), optional
+        Limits where the card has none [canonical unit]; None: both limits are required.
 
     Raises
     ------
     ValueError
-        For a control without both limits (the excitation draws its levels between them).
+        For a control without both limits and no default.
 
     """
     from mshoot_core.models import card as cards
     out = []
     for name, v in card.controls.items():
-        if v.min is None or v.max is None:
+        unit = v.unit or ''
+        scale, offset = cards.conversion(cards.canonical_unit('controls', name, unit)[0], unit)
+        low, high = ((b - offset) / scale if b is not None else None for b in (v.min, v.max))
+        if default is None and (low is None or high is None):
             raise ValueError(f'{card.path}: control {name!r} needs min and max (the '
                              'excitation draws its levels between them)')
-        canonical, _ = cards.canonical_unit('controls', name, v.unit or '')
-        scale, offset = cards.conversion(canonical, v.unit or canonical)
-        out.append(tuple(sorted(((v.min - offset) / scale, (v.max - offset) / scale))))
+        out.append((default[0] if low is None else low, default[1] if high is None else high))
     return tuple(out)
 
 
@@ -436,8 +445,9 @@ def write_card(model_card: Any, identification: Identification,
             parameters[name] = float(value)
     document['description'] = (f"{document.get('description', model_card.path.stem)} "
                                f'(identified)')
-    header = [f'# {model_card.path.name} identified by mshoot identify{source}.',
-              '# Validation RMSE per zone on held-out data [K]:']
+    header = [f'# {model_card.path.name} identified by mshoot identify{source}:',
+              '# its fitted values in place of the start values (its comments explain the',
+              '# model). Validation RMSE per zone on held-out data [K]:']
     header += [f'#   {zone}: free run {s["free_run_rmse_k"]:.3f}, one step ahead '
                f'{s["one_step_rmse_k"]:.3f} ({s["rows"]} steps)'
                for zone, s in identification.validation.items()]
