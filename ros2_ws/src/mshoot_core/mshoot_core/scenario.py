@@ -348,6 +348,21 @@ def read_data_csv(path: str | pathlib.Path, step_s: float = 3600.0,
     return scenario
 
 
+def data_scenario(path: str | pathlib.Path, hours: int,
+                  band: tuple[float, float] | None = None,
+                  step_s: float = 3600.0) -> pd.DataFrame:
+    """
+    Return the first ``hours`` control steps (``hours + 1`` rows) of a data CSV.
+
+    See :func:`read_data_csv`; a CSV too short is a ValueError saying how long it is.
+    """
+    scenario = read_data_csv(path, step_s, band)
+    if len(scenario) < hours + 1:
+        raise ValueError(f'{path} covers {len(scenario) - 1} control steps of {step_s:g} s, '
+                         f'not {hours}')
+    return scenario.iloc[:hours + 1]
+
+
 def reference_scenario(name: str, data: str | pathlib.Path | None = None,
                        hours: int = 72) -> pd.DataFrame:
     """
@@ -376,11 +391,7 @@ def reference_scenario(name: str, data: str | pathlib.Path | None = None,
     if name == 'synthetic':
         return synthetic_scenario(hours=hours + 1)
     if name != 'ou44' and not is_ou44_format(name):
-        scenario = read_data_csv(name)
-        if len(scenario) < hours + 1:
-            raise ValueError(f'{name} covers {len(scenario) - 1} control steps of '
-                             f'{scenario.index[1] - scenario.index[0]:g} s, not {hours}')
-        return scenario.iloc[:hours + 1]
+        return data_scenario(name, hours)
     path = pathlib.Path(name) if name != 'ou44' else pathlib.Path(data or DEFAULT_DATA)
     end = pd.Timestamp(OU44_START) + pd.Timedelta(hours=hours)
     scenario = load_ou44(path, start=OU44_START, end=str(end))
