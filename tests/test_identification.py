@@ -161,3 +161,22 @@ def test_setpoint_zone_over_ros_beats_its_local_loop(context, tmp_path, plant_fm
     assert local['discomfort_kh'] > 1.0          # its fixed setpoint droops below the band
     assert mpc['discomfort_kh'] < 0.25 * local['discomfort_kh']
     assert mpc['heat_kwh'] == pytest.approx(local['heat_kwh'], rel=0.1)
+
+
+def test_case_takes_a_data_csv_with_a_band(tmp_path):
+    from mshoot_studies import case
+    path = tmp_path / 'data.csv'
+    pd.DataFrame({'time_s': np.arange(5) * 3600.0, 'Tout': 5.0, 'solrad': 0.0, 'occ': 0.0,
+                  'dpos': 0.0}).to_csv(path, index=False)
+    args = case.build_parser().parse_args(['data', '--data', str(path), '--band', '20,23',
+                                           '--hours', '3'])
+    scenario = case.case_scenario(args, None)
+    assert len(scenario) == 4 and set(scenario['comfort_max']) == {23.0}
+    args.hours = 5
+    with pytest.raises(ValueError, match='covers 4 control steps'):
+        case.case_scenario(args, None)
+    args = case.build_parser().parse_args(['synthetic', '--band', '20,23'])
+    with pytest.raises(ValueError, match='--band is for the scenario data'):
+        case.case_scenario(args, None)
+    assert case.main(['data', '--data', str(path), '--hours', '3', '--out',
+                      str(tmp_path / 'out')]) == 2  # no band

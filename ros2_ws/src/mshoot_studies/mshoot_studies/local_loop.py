@@ -10,7 +10,8 @@ the scenario's first ``--hours`` control steps, and prints its discomfort [K h] 
 comfort band of the scenario, 60 s samples) and the heat delivered [kWh] (the increase of the
 plant's energy meter, the output ``--meter`` [J]) next to those of an MPC run's
 ``trajectories.csv`` (``--mpc``: the output folder of ``bringup`` or ``mshoot case``).
-Writes ``local_loop.csv`` (the local loop's trajectory) and ``comparison.json`` to ``--out``.
+Writes ``local_loop.csv`` (the local loop's trajectory), ``comparison.json`` and, with
+``--mpc``, ``comparison.png`` (both runs' zone temperature and heat) to ``--out``.
 The KPIs of the runs count the controls as heat rates; here heat comes from the plant's
 meter, whatever the control's quantity (a setpoint).
 """
@@ -82,6 +83,32 @@ def heat_kpis(trajectory: pd.DataFrame, meter: str, zone: str = 'y_T') -> dict[s
     return {**discomfort_kh(trajectory, zone), 'heat_kwh': heat_j / 3.6e6}
 
 
+def figure(path: pathlib.Path, local: pd.DataFrame, mpc: pd.DataFrame,
+           rows: dict[str, dict[str, float]]) -> None:
+    """Draw the zone temperature and the heat delivered of both runs, with the band."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
+    hours = local.index.to_numpy(dtype=float) / 3600.0
+    top.fill_between(hours, local['comfort_min'], local['comfort_max'], color='0.9',
+                     label='comfort band')
+    for frame, name, style in ((local, 'local loop', 'C3-'), (mpc, 'mpc', 'C0-')):
+        label = (f"{name}: {rows[name]['discomfort_kh']:.2f} K h, "
+                 f"{rows[name]['heat_kwh']:.1f} kWh")
+        t = frame.index.to_numpy(dtype=float) / 3600.0
+        top.plot(t, frame['y_T'], style, lw=1.0, label=label)
+        bottom.plot(t, frame['y_Qheat'] / 1000.0, style, lw=0.8, label=name)
+    top.set_ylabel('zone temperature [degC]')
+    top.legend(loc='upper right', fontsize=8)
+    bottom.set_ylabel('heat delivered [kW]')
+    bottom.set_xlabel('time [h]')
+    bottom.legend(loc='upper right', fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     """Build the command line (see the module docstring)."""
     if parser is None:
@@ -121,6 +148,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
     trajectory.to_csv(args.out / 'local_loop.csv', index_label='time_s')
+    if args.mpc is not None:
+        figure(args.out / 'comparison.png', trajectory, mpc, rows)
     (args.out / 'comparison.json').write_text(json.dumps(rows, indent=2) + '\n')
     for name, row in rows.items():
         logger.info('%-10s discomfort %6.2f K h, heat delivered %7.2f kWh', name,
