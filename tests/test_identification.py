@@ -136,7 +136,7 @@ def test_data_csv_is_read_as_interval_means_with_a_band(tmp_path):
 
 @pytest.mark.ros
 def test_setpoint_zone_over_ros_beats_its_local_loop(context, tmp_path, plant_fmu):
-    """24 h over ROS from the plant card and the identified model: less discomfort, similar heat."""
+    """24 h over ROS from the plant card and its identified model: less discomfort, like heat."""
     from mshoot_nodes.bringup import run_in_process
     hours = 24
     scenario = synthetic_scenario(hours=hours + 1, seed=0)

@@ -315,7 +315,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument('--data', type=pathlib.Path, default=None,
                         help=f'ou44: the measurements.csv (default: {DEFAULT_DATA.resolve()} '
                              'if it exists); data: a CSV with a time column (datetime or '
-                             'time_s), a column per series named as the models\' inputs and '
+                             "time_s), a column per series named as the models' inputs and "
                              'the band comfort_min, comfort_max [degC] (or --band), read as '
                              'hourly means from its first row')
     parser.add_argument('--band', type=_band, default=None, metavar='LO,HI',

@@ -37,7 +37,7 @@ INITIAL_C = 21.0
 
 
 def released(card: Any) -> Any:
-    """Return the card with its overwrite switches released (no ``activate``: left at 0)."""
+    """Return the card without its overwrite switches: every ``activate`` input stays 0."""
     controls = {name: dataclasses.replace(v, activate=None) for name, v in card.controls.items()}
     return dataclasses.replace(card, controls=controls)
 
@@ -121,7 +121,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                         help="the scenario: 'synthetic', or a data CSV with a band")
     parser.add_argument('--hours', type=int, default=72, help='control steps (default 72)')
     parser.add_argument('--mpc', type=pathlib.Path, default=None,
-                        help="output folder of an MPC run (its trajectories.csv) to compare")
+                        help='output folder of an MPC run (its trajectories.csv) to compare')
     parser.add_argument('--meter', default='Qheat_total',
                         help='output of the plant metering the heat delivered [J] (default '
                              'Qheat_total)')
