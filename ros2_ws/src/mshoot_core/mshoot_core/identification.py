@@ -87,17 +87,14 @@ class Excitation:
 def control_limits(card: Any, default: tuple[float, float] | None = None
                    ) -> tuple[tuple[float, float], ...]:
     """
-    Return the (min, max) of every control of a card in its canonical unit.
-
-    The card writes its limits in the control's unit (a setpoint in K); the models take the
-    canonical unit (:func:`mshoot_core.models.card.canonical_unit`: degC for a temperature).
+    Return the (min, max) of every control of a card [canonical unit].
 
     Parameters
     ----------
     card : ModelCard
-        The card.
+        The card (its limits are in the controls' canonical units, as every card's today).
     default : (float, float), optional
-        Limits where the card has none [canonical unit]; None: both limits are required.
+        Limits where the card has none; None: both limits are required.
 
     Raises
     ------
@@ -105,17 +102,12 @@ def control_limits(card: Any, default: tuple[float, float] | None = None
         For a control without both limits and no default.
 
     """
-    from mshoot_core.models import card as cards
-    out = []
-    for name, v in card.controls.items():
-        unit = v.unit or ''
-        scale, offset = cards.conversion(cards.canonical_unit('controls', name, unit)[0], unit)
-        low, high = ((b - offset) / scale if b is not None else None for b in (v.min, v.max))
-        if default is None and (low is None or high is None):
+    bounds = card.control_bounds((np.nan, np.nan) if default is None else default)
+    for name, (low, high) in zip(card.controls, bounds):
+        if not (np.isfinite(low) and np.isfinite(high)) and default is None:
             raise ValueError(f'{card.path}: control {name!r} needs min and max (the '
                              'excitation draws its levels between them)')
-        out.append((default[0] if low is None else low, default[1] if high is None else high))
-    return tuple(out)
+    return tuple(bounds)
 
 
 def excitation_levels(steps: int, bounds: Sequence[tuple[float, float]],

@@ -40,7 +40,6 @@ from typing import Any, Sequence
 from mshoot_core.closed_loop import ClosedLoopResult, EmulationStopped, run_closed_loop
 from mshoot_core.controller import Controller
 from mshoot_core.emulation import Emulator
-from mshoot_core.identification import control_limits
 from mshoot_core.kpis import closed_loop_kpis, FALLBACK_EXIT, fallback_problem
 from mshoot_core.models.base import Model
 from mshoot_core.models.r1c1 import KELVIN
@@ -477,10 +476,9 @@ def card_setup(args: argparse.Namespace, settings: MpcSettings, control: Model,
                          else None)
     names = control_card.control_names if control_card else settings.problem.control_names
     changes: dict[str, Any] = {'control_names': names}
-    if control_card:  # the card's limits in the canonical units the MPC plans in
-        limits = control_limits(control_card, (np.nan, np.nan))
-        lows = [low for low, _ in limits if not np.isnan(low)]
-        highs = [high for _, high in limits if not np.isnan(high)]
+    if control_card:
+        lows = [v.min for v in control_card.controls.values() if v.min is not None]
+        highs = [v.max for v in control_card.controls.values() if v.max is not None]
         if lows:
             changes['heat_rate_min_w'] = float(max(lows))
         if highs:
@@ -521,7 +519,7 @@ def card_setup(args: argparse.Namespace, settings: MpcSettings, control: Model,
         except ValueError as exc:
             problems.append(str(exc))
         default = (settings.problem.heat_rate_min_w, settings.problem.heat_rate_max_w)
-        bounds = dict(zip(emulator_card.control_names, control_limits(emulator_card, default)))
+        bounds = dict(zip(emulator_card.control_names, emulator_card.control_bounds(default)))
         actuators = [bounds.get(c, default) for c in names]
     return settings, x0, actuators, problems
 

@@ -183,6 +183,9 @@ class CardVariable:
     measured : bool
         For a state: whether a sensor measures it (default true); the
         controller estimates the others.
+    computed : bool
+        For a state of a Model Exchange FMU: a variable computed from its
+        continuous states, read by a plant and never written.
 
     """
 
@@ -196,6 +199,7 @@ class CardVariable:
     causality: str = ''
     model_start: float | None = None
     measured: bool = True
+    computed: bool = False
 
     def conversion(self) -> tuple[float, float]:
         """``(scale, offset)`` with model value = scale * canonical value + offset."""
@@ -451,10 +455,7 @@ def _fmu_catalogue(label: str, md: Any, interface: str) -> _Catalogue:
     if interface == 'ModelExchange':
         states = [by_name[d.variable.derivative.name] for d in md.derivatives
                   if d.variable.derivative is not None]
-        # and variables computed from them (read by a plant; see FmiModel.derived_states)
-        states += [v for v in real if v not in states and v.causality.split(',')[0] not in
-                   ('parameter', 'input', 'calculatedParameter')]
-        state_kind = 'continuous states, or variables computed from them (plant only)'
+        state_kind = 'continuous states'
     else:
         states = [v for v in real if v.causality.split(',')[0] not in
                   ('parameter', 'input', 'calculatedParameter')
@@ -600,7 +601,7 @@ def schema_problems(document: Any) -> list[str]:
 #: The keys of a variable entry, by section (as in the schema).
 ENTRY_KEYS = {'controls': ('variable', 'unit', 'min', 'max', 'activate'),
               'disturbances': ('variable', 'unit'),
-              'states': ('variable', 'unit', 'start', 'measured'),
+              'states': ('variable', 'unit', 'start', 'measured', 'computed'),
               'outputs': ('variable', 'unit')}
 
 
@@ -846,14 +847,21 @@ def _check_variables(catalogue: _Catalogue, sections: dict[str, dict[str, dict]]
     if both:
         problems.append(f'{both} are both controls and disturbances')
     for section in SECTIONS:
-        choices, what = kinds[section]
-        by_name = {v.name: v for v in choices}
         resolved: dict[str, CardVariable] = {}
         for name, spec in sections[section].items():
             where = f'{section}.{name}'
+            choices, what = kinds[section]
+            mine: list[str] = []
+            if section == 'states' and spec.get('computed', False):
+                # a state a Model Exchange plant reads from a variable its continuous states
+                # determine (FmiModel.derived_states): only a plant can use such a card
+                if catalogue.state_kind != 'continuous states':
+                    mine.append(f'{where}.computed: for a state of a Model Exchange FMU; the '
+                                f'states of {catalogue.label} are {catalogue.state_kind}')
+                choices, what = kinds['outputs']
+            by_name = {v.name: v for v in choices}
             variable = spec.get('variable', name)
             found = by_name.get(variable)
-            mine: list[str] = []
             if found is None:
                 mine.append(f'{where}: {variable!r} is not {what} of {catalogue.label}; '
                             f'valid: {_listing(choices, variable)}')
@@ -886,7 +894,8 @@ def _check_variables(catalogue: _Catalogue, sections: dict[str, dict[str, dict]]
                 variable=variable, unit=unit, min=low, max=high,
                 activate=spec.get('activate'), start=spec.get('start'),
                 canonical_unit=canonical, causality=found.causality, model_start=model_start,
-                measured=bool(spec.get('measured', True)))
+                measured=bool(spec.get('measured', True)),
+                computed=bool(spec.get('computed', False)))
         out[section] = resolved
     _check_unique(out, problems)
     _check_switches(catalogue, sections, problems)
@@ -1352,6 +1361,8 @@ def describe(card: ModelCard) -> list[dict[str, str]]:
                 extra.append(f'{v.activate} := 1')
             if v.start is not None:
                 extra.append(f'start {v.start:g}')
+            if v.computed:
+                extra.append('computed: read by a plant, never written')
             rows.append({'section': section[:-1] if section != 'disturbances' else 'disturbance',
                          'name': name, 'variable': v.variable, 'causality': v.causality,
                          'unit': v.unit or '1', 'canonical': v.canonical_unit or '1',
