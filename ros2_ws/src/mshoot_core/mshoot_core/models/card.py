@@ -1093,6 +1093,9 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
     cls, extra = (FmiModel, {}) if conversions.identity else (CardFmiModel,
                                                               {'conversions': conversions})
     fixed = {v.activate: 1 for v in card.controls.values() if v.activate is not None}
+    computed = tuple(n for n, v in card.states.items() if v.computed)
+    if computed:  # a plant only (FmiModel.derived_states)
+        options['computed_states'] = computed
     model = cls(card.fmu,
                 inputs={n: v.variable for s in ('controls', 'disturbances')
                         for n, v in getattr(card, s).items()},

@@ -328,6 +328,12 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
     libraries : sequence of Library
         Libraries to preload before the FMU's binary (a card's ``preload``); the binary is
         loaded in a child process first (:func:`mshoot_core.fmu_binary.check_binary`).
+    computed_states : sequence of str
+        Model Exchange: states (model names) mapped to variables computed from the FMU's
+        continuous states rather than to continuous states (a zone temperature of an FMU whose
+        air state is its energy; a card's ``computed: true``): read, never written, so the
+        model can be a plant (:meth:`plant_start`, :meth:`plant_step`) but cannot simulate
+        from given states (:attr:`derived_states`).
 
     Raises
     ------
@@ -361,7 +367,8 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
                  fmi_type: str | None = None, instance_name: str = 'mshoot',
                  fixed_inputs: Mapping[str, Any] | None = None,
                  time_origin_s: float = 0.0, monotone_inputs: Sequence[str] = (),
-                 validate: bool = True, libraries: Sequence[Library] = ()) -> None:
+                 validate: bool = True, libraries: Sequence[Library] = (),
+                 computed_states: Sequence[str] = ()) -> None:
         self._fmu: FMU2Model | FMU2Slave | None = None
         self._unzip_dir: pathlib.Path | None = None
         self._snapshot: Any = None
@@ -399,6 +406,7 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
             self.model_description = (described[0] if described else read_cached_description(
                 self._unzip_dir, path.name, validate))
             self.libraries = tuple(libraries)
+            self._computed_states = tuple(computed_states)
             self._configure(inputs, states, outputs, dict(parameters or {}), fmi_type,
                             dict(fixed_inputs or {}))
             monotone = tuple(monotone_inputs)
@@ -437,15 +445,23 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
 
         self.input_names, self._input_vars = self._resolve(
             'inputs', inputs, [v.name for v in reals if v.causality == 'input'])
-        if self.is_model_exchange:  # continuous states, or variables computed from them
-            state_choices = [v.name for v in self._continuous_states] + [
-                v.name for v in reals if v not in self._continuous_states
-                and v.causality not in ('parameter', 'input', 'calculatedParameter')]
+        if self.is_model_exchange:  # continuous states, or declared variables computed from them
+            state_choices = [v.name for v in self._continuous_states]
+            if self._computed_states:
+                state_choices += [v.name for v in reals if v not in self._continuous_states
+                                  and v.causality not in ('parameter', 'input',
+                                                          'calculatedParameter')]
         else:
             state_choices = [v.name for v in reals
                              if v.causality not in ('parameter', 'input', 'calculatedParameter')
                              and v.initial in ('exact', 'approx')]
         self.state_names, self._state_vars = self._resolve('states', states, state_choices)
+        computed = {n for n, v in zip(self.state_names, self._state_vars)
+                    if self.is_model_exchange and v not in self._continuous_states}
+        if computed != set(self._computed_states):
+            raise ValueError(f'{self.fmu_path.name}: computed_states must name the states '
+                             f'mapped to variables that are not continuous states, expected '
+                             f'{sorted(computed)}, got {list(self._computed_states)}')
         self.output_names, self._output_vars = self._resolve(
             'outputs', outputs, [v.name for v in reals if v.causality not in
                                  ('parameter', 'calculatedParameter', 'input')])
