@@ -39,13 +39,13 @@ import pandas as pd
 from mshoot_core import calibration
 from mshoot_core.emulation import Emulator, initial_state
 from mshoot_core.models.base import Model
+from mshoot_core.models.r1c1 import KELVIN
 
 __all__ = ['control_limits', 'excite', 'Excitation', 'excitation_levels', 'identify',
            'Identification', 'one_step_predictions', 'write_card', 'zone_names']
 
 logger = logging.getLogger(__name__)
 
-KELVIN = 273.15
 #: Seconds between two progress messages of an excitation.
 PROGRESS_S = 10.0
 
@@ -204,6 +204,7 @@ def excite(plant: Model, scenario: pd.DataFrame, excitation: Excitation = Excita
     x0 = initial_state(plant.state_names, excitation.start_temperature_c)
     emulator = Emulator(plant, scenario, x0, control_names=names, control_bounds=control_bounds,
                         step_s=step_s)
+    emulator.start_plant(controls[0])  # a plant: its own start state (as far as it sets it)
     states = [emulator.x.copy()]
     started = last = time.perf_counter()
     for k in range(steps):
@@ -249,18 +250,13 @@ def zone_names(model: Model) -> tuple[str, ...]:
     return zones
 
 
-def _in_output_unit(model: Model, zone: str, kelvin: np.ndarray) -> np.ndarray:
-    """Return plant temperatures [K] in the unit of the model's zone output (degC or K)."""
-    unit = getattr(model, 'output_units', {}).get(zone) if hasattr(model, 'output_units') \
-        else None
-    if unit is None:
-        spec = getattr(model, 'spec', None)
-        unit = spec.outputs[zone].unit if spec is not None and zone in spec.outputs else 'degC'
+def _in_unit(unit: str, kelvin: np.ndarray) -> np.ndarray:
+    """Return plant temperatures [K] in the unit of a zone output (degC or K)."""
     return kelvin - KELVIN if unit == 'degC' else kelvin
 
 
-def _periods(model: Model, table: pd.DataFrame, zones: Sequence[str], name: str,
-             settle_steps: int) -> list[calibration.Period]:
+def _periods(model: Model, table: pd.DataFrame, zones: Sequence[str], units: Mapping[str, str],
+             name: str, settle_steps: int) -> list[calibration.Period]:
     """One calibration period per zone over the rows of ``table``."""
     missing = [c for c in (*model.input_names, *zones) if c not in table.columns]
     if missing:
@@ -273,7 +269,7 @@ def _periods(model: Model, table: pd.DataFrame, zones: Sequence[str], name: str,
     weights[:min(settle_steps + 1, len(table) - 1)] = 0.0
     return [calibration.Period(name if len(zones) == 1 else f'{name}_{zone}',
                                table[list(model.input_names)], x0,
-                               _in_output_unit(model, zone, table[zone].to_numpy(float)),
+                               _in_unit(units[zone], table[zone].to_numpy(float)),
                                output=zone, weights=weights)
             for zone in zones]
 
@@ -379,8 +375,10 @@ def identify(model_card: Any, table: pd.DataFrame, validation_share: float = 0.3
                          f'{settle_steps} settling rows each: run a longer excitation')
     model = cards.build_model(model_card)
     zones = zone_names(model)
-    train = _periods(model, table.iloc[:split], zones, 'train', settle_steps)
-    validation = _periods(model, table.iloc[split - 1:], zones, 'validation', settle_steps)
+    units = {zone: model_card.network.outputs[zone].unit for zone in zones}
+    train = _periods(model, table.iloc[:split], zones, units, 'train', settle_steps)
+    validation = _periods(model, table.iloc[split - 1:], zones, units, 'validation',
+                          settle_steps)
     build = calibration.card_builder(model_card)
     logger.info('fitting %s (%d free parameters) to %d rows, %d held out, zones %s',
                 model_card.path.name, len(free), split, n - split, list(zones))
