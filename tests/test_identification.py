@@ -180,3 +180,11 @@ def test_case_takes_a_data_csv_with_a_band(tmp_path):
         case.case_scenario(args, None)
     assert case.main(['data', '--data', str(path), '--hours', '3', '--out',
                       str(tmp_path / 'out')]) == 2  # no band
+
+
+def test_bringup_forecasts_the_series_the_control_card_names():
+    from mshoot_nodes.bringup import build_parser, node_params_from_args
+    args = build_parser().parse_args(['--control-model', str(IDENTIFIED)])
+    assert node_params_from_args(args)['forecaster']['series'] == ['solrad', 'Tout', 'occ']
+    args = build_parser().parse_args(['--control-model', 'python'])
+    assert node_params_from_args(args)['forecaster']['series'] is None  # the node's own
