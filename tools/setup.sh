@@ -35,7 +35,7 @@ fi
 #    under a hash of its sources; a quick no-op when those builds are already there. The
 #    runtime only finds them there (mshoot_core.fmu_cache): it never compiles.
 fmu=$(PYTHONPATH="$root/ros2_ws/src/mshoot_core${PYTHONPATH:+:$PYTHONPATH}" \
-  "$venv/bin/python" -m mshoot_core.fmu_build --cache r1c1) \
+  "$venv/bin/python" -m mshoot_core.fmu_build --cache r1c1 setpoint_zone) \
   || { echo "[setup] error: building the R1C1 FMU and the batch drivers failed (gcc is required; see above)" >&2; exit 1; }
 log "R1C1 FMU and batch drivers: $(echo $fmu)"
 

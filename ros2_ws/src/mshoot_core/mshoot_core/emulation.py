@@ -37,7 +37,7 @@ import pandas as pd
 
 from mshoot_core.models.base import Model, ModelValueError
 from mshoot_core.models.r1c1 import KELVIN
-from mshoot_core.scenario import DISTURBANCE_COLUMNS, validate_scenario
+from mshoot_core.scenario import COMFORT_COLUMNS, validate_scenario
 
 logger = logging.getLogger(__name__)
 
@@ -264,7 +264,8 @@ class Emulator:
 
     def disturbances(self) -> pd.Series:
         """Disturbances of the current step (the scenario row at :attr:`t_s`)."""
-        return self.scenario.iloc[self.index][list(DISTURBANCE_COLUMNS)]
+        row = self.scenario.iloc[self.index]
+        return row[[c for c in self.scenario.columns if c not in COMFORT_COLUMNS]]
 
     def clip(self, controls: Sequence[float], quiet: bool = False) -> np.ndarray:
         """Clip controls to the actuator limits, warning when anything changes (unless quiet)."""

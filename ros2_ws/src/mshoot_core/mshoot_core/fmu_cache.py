@@ -107,10 +107,13 @@ class DriverSource:
 
 
 #: The FMUs built from :data:`SOURCE_DIR`, by name: ``r1c1`` is the runtime's built-in
-#: zone (``make setup`` builds it), ``r2c2`` a second FMU the tests build themselves.
+#: zone (``make setup`` builds it), ``r2c2`` a second FMU the tests build themselves,
+#: ``setpoint_zone`` a zone whose air state is an energy, heated by a local loop on a
+#: setpoint with an override (the plant of ``cards/setpoint_zone_plant.yaml``).
 MODELS: dict[str, FmuSource] = {
     'r1c1': FmuSource('R1C1', 'r1c1.c', 'r1c1.xml'),
     'r2c2': FmuSource('R2C2', 'r2c2.c', 'r2c2.xml'),
+    'setpoint_zone': FmuSource('SetpointZone', 'setpoint_zone.c', 'setpoint_zone.xml'),
 }
 #: The batch drivers (:mod:`mshoot_core.models.fmi_drivers`), by name.
 DRIVERS: dict[str, DriverSource] = {

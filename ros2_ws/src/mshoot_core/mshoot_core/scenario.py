@@ -242,11 +242,17 @@ def synthetic_scenario(hours: int = 73, seed: int = 0, step_s: float = 3600.0) -
 
 
 def validate_scenario(scenario: pd.DataFrame) -> None:
-    """Raise ValueError if ``scenario`` lacks columns, has NaN, or a band with min > max."""
-    missing = [c for c in SCENARIO_COLUMNS if c not in scenario.columns]
+    """
+    Raise ValueError if ``scenario`` lacks the band, has NaN, or a band with min > max.
+
+    The disturbances are whatever other columns it has (the models take theirs by name).
+    """
+    missing = [c for c in COMFORT_COLUMNS if c not in scenario.columns]
     if missing:
-        raise ValueError(f'scenario lacks columns {missing}; expected {list(SCENARIO_COLUMNS)}')
-    values = scenario[list(SCENARIO_COLUMNS)].to_numpy(dtype=float)
+        raise ValueError(f'scenario lacks columns {missing}; expected the comfort band '
+                         f'{list(COMFORT_COLUMNS)} and the series of the models, got '
+                         f'{list(scenario.columns)}')
+    values = scenario.select_dtypes('number').to_numpy(dtype=float)
     if not np.all(np.isfinite(values)):
         raise ValueError('scenario holds non-finite values')
     if np.any(scenario['comfort_min'].to_numpy() > scenario['comfort_max'].to_numpy()):
@@ -254,6 +260,107 @@ def validate_scenario(scenario: pd.DataFrame) -> None:
     t = np.asarray(scenario.index, dtype=float)
     if t.size < 2 or np.any(np.diff(t) <= 0):
         raise ValueError('scenario index must be strictly increasing times [s]')
+
+
+#: Time columns of a data CSV: ISO date-times, or seconds since the first row.
+TIME_COLUMNS = ('datetime', 'time', 'time_s')
+#: Start date of a data CSV timed in seconds (``time_s``) [ISO].
+DATA_START = '2020-01-01T00:00:00'
+
+
+def is_ou44_format(path: str | pathlib.Path) -> bool:
+    """Whether a CSV is in the OU44 measurements' format (its columns, no comfort band)."""
+    columns = pd.read_csv(path, nrows=0).columns
+    return all(c in columns for c in OU44_COLUMNS) and not any(
+        c in columns for c in COMFORT_COLUMNS)
+
+
+def read_data_csv(path: str | pathlib.Path, step_s: float = 3600.0,
+                  band: tuple[float, float] | None = None) -> pd.DataFrame:
+    """
+    Read a data CSV as a scenario: a time column and a column per series, as interval means.
+
+    Parameters
+    ----------
+    path : path-like
+        The CSV: a time column (``datetime`` or ``time``, ISO date-times, or ``time_s``,
+        seconds since the first row), one numeric column per series (named as the models'
+        inputs, e.g. ``Tout`` [degC], ``solrad`` [W/m2], ``occ``), and the comfort band
+        ``comfort_min``, ``comfort_max`` [degC] (per zone also ``comfort_min_<zone>``, ...),
+        unless ``band`` is given.
+    step_s : float
+        Row spacing of the scenario [s]: each row holds the means of the file's rows in
+        ``[t, t + step_s)`` (a coarser file is held: its rows repeated).
+    band : (float, float), optional
+        A constant comfort band [degC] where the file has none (refused if it has one).
+
+    Returns
+    -------
+    DataFrame
+        Index: seconds since the first row; the series and the band; ``attrs['start']``.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        A missing file, no time column, a time given twice, non-numeric series, gaps, no band
+        (or two), a band with min > max.
+
+    """
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f'data CSV not found: {path}')
+    if not step_s > 0:
+        raise ValueError(f'step_s must be > 0 s, got {step_s}')
+    raw = pd.read_csv(path)
+    time_column = next((c for c in TIME_COLUMNS if c in raw.columns), None)
+    if time_column is None:
+        raise ValueError(f'{path}: no time column; expected one of {list(TIME_COLUMNS)}, got '
+                         f'{list(raw.columns)}')
+    if time_column == 'time_s':
+        times = pd.Timestamp(DATA_START) + pd.to_timedelta(raw[time_column], unit='s')
+    else:
+        times = pd.to_datetime(raw[time_column])
+    check_time_order(times, path)
+    values = raw.drop(columns=[time_column])
+    bad = [c for c in values.columns if not pd.api.types.is_numeric_dtype(values[c])]
+    if bad:
+        raise ValueError(f'{path}: columns {bad} are not numbers; a data CSV holds a time '
+                         'column and numeric series')
+    has_band = [c for c in COMFORT_COLUMNS if c in values.columns]
+    if band is not None and has_band:
+        raise ValueError(f'{path} has a comfort band ({has_band}): give no band besides it')
+    if band is None and len(has_band) != 2:
+        raise ValueError(f'{path}: no comfort band; expected columns {list(COMFORT_COLUMNS)} '
+                         f'[degC], or a band given with it (e.g. --band 20,24)')
+    values.index = pd.DatetimeIndex(times)
+    values = values.sort_index(kind='stable').astype(float)
+    table = values.resample(pd.Timedelta(seconds=step_s), label='left', closed='left').mean()
+    table = table.ffill()
+    if table.isna().any().any():
+        raise ValueError(f'{path}: empty series at the start of the data: '
+                         f'{[c for c in table.columns if table[c].isna().any()]}')
+    if band is not None:
+        table['comfort_min'], table['comfort_max'] = float(band[0]), float(band[1])
+    scenario = table.set_axis((table.index - table.index[0]).total_seconds().to_numpy())
+    scenario.index.name = 'time_s'
+    scenario.attrs['start'] = table.index[0].isoformat()
+    validate_scenario(scenario)
+    return scenario
+
+
+def data_scenario(path: str | pathlib.Path, hours: int,
+                  band: tuple[float, float] | None = None,
+                  step_s: float = 3600.0) -> pd.DataFrame:
+    """
+    Return the first ``hours`` control steps (``hours + 1`` rows) of a data CSV.
+
+    See :func:`read_data_csv`; a CSV too short is a ValueError saying how long it is.
+    """
+    scenario = read_data_csv(path, step_s, band)
+    if len(scenario) < hours + 1:
+        raise ValueError(f'{path} covers {len(scenario) - 1} control steps of {step_s:g} s, '
+                         f'not {hours}')
+    return scenario.iloc[:hours + 1]
 
 
 def reference_scenario(name: str, data: str | pathlib.Path | None = None,
@@ -266,7 +373,8 @@ def reference_scenario(name: str, data: str | pathlib.Path | None = None,
     name : str
         'ou44' (5-8 April 2018 from the OU44 data, ventilation off as in the
         MPC case), 'synthetic' (built in, no files), or a path to a CSV in the
-        OU44 format (read like 'ou44').
+        OU44 format (read like 'ou44') or to a data CSV with a band
+        (:func:`read_data_csv`, hourly means).
     data : path-like, optional
         The OU44 ``measurements.csv`` for 'ou44' (default :data:`DEFAULT_DATA`).
     hours : int
@@ -282,6 +390,8 @@ def reference_scenario(name: str, data: str | pathlib.Path | None = None,
         raise ValueError(f'hours must be >= 1, got {hours}')
     if name == 'synthetic':
         return synthetic_scenario(hours=hours + 1)
+    if name != 'ou44' and not is_ou44_format(name):
+        return data_scenario(name, hours)
     path = pathlib.Path(name) if name != 'ou44' else pathlib.Path(data or DEFAULT_DATA)
     end = pd.Timestamp(OU44_START) + pd.Timedelta(hours=hours)
     scenario = load_ou44(path, start=OU44_START, end=str(end))

@@ -37,7 +37,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.logging import LoggingSeverity
 from rclpy.parameter import Parameter
 
-from mshoot_nodes import contract
+from mshoot_nodes import contract, sources
 from mshoot_nodes.config import add_model_options, default_params_files, ros_args
 from mshoot_nodes.conversions import mpc_records_frame
 from mshoot_nodes.emulator_node import build_emulator, EmulatorNode
@@ -235,7 +235,8 @@ def node_params_from_args(args: argparse.Namespace) -> dict[str, dict[str, Any]]
     return {
         'emulator': {**scenario, 'model': args.emulator_model, 'mode': args.mode,
                      'speedup': args.speedup},
-        'forecaster': {**scenario, 'horizon_steps': args.horizon},
+        'forecaster': {**scenario, 'horizon_steps': args.horizon,
+                       'series': sources.card_series(args.control_model)},
         'mpc': {'horizon_steps': args.horizon, 'model': args.control_model, 'cost': args.cost,
                 'comfort': args.comfort, 'solver': args.solver},
         'recorder': {'bag_path': str(out / 'bag'), 'overwrite': True, 'storage': args.storage},

@@ -130,6 +130,23 @@ def load_scenario(name: str, data: str = '', hours: int = 72) -> pd.DataFrame:
     return reference_scenario(name, data or None, hours)
 
 
+def card_series(model: str | None) -> list[str] | None:
+    """
+    Return the disturbances a control model card names (the series its forecasts need).
+
+    None for a model that is not a card (the forecaster's own ``series`` then) or a card that
+    cannot be read (the MPC node reports why).
+    """
+    from mshoot_core.models.defaults import is_card_path
+    if not model or not is_card_path(model):
+        return None
+    from mshoot_core.models import card as cards
+    try:
+        return list(cards.load_card(model).disturbances)
+    except (OSError, ValueError):
+        return None
+
+
 def start_ns(scenario: pd.DataFrame, start_time: str = '') -> int:
     """
     ROS time [ns] of the first scenario row.

@@ -9,6 +9,11 @@ forecasts) and writes ``kpis.json``, ``trajectories.csv``, ``steps.csv`` and
 ``plot.png`` to the output folder. ``synthetic`` instead of ``ou44`` runs the
 built-in scenario, which needs no data file.
 
+``data`` runs the data CSV of ``--data``: a time column, a column per series (named as
+the models' inputs: ``Tout``, ``solrad``, ``occ``, ...) and the comfort band
+``comfort_min``, ``comfort_max`` [degC], or ``--band LO,HI`` for a constant one; the rows
+are averaged over each hour from the first (:func:`mshoot_core.scenario.read_data_csv`).
+
 ``--control`` and ``--emulator`` also take a model card (``CARD.yaml``, see
 ``mshoot card check``): any FMU with its names mapped. The MPC then optimises
 the card's controls (bounded by their min/max) and the emulated building gets
@@ -43,7 +48,7 @@ from mshoot_core.models.registry import (build_model, BUILTIN, check_model, CONT
                                          MODEL_PARAMETERS, ModelSettings)
 from mshoot_core.outputs import write_outputs
 from mshoot_core.plotting import FigurePreview, PlotWorker
-from mshoot_core.scenario import DEFAULT_DATA, PUBLISHED, reference_scenario
+from mshoot_core.scenario import data_scenario, DEFAULT_DATA, PUBLISHED, reference_scenario
 from mshoot_core.settings import (add_arguments, from_arguments, MpcSettings, option_wording,
                                   SettingsError)
 import numpy as np
@@ -226,9 +231,9 @@ def _case_kpis(result: ClosedLoopResult, settings: MpcSettings) -> dict:
 
 
 #: Controller settings offered as options of the case command.
-CASE_SETTINGS = ('horizon_steps', 'cost', 'comfort', 'soft_penalty', 'solver', 'mode',
-                 'relaxation', 'solver_max_iter', 'time_budget_s', 'on_failure',
-                 'max_fallback_share',
+CASE_SETTINGS = ('horizon_steps', 'cost', 'cost_output', 'comfort', 'soft_penalty', 'solver',
+                 'mode', 'relaxation', 'solver_max_iter', 'time_budget_s', 'on_failure',
+                 'max_fallback_share', 'safe_heat_rate_w',
                  'estimation', 'measured_states', 'measurement_noise_k', 'process_noise_k',
                  'comfort_margin_std')
 
@@ -262,6 +267,37 @@ def option_problems(args: argparse.Namespace,
     return settings, [option_wording(p, MODEL_PARAMETERS) for p in problems]
 
 
+def _band(text: str) -> tuple[float, float]:
+    try:
+        low, high = (float(v) for v in text.split(','))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected LO,HI in degC, got {text!r}') from None
+    if not low <= high:
+        raise argparse.ArgumentTypeError(f'expected LO <= HI, got {text!r}')
+    return low, high
+
+
+def case_scenario(args: argparse.Namespace, data: pathlib.Path | None) -> pd.DataFrame:
+    """
+    Return the scenario of the case's options (``hours + 1`` rows).
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        Missing or bad data, a band for another scenario than ``data``.
+
+    """
+    band = getattr(args, 'band', None)
+    if args.scenario != 'data':
+        if band is not None:
+            raise ValueError(f'--band is for the scenario data (a data CSV), not '
+                             f'{args.scenario!r}, whose band is its own')
+        return reference_scenario(args.scenario, data, args.hours)
+    if args.data is None:
+        raise ValueError('the scenario data needs --data CSV (a column per series and a band)')
+    return data_scenario(args.data, args.hours, band)
+
+
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     """
     Build the command line of the case.
@@ -272,11 +308,17 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
         parser = argparse.ArgumentParser(
             prog='python -m mshoot_studies.case', description=__doc__,
             formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument('scenario', choices=('ou44', 'synthetic'),
-                        help='ou44: the reference case (needs --data); synthetic: built-in')
+    parser.add_argument('scenario', choices=('ou44', 'synthetic', 'data'),
+                        help='ou44: the reference case (needs --data); synthetic: built-in; '
+                             'data: the data CSV of --data (a column per series and a band)')
     parser.add_argument('--data', type=pathlib.Path, default=None,
-                        help=f'OU44 measurements.csv (default: {DEFAULT_DATA.resolve()} '
-                             'if it exists)')
+                        help=f'ou44: the measurements.csv (default: {DEFAULT_DATA.resolve()} '
+                             'if it exists); data: a CSV with a time column (datetime or '
+                             "time_s), a column per series named as the models' inputs and "
+                             'the band comfort_min, comfort_max [degC] (or --band), read as '
+                             'hourly means from its first row')
+    parser.add_argument('--band', type=_band, default=None, metavar='LO,HI',
+                        help='data: a constant comfort band [degC] for a CSV without one')
     parser.add_argument('--control', type=model_choice, default='python', metavar='MODEL',
                         help=f'control model, one of {{{",".join(CONTROL_MODELS)}}}: exact '
                              'Python R1C1, R1C1 FMU (Model Exchange or Co-Simulation), or a '
@@ -330,7 +372,7 @@ def _run(args: argparse.Namespace, settings: MpcSettings, plotter: PlotWorker) -
     models: list[Model] = []
     try:
         try:
-            scenario = reference_scenario(args.scenario, data, args.hours)
+            scenario = case_scenario(args, data)
             settings, problems = option_problems(args, len(scenario) - 1)
             if problems:
                 raise ValueError(f"invalid options: {'; '.join(problems)}")
@@ -355,8 +397,10 @@ def _run(args: argparse.Namespace, settings: MpcSettings, plotter: PlotWorker) -
         try:  # (the plot worker gets the figure's extremes during the last steps)
             result, kpis = run_case(scenario, control, emulator, settings, x0=x0,
                                     actuator_bounds=actuators,
-                                    progress=FigurePreview(plotter, scenario, len(scenario) - 1,
-                                                           settings.problem.step_s))
+                                    progress=FigurePreview(
+                                        plotter, scenario, len(scenario) - 1,
+                                        settings.problem.step_s,
+                                        control=settings.problem.control_names[0]))
         except EmulationStopped as stop:
             stopped, result, kpis = stop, stop.result, stop.kpis or {'stopped': str(stop)}
     finally:
@@ -377,12 +421,14 @@ def _run(args: argparse.Namespace, settings: MpcSettings, plotter: PlotWorker) -
         kpis['fallback_problem'] = too_few
     if stopped is not None:
         _write_stopped(args.out, result, kpis, f'{args.scenario}: H = {horizon} h, control '
-                                               f'{args.control}, stopped')
+                                               f'{args.control}, stopped',
+                       settings.problem.control_names[0])
         logger.error('%s; wrote the %d steps done to %s', stopped,
                      0 if result is None else len(result.steps), args.out)
         return 1
     write_outputs(args.out, result, kpis, f'{args.scenario}: H = {horizon} h, control '
-                                          f'{args.control}, {args.cost} cost', plotter)
+                                          f'{args.control}, {args.cost} cost', plotter,
+                  control=settings.problem.control_names[0])
     logger.info('energy %.2f kWh (heating %.2f, cooling %.2f), discomfort %.2f Kh (hourly '
                 'samples %.2f Kh), wall %.2f s, median solve %.4f s, %d solver failures',
                 kpis['energy_kwh'], kpis['heating_kwh'], kpis['cooling_kwh'],
@@ -479,10 +525,10 @@ def card_setup(args: argparse.Namespace, settings: MpcSettings, control: Model,
 
 
 def _write_stopped(out: pathlib.Path, result: ClosedLoopResult | None, kpis: dict,
-                   title: str) -> None:
+                   title: str, control: str = 'q') -> None:
     """Return the files of a stopped run: those of its steps done, or ``kpis.json`` alone."""
     if result is not None:
-        write_outputs(out, result, kpis, title)
+        write_outputs(out, result, kpis, title, control=control)
         return
     out.mkdir(parents=True, exist_ok=True)
     for name in ('trajectories.csv', 'steps.csv', 'plot.png'):  # not from an earlier run

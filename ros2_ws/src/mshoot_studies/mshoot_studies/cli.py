@@ -5,6 +5,7 @@ The ``mshoot`` command: one entry point, one verb per application.
     mshoot case synthetic --control zone.yaml --emulator zone_cs.yaml --out out/zone
     mshoot card check zone.yaml
     mshoot study --data PATH --out docs --jobs 2
+    mshoot identify --plant plant.yaml --model model.yaml --out out/identify
     mshoot forecast --testcase DIR --time 0 --temperature-uncertainty high --seed 1
     mshoot boptest --testcase DIR --card CARD.yaml --controllers baseline rule --out OUT
     mshoot VERB --help
@@ -38,6 +39,9 @@ VERBS: dict[str, tuple[str, str]] = {
                                     "what it maps, list an FMU's variables"),
     'calibrate': ('mshoot_studies.calibrate', 'fit model parameters to measured data (the OU44 '
                                               'reference calibration): RMSEs, card, figure'),
+    'identify': ('mshoot_studies.identify', 'identify a control model from a plant: an '
+                                            'excitation experiment, then a calibration of a '
+                                            'network card; validation RMSEs'),
     'forecast': ('mshoot_studies.forecast', 'the forecast a BOPTEST test case serves at a time, '
                                             "with BOPTEST's forecast uncertainty, as CSV"),
     'boptest': ('mshoot_studies.boptest', 'any BOPTEST test case folder and a card: baseline '

@@ -97,7 +97,9 @@ SCHEMA_PATH = pathlib.Path(__file__).resolve().parents[1] / 'schema' / 'model_ca
 #: (built-in FMU, Model Exchange), ``r1c1_fmu_cs.yaml`` (Co-Simulation), ...
 CARDS_DIR = network_spec.CARDS_DIR
 #: The built-in model sources of ``builtin:``.
-BUILTIN_SOURCES = ('r1c1', 'r1c1-fmu', 'r2c2')
+BUILTIN_SOURCES = ('r1c1', 'r1c1-fmu', 'r2c2', 'setpoint-zone-fmu')
+#: The built-in FMUs of ``builtin:`` -> their name in :data:`mshoot_core.fmu_cache.MODELS`.
+BUILTIN_FMUS = {'r1c1-fmu': 'r1c1', 'setpoint-zone-fmu': 'setpoint_zone'}
 #: The keys naming a card's model: exactly one of them.
 SOURCES = ('fmu', 'builtin', 'boptest', 'network')
 #: The built-in networks of ``builtin:`` (the cards of the same name): name -> label.
@@ -181,6 +183,9 @@ class CardVariable:
     measured : bool
         For a state: whether a sensor measures it (default true); the
         controller estimates the others.
+    computed : bool
+        For a state of a Model Exchange FMU: a variable computed from its
+        continuous states, read by a plant and never written.
 
     """
 
@@ -194,6 +199,7 @@ class CardVariable:
     causality: str = ''
     model_start: float | None = None
     measured: bool = True
+    computed: bool = False
 
     def conversion(self) -> tuple[float, float]:
         """``(scale, offset)`` with model value = scale * canonical value + offset."""
@@ -595,7 +601,7 @@ def schema_problems(document: Any) -> list[str]:
 #: The keys of a variable entry, by section (as in the schema).
 ENTRY_KEYS = {'controls': ('variable', 'unit', 'min', 'max', 'activate'),
               'disturbances': ('variable', 'unit'),
-              'states': ('variable', 'unit', 'start', 'measured'),
+              'states': ('variable', 'unit', 'start', 'measured', 'computed'),
               'outputs': ('variable', 'unit')}
 
 
@@ -784,10 +790,10 @@ def _catalogue(path: pathlib.Path, document: dict, fmi_type: Any, problems: list
     if ((builtin is None) == (fmu_name is None) or 'network' in document
             or builtin in PYTHON_SOURCES or fmi_type not in ('auto', *FMI_TYPES)):
         return None, None, None
-    if builtin == 'r1c1-fmu':
+    if builtin in BUILTIN_FMUS:
         from mshoot_core.fmu_cache import find_fmu
         try:
-            fmu = find_fmu('r1c1')
+            fmu = find_fmu(BUILTIN_FMUS[builtin])
         except FileNotFoundError as exc:
             problems.append(f'builtin: {exc}')
             return None, None, None
@@ -849,14 +855,21 @@ def _check_variables(catalogue: _Catalogue, sections: dict[str, dict[str, dict]]
     if both:
         problems.append(f'{both} are both controls and disturbances')
     for section in SECTIONS:
-        choices, what = kinds[section]
-        by_name = {v.name: v for v in choices}
         resolved: dict[str, CardVariable] = {}
         for name, spec in sections[section].items():
             where = f'{section}.{name}'
+            choices, what = kinds[section]
+            mine: list[str] = []
+            if section == 'states' and spec.get('computed', False):
+                # a state a Model Exchange plant reads from a variable its continuous states
+                # determine (FmiModel.derived_states): only a plant can use such a card
+                if catalogue.state_kind != 'continuous states':
+                    mine.append(f'{where}.computed: for a state of a Model Exchange FMU; the '
+                                f'states of {catalogue.label} are {catalogue.state_kind}')
+                choices, what = kinds['outputs']
+            by_name = {v.name: v for v in choices}
             variable = spec.get('variable', name)
             found = by_name.get(variable)
-            mine: list[str] = []
             if found is None:
                 mine.append(f'{where}: {variable!r} is not {what} of {catalogue.label}; '
                             f'valid: {_listing(choices, variable)}')
@@ -889,7 +902,8 @@ def _check_variables(catalogue: _Catalogue, sections: dict[str, dict[str, dict]]
                 variable=variable, unit=unit, min=low, max=high,
                 activate=spec.get('activate'), start=spec.get('start'),
                 canonical_unit=canonical, causality=found.causality, model_start=model_start,
-                measured=bool(spec.get('measured', True)))
+                measured=bool(spec.get('measured', True)),
+                computed=bool(spec.get('computed', False)))
         out[section] = resolved
     _check_unique(out, problems)
     _check_switches(catalogue, sections, problems)
@@ -1087,6 +1101,9 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
     cls, extra = (FmiModel, {}) if conversions.identity else (CardFmiModel,
                                                               {'conversions': conversions})
     fixed = {v.activate: 1 for v in card.controls.values() if v.activate is not None}
+    computed = tuple(n for n, v in card.states.items() if v.computed)
+    if computed:  # a plant only (FmiModel.derived_states)
+        options['computed_states'] = computed
     model = cls(card.fmu,
                 inputs={n: v.variable for s in ('controls', 'disturbances')
                         for n, v in getattr(card, s).items()},
@@ -1355,6 +1372,8 @@ def describe(card: ModelCard) -> list[dict[str, str]]:
                 extra.append(f'{v.activate} := 1')
             if v.start is not None:
                 extra.append(f'start {v.start:g}')
+            if v.computed:
+                extra.append('computed: read by a plant, never written')
             rows.append({'section': section[:-1] if section != 'disturbances' else 'disturbance',
                          'name': name, 'variable': v.variable, 'causality': v.causality,
                          'unit': v.unit or '1', 'canonical': v.canonical_unit or '1',

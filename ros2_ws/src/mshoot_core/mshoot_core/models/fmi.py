@@ -332,6 +332,12 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         Co-Simulation: give ``fmi2SetupExperiment`` no tolerance, so the FMU's own integrator
         keeps its own (as BOPTEST runs its test cases); ``tolerance`` then only serves Model
         Exchange.
+    computed_states : sequence of str
+        Model Exchange: states (model names) mapped to variables computed from the FMU's
+        continuous states rather than to continuous states (a zone temperature of an FMU whose
+        air state is its energy; a card's ``computed: true``): read, never written, so the
+        model can be a plant (:meth:`plant_start`, :meth:`plant_step`) but cannot simulate
+        from given states (:attr:`derived_states`).
 
     Raises
     ------
@@ -366,7 +372,8 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
                  fixed_inputs: Mapping[str, Any] | None = None,
                  time_origin_s: float = 0.0, monotone_inputs: Sequence[str] = (),
                  validate: bool = True, libraries: Sequence[Library] = (),
-                 own_tolerance: bool = False) -> None:
+                 own_tolerance: bool = False,
+                 computed_states: Sequence[str] = ()) -> None:
         self._fmu: FMU2Model | FMU2Slave | None = None
         self._unzip_dir: pathlib.Path | None = None
         self._snapshot: Any = None
@@ -405,6 +412,7 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
             self.model_description = (described[0] if described else read_cached_description(
                 self._unzip_dir, path.name, validate))
             self.libraries = tuple(libraries)
+            self._computed_states = tuple(computed_states)
             self._configure(inputs, states, outputs, dict(parameters or {}), fmi_type,
                             dict(fixed_inputs or {}))
             monotone = tuple(monotone_inputs)
@@ -443,13 +451,23 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
 
         self.input_names, self._input_vars = self._resolve(
             'inputs', inputs, [v.name for v in reals if v.causality == 'input'])
-        if self.is_model_exchange:
+        if self.is_model_exchange:  # continuous states, or declared variables computed from them
             state_choices = [v.name for v in self._continuous_states]
+            if self._computed_states:
+                state_choices += [v.name for v in reals if v not in self._continuous_states
+                                  and v.causality not in ('parameter', 'input',
+                                                          'calculatedParameter')]
         else:
             state_choices = [v.name for v in reals
                              if v.causality not in ('parameter', 'input', 'calculatedParameter')
                              and v.initial in ('exact', 'approx')]
         self.state_names, self._state_vars = self._resolve('states', states, state_choices)
+        computed = {n for n, v in zip(self.state_names, self._state_vars)
+                    if self.is_model_exchange and v not in self._continuous_states}
+        if computed != set(self._computed_states):
+            raise ValueError(f'{self.fmu_path.name}: computed_states must name the states '
+                             f'mapped to variables that are not continuous states, expected '
+                             f'{sorted(computed)}, got {list(self._computed_states)}')
         self.output_names, self._output_vars = self._resolve(
             'outputs', outputs, [v.name for v in reals if v.causality not in
                                  ('parameter', 'calculatedParameter', 'input')])
@@ -465,8 +483,17 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         self._start_state_refs = vr_array(
             [self._state_vars[i].valueReference for i in self._start_state_index])
         self._n_continuous = md.numberOfContinuousStates if self.is_model_exchange else 0
-        self._state_positions = [self._continuous_states.index(v) for v in self._state_vars] \
+        # In Model Exchange a mapped state is a continuous state of the FMU (written at a
+        # start), or a variable computed from them (a zone temperature of an FMU whose air
+        # state is an energy): only read, so only a plant (plant_start/plant_step) can use it.
+        self._written_states = [i for i, v in enumerate(self._state_vars)
+                                if v in self._continuous_states] \
             if self.is_model_exchange else []
+        self._state_positions = [self._continuous_states.index(self._state_vars[i])
+                                 for i in self._written_states]
+        #: States read from variables computed by the FMU, not its continuous states.
+        self.derived_states = tuple(name for i, name in enumerate(self.state_names)
+                                    if self.is_model_exchange and i not in self._written_states)
         self._x_full = np.zeros(self._n_continuous)
         self._set_parameters_plan(parameters, fixed_inputs or {})
 
@@ -701,6 +728,12 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
 
     def _check_batch(self, x_start: np.ndarray, u: np.ndarray,
                      dt_s: float) -> tuple[np.ndarray, np.ndarray, float]:
+        if self.derived_states:
+            raise ValueError(f'{self.fmu_path.name}: states {list(self.derived_states)} are not '
+                             'continuous states of the FMU but variables computed from them: '
+                             'the FMU can be a plant (an emulator), not a control model started '
+                             'from given states; identify a control model from it instead '
+                             '(mshoot identify)')
         x_start, u = super()._check_batch(x_start, u)
         dt_s = float(dt_s)
         if not (math.isfinite(dt_s) and dt_s > 0.0):

@@ -81,7 +81,7 @@ class ModelExchangeIntegration:
             return
         fmu = self._fmu
         fmu.getContinuousStates(double_pointer(self._x_full), n)
-        self._x_full[self._state_positions] = x0
+        self._x_full[self._state_positions] = np.asarray(x0)[self._written_states]
         fmu.setContinuousStates(double_pointer(self._x_full), n)
 
     def _ensure_solver(self, t0: float) -> None:
