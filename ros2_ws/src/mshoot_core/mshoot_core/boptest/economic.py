@@ -5,11 +5,12 @@ Stable API::
 
     from mshoot_core.boptest.economic import controller_settings, EconomicController, run_period
     config = controller_settings(case, price='dynamic', mode='modulation')
-    config.settings, config.model, config.forecast_columns     # MpcSettings, HouseModel, names
+    config.settings, config.model, config.forecast_columns     # MpcSettings, model, names
     forecast = config.forecast(t_s)                            # N+1 rows from the test case data
     result = run_period(case, 'peak_heat_day', 'dynamic', mode='modulation')
 
-The control model (:mod:`mshoot_core.boptest.model`) plans the heat pump's duty ``d`` per
+The control model (the thermal network of the card ``boptest_house``, :func:`control_model`)
+plans the heat pump's duty ``d`` per
 control step (the fraction of the step it runs at full load: its COP and the fan's fixed power
 make full load the cheapest way to deliver heat), minimising the cost 'output' of
 :class:`~mshoot_core.shooting.ShootingProblem` (the sum of the model output ``cost`` =
@@ -32,18 +33,23 @@ measured heat of the heat pump, every control step (from the start of the warm-u
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import math
+import pathlib
 import time
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import numpy as np
 import pandas as pd
 
-from mshoot_core.boptest.model import house_model, HouseModel, KELVIN, ZoneObserver
+from mshoot_core.boptest.model import ZoneObserver
 from mshoot_core.boptest.testcase import PRICE_SCENARIOS, TestCase
+from mshoot_core.models.base import Model
+from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.mpc import MPC
 from mshoot_core.settings import MpcSettings
+from mshoot_core.shooting import Scaling
 
 logger = logging.getLogger(__name__)
 
@@ -66,6 +72,34 @@ DEFAULTS: dict[str, Any] = {
     'soft_penalty': 100.0, 'soft_penalty_linear': 200.0, 'solver': 'ipopt',
     'solver_max_iter': 300, 'safe_heat_rate_w': 0.0, 'on_failure': 'plan'}
 
+#: The built-in card of the control model (mshoot_core/cards/boptest_house.yaml).
+CARD = 'boptest_house'
+
+
+def control_model(parameters: Mapping[str, float] | str | pathlib.Path | None = None) -> Model:
+    """
+    Return the control model: the thermal network of the card :data:`CARD`.
+
+    Parameters
+    ----------
+    parameters : mapping or path, optional
+        Parameter values over the card's: a mapping, or a JSON file of a mapping (or of
+        ``{'parameters': mapping}``); None for the card's (the packaged identification).
+
+    Raises
+    ------
+    ValueError
+        For a name that is not a parameter of the card's network.
+
+    """
+    from mshoot_core.calibration import NetworkBuilder
+    from mshoot_core.models import card as cards
+    if isinstance(parameters, (str, pathlib.Path)):
+        data = json.loads(pathlib.Path(parameters).read_text())
+        parameters = data.get('parameters', data)
+    card = cards.load_card(cards.builtin_card(CARD))
+    return NetworkBuilder(card)(dict(parameters or {}))
+
 
 @dataclasses.dataclass
 class EconomicConfig:
@@ -77,8 +111,8 @@ class EconomicConfig:
     settings : MpcSettings
         The MPC settings (control ``d`` in [0, 1], cost 'output' of the model output ``cost``,
         soft comfort band).
-    model : HouseModel
-        The identified control model.
+    model : Model
+        The identified control model (:func:`control_model`).
     case : TestCase
     price : str
         The price scenario (``constant``, ``dynamic``, ``highly_dynamic``).
@@ -95,7 +129,7 @@ class EconomicConfig:
     """
 
     settings: MpcSettings
-    model: HouseModel
+    model: Model
     case: TestCase
     price: str
     mode: str
@@ -111,8 +145,10 @@ class EconomicConfig:
 
     def mpc(self) -> MPC:
         """Return a new MPC of the model with the settings."""
+        states = len(self.model.state_names)
         return MPC(self.model, self.settings,
-                   state_bounds={'Tz': ('comfort_min', 'comfort_max', KELVIN)})
+                   state_bounds={'T': ('comfort_min', 'comfort_max', KELVIN)},
+                   state_scaling=Scaling(np.full(states, 288.15), np.full(states, 10.0)))
 
     def dispatcher(self) -> DutyDispatcher:
         """Return a new dispatcher of the planned duties to the plant."""
@@ -136,8 +172,7 @@ def controller_settings(case: TestCase | None = None, price: str = 'constant',
     mode : str
         One of :data:`MODES`.
     parameters : optional
-        The control model's parameters (:func:`~mshoot_core.boptest.model.house_model`;
-        default the packaged identification).
+        The control model's parameters over the card's (:func:`control_model`).
     margin_k : float
         Raise of the comfort band's lower edge in the plan [K], >= 0.
     min_run_h : float
@@ -161,7 +196,7 @@ def controller_settings(case: TestCase | None = None, price: str = 'constant',
         raise ValueError(f'margin_k must be >= 0 K, got {margin_k!r}')
     if not (math.isfinite(min_run_h) and 0 <= min_run_h <= 24):
         raise ValueError(f'min_run_h must be in [0, 24] h, got {min_run_h!r}')
-    model = house_model(parameters)
+    model = control_model(parameters)
     settings = MpcSettings.from_flat({**DEFAULTS, **options}, control_names=('d',))
     return EconomicConfig(settings, model, case, price, mode, float(margin_k),
                           float(min_run_h) * 3600.0)
@@ -334,13 +369,13 @@ class PeriodResult:
 
 
 def hourly_inputs(records: pd.DataFrame, case: TestCase, t0_s: float, t1_s: float,
-                  price: str, model: HouseModel) -> np.ndarray:
+                  price: str, model: Model) -> np.ndarray:
     """
     Return the model inputs measured over [t0, t1): means of the plant's records.
 
     Outdoor temperature and irradiance from the building's weather outputs, gains and price
     from the data, and the duty equivalent of the measured condenser heat (mean heat over the
-    full-load heat at the mean outdoor temperature).
+    model's heat ``Q`` at full duty and the mean outdoor temperature).
     """
     window = records[(records['time'] > t0_s) & (records['time'] <= t1_s + 1e-6)]
     if window.empty:
@@ -351,8 +386,12 @@ def hourly_inputs(records: pd.DataFrame, case: TestCase, t0_s: float, t1_s: floa
     gains = float(_interval_means(case, 'InternalGainsCon[1]', np.array([t0_s]), step)[0]
                   + _interval_means(case, 'InternalGainsRad[1]', np.array([t0_s]), step)[0])
     cost = float(_interval_means(case, case.price_column(price), np.array([t0_s]), step)[0])
-    duty = float(window['reaQHeaPumCon_y'].mean()) / float(model.heat_full_w(tout))
-    return np.array([tout, solar, gains, cost, max(duty, 0.0)])
+    u = np.array([tout, solar, gains, cost, 1.0])
+    x = np.full((1, len(model.state_names)), 293.15)
+    _, y = model.simulate_intervals(x, u[None, :], step)
+    full = float(y[0, model.output_names.index('Q')])
+    u[4] = max(float(window['reaQHeaPumCon_y'].mean()) / full, 0.0)
+    return u
 
 
 class EconomicController:
