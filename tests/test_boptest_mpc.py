@@ -155,43 +155,6 @@ def test_output_cost_moves_heat_to_cheap_hours() -> None:
         MPC(model, settings.replace(cost_output='nope'), state_bounds=bounds)
 
 
-def test_dispatcher_bursts_and_minimum_run(boptest_case) -> None:
-    duties = [0.3, 0.3, 0.3, 0.0, 0.5, 0.5, 1.0, 0.2, 0.0, 0.0, 0.1, 0.1, 0.1, 0.1]
-
-    def run(min_run_s: float) -> tuple[np.ndarray, float]:
-        dispatcher = economic.DutyDispatcher(boptest_case, 'modulation', min_run_s)
-        minutes = []
-        for k, duty in enumerate(duties):
-            t = k * 3600.0
-            for end, overwrites in dispatcher.segments(t, duty):
-                minutes += [overwrites['oveHeaPumY_u']] * int(round((end - t) / 60.0))
-                t = end
-        on = np.array(minutes)
-        return on, float(on.sum() * 60.0)
-
-    on, run_s = run(0.0)
-    assert on.size == len(duties) * 60
-    assert run_s == pytest.approx(sum(duties) * 3600.0, abs=len(duties) * 60.0)
-    starts = int(np.sum(np.diff(np.r_[0.0, on]) > 0))
-    on2, run2_s = run(2 * 3600.0)
-    edges = np.diff(np.r_[0.0, on2, 0.0])
-    stops, lengths = np.flatnonzero(edges < 0), np.flatnonzero(edges < 0) - np.flatnonzero(
-        edges > 0)
-    ended = lengths[stops < on2.size]  # bursts that stopped (the last may run on to the end)
-    assert ended.size >= 1 and ended.min() >= 120, lengths  # every one ran 2 h at least
-    assert int(np.sum(edges > 0)) < starts
-    waiting = economic.DutyDispatcher(boptest_case, 'modulation', 2 * 3600.0)
-    assert [p[1]['oveHeaPumY_u'] for p in waiting.segments(0.0, 0.3)] == [0.0]  # accumulates
-    starting = economic.DutyDispatcher(boptest_case, 'modulation', 2 * 3600.0)
-    pieces = starting.segments(0.0, 0.3, next_duty=0.5)  # the plan heats on: start now
-    assert [(end, p['oveHeaPumY_u']) for end, p in pieces] == [(2520.0, 0.0), (3600.0, 1.0)]
-    assert starting.segments(3600.0, 0.0) == [(7200.0, {'oveHeaPumY_u': 1.0})]  # min run
-    setpoint = economic.DutyDispatcher(boptest_case, 'setpoint')
-    pieces = setpoint.segments(3600.0 * 30, 0.5)
-    assert [p[1]['oveTSet_u'] > 300 for p in pieces] == [False, True]
-    assert pieces[0][0] == pytest.approx(3600.0 * 30 + 1800.0)
-
-
 def test_forecast_frame_from_the_data(boptest_case) -> None:
     case = boptest_case
     t0 = 16 * 86400.0

@@ -18,12 +18,13 @@ price x electric power x step) plus a soft comfort band: a linear and a small qu
 penalty on the zone temperature outside the test case's band (its lower edge raised by a
 margin, as the plan sees only the step ends while BOPTEST integrates discomfort continuously).
 
-The plan's first duty is dispatched by :class:`DutyDispatcher` at the plant's 60 s sampling:
-a full-load burst of the planned length, joined to the previous step's burst (fewer starts),
-with an optional minimum run time; the burst reaches the building either as the heat pump's
-modulation ``oveHeaPumY_u`` (mode ``'modulation'``, direct control) or through the local loop's
-zone setpoint ``oveTSet_u`` (mode ``'setpoint'``: a setpoint above the zone temperature while the
-burst runs, the band's lower edge otherwise). Mode ``'tracking'`` sends the plan's zone
+The plan's first duty is dispatched by :class:`~mshoot_core.actuation.Actuator` (settings
+``actuation`` 'burst') at the plant's 60 s sampling: a full-load burst of the planned length,
+joined to the previous step's burst (fewer starts), with an optional minimum run time; the burst
+reaches the building either as the heat pump's modulation ``oveHeaPumY_u`` (mode
+``'modulation'``, direct control) or through the local loop's zone setpoint ``oveTSet_u`` (mode
+``'setpoint'``: a setpoint above the zone temperature while the burst runs, below it
+otherwise). Mode ``'tracking'`` sends the plan's zone
 temperature at the end of the step as the setpoint (the supervisory setpoint of the design).
 
 The unmeasured floor and envelope temperatures are estimated by
@@ -43,6 +44,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import pandas as pd
 
+from mshoot_core.actuation import Actuator
 from mshoot_core.boptest.model import ZoneObserver
 from mshoot_core.boptest.testcase import PRICE_SCENARIOS, TestCase
 from mshoot_core.models.base import Model
@@ -61,10 +63,11 @@ DISTURBANCES = ('Tout', 'solar', 'gains', 'price')
 BAND_COLUMNS = ('comfort_min', 'comfort_max')
 #: Step of the test case's data [s] (interval means of the forecast are taken on it).
 DATA_STEP_S = 900.0
-#: Setpoint sent while a burst runs in mode 'setpoint' [K] (the local loop then runs at full
-#: load), and the setpoint when off is the band's lower edge minus this [K].
-SETPOINT_ON_K = 308.15
-SETPOINT_OFF_BELOW_K = 3.0
+#: The actuation settings of each mode (:mod:`mshoot_core.actuation`) and the overwrite the
+#: schedule goes to.
+ACTUATION = {'modulation': ({'actuation': 'burst', 'actuation_send': 'value'}, 'oveHeaPumY_u'),
+             'setpoint': ({'actuation': 'burst', 'actuation_send': 'setpoint'}, 'oveTSet_u'),
+             'tracking': ({'actuation': 'hold'}, 'oveTSet_u')}
 #: Defaults of the economic MPC.
 DEFAULTS: dict[str, Any] = {
     'horizon_steps': 36, 'step_s': 3600.0, 'cost': 'output', 'cost_output': 'cost',
@@ -118,11 +121,6 @@ class EconomicConfig:
         The price scenario (``constant``, ``dynamic``, ``highly_dynamic``).
     mode : str
         One of :data:`MODES`.
-    margin_k : float
-        The band's lower edge is raised by this in the plan [K] (the upper edge is kept:
-        the heat pump cannot cool, a tighter upper edge would only withhold heat).
-    min_run_s : float
-        Minimum run time of the heat pump [s] (0: none).
     forecast_columns : tuple of str
         The forecast's columns: the disturbances, then the band [degC].
 
@@ -133,9 +131,17 @@ class EconomicConfig:
     case: TestCase
     price: str
     mode: str
-    margin_k: float
-    min_run_s: float
     forecast_columns: tuple[str, ...] = (*DISTURBANCES, *BAND_COLUMNS)
+
+    @property
+    def margin_k(self) -> float:
+        """Raise of the band's lower edge in the plan [K] (setting ``band_margin_k``)."""
+        return self.settings.comfort.band_margin_k
+
+    @property
+    def min_run_s(self) -> float:
+        """Minimum run time of the heat pump [s] (setting ``min_run_s``; 0: none)."""
+        return self.settings.actuation.min_run_s
 
     def forecast(self, t_s: float, steps: int | None = None) -> pd.DataFrame:
         """Return the perfect forecast of ``steps`` (default: the horizon) steps from ``t_s``."""
@@ -150,10 +156,10 @@ class EconomicConfig:
                    state_bounds={'T': ('comfort_min', 'comfort_max', KELVIN)},
                    state_scaling=Scaling(np.full(states, 288.15), np.full(states, 10.0)))
 
-    def dispatcher(self) -> DutyDispatcher:
-        """Return a new dispatcher of the planned duties to the plant."""
-        return DutyDispatcher(self.case, self.mode, self.min_run_s,
-                              self.settings.problem.step_s)
+    def dispatcher(self) -> Actuator:
+        """Return a new actuator of the planned duties (its settings ``actuation``)."""
+        p = self.settings.problem
+        return Actuator(self.settings.actuation, p.control_bounds, p.step_s)
 
 
 def controller_settings(case: TestCase | None = None, price: str = 'constant',
@@ -197,9 +203,10 @@ def controller_settings(case: TestCase | None = None, price: str = 'constant',
     if not (math.isfinite(min_run_h) and 0 <= min_run_h <= 24):
         raise ValueError(f'min_run_h must be in [0, 24] h, got {min_run_h!r}')
     model = control_model(parameters)
-    settings = MpcSettings.from_flat({**DEFAULTS, **options}, control_names=('d',))
-    return EconomicConfig(settings, model, case, price, mode, float(margin_k),
-                          float(min_run_h) * 3600.0)
+    settings = MpcSettings.from_flat({**DEFAULTS, **ACTUATION[mode][0], **options},
+                                     control_names=('d',), band_margin_k=float(margin_k),
+                                     min_run_s=float(min_run_h) * 3600.0)
+    return EconomicConfig(settings, model, case, price, mode)
 
 
 def _interval_means(case: TestCase, column: str, t_s: np.ndarray, step_s: float) -> np.ndarray:
@@ -239,106 +246,6 @@ def forecast_frame(case: TestCase, t_s: float, steps: int, step_s: float, price:
     frame['comfort_min'] = lo
     frame['comfort_max'] = np.maximum(hi, lo)
     return frame
-
-
-class DutyDispatcher:
-    """
-    Turn the planned duty of each control step into heat pump bursts at the plant's sampling.
-
-    A step with duty d asks for d x step seconds at full load. The request is added to a
-    balance (what was asked and not yet run); a running heat pump keeps running from the start
-    of the step while the balance lasts (and at least until its minimum run time is reached);
-    a stopped one starts when the balance reaches one sample (with a minimum run time: the run
-    time, capped at one step, unless the plan heats in the next step too), at the end of the
-    step, so that its run continues into the next step as one burst. A plan of zero duty
-    clears the balance.
-
-    Parameters
-    ----------
-    case : TestCase
-    mode : str
-        One of :data:`MODES` (``'tracking'`` does not burst: see :meth:`segments`).
-    min_run_s : float
-        Minimum run time [s] (0: none).
-    step_s : float
-        Control step [s].
-    sample_s : float
-        Resolution of the bursts [s] (the plant's sampling).
-
-    """
-
-    def __init__(self, case: TestCase, mode: str, min_run_s: float = 0.0,
-                 step_s: float = 3600.0, sample_s: float = 60.0) -> None:
-        if mode not in MODES:
-            raise ValueError(f'unknown mode {mode!r}: expected one of {list(MODES)}')
-        self.case = case
-        self.mode = mode
-        self.min_run_s = float(min_run_s)
-        self.step_s = float(step_s)
-        self.sample_s = float(sample_s)
-        self.balance_s = 0.0
-        self.on = False
-        self.run_s = 0.0
-
-    def _overwrites(self, on: bool, t_s: float) -> dict[str, float]:
-        if self.mode == 'modulation':
-            return {'oveHeaPumY_u': 1.0 if on else 0.0}
-        if on:
-            return {'oveTSet_u': SETPOINT_ON_K}
-        lower = float(self.case.lookup('LowerSetp[1]', t_s))
-        return {'oveTSet_u': max(lower - SETPOINT_OFF_BELOW_K, 283.15)}
-
-    def segments(self, t_s: float, duty: float, planned_tz_k: float | None = None,
-                 next_duty: float = 0.0) -> list[tuple[float, dict[str, float]]]:
-        """
-        Return the step's overwrites as (end time [s], overwrites) pieces, in order.
-
-        Parameters
-        ----------
-        t_s : float
-            Start of the step [s].
-        duty : float
-            Planned duty of the step [-], clipped to [0, 1].
-        planned_tz_k : float, optional
-            The plan's zone temperature at the end of the step [K] (mode 'tracking').
-        next_duty : float
-            The plan's duty of the next step [-]: a stopped heat pump with a minimum run time
-            starts at once (at the end of the step) when the plan heats in this step and the
-            next, as its run would continue anyway.
-
-        """
-        end = t_s + self.step_s
-        if self.mode == 'tracking':
-            if planned_tz_k is None:
-                raise ValueError("mode 'tracking' needs the planned zone temperature")
-            return [(end, {'oveTSet_u': float(np.clip(planned_tz_k, 278.15, 308.15))})]
-        duty = float(np.clip(duty, 0.0, 1.0))
-        self.balance_s = 0.0 if duty <= 0.0 else min(self.balance_s + duty * self.step_s,
-                                                     2.0 * self.step_s)
-        quantum = self.sample_s
-        if self.on:
-            keep = max(self.balance_s, self.min_run_s - self.run_s)
-            run = min(self.step_s, quantum * math.floor(keep / quantum + 0.5))
-            if duty <= 0.0 and self.run_s >= self.min_run_s:
-                run = 0.0
-            self.balance_s = max(0.0, self.balance_s - run)
-            self.run_s += run
-            if run >= self.step_s:
-                return [(end, self._overwrites(True, t_s))]
-            self.on, self.run_s = False, 0.0
-            pieces = [(t_s + run, self._overwrites(True, t_s))] if run > 0 else []
-            return pieces + [(end, self._overwrites(False, t_s))]
-        threshold = max(quantum, min(self.min_run_s, self.step_s))
-        if next_duty > 0.0:
-            threshold = quantum
-        if self.balance_s < threshold - 1e-9:
-            return [(end, self._overwrites(False, t_s))]
-        run = min(self.step_s, quantum * math.floor(self.balance_s / quantum + 0.5))
-        self.balance_s = max(0.0, self.balance_s - run)
-        self.on, self.run_s = True, run
-        start = end - run
-        pieces = [(start, self._overwrites(False, t_s))] if start > t_s else []
-        return pieces + [(end, self._overwrites(True, start))]
 
 
 @dataclasses.dataclass
@@ -448,15 +355,22 @@ class EconomicController:
         """
         Plan from the estimated state at ``t_s``; return the step's overwrite pieces and plan.
 
-        The pieces are (end time [s], overwrites) in order (:meth:`DutyDispatcher.segments`);
-        the plan is the :class:`~mshoot_core.mpc.MpcResult`.
+        The pieces are (end time [s], overwrites) in order (the schedule of
+        :meth:`Actuator.schedule`); the plan is the :class:`~mshoot_core.mpc.MpcResult`.
         """
-        result = self.mpc.solve(self.state, t_s, self.config.forecast(t_s))
-        duty = float(result.controls[0, 0]) if np.all(np.isfinite(result.controls)) else 0.0
-        following = float(result.controls[1, 0]) if len(result.controls) > 1 else 0.0
-        pieces = self.dispatcher.segments(t_s, duty, float(result.states[1, 0]),
-                                          following if np.isfinite(following) else 0.0)
-        return pieces, result
+        x0 = self.state
+        result = self.mpc.solve(x0, t_s, self.config.forecast(t_s))
+        end = t_s + self.step_s
+        overwrite = ACTUATION[self.config.mode][1]
+        if self.config.mode == 'tracking':
+            planned = float(np.clip(result.states[1, 0], 278.15, 308.15))
+            return [(end, {overwrite: planned})], result
+        controls = result.controls[0] if np.all(np.isfinite(result.controls)) else np.zeros(1)
+        following = result.controls[1] if len(result.controls) > 1 else None
+        schedule = self.dispatcher.schedule(controls, following, float(x0[0]))
+        ends = [*(t_s + schedule.offsets_s[1:]), end]
+        return ([(e, {overwrite: float(v[0])}) for e, v in zip(ends, schedule.values)],
+                result)
 
 
 def run_period(case: TestCase, period: str, price: str, mode: str = 'modulation',
@@ -469,7 +383,7 @@ def run_period(case: TestCase, period: str, price: str, mode: str = 'modulation'
     The warm-up runs under the building's own control while the observer follows it; every
     control step of the test period the observer's state and the perfect forecast from the
     test case's data go to the MPC, and the plan's first duty to the plant through the
-    :class:`DutyDispatcher`.
+    :class:`~mshoot_core.actuation.Actuator`.
 
     Parameters
     ----------
