@@ -3,8 +3,8 @@ from __future__ import annotations
 
 from mshoot_core import calibration
 from mshoot_core.boptest import economic, identification as ident
-from mshoot_core.boptest.model import (HouseModel, HouseParameters, KELVIN, load_parameters,
-                                       ZoneObserver)
+from mshoot_core.boptest.model import ZoneObserver
+from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.mpc import MPC
 from mshoot_core.settings import MpcSettings
 import numpy as np
@@ -19,69 +19,53 @@ U = np.array([[2.0, 150.0, 300.0, 0.25, 0.4],
 X = np.array([[294.0, 297.0, 290.0], [291.0, 293.0, 285.0], [296.0, 300.0, 295.0]])
 
 
-def test_model_interval_is_the_exact_solution() -> None:
-    model = HouseModel()
+def _house_rates(p: dict, u: np.ndarray):
+    """Return the house's equations written out (the card's comment): dx/dt(x), power, heat."""
+    tout, solar, gains, _, d = u
+    heat = d * (p['qa'] + p['qb'] * tout)
+    power = d * (p['pa'] + p['pb'] * tout + p['paux'])
+    to = tout + KELVIN
+
+    def rates(_t: float, x: np.ndarray) -> np.ndarray:
+        tz, tf, te = x
+        return np.array([((tf - tz) / p['Rzf'] + (te - tz) / p['Rze'] + (to - tz) / p['Rzo']
+                          + p['gz'] * solar + p['gi'] * gains) / p['Cz'],
+                         ((tz - tf) / p['Rzf'] + heat) / p['Cf'],
+                         ((tz - te) / p['Rze'] + (to - te) / p['Reo'] + p['ge'] * solar)
+                         / p['Ce']])
+    return rates, power, heat
+
+
+def test_card_model_is_the_houses_exact_solution() -> None:
+    """The card boptest_house's network: the house's equations integrated, outputs and cost."""
+    model = economic.control_model()
+    assert model.state_names == ('T', 'Tf', 'Te') and model.control_names == ('d',)
+    assert model.comfort_states == ('T',) and model.measured_states == ('T',)
+    p = model.parameters
     x_end, y_end = model.simulate_intervals(X, U, 3600.0)
-    a, b = model.a, model.b
     for k in range(3):
-        w = model._forcing(U[k:k + 1])[0]
-        sol = solve_ivp(lambda t, x: a @ x + b @ w, (0.0, 3600.0), X[k], rtol=1e-10,
-                        atol=1e-10)
+        rates, power, heat = _house_rates(p, U[k])
+        sol = solve_ivp(rates, (0.0, 3600.0), X[k], rtol=1e-11, atol=1e-9, method='Radau')
         np.testing.assert_allclose(x_end[k], sol.y[:, -1], atol=1e-6)
-        power = U[k, 4] * (model.parameters.pa + model.parameters.pb * U[k, 0]
-                           + model.parameters.paux)
-        np.testing.assert_allclose(y_end[k], [x_end[k, 0] - KELVIN, power,
-                                              U[k, 4] * model.heat_full_w(U[k, 0]),
-                                              U[k, 3] * power / 1000.0])
-    # simulate over a frame agrees with the batch path
+        np.testing.assert_allclose(y_end[k], [x_end[k, 0] - KELVIN, power, heat,
+                                              U[k, 3] * power / 1000.0], rtol=1e-12)
+    # simulate over a frame agrees with the batch path (the cost summed from the start)
     udf = pd.DataFrame(np.vstack([U, U[-1]]), index=[0.0, 3600.0, 7200.0, 10800.0],
                        columns=list(model.input_names))
     ydf, xdf = model.simulate(udf, X[0])
-    x = X[0]
+    x, cost = X[0], 0.0
     for k in range(3):
         x, y = model.simulate_intervals(x[None, :], U[k:k + 1], 3600.0)
-        x = x[0]
+        x, cost = x[0], cost + y[0, 3]
         np.testing.assert_allclose(xdf.to_numpy()[k + 1], x)
-        np.testing.assert_allclose(ydf.to_numpy()[k + 1], y[0])
-
-
-def test_model_jacobians_match_finite_differences() -> None:
-    model = HouseModel()
-    wrt = [0, 1, 2, 3, 4]
-    jac = model.interval_jacobians(X, U, 1800.0, wrt)
-    h = 1e-4
-    for j, col in enumerate(wrt):
-        up, down = U.copy(), U.copy()
-        up[:, col] += h
-        down[:, col] -= h
-        xu, yu = model.simulate_intervals(X, up, 1800.0)
-        xd, yd = model.simulate_intervals(X, down, 1800.0)
-        np.testing.assert_allclose(jac.dx_du[:, :, j], (xu - xd) / (2 * h), rtol=1e-5,
-                                   atol=1e-8)
-        np.testing.assert_allclose(jac.dy_du[:, :, j], (yu - yd) / (2 * h), rtol=1e-5,
-                                   atol=1e-8)
-    for i in range(3):
-        xp = X.copy()
-        xp[:, i] += h
-        xu, yu = model.simulate_intervals(xp, U, 1800.0)
-        np.testing.assert_allclose(jac.dx_dx0[:, :, i], (xu - jac.x_end) / h, rtol=1e-5,
-                                   atol=1e-8)
-        np.testing.assert_allclose(jac.dy_dx0[:, :, i], (yu - jac.y_end) / h, rtol=1e-5,
-                                   atol=1e-8)
-
-
-def test_model_parameters_checked(tmp_path) -> None:
-    with pytest.raises(ValueError, match='Cz'):
-        HouseParameters(Cz=-1.0)
-    path = tmp_path / 'p.json'
-    path.write_text('{"parameters": {"Cz": 1e6, "bogus": 1}}')
-    with pytest.raises(ValueError, match='bogus'):
-        load_parameters(path)
-    assert load_parameters().Cf > 0  # the packaged fit exists and loads
+        np.testing.assert_allclose(ydf.to_numpy()[k + 1], [*y[0, :3], cost])
+    assert economic.control_model({'Cz': 2e4}).parameters['Cz'] == 2e4
+    with pytest.raises(ValueError, match='unknown network parameters'):
+        economic.control_model({'Cx': 1.0})
 
 
 def test_observer_recovers_unmeasured_states() -> None:
-    model = HouseModel()
+    model = economic.control_model()
     rng = np.random.default_rng(3)
     x = np.array([293.0, 298.0, 288.0])
     observer = ZoneObserver(model, 3600.0)
@@ -94,7 +78,7 @@ def test_observer_recovers_unmeasured_states() -> None:
     np.testing.assert_allclose(estimate, x, atol=0.05)
 
 
-def _synthetic_hourly(model: HouseModel, days: float, seed: int) -> pd.DataFrame:
+def _synthetic_hourly(model, days: float, seed: int) -> pd.DataFrame:
     rng = np.random.default_rng(seed)
     n = int(days * 24)
     t = np.arange(n + 1) * 3600.0
@@ -104,29 +88,29 @@ def _synthetic_hourly(model: HouseModel, days: float, seed: int) -> pd.DataFrame
     duty = np.repeat(rng.uniform(0, 0.8, size=n // 4 + 1), 4)[:n + 1]
     udf = pd.DataFrame({'Tout': tout, 'solar': solar, 'gains': 300.0, 'price': 0.0, 'd': duty},
                        index=t)
-    _, xdf = model.simulate(udf, [294.0, 294.0, 294.0])  # as periods() starts
+    ydf, xdf = model.simulate(udf, [294.0, 294.0, 294.0])  # as periods() starts
     return pd.DataFrame({'Tout': tout, 'solar': solar, 'gains': 300.0,
-                         'Q': duty * model.heat_full_w(tout), 'Tz': xdf['Tz'] - KELVIN},
-                        index=t)
+                         'Q': duty * (model.parameters['qa'] + model.parameters['qb'] * tout),
+                         'Tz': xdf['T'] - KELVIN}, index=t)
 
 
 def test_identification_recovers_a_known_house() -> None:
-    truth = HouseParameters(Cz=2e6, Cf=4e7, Ce=1e8, Rzf=1e-3, Rze=4e-3, Rzo=1e-2, Reo=8e-3,
-                            gz=8.0, ge=3.0, gi=0.8)
-    table = _synthetic_hourly(HouseModel(truth), 12, 1)
-    hp = {k: getattr(truth, k) for k in ('qa', 'qb', 'pa', 'pb', 'paux')}
+    truth = {'Cz': 2e6, 'Cf': 4e7, 'Ce': 1e8, 'Rzf': 1e-3, 'Rze': 4e-3, 'Rzo': 1e-2,
+             'Reo': 8e-3, 'gz': 8.0, 'ge': 3.0, 'gi': 0.8}
+    table = _synthetic_hourly(economic.control_model(truth), 12, 1)
+    hp = {k: economic.control_model().parameters[k] for k in ('qa', 'qb', 'pa', 'pb', 'paux')}
     train = ident.periods(table, hp, [(0.0, 9.0)], 'train')
     validation = ident.periods(table, hp, [(9.0, 12.0)], 'validation')
-    fixed = {k: getattr(truth, k) for k in ('Ce', 'Reo', 'ge', 'gi', 'Rzo', 'Rze')}
+    fixed = {k: truth[k] for k in ('Ce', 'Reo', 'ge', 'gi', 'Rzo', 'Rze')}
     free = [calibration.FreeParameter('Cf', 2e7, 1e6, 1e9),
             calibration.FreeParameter('Rzf', 3e-3, 1e-5, 1e-1),
             calibration.FreeParameter('gz', 3.0, 0.0, 50.0)]
     result = calibration.calibrate(
-        lambda v: HouseModel(HouseParameters(**{**hp, **fixed, 'Cz': truth.Cz, **v})),
+        lambda v: economic.control_model({**hp, **fixed, 'Cz': truth['Cz'], **v}),
         free, train, validation)
-    assert result.parameters['Cf'] == pytest.approx(truth.Cf, rel=0.02)
-    assert result.parameters['Rzf'] == pytest.approx(truth.Rzf, rel=0.02)
-    assert result.parameters['gz'] == pytest.approx(truth.gz, rel=0.02)
+    assert result.parameters['Cf'] == pytest.approx(truth['Cf'], rel=0.02)
+    assert result.parameters['Rzf'] == pytest.approx(truth['Rzf'], rel=0.02)
+    assert result.parameters['gz'] == pytest.approx(truth['gz'], rel=0.02)
     assert result.metrics['train']['rmse_k'] < 0.01  # validation starts off steady state
 
 
@@ -148,7 +132,8 @@ def test_fit_heat_pump_lines() -> None:
 
 def test_output_cost_moves_heat_to_cheap_hours() -> None:
     """The cost 'output' (price x power) shifts the heat pump's runs to the cheap hours."""
-    model = HouseModel()
+    model = economic.control_model({'Cz': 5e6, 'Cf': 3e7, 'Ce': 5e7, 'Rzf': 2e-3, 'Rze': 5e-3,
+                                    'Rzo': 2e-2, 'Reo': 1e-2, 'gz': 5.0, 'ge': 5.0, 'gi': 1.0})
     n = 12
     settings = MpcSettings.from_flat(economic.DEFAULTS, horizon_steps=n,
                                      control_names=('d',))
@@ -156,7 +141,7 @@ def test_output_cost_moves_heat_to_cheap_hours() -> None:
                              'price': np.where(np.arange(n + 1) < 6, 0.10, 0.40),
                              'comfort_min': np.where(np.arange(n + 1) >= 6, 21.0, 15.0),
                              'comfort_max': 30.0}, index=np.arange(n + 1) * 3600.0)
-    bounds = {'Tz': ('comfort_min', 'comfort_max', KELVIN)}
+    bounds = {'T': ('comfort_min', 'comfort_max', KELVIN)}
     x0 = [293.0, 294.0, 288.0]
     result = MPC(model, settings, state_bounds=bounds).solve(x0, 0.0, forecast)
     assert result.success
@@ -168,43 +153,6 @@ def test_output_cost_moves_heat_to_cheap_hours() -> None:
     assert flat_duty[:6].sum() < duty[:6].sum()
     with pytest.raises(ValueError, match='cost_output'):
         MPC(model, settings.replace(cost_output='nope'), state_bounds=bounds)
-
-
-def test_dispatcher_bursts_and_minimum_run(boptest_case) -> None:
-    duties = [0.3, 0.3, 0.3, 0.0, 0.5, 0.5, 1.0, 0.2, 0.0, 0.0, 0.1, 0.1, 0.1, 0.1]
-
-    def run(min_run_s: float) -> tuple[np.ndarray, float]:
-        dispatcher = economic.DutyDispatcher(boptest_case, 'modulation', min_run_s)
-        minutes = []
-        for k, duty in enumerate(duties):
-            t = k * 3600.0
-            for end, overwrites in dispatcher.segments(t, duty):
-                minutes += [overwrites['oveHeaPumY_u']] * int(round((end - t) / 60.0))
-                t = end
-        on = np.array(minutes)
-        return on, float(on.sum() * 60.0)
-
-    on, run_s = run(0.0)
-    assert on.size == len(duties) * 60
-    assert run_s == pytest.approx(sum(duties) * 3600.0, abs=len(duties) * 60.0)
-    starts = int(np.sum(np.diff(np.r_[0.0, on]) > 0))
-    on2, run2_s = run(2 * 3600.0)
-    edges = np.diff(np.r_[0.0, on2, 0.0])
-    stops, lengths = np.flatnonzero(edges < 0), np.flatnonzero(edges < 0) - np.flatnonzero(
-        edges > 0)
-    ended = lengths[stops < on2.size]  # bursts that stopped (the last may run on to the end)
-    assert ended.size >= 1 and ended.min() >= 120, lengths  # every one ran 2 h at least
-    assert int(np.sum(edges > 0)) < starts
-    waiting = economic.DutyDispatcher(boptest_case, 'modulation', 2 * 3600.0)
-    assert [p[1]['oveHeaPumY_u'] for p in waiting.segments(0.0, 0.3)] == [0.0]  # accumulates
-    starting = economic.DutyDispatcher(boptest_case, 'modulation', 2 * 3600.0)
-    pieces = starting.segments(0.0, 0.3, next_duty=0.5)  # the plan heats on: start now
-    assert [(end, p['oveHeaPumY_u']) for end, p in pieces] == [(2520.0, 0.0), (3600.0, 1.0)]
-    assert starting.segments(3600.0, 0.0) == [(7200.0, {'oveHeaPumY_u': 1.0})]  # min run
-    setpoint = economic.DutyDispatcher(boptest_case, 'setpoint')
-    pieces = setpoint.segments(3600.0 * 30, 0.5)
-    assert [p[1]['oveTSet_u'] > 300 for p in pieces] == [False, True]
-    assert pieces[0][0] == pytest.approx(3600.0 * 30 + 1800.0)
 
 
 def test_forecast_frame_from_the_data(boptest_case) -> None:

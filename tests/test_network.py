@@ -317,49 +317,6 @@ def test_builtin_models_are_built_from_their_cards():
                                   MultiZoneModel(2, seed=0).simulate_intervals(x0, u, HOUR)[0])
 
 
-HOUSE = """
-inputs: {Tout: degC, solar: W/m2, gains: W, price: EUR/kWh, d: '1'}
-parameters: {Cz: 5.0e+6, Cf: 3.0e+7, Ce: 5.0e+7, Rzf: 2.0e-3, Rze: 5.0e-3, Rzo: 2.0e-2,
-             Reo: 1.0e-2, gz: 5.0, ge: 5.0, gi: 1.0, qa: 10180.0, qb: 306.0, pa: 3078.0,
-             pb: 52.0, paux: 530.7}
-nodes: {Tz: {capacity: Cz}, Tf: {capacity: Cf}, Te: {capacity: Ce}}
-boundaries: {outdoor: Tout + 273.15}
-conductances:
-  - {between: [Tz, Tf], value: 1 / Rzf}
-  - {between: [Tz, Te], value: 1 / Rze}
-  - {between: [Tz, outdoor], value: 1 / Rzo}
-  - {between: [Te, outdoor], value: 1 / Reo}
-gains:
-  - {node: Tz, value: gz, times: solar}
-  - {node: Tz, value: gi, times: gains}
-  - {node: Te, value: ge, times: solar}
-  - {node: Tf, value: qa, times: d}
-  - {node: Tf, value: qb, times: [d, Tout]}
-outputs:
-  T: {terms: [{state: Tz}], offset: -273.15}
-  P: {terms: [{value: pa + paux, times: d}, {value: pb, times: [d, Tout]}]}
-  Q: {terms: [{value: qa, times: d}, {value: qb, times: [d, Tout]}]}
-  cost: {integral: true, terms: [{value: (pa + paux) / 3.6e6, times: [price, d]},
-                                 {value: pb / 3.6e6, times: [price, d, Tout]}]}
-"""
-
-
-def test_the_heat_pump_house_is_a_network():
-    """The BOPTEST house's control model written as a network: its intervals to round-off."""
-    from mshoot_core.boptest.model import HouseModel
-    house = HouseModel()
-    network = NetworkModel(yaml.safe_load(HOUSE), control_names=('d',))
-    rng = np.random.default_rng(10)
-    u = np.column_stack([rng.uniform(-8, 12, 20), rng.uniform(0, 500, 20),
-                         rng.uniform(0, 400, 20), rng.uniform(0.05, 0.4, 20),
-                         rng.uniform(0, 1, 20)])
-    x0 = rng.uniform(288, 300, (20, 3))
-    a, b = (m.interval_jacobians(x0, u, 3600.0, [4, 0]) for m in (house, network))
-    for name in ('x_end', 'y_end', 'dx_dx0', 'dx_du', 'dy_dx0', 'dy_du'):
-        np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=1e-12,
-                                   atol=1e-12 * np.abs(getattr(a, name)).max(), err_msg=name)
-
-
 def test_large_incidences_sum_by_gathers_as_the_sparse_product_does():
     # a large network's sums into nodes: gathers where every node receives few terms, with
     # the sparse product's values to the last bit (the same additions in the same order)

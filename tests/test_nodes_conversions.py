@@ -1,4 +1,5 @@
 """mshoot_nodes without spinning: message conversions, scenarios and parameter helpers."""
+from mshoot_core.actuation import Schedule
 from mshoot_core.controller import controller_for
 from mshoot_core.models.multizone import MultiZoneModel
 from mshoot_core.models.r1c1 import KELVIN, R1C1Model
@@ -105,6 +106,19 @@ def test_setpoint_of_a_decision_names_every_control_and_zone():
                                     3600.0, interface, 21.5)
     assert list(safe.temperature_setpoints_c) == [21.5, 21.5]
     assert list(safe.plan_controls) == [] == list(safe.plan_temperatures_c)
+    # bursts within the step: the schedule name-major, the first piece as the controls
+    bursts = Schedule(np.array([0.0, 600.0, 2400.0]),
+                      np.array([[0.0, -50.0], [300.0, -50.0], [300.0, 0.0]]))
+    sent = cv.decision_setpoint_msg(5, _decision(plan_u[0], plan_x[0], plan_u, plan_x),
+                                    3600.0, interface, 21.0, 'house', bursts)
+    assert cv.setpoint_controls(sent) == {'q_0': 0.0, 'q_1': -50.0}
+    assert list(sent.schedule_offsets_s) == [0.0, 600.0, 2400.0]
+    assert list(sent.schedule_values) == [0.0, 300.0, 300.0, -50.0, -50.0, 0.0]
+    assert list(sent.plan_controls) == list(setpoint.plan_controls)
+    held = cv.decision_setpoint_msg(5, _decision(plan_u[0], plan_x[0], plan_u, plan_x),
+                                    3600.0, interface, 21.0, 'house',
+                                    Schedule(np.zeros(1), plan_u[:1]))
+    assert list(held.schedule_offsets_s) == [] == list(held.schedule_values)
 
 
 def test_setpoint_and_status_from_an_mpc_result():

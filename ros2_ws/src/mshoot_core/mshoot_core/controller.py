@@ -55,6 +55,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from mshoot_core.actuation import Actuator, Schedule
 from mshoot_core.estimation import Estimate, estimation_needed, StateEstimator
 from mshoot_core.models.base import Model, ModelValueError
 from mshoot_core.models.registry import control_interface, ControlInterface
@@ -95,6 +96,10 @@ class StepOutcome:
     x0_std : ndarray or None
         Standard deviation of every state of an estimated ``x0`` [K] (None when
         the state is measured or there is none).
+    schedule : Schedule or None
+        What is sent within the step (:class:`~mshoot_core.actuation.Actuator`, settings
+        ``actuation``): the decision's controls held (one piece), or bursts; None when the
+        decision's controls are sent as they are.
 
     """
 
@@ -104,6 +109,7 @@ class StepOutcome:
     solve_time_s: float
     x0: np.ndarray | None
     x0_std: np.ndarray | None = None
+    schedule: Schedule | None = None
 
     @property
     def t_s(self) -> float:
@@ -209,6 +215,7 @@ class Controller:
                 initial_state=initial_state)
         self.supervisor = self._build_supervisor()
         self._configure_inputs()
+        self.actuator = self._build_actuator()
 
     # -- configuration --------------------------------------------------------------------
     @property
@@ -251,6 +258,10 @@ class Controller:
                                   (s.safe_heat_rate_w,) * len(p.control_names),
                                   max_plan_age_steps=s.max_plan_age_steps,
                                   state_range=self.state_range())
+
+    def _build_actuator(self) -> Actuator:
+        p = self.settings.problem
+        return Actuator(self.settings.actuation, p.control_bounds, p.step_s)
 
     def _configure_inputs(self, settings: MpcSettings | None = None) -> None:
         i = (settings or self.settings).inputs
@@ -296,6 +307,10 @@ class Controller:
         if any('supervisor' in BY_NAME[n].applies for n in changed if n in BY_NAME):
             self.supervisor = self._build_supervisor()
             what += '+supervisor'
+        if any(n == 'control_names' or n in BY_NAME and (BY_NAME[n].group == 'actuation'
+                                                         or 'supervisor' in BY_NAME[n].applies)
+               for n in changed):
+            self.actuator = self._build_actuator()  # (bursts in progress forgotten)
         return what
 
     # -- inputs ---------------------------------------------------------------------------
@@ -700,6 +715,11 @@ class Controller:
         zone temperature from row 1 on. If the model's prediction fails (non-finite), the
         estimate's own std at every row, with a logged warning.
         """
+        raise_k = self.settings.comfort.band_margin_k
+        if raise_k > 0 and set(COMFORT_SERIES) <= set(window):  # the lower edge raised
+            window = window.copy()
+            window['comfort_min'] = window['comfort_min'] + raise_k
+            window['comfort_max'] = np.maximum(window['comfort_max'], window['comfort_min'])
         z = self.settings.estimation.comfort_margin_std
         bounded = [self.model.state_names.index(s) for s in self.mpc.state_bounds]
         if estimate is None or z <= 0 or not bounded or not set(COMFORT_SERIES) <= set(window):
@@ -812,14 +832,39 @@ class Controller:
             return
         decision = self.supervisor.review(
             step_s, result, accept_unconverged=self.settings.supervisor.on_failure == 'plan')
-        outcomes.append(StepOutcome(job.step_ns, decision, result, result.solve_time_s,
-                                    job.x0, job.x0_std))
+        outcomes.append(self._actuate(StepOutcome(job.step_ns, decision, result,
+                                                  result.solve_time_s, job.x0, job.x0_std)))
+
+    def _actuate(self, outcome: StepOutcome) -> StepOutcome:
+        """
+        Return the outcome with its schedule within the step (settings ``actuation``).
+
+        A decided plan (this step's or the last good one's) goes through the actuator, with
+        the plan's next controls and the zone temperature the step started from; a safe
+        setpoint is held, and the bursts in progress are forgotten. Without a zone
+        temperature a setpoint cannot be sent: the decision's controls are held (logged).
+        """
+        decision = outcome.decision
+        controls = np.asarray(decision.controls, dtype=float).reshape(-1)
+        zones = [self.model.state_names.index(s) for s in self.mpc.state_bounds]
+        zone_k = (float(outcome.x0[zones[0]]) if outcome.x0 is not None and zones else None)
+        if decision.source == 'safe' or (self.settings.actuation.actuation_send == 'setpoint'
+                                         and zone_k is None):
+            if decision.source != 'safe':
+                logger.warning('step %.0f s: no zone temperature to send a setpoint from: the '
+                               'controls are held', outcome.t_s)
+            self.actuator.reset()
+            return dataclasses.replace(outcome, schedule=Schedule(np.zeros(1), controls[None]))
+        plan = np.asarray(decision.plan_controls, dtype=float)
+        following = plan[1] if plan.ndim == 2 and plan.shape[0] > 1 else None
+        return dataclasses.replace(outcome, schedule=self.actuator.schedule(
+            controls, following, zone_k))
 
     def _fallback(self, step_ns: int, code: str, reason: str, waited_s: float,
                   x0: np.ndarray | None, result: MpcResult | None = None, *,
                   x0_std: np.ndarray | None = None) -> StepOutcome:
         decision = self.supervisor.fallback(step_ns / NS_PER_S, code, reason)
-        return StepOutcome(step_ns, decision, result, waited_s, x0, x0_std)
+        return self._actuate(StepOutcome(step_ns, decision, result, waited_s, x0, x0_std))
 
     def hand_back(self, now_ns: int) -> StepOutcome:
         """
@@ -835,7 +880,7 @@ class Controller:
         decision = self.supervisor.safe(step / NS_PER_S, 'deactivated', 'the controller was '
                                         'deactivated: the safe setpoint, then no more '
                                         'setpoints (the building is back on its own control)')
-        return StepOutcome(step, decision, None, 0.0, None)
+        return self._actuate(StepOutcome(step, decision, None, 0.0, None))
 
     def close(self) -> None:
         """Wait for a solve in flight and drop it."""

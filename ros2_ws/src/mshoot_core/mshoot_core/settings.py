@@ -199,6 +199,11 @@ class ComfortSettings(SettingsGroup):
                                   "(comfort 'soft') [-]", low=1e-9, high=1e12, apply='comfort')
     soft_penalty_linear: float = setting(0.0, 'weight of the linear penalty on normalised '
                                          "slack (comfort 'soft') [-]", low=0.0, high=1e12)
+    band_margin_k: float = setting(0.0, "raise of the comfort band's lower edge in the plan "
+                                   '(the plan sees the zone at the step ends only, the '
+                                   'discomfort is counted in between too; the upper edge is '
+                                   'kept, at least at the raised lower one) [K]', low=0.0,
+                                   high=20.0, apply='inputs')
 
     @property
     def soft(self) -> bool:
@@ -279,6 +284,47 @@ class InputSettings(SettingsGroup):
     max_future_s: float = setting(3600.0, 'inputs stamped further ahead of the clock are '
                                   'rejected (data and clock are not ordered: allow a step) '
                                   '[s]', low=0.0, high=86400.0, apply='inputs')
+
+
+#: How the decided controls of a step reach the building (setting ``actuation``).
+ACTUATIONS = ('hold', 'burst')
+#: What is sent (setting ``actuation_send``).
+ACTUATION_SENDS = ('value', 'setpoint')
+
+
+@dataclasses.dataclass(frozen=True)
+class ActuationSettings(SettingsGroup):
+    """How a step's decided controls reach the building within the step."""
+
+    actuation: str = setting('hold', "'hold': each control held over the step at its decided "
+                             "value; 'burst': a control is run at its upper bound for the "
+                             'share of the step its value asks for (its duty between its '
+                             'bounds), at its lower bound otherwise: full-load bursts joined '
+                             'across steps, in a schedule within the step',
+                             choices=ACTUATIONS, apply='inputs')
+    min_run_s: float = setting(0.0, "actuation 'burst': shortest burst once started, unless "
+                               'the plan stops heating (0 = none) [s]', low=0.0, high=86400.0,
+                               apply='inputs')
+    burst_resolution_s: float = setting(60.0, "actuation 'burst': bursts start and stop on "
+                                        "this grid, e.g. the plant's sampling [s]", low=1.0,
+                                        high=86400.0, apply='inputs')
+    actuation_send: str = setting('value', "actuation 'burst': 'value' sends the control's "
+                                  "bounds; 'setpoint' sends a temperature setpoint above the "
+                                  'zone temperature while a burst runs and below it otherwise '
+                                  "(for the building's own loop)", choices=ACTUATION_SENDS,
+                                  apply='inputs')
+    setpoint_above_k: float = setting(10.0, "actuation_send 'setpoint': the setpoint while a "
+                                      'burst runs, above the zone temperature [K]', low=0.0,
+                                      high=100.0, apply='inputs')
+    setpoint_below_k: float = setting(3.0, "actuation_send 'setpoint': the setpoint otherwise, "
+                                      'below the zone temperature [K]', low=0.0, high=100.0,
+                                      apply='inputs')
+
+    def rules(self) -> list[str]:
+        if self.actuation_send == 'setpoint' and self.actuation != 'burst':
+            return ["actuation_send 'setpoint' needs actuation 'burst', got actuation "
+                    f'{self.actuation!r}']
+        return []
 
 
 #: Ways of getting the state a step is planned from (setting ``estimation``).
@@ -364,7 +410,8 @@ class ForecastErrorSettings(SettingsGroup):
 #: The groups of :class:`MpcSettings`, by attribute name.
 GROUPS: dict[str, type] = {'problem': ProblemSettings, 'comfort': ComfortSettings,
                            'solver': SolverSettings, 'supervisor': SupervisorSettings,
-                           'inputs': InputSettings, 'estimation': EstimationSettings}
+                           'inputs': InputSettings, 'estimation': EstimationSettings,
+                           'actuation': ActuationSettings}
 
 
 @functools.cache  # (a group's fields never change; every validation asks for them)
@@ -399,6 +446,7 @@ class MpcSettings:
     supervisor: SupervisorSettings = dataclasses.field(default_factory=SupervisorSettings)
     inputs: InputSettings = dataclasses.field(default_factory=InputSettings)
     estimation: EstimationSettings = dataclasses.field(default_factory=EstimationSettings)
+    actuation: ActuationSettings = dataclasses.field(default_factory=ActuationSettings)
 
     def __post_init__(self) -> None:
         problems = []

@@ -495,7 +495,8 @@ def _closing_lines(records: list[dict], periods: Sequence[str], prices: Sequence
             'test periods (`python -m mshoot_studies.boptest_mpc identify`), and runs the heat '
             'pump in full-load bursts (its COP and the fixed fan power favour them; the '
             'emulator charges nothing for starts: see starts/day; a minimum run time is '
-            '`min_run_h` of the economic node). Where its discomfort lies (below / above the '
+            '`min_run_h` of the economic node, the setting `min_run_s`). Where its discomfort '
+            'lies (below / above the '
             'band, K h): '
             + '; '.join(f'{period} {price}: {lo:.2f} / {hi:.2f}'
                         for (period, price), (lo, hi) in splits.items())
@@ -548,14 +549,18 @@ def write_docs(args: argparse.Namespace, records: list[dict], runs: list[dict],
              + ', '.join(f'{v:g}' for v in args.margins) + ' K), each a full run of the period '
              'in core, for the smallest `cost_tot + 0.1 EUR/m2 per K h x tdis_tot`.',
              '- `mshoot`: the economic MPC (`mshoot_core.boptest.economic`, mode '
-             '`modulation`, band margin 0.5 K, no minimum run time) in the economic node '
-             "(`mshoot_nodes/economic_node.py`): every hour it plans the heat pump's duty over "
-             "36 h from its observer's state (zone, floor, envelope; the observer follows the "
-             "warm-up too) and sends the hour's full-load bursts (60 s resolution) as the "
-             "setpoint's schedule within the step, which the emulator applies to "
-             "`oveHeaPumY_u`. It plans on perfect forecasts computed from the test case's "
-             'files (interval means; the forecaster node serves the same files as hourly point '
-             'values and is not read by this node).', '',
+             '`modulation`) in the economic node (`mshoot_nodes/economic_node.py`): every hour '
+             "it plans the heat pump's duty `d` over 36 h on the control model of the card "
+             '`boptest_house` (a thermal network: zone, floor, envelope; its parameters '
+             "identified outside the test periods), from its observer's state (the observer "
+             "follows the warm-up too), the comfort band's lower edge raised by 0.5 K "
+             "(setting `band_margin_k`), and sends the hour's full-load bursts (settings "
+             "`actuation` 'burst', `actuation_send` 'value', no minimum run time `min_run_s`, "
+             "60 s resolution: `mshoot_core.actuation`) as the setpoint's schedule within the "
+             'step, which the emulator applies to `oveHeaPumY_u`. It plans on perfect '
+             "forecasts computed from the test case's files (interval means; the forecaster "
+             'node serves the same files as hourly point values and is not read by this '
+             'node).', '',
              'The baseline and the rule never read the price: each is simulated once per '
              'period (the rule once per distinct tuned lead/margin) and its KPIs computed for '
              'each price scenario it stands for; only `cost_tot` differs.', '']

@@ -26,6 +26,7 @@ import pandas as pd
 from rosgraph_msgs.msg import Clock
 
 if TYPE_CHECKING:  # the emulator process need not import scipy (through mshoot_core.mpc)
+    from mshoot_core.actuation import Schedule
     from mshoot_core.models.registry import ControlInterface
     from mshoot_core.mpc import MpcResult
     from mshoot_core.safety import Decision
@@ -328,7 +329,7 @@ def status_msg(stamp_ns: int, result: MpcResult | None, *, fallback: bool = Fals
 
 def decision_setpoint_msg(stamp_ns: int, decision: Decision, step_s: float,
                           interface: ControlInterface, safe_temperature_c: float,
-                          zone: str = '') -> Setpoint:
+                          zone: str = '', schedule: Schedule | None = None) -> Setpoint:
     """
     Build the setpoint of a supervisor decision.
 
@@ -351,10 +352,16 @@ def decision_setpoint_msg(stamp_ns: int, decision: Decision, step_s: float,
         predicts nothing) [degC].
     zone : str
         ``header.frame_id``.
+    schedule : Schedule, optional
+        What is sent within the step (:class:`~mshoot_core.actuation.Actuator`): with more than
+        one piece, the setpoint's schedule within the step and ``control_values`` its first
+        piece's; one piece: its values held over the step.
 
     """
     names, zones = interface.control_names, interface.temperature_names
     controls = np.asarray(decision.controls, dtype=float).reshape(-1)
+    if schedule is not None:
+        controls = schedule.values[0]
     if decision.predicted_state is not None:
         temperatures = interface.temperatures_c(decision.predicted_state)
     else:
@@ -364,11 +371,15 @@ def decision_setpoint_msg(stamp_ns: int, decision: Decision, step_s: float,
     plan_t = (interface.temperatures_c(plan_x) if plan_x.size
               else np.empty((0, len(zones))))
     m = plan_u.shape[0]
-    return setpoint_msg(
+    msg = setpoint_msg(
         stamp_ns, step_s, dict(zip(names, controls)), dict(zip(zones, temperatures)),
         {n: plan_u[:, i] for i, n in enumerate(names)} if m else None,
         {n: plan_t[:, j] for j, n in enumerate(zones)} if m and plan_t.shape[0] == m
         else None, zone)
+    if schedule is not None and not schedule.held:
+        msg.schedule_offsets_s = [float(o) for o in schedule.offsets_s]
+        msg.schedule_values = [float(v) for v in schedule.values.T.reshape(-1)]
+    return msg
 
 
 def decision_status_msg(stamp_ns: int, decision: Decision, result: MpcResult | None, *,

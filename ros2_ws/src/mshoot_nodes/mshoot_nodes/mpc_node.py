@@ -364,7 +364,7 @@ class MpcNode(ManagedNode):
         interface = self.controller.interface
         step_ns, decision, result = outcome.step_ns, outcome.decision, outcome.result
         setpoint = decision_setpoint_msg(step_ns, decision, p['step_s'], interface,
-                                         p['safe_temperature_c'], p['zone'])
+                                         p['safe_temperature_c'], p['zone'], outcome.schedule)
         problem = check_setpoint(setpoint.step_s, setpoint.control_names,
                                  setpoint.control_values, setpoint.temperature_names,
                                  setpoint.temperature_setpoints_c, setpoint.plan_controls,

@@ -4,7 +4,7 @@ The economic MPC on BOPTEST's heat pump house, in core (no ROS): identify, then 
     python -m mshoot_studies.boptest_mpc identify [--cache DIR] [--out out/boptest/mpc]
         excite the emulator outside the test periods (cached), fit the control model, write
         identification.json (parameters, RMSE per period, power model) and, with --install,
-        the packaged fit mshoot_core/boptest/house_fit.json
+        the values into the packaged card mshoot_core/cards/boptest_house.yaml
     python -m mshoot_studies.boptest_mpc evaluate [--periods ...] [--prices ...] [--modes ...]
         run the MPC (and the baseline and the pre-heating rule of mshoot_studies.boptest_rule,
         tuned on its default grid, for comparison) on the test periods and write kpis.json
@@ -18,6 +18,7 @@ import argparse
 import json
 import logging
 import pathlib
+import re
 import sys
 import time
 from typing import Sequence
@@ -62,16 +63,28 @@ def identify_command(args: argparse.Namespace) -> int:
     for warning in fit.result.warnings:
         _say(f'warning: {warning}')
     if args.install:
-        from mshoot_core.boptest import model
-        target = pathlib.Path(model.__file__).resolve().with_name('house_fit.json')
-        target.write_text(json.dumps({'parameters': fit.parameters.to_dict()}, indent=1) + '\n')
-        _say(f'wrote {target}')
+        _say(f'wrote {install(fit.parameters)}')
     _say(f'wrote {out / "identification.json"}')
     return 0
 
 
 #: The heat pump's modulation: its off -> on transitions are the runs' starts per day.
 STARTS_OUTPUT = 'reaHeaPumY_y'
+
+
+def install(parameters: dict[str, float]) -> pathlib.Path:
+    """Write parameter values into the packaged card's ``NAME: {value: ...`` lines; its path."""
+    from mshoot_core.boptest.economic import CARD
+    from mshoot_core.models.card import builtin_card
+    target = builtin_card(CARD)
+    text = target.read_text()
+    for name, value in parameters.items():
+        text, found = re.subn(rf'^(\s+{re.escape(name)}: {{value: )[^,}}]+', rf'\g<1>{value!r}',
+                              text, count=1, flags=re.M)
+        if not found:
+            raise ValueError(f'{target}: no parameter line of {name!r}')
+    target.write_text(text)
+    return target
 
 
 def evaluate_command(args: argparse.Namespace) -> int:
@@ -172,7 +185,8 @@ def parser() -> argparse.ArgumentParser:
                    'boptest)')
     i.add_argument('--starts', type=int, default=1, help='starts of the fit')
     i.add_argument('--install', action='store_true',
-                   help='write the packaged fit mshoot_core/boptest/house_fit.json')
+                   help='write the fit into the packaged card mshoot_core/cards/'
+                   'boptest_house.yaml')
     e = sub.add_parser('evaluate', help='closed-loop KPIs on the test periods')
     e.add_argument('--periods', nargs='+', default=list(PERIODS), choices=PERIODS)
     e.add_argument('--prices', nargs='+', default=list(PRICES), choices=PRICES)
@@ -180,8 +194,8 @@ def parser() -> argparse.ArgumentParser:
                    choices=('modulation', 'setpoint', 'tracking'))
     e.add_argument('--no-baseline', dest='baseline', action='store_false')
     e.add_argument('--no-rule', dest='rule', action='store_false')
-    e.add_argument('--parameters', default=None, help='house parameters JSON (default: the '
-                   'packaged fit)')
+    e.add_argument('--parameters', default=None, help='JSON of parameters over the card '
+                   'boptest_house (default: its values)')
     e.add_argument('--margin', type=float, default=0.5,
                    help='raise of the lower edge of the band in the plan [K]')
     e.add_argument('--min-run-h', type=float, default=0.0, help='minimum run time [h]')

@@ -5,11 +5,12 @@ Stable API::
 
     from mshoot_core.boptest.economic import controller_settings, EconomicController, run_period
     config = controller_settings(case, price='dynamic', mode='modulation')
-    config.settings, config.model, config.forecast_columns     # MpcSettings, HouseModel, names
+    config.settings, config.model, config.forecast_columns     # MpcSettings, model, names
     forecast = config.forecast(t_s)                            # N+1 rows from the test case data
     result = run_period(case, 'peak_heat_day', 'dynamic', mode='modulation')
 
-The control model (:mod:`mshoot_core.boptest.model`) plans the heat pump's duty ``d`` per
+The control model (the thermal network of the card ``boptest_house``, :func:`control_model`)
+plans the heat pump's duty ``d`` per
 control step (the fraction of the step it runs at full load: its COP and the fan's fixed power
 make full load the cheapest way to deliver heat), minimising the cost 'output' of
 :class:`~mshoot_core.shooting.ShootingProblem` (the sum of the model output ``cost`` =
@@ -17,12 +18,13 @@ price x electric power x step) plus a soft comfort band: a linear and a small qu
 penalty on the zone temperature outside the test case's band (its lower edge raised by a
 margin, as the plan sees only the step ends while BOPTEST integrates discomfort continuously).
 
-The plan's first duty is dispatched by :class:`DutyDispatcher` at the plant's 60 s sampling:
-a full-load burst of the planned length, joined to the previous step's burst (fewer starts),
-with an optional minimum run time; the burst reaches the building either as the heat pump's
-modulation ``oveHeaPumY_u`` (mode ``'modulation'``, direct control) or through the local loop's
-zone setpoint ``oveTSet_u`` (mode ``'setpoint'``: a setpoint above the zone temperature while the
-burst runs, the band's lower edge otherwise). Mode ``'tracking'`` sends the plan's zone
+The plan's first duty is dispatched by :class:`~mshoot_core.actuation.Actuator` (settings
+``actuation`` 'burst') at the plant's 60 s sampling: a full-load burst of the planned length,
+joined to the previous step's burst (fewer starts), with an optional minimum run time; the burst
+reaches the building either as the heat pump's modulation ``oveHeaPumY_u`` (mode
+``'modulation'``, direct control) or through the local loop's zone setpoint ``oveTSet_u`` (mode
+``'setpoint'``: a setpoint above the zone temperature while the burst runs, below it
+otherwise). Mode ``'tracking'`` sends the plan's zone
 temperature at the end of the step as the setpoint (the supervisory setpoint of the design).
 
 The unmeasured floor and envelope temperatures are estimated by
@@ -32,18 +34,24 @@ measured heat of the heat pump, every control step (from the start of the warm-u
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import math
+import pathlib
 import time
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import numpy as np
 import pandas as pd
 
-from mshoot_core.boptest.model import house_model, HouseModel, KELVIN, ZoneObserver
+from mshoot_core.actuation import Actuator
+from mshoot_core.boptest.model import ZoneObserver
 from mshoot_core.boptest.testcase import PRICE_SCENARIOS, TestCase
+from mshoot_core.models.base import Model
+from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.mpc import MPC
 from mshoot_core.settings import MpcSettings
+from mshoot_core.shooting import Scaling
 
 logger = logging.getLogger(__name__)
 
@@ -55,16 +63,45 @@ DISTURBANCES = ('Tout', 'solar', 'gains', 'price')
 BAND_COLUMNS = ('comfort_min', 'comfort_max')
 #: Step of the test case's data [s] (interval means of the forecast are taken on it).
 DATA_STEP_S = 900.0
-#: Setpoint sent while a burst runs in mode 'setpoint' [K] (the local loop then runs at full
-#: load), and the setpoint when off is the band's lower edge minus this [K].
-SETPOINT_ON_K = 308.15
-SETPOINT_OFF_BELOW_K = 3.0
+#: The actuation settings of each mode (:mod:`mshoot_core.actuation`) and the overwrite the
+#: schedule goes to.
+ACTUATION = {'modulation': ({'actuation': 'burst', 'actuation_send': 'value'}, 'oveHeaPumY_u'),
+             'setpoint': ({'actuation': 'burst', 'actuation_send': 'setpoint'}, 'oveTSet_u'),
+             'tracking': ({'actuation': 'hold'}, 'oveTSet_u')}
 #: Defaults of the economic MPC.
 DEFAULTS: dict[str, Any] = {
     'horizon_steps': 36, 'step_s': 3600.0, 'cost': 'output', 'cost_output': 'cost',
     'heat_rate_min_w': 0.0, 'heat_rate_max_w': 1.0, 'comfort': 'soft',
     'soft_penalty': 100.0, 'soft_penalty_linear': 200.0, 'solver': 'ipopt',
     'solver_max_iter': 300, 'safe_heat_rate_w': 0.0, 'on_failure': 'plan'}
+
+#: The built-in card of the control model (mshoot_core/cards/boptest_house.yaml).
+CARD = 'boptest_house'
+
+
+def control_model(parameters: Mapping[str, float] | str | pathlib.Path | None = None) -> Model:
+    """
+    Return the control model: the thermal network of the card :data:`CARD`.
+
+    Parameters
+    ----------
+    parameters : mapping or path, optional
+        Parameter values over the card's: a mapping, or a JSON file of a mapping (or of
+        ``{'parameters': mapping}``); None for the card's (the packaged identification).
+
+    Raises
+    ------
+    ValueError
+        For a name that is not a parameter of the card's network.
+
+    """
+    from mshoot_core.calibration import NetworkBuilder
+    from mshoot_core.models import card as cards
+    if isinstance(parameters, (str, pathlib.Path)):
+        data = json.loads(pathlib.Path(parameters).read_text())
+        parameters = data.get('parameters', data)
+    card = cards.load_card(cards.builtin_card(CARD))
+    return NetworkBuilder(card)(dict(parameters or {}))
 
 
 @dataclasses.dataclass
@@ -77,31 +114,34 @@ class EconomicConfig:
     settings : MpcSettings
         The MPC settings (control ``d`` in [0, 1], cost 'output' of the model output ``cost``,
         soft comfort band).
-    model : HouseModel
-        The identified control model.
+    model : Model
+        The identified control model (:func:`control_model`).
     case : TestCase
     price : str
         The price scenario (``constant``, ``dynamic``, ``highly_dynamic``).
     mode : str
         One of :data:`MODES`.
-    margin_k : float
-        The band's lower edge is raised by this in the plan [K] (the upper edge is kept:
-        the heat pump cannot cool, a tighter upper edge would only withhold heat).
-    min_run_s : float
-        Minimum run time of the heat pump [s] (0: none).
     forecast_columns : tuple of str
         The forecast's columns: the disturbances, then the band [degC].
 
     """
 
     settings: MpcSettings
-    model: HouseModel
+    model: Model
     case: TestCase
     price: str
     mode: str
-    margin_k: float
-    min_run_s: float
     forecast_columns: tuple[str, ...] = (*DISTURBANCES, *BAND_COLUMNS)
+
+    @property
+    def margin_k(self) -> float:
+        """Raise of the band's lower edge in the plan [K] (setting ``band_margin_k``)."""
+        return self.settings.comfort.band_margin_k
+
+    @property
+    def min_run_s(self) -> float:
+        """Minimum run time of the heat pump [s] (setting ``min_run_s``; 0: none)."""
+        return self.settings.actuation.min_run_s
 
     def forecast(self, t_s: float, steps: int | None = None) -> pd.DataFrame:
         """Return the perfect forecast of ``steps`` (default: the horizon) steps from ``t_s``."""
@@ -111,13 +151,15 @@ class EconomicConfig:
 
     def mpc(self) -> MPC:
         """Return a new MPC of the model with the settings."""
+        states = len(self.model.state_names)
         return MPC(self.model, self.settings,
-                   state_bounds={'Tz': ('comfort_min', 'comfort_max', KELVIN)})
+                   state_bounds={'T': ('comfort_min', 'comfort_max', KELVIN)},
+                   state_scaling=Scaling(np.full(states, 288.15), np.full(states, 10.0)))
 
-    def dispatcher(self) -> DutyDispatcher:
-        """Return a new dispatcher of the planned duties to the plant."""
-        return DutyDispatcher(self.case, self.mode, self.min_run_s,
-                              self.settings.problem.step_s)
+    def dispatcher(self) -> Actuator:
+        """Return a new actuator of the planned duties (its settings ``actuation``)."""
+        p = self.settings.problem
+        return Actuator(self.settings.actuation, p.control_bounds, p.step_s)
 
 
 def controller_settings(case: TestCase | None = None, price: str = 'constant',
@@ -136,8 +178,7 @@ def controller_settings(case: TestCase | None = None, price: str = 'constant',
     mode : str
         One of :data:`MODES`.
     parameters : optional
-        The control model's parameters (:func:`~mshoot_core.boptest.model.house_model`;
-        default the packaged identification).
+        The control model's parameters over the card's (:func:`control_model`).
     margin_k : float
         Raise of the comfort band's lower edge in the plan [K], >= 0.
     min_run_h : float
@@ -161,10 +202,11 @@ def controller_settings(case: TestCase | None = None, price: str = 'constant',
         raise ValueError(f'margin_k must be >= 0 K, got {margin_k!r}')
     if not (math.isfinite(min_run_h) and 0 <= min_run_h <= 24):
         raise ValueError(f'min_run_h must be in [0, 24] h, got {min_run_h!r}')
-    model = house_model(parameters)
-    settings = MpcSettings.from_flat({**DEFAULTS, **options}, control_names=('d',))
-    return EconomicConfig(settings, model, case, price, mode, float(margin_k),
-                          float(min_run_h) * 3600.0)
+    model = control_model(parameters)
+    settings = MpcSettings.from_flat({**DEFAULTS, **ACTUATION[mode][0], **options},
+                                     control_names=('d',), band_margin_k=float(margin_k),
+                                     min_run_s=float(min_run_h) * 3600.0)
+    return EconomicConfig(settings, model, case, price, mode)
 
 
 def _interval_means(case: TestCase, column: str, t_s: np.ndarray, step_s: float) -> np.ndarray:
@@ -206,106 +248,6 @@ def forecast_frame(case: TestCase, t_s: float, steps: int, step_s: float, price:
     return frame
 
 
-class DutyDispatcher:
-    """
-    Turn the planned duty of each control step into heat pump bursts at the plant's sampling.
-
-    A step with duty d asks for d x step seconds at full load. The request is added to a
-    balance (what was asked and not yet run); a running heat pump keeps running from the start
-    of the step while the balance lasts (and at least until its minimum run time is reached);
-    a stopped one starts when the balance reaches one sample (with a minimum run time: the run
-    time, capped at one step, unless the plan heats in the next step too), at the end of the
-    step, so that its run continues into the next step as one burst. A plan of zero duty
-    clears the balance.
-
-    Parameters
-    ----------
-    case : TestCase
-    mode : str
-        One of :data:`MODES` (``'tracking'`` does not burst: see :meth:`segments`).
-    min_run_s : float
-        Minimum run time [s] (0: none).
-    step_s : float
-        Control step [s].
-    sample_s : float
-        Resolution of the bursts [s] (the plant's sampling).
-
-    """
-
-    def __init__(self, case: TestCase, mode: str, min_run_s: float = 0.0,
-                 step_s: float = 3600.0, sample_s: float = 60.0) -> None:
-        if mode not in MODES:
-            raise ValueError(f'unknown mode {mode!r}: expected one of {list(MODES)}')
-        self.case = case
-        self.mode = mode
-        self.min_run_s = float(min_run_s)
-        self.step_s = float(step_s)
-        self.sample_s = float(sample_s)
-        self.balance_s = 0.0
-        self.on = False
-        self.run_s = 0.0
-
-    def _overwrites(self, on: bool, t_s: float) -> dict[str, float]:
-        if self.mode == 'modulation':
-            return {'oveHeaPumY_u': 1.0 if on else 0.0}
-        if on:
-            return {'oveTSet_u': SETPOINT_ON_K}
-        lower = float(self.case.lookup('LowerSetp[1]', t_s))
-        return {'oveTSet_u': max(lower - SETPOINT_OFF_BELOW_K, 283.15)}
-
-    def segments(self, t_s: float, duty: float, planned_tz_k: float | None = None,
-                 next_duty: float = 0.0) -> list[tuple[float, dict[str, float]]]:
-        """
-        Return the step's overwrites as (end time [s], overwrites) pieces, in order.
-
-        Parameters
-        ----------
-        t_s : float
-            Start of the step [s].
-        duty : float
-            Planned duty of the step [-], clipped to [0, 1].
-        planned_tz_k : float, optional
-            The plan's zone temperature at the end of the step [K] (mode 'tracking').
-        next_duty : float
-            The plan's duty of the next step [-]: a stopped heat pump with a minimum run time
-            starts at once (at the end of the step) when the plan heats in this step and the
-            next, as its run would continue anyway.
-
-        """
-        end = t_s + self.step_s
-        if self.mode == 'tracking':
-            if planned_tz_k is None:
-                raise ValueError("mode 'tracking' needs the planned zone temperature")
-            return [(end, {'oveTSet_u': float(np.clip(planned_tz_k, 278.15, 308.15))})]
-        duty = float(np.clip(duty, 0.0, 1.0))
-        self.balance_s = 0.0 if duty <= 0.0 else min(self.balance_s + duty * self.step_s,
-                                                     2.0 * self.step_s)
-        quantum = self.sample_s
-        if self.on:
-            keep = max(self.balance_s, self.min_run_s - self.run_s)
-            run = min(self.step_s, quantum * math.floor(keep / quantum + 0.5))
-            if duty <= 0.0 and self.run_s >= self.min_run_s:
-                run = 0.0
-            self.balance_s = max(0.0, self.balance_s - run)
-            self.run_s += run
-            if run >= self.step_s:
-                return [(end, self._overwrites(True, t_s))]
-            self.on, self.run_s = False, 0.0
-            pieces = [(t_s + run, self._overwrites(True, t_s))] if run > 0 else []
-            return pieces + [(end, self._overwrites(False, t_s))]
-        threshold = max(quantum, min(self.min_run_s, self.step_s))
-        if next_duty > 0.0:
-            threshold = quantum
-        if self.balance_s < threshold - 1e-9:
-            return [(end, self._overwrites(False, t_s))]
-        run = min(self.step_s, quantum * math.floor(self.balance_s / quantum + 0.5))
-        self.balance_s = max(0.0, self.balance_s - run)
-        self.on, self.run_s = True, run
-        start = end - run
-        pieces = [(start, self._overwrites(False, t_s))] if start > t_s else []
-        return pieces + [(end, self._overwrites(True, start))]
-
-
 @dataclasses.dataclass
 class PeriodResult:
     """
@@ -334,13 +276,13 @@ class PeriodResult:
 
 
 def hourly_inputs(records: pd.DataFrame, case: TestCase, t0_s: float, t1_s: float,
-                  price: str, model: HouseModel) -> np.ndarray:
+                  price: str, model: Model) -> np.ndarray:
     """
     Return the model inputs measured over [t0, t1): means of the plant's records.
 
     Outdoor temperature and irradiance from the building's weather outputs, gains and price
     from the data, and the duty equivalent of the measured condenser heat (mean heat over the
-    full-load heat at the mean outdoor temperature).
+    model's heat ``Q`` at full duty and the mean outdoor temperature).
     """
     window = records[(records['time'] > t0_s) & (records['time'] <= t1_s + 1e-6)]
     if window.empty:
@@ -351,8 +293,12 @@ def hourly_inputs(records: pd.DataFrame, case: TestCase, t0_s: float, t1_s: floa
     gains = float(_interval_means(case, 'InternalGainsCon[1]', np.array([t0_s]), step)[0]
                   + _interval_means(case, 'InternalGainsRad[1]', np.array([t0_s]), step)[0])
     cost = float(_interval_means(case, case.price_column(price), np.array([t0_s]), step)[0])
-    duty = float(window['reaQHeaPumCon_y'].mean()) / float(model.heat_full_w(tout))
-    return np.array([tout, solar, gains, cost, max(duty, 0.0)])
+    u = np.array([tout, solar, gains, cost, 1.0])
+    x = np.full((1, len(model.state_names)), 293.15)
+    _, y = model.simulate_intervals(x, u[None, :], step)
+    full = float(y[0, model.output_names.index('Q')])
+    u[4] = max(float(window['reaQHeaPumCon_y'].mean()) / full, 0.0)
+    return u
 
 
 class EconomicController:
@@ -409,15 +355,22 @@ class EconomicController:
         """
         Plan from the estimated state at ``t_s``; return the step's overwrite pieces and plan.
 
-        The pieces are (end time [s], overwrites) in order (:meth:`DutyDispatcher.segments`);
-        the plan is the :class:`~mshoot_core.mpc.MpcResult`.
+        The pieces are (end time [s], overwrites) in order (the schedule of
+        :meth:`Actuator.schedule`); the plan is the :class:`~mshoot_core.mpc.MpcResult`.
         """
-        result = self.mpc.solve(self.state, t_s, self.config.forecast(t_s))
-        duty = float(result.controls[0, 0]) if np.all(np.isfinite(result.controls)) else 0.0
-        following = float(result.controls[1, 0]) if len(result.controls) > 1 else 0.0
-        pieces = self.dispatcher.segments(t_s, duty, float(result.states[1, 0]),
-                                          following if np.isfinite(following) else 0.0)
-        return pieces, result
+        x0 = self.state
+        result = self.mpc.solve(x0, t_s, self.config.forecast(t_s))
+        end = t_s + self.step_s
+        overwrite = ACTUATION[self.config.mode][1]
+        if self.config.mode == 'tracking':
+            planned = float(np.clip(result.states[1, 0], 278.15, 308.15))
+            return [(end, {overwrite: planned})], result
+        controls = result.controls[0] if np.all(np.isfinite(result.controls)) else np.zeros(1)
+        following = result.controls[1] if len(result.controls) > 1 else None
+        schedule = self.dispatcher.schedule(controls, following, float(x0[0]))
+        ends = [*(t_s + schedule.offsets_s[1:]), end]
+        return ([(e, {overwrite: float(v[0])}) for e, v in zip(ends, schedule.values)],
+                result)
 
 
 def run_period(case: TestCase, period: str, price: str, mode: str = 'modulation',
@@ -430,7 +383,7 @@ def run_period(case: TestCase, period: str, price: str, mode: str = 'modulation'
     The warm-up runs under the building's own control while the observer follows it; every
     control step of the test period the observer's state and the perfect forecast from the
     test case's data go to the MPC, and the plan's first duty to the plant through the
-    :class:`DutyDispatcher`.
+    :class:`~mshoot_core.actuation.Actuator`.
 
     Parameters
     ----------

@@ -30,8 +30,9 @@ import numpy as np
 import pandas as pd
 
 from mshoot_core import calibration
-from mshoot_core.boptest.model import HouseModel, HouseParameters, KELVIN
 from mshoot_core.boptest.testcase import TestCase
+from mshoot_core.models.base import Model
+from mshoot_core.models.r1c1 import KELVIN
 
 logger = logging.getLogger(__name__)
 
@@ -246,20 +247,36 @@ def hourly_table(records: pd.DataFrame, case: TestCase, step_s: float = 3600.0) 
     return table.dropna()
 
 
-class _SteadyStart(HouseModel):
-    """The house model started with floor and envelope at the steady state of its first day."""
+class _SteadyStart(Model):
+    """
+    The house's control model, floor and envelope started at the steady state of the first day.
+
+    Parameters
+    ----------
+    model : Model
+        The network of the card ``boptest_house``
+        (:func:`~mshoot_core.boptest.economic.control_model`).
+
+    """
+
+    def __init__(self, model: Model) -> None:
+        self.model = model
+        self.input_names = model.input_names
+        self.state_names = model.state_names
+        self.output_names = model.output_names
 
     def simulate(self, udf: pd.DataFrame, x0: Sequence[float]) -> tuple[pd.DataFrame,
                                                                         pd.DataFrame]:
-        p = self.parameters
+        p = self.model.parameters
         first = udf.iloc[:min(len(udf), 24)]
-        heat = float((first['d'] * self.heat_full_w(first['Tout'])).mean())
+        heat = float((first['d'] * (p['qa'] + p['qb'] * first['Tout'])).mean())
         tout = float(first['Tout'].mean()) + KELVIN
         solar = float(first['solar'].mean())
         tz = float(x0[0])
-        tf = tz + heat * p.Rzf
-        te = (tz / p.Rze + tout / p.Reo + p.ge * solar) / (1.0 / p.Rze + 1.0 / p.Reo)
-        return super().simulate(udf, [tz, tf, te])
+        tf = tz + heat * p['Rzf']
+        te = ((tz / p['Rze'] + tout / p['Reo'] + p['ge'] * solar)
+              / (1.0 / p['Rze'] + 1.0 / p['Reo']))
+        return self.model.simulate(udf, [tz, tf, te])
 
 
 def periods(table: pd.DataFrame, heat_pump: Mapping[str, float],
@@ -292,7 +309,8 @@ class Identification:
 
     Attributes
     ----------
-    parameters : HouseParameters
+    parameters : dict
+        The parameters of the card ``boptest_house``'s network (name -> value).
     result : CalibrationResult
         The fit of the thermal parameters (metrics per period: RMSE, MAE [K]).
     heat_pump : dict
@@ -302,13 +320,13 @@ class Identification:
 
     """
 
-    parameters: HouseParameters
+    parameters: dict[str, float]
     result: calibration.CalibrationResult
     heat_pump: dict[str, float]
     power: dict[str, float]
 
     def to_dict(self) -> dict:
-        return {'parameters': self.parameters.to_dict(), 'fit': self.result.to_dict(),
+        return {'parameters': dict(self.parameters), 'fit': self.result.to_dict(),
                 'heat_pump': self.heat_pump, 'power_model': self.power}
 
 
@@ -347,10 +365,12 @@ def identify(tables: Sequence[pd.DataFrame], records: Sequence[pd.DataFrame],
     train_periods = periods(table, heat_pump, train, 'train')
     validation_periods = periods(table, heat_pump, validation, 'validation')
 
-    def build(values: Mapping[str, float]) -> HouseModel:
-        return _SteadyStart(HouseParameters(**{**heat_pump, **values}))
+    from mshoot_core.boptest.economic import control_model
+
+    def build(values: Mapping[str, float]) -> Model:
+        return _SteadyStart(control_model({**heat_pump, **values}))
 
     result = calibration.calibrate(build, free, train_periods, validation_periods,
                                    starts=starts, max_evaluations=max_evaluations)
-    parameters = HouseParameters(**{**heat_pump, **result.parameters})
+    parameters = {**control_model().parameters, **heat_pump, **result.parameters}
     return Identification(parameters, result, heat_pump, power)
