@@ -19,7 +19,7 @@ docs: setup  ## the documentation site (Sphinx, warnings as errors) -> out/docs/
 	@$(RUN) cd $(ROOT) && python -m sphinx -W --keep-going -q -b html -d out/docs/doctrees \
 		docs out/docs/html && echo "out/docs/html/index.html"
 
-bench-setup: setup  ## install the benchmark-only packages (bench/requirements.txt; CasADi is in requirements.txt) into .venv
+bench-setup: setup  ## install the benchmark-only packages (bench/requirements.txt: CasADi) into .venv
 	@VIRTUAL_ENV=$(ROOT)/.venv $(ROOT)/.venv/bin/uv pip install -q --compile-bytecode -r $(ROOT)/bench/requirements.txt
 
 bench: bench-setup  ## run the benchmarks (speed, tolerance, scale, versus); figures in out/bench/*.json

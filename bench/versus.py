@@ -31,7 +31,8 @@ In one run (issue 16, part 1):
    the top functions inside the solves.
 
 Prints the tables with ratios ours/CasADi and writes ``out/bench/versus.json``.
-Needs ``casadi`` (``make bench-setup`` installs ``bench/requirements.txt``).
+Needs ``casadi`` (``make bench-setup`` installs ``bench/requirements.txt``); ours runs CasADi's
+IPOPT build too (``MSHOOT_IPOPT_BUILD``, default here ``casadi``).
 """
 from __future__ import annotations
 
@@ -53,6 +54,11 @@ import sys
 import tempfile
 import time
 from typing import Any, Callable, Sequence
+
+#: Ours runs IPOPT from CasADi's wheel, the build the CasADi script runs (same IPOPT, same MUMPS,
+#: same options: the comparison is of the formulations); ``MSHOOT_IPOPT_BUILD=bundled`` measures
+#: the build cyipopt bundles, the product's default (mshoot_core.solvers.import_cyipopt).
+os.environ.setdefault('MSHOOT_IPOPT_BUILD', 'casadi')
 
 #: The module of the case command (``mshoot case``): the instrumented breakdown times its
 #: ``reference_scenario``, ``control_model``, ``run_case`` and ``write_outputs``.
@@ -909,7 +915,9 @@ def main(argv: list[str] | None = None) -> int:
     byte_compiled = bool(cached) and pathlib.Path(cached).is_file()
     logger.info('%s byte-compiled (__pycache__): %s; PYTHONDONTWRITEBYTECODE=%s', CASE_MODULE,
                 byte_compiled, os.environ.get('PYTHONDONTWRITEBYTECODE', ''))
+    logger.info('our IPOPT build: %s (MSHOOT_IPOPT_BUILD)', os.environ['MSHOOT_IPOPT_BUILD'])
     write_json('versus', {'case_module': CASE_MODULE, 'casadi': casadi.__version__,
+                          'ours_ipopt_build': os.environ['MSHOOT_IPOPT_BUILD'],
                           'case_module_byte_compiled': byte_compiled,
                           'repeats': args.repeats, 'whole': whole, 'zones': [
                               {k: v for k, v in row.items() if not k.endswith('controls_w')}

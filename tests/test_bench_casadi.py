@@ -1,8 +1,8 @@
 """
 The CasADi reference of bench/versus.py solves our problem (skipped without casadi).
 
-casadi is a requirement (``make setup``; cyipopt calls its IPOPT build): skipped only in an
-environment without it.
+casadi is a benchmark-only dependency (``make bench-setup``): these tests run where it is
+installed and are skipped elsewhere.
 """
 import pathlib
 import sys

@@ -1,5 +1,6 @@
 """Speed paths: naive vs fast agreement, grouped finite differences, sparse solvers, zones."""
 import dataclasses
+import os
 
 from mshoot_core.closed_loop import run_closed_loop
 from mshoot_core.emulation import Emulator
@@ -267,30 +268,54 @@ def test_multizone_mpc_ipopt_matches_slsqp_and_relaxes_honestly():
     np.testing.assert_allclose(results['ipopt'].controls, results['slsqp'].controls, atol=5.0)
 
 
-def test_ipopt_runs_the_casadi_build_with_a_newer_mumps(tmp_path):
-    """IPOPT from cyipopt is CasADi's build (MUMPS >= 5.6, with METIS), not its own (5.5.1)."""
+IPOPT_BANNER_SCRIPT = """
+import re, sys
+import numpy as np, scipy.sparse
+from mshoot_core import solvers
+log = sys.argv[1]
+solver = solvers.IpoptSolver(options={'output_file': log, 'file_print_level': 5, 'sb': 'no'})
+jac = scipy.sparse.coo_array(np.array([[1.0, 1.0, 0.0]]))
+nlp = solvers.Nlp(fun=lambda z: float(np.sum((z - 1.0) ** 2)), grad=lambda z: 2 * (z - 1.0),
+                  eq_fun=lambda z: np.array([z[0] + z[1] - 1.0]), eq_jac=lambda z: jac,
+                  lb=np.full(3, -5.0), ub=np.full(3, 5.0),
+                  objective_hessian_diag=lambda z: np.full(3, 2.0))
+result = solver.solve(nlp, np.zeros(3))
+assert result.success and np.allclose(result.x, [0.5, 0.5, 1.0], atol=1e-7), result
+print(solvers.ipopt_library)
+"""
+
+
+@pytest.mark.parametrize('build', ['bundled', 'casadi'])
+def test_ipopt_build_is_the_one_chosen(tmp_path, build):
+    """MSHOOT_IPOPT_BUILD=casadi runs CasADi's IPOPT (MUMPS >= 5.6, METIS); else cyipopt's own."""
     import re
+    import subprocess
+    import sys
 
-    from mshoot_core import solvers
-    import scipy.sparse
-
+    if build == 'casadi':
+        pytest.importorskip('casadi', reason='MSHOOT_IPOPT_BUILD=casadi needs the casadi wheel '
+                            '(make bench-setup)')
     log = tmp_path / 'ipopt.out'
-    solver = solvers.IpoptSolver(options={'output_file': str(log), 'file_print_level': 5,
-                                          'sb': 'no'})
-    jac = scipy.sparse.coo_array(np.array([[1.0, 1.0, 0.0]]))
-    nlp = solvers.Nlp(fun=lambda z: float(np.sum((z - 1.0) ** 2)), grad=lambda z: 2 * (z - 1.0),
-                      eq_fun=lambda z: np.array([z[0] + z[1] - 1.0]), eq_jac=lambda z: jac,
-                      lb=np.full(3, -5.0), ub=np.full(3, 5.0),
-                      objective_hessian_diag=lambda z: np.full(3, 2.0))
-    result = solver.solve(nlp, np.zeros(3))
-    assert result.success
-    np.testing.assert_allclose(result.x, [0.5, 0.5, 1.0], atol=1e-7)
+    done = subprocess.run([sys.executable, '-c', IPOPT_BANNER_SCRIPT, str(log)],
+                          env=dict(os.environ, MSHOOT_IPOPT_BUILD=build),
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
     banner = re.search(r'Ipopt version (\d+)\.(\d+)\.(\d+), running with linear solver '
                        r'MUMPS (\d+)\.(\d+)', log.read_text())
     assert banner is not None, log.read_text()[:400]
-    ipopt, mumps = tuple(map(int, banner.groups()[:3])), tuple(map(int, banner.groups()[3:]))
-    assert solvers.ipopt_library is not None and solvers.ipopt_library.name == 'libipopt.so.3'
-    assert ipopt >= (3, 14, 19) and mumps >= (5, 6), banner.group(0)
+    mumps = tuple(map(int, banner.groups()[3:]))
+    bound = done.stdout.strip().splitlines()[-1]
+    if build == 'casadi':
+        assert bound.endswith('libipopt.so.3') and mumps >= (5, 6), (bound, banner.group(0))
+    else:
+        assert bound == 'None' and mumps < (5, 6), (bound, banner.group(0))
+
+
+def test_ipopt_build_refuses_an_unknown_name(monkeypatch):
+    from mshoot_core import solvers
+    monkeypatch.setenv('MSHOOT_IPOPT_BUILD', 'fastest')
+    with pytest.raises(ValueError, match="MSHOOT_IPOPT_BUILD must be one of.*'fastest'"):
+        solvers.ipopt_build()
 
 
 def test_model_without_sparsity_is_dense():

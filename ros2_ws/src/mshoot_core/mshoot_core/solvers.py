@@ -26,6 +26,7 @@ import dataclasses
 import functools
 import importlib.util
 import logging
+import os
 import pathlib
 import sys
 import time
@@ -238,45 +239,73 @@ IPOPT_LARGE_PROBLEM_OPTIONS: dict[str, Any] = {'min_refinement_steps': 0,
 
 #: CasADi's IPOPT build, in its wheel's package folder, in load order (dependencies first).
 CASADI_IPOPT_LIBRARIES = ('libcoinmetis.so.2', 'libcoinmumps.so.3', 'libipopt.so.3')
+#: Environment variable choosing the IPOPT build cyipopt calls: ``bundled`` (default) or
+#: ``casadi`` (see :func:`import_cyipopt`).
+IPOPT_BUILD_VARIABLE = 'MSHOOT_IPOPT_BUILD'
+IPOPT_BUILDS = ('bundled', 'casadi')
 #: The IPOPT library cyipopt calls: CasADi's when :func:`import_cyipopt` bound it, else None
 #: (the one ``cyipopt-wheels`` bundles).
 ipopt_library: pathlib.Path | None = None
 
 
-@functools.cache
-def import_cyipopt() -> ModuleType:
+def ipopt_build() -> str:
     """
-    Import cyipopt with its IPOPT calls bound to CasADi's IPOPT build where that is installed.
-
-    cyipopt calls IPOPT through its C interface (``CreateIpoptProblem``, ``IpoptSolve``, ...),
-    the same across IPOPT 3.14. The ``cyipopt-wheels`` package bundles IPOPT 3.14.11 with
-    MUMPS 5.5.1 built without METIS; CasADi's wheel (a requirement) IPOPT 3.14.19 with
-    MUMPS 5.8.2 and METIS, which factorises the KKT systems of multiple shooting in a
-    third of the time (docs/speed.md). Its libraries are loaded into the global symbol scope
-    before cyipopt's extension module, so that module's IPOPT symbols resolve to them; no
-    Python module of CasADi is imported. Without CasADi, or when cyipopt was imported before
-    (the binding is made when its extension loads), cyipopt's own IPOPT runs (a warning
-    says so in the second case). Done once per process.
+    Return the IPOPT build chosen by ``$MSHOOT_IPOPT_BUILD`` (``bundled`` when unset).
 
     Raises
     ------
     ValueError
-        cyipopt is not installed.
+        The variable names no build of :data:`IPOPT_BUILDS`.
+
+    """
+    build = os.environ.get(IPOPT_BUILD_VARIABLE, '').strip() or 'bundled'
+    if build not in IPOPT_BUILDS:
+        raise ValueError(f'{IPOPT_BUILD_VARIABLE} must be one of {list(IPOPT_BUILDS)}, '
+                         f'got {build!r}')
+    return build
+
+
+@functools.cache
+def import_cyipopt() -> ModuleType:
+    """
+    Import cyipopt, its IPOPT calls bound to CasADi's IPOPT build if ``MSHOOT_IPOPT_BUILD=casadi``.
+
+    cyipopt calls IPOPT through its C interface (``CreateIpoptProblem``, ``IpoptSolve``, ...),
+    the same across IPOPT 3.14. The ``cyipopt-wheels`` package bundles IPOPT 3.14.11 with
+    MUMPS 5.5.1 built without METIS (the default, ``bundled``); CasADi's wheel (``pip install
+    casadi``, or ``make bench-setup``) IPOPT 3.14.19 with MUMPS 5.8.2 and METIS, which
+    factorises the KKT systems of multiple shooting in a third of the time (docs/speed.md).
+    With ``casadi``, its libraries are loaded into the global symbol scope before cyipopt's
+    extension module, so that module's IPOPT symbols resolve to them; no Python module of
+    CasADi is imported. It is opt-in because the global scope then also holds CasADi's
+    OpenBLAS: the BLAS/LAPACK calls of an FMU binary loaded later in the process bind to it
+    (the BOPTEST heat pump house's results move by ~1e-6 relative), so a process's results
+    would depend on whether IPOPT ran in it before. Done once per process.
+
+    Raises
+    ------
+    ValueError
+        cyipopt is not installed; ``casadi`` is asked for but its wheel is not installed, or
+        cyipopt was already imported (the binding is made when its extension loads).
 
     """
     global ipopt_library
-    if 'cyipopt' not in sys.modules:
+    if ipopt_build() == 'casadi' and ipopt_library is None:
+        if 'cyipopt' in sys.modules:
+            raise ValueError(f'{IPOPT_BUILD_VARIABLE}=casadi: cyipopt was imported before '
+                             'mshoot_core.solvers could bind it to the IPOPT build of CasADi')
         spec = importlib.util.find_spec('casadi')
         folder = (pathlib.Path(spec.origin).parent if spec is not None and spec.origin
                   else None)
         paths = [folder / name for name in CASADI_IPOPT_LIBRARIES] if folder else []
-        if paths and all(path.is_file() for path in paths):
-            for path in paths:
-                ctypes.CDLL(str(path), mode=ctypes.RTLD_GLOBAL)
-            ipopt_library = paths[-1]
-    elif ipopt_library is None and importlib.util.find_spec('casadi') is not None:
-        logger.warning('cyipopt was imported before mshoot_core.solvers could bind it to the '
-                       'IPOPT build of CasADi: the slower one bundled with cyipopt runs')
+        if not paths or not all(path.is_file() for path in paths):
+            raise ValueError(f'{IPOPT_BUILD_VARIABLE}=casadi needs the casadi wheel with '
+                             f'{list(CASADI_IPOPT_LIBRARIES)}: pip install casadi (or make '
+                             'bench-setup), or unset the variable')
+        for path in paths:
+            ctypes.CDLL(str(path), mode=ctypes.RTLD_GLOBAL)
+        ipopt_library = paths[-1]
+        logger.info('IPOPT: the build of CasADi (%s)', ipopt_library)
     try:
         import cyipopt
     except ImportError as exc:  # pragma: no cover - depends on the install
@@ -288,7 +317,7 @@ class IpoptSolver(Solver):
     """
     IPOPT through cyipopt (the ``cyipopt-wheels`` package), with sparse Jacobians.
 
-    The IPOPT build is CasADi's where its wheel is installed (:func:`import_cyipopt`).
+    The IPOPT build is cyipopt's own, or CasADi's by choice (:func:`import_cyipopt`).
 
     The pattern is taken once from a :class:`SparseJacobian`; the exact diagonal objective Hessian
     where the problem gives it, else a limited-memory approximation; ``options`` are IPOPT's (e.g.
