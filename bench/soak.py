@@ -71,7 +71,7 @@ FAULT_RATES = {'solver_fail': 0.02, 'overrun': 0.01, 'model_raise': 0.02,
                'forecast_stop': 0.01, 'mpc_restart': 0.01, 'malformed_burst': 0.06}
 #: Node parameters of the soak (short waits: faults cost seconds, not minutes).
 MPC_PARAMS = {'model': 'python', 'time_budget_s': 2.0, 'input_wait_s': 0.3,
-              'max_plan_age_steps': 3, 'safe_heat_rate_w': 0.0, 'history_length': 48,
+              'max_plan_age_steps': 3, 'safe_value': 0.0, 'history_length': 48,
               'reject_log_period_s': 30.0}
 EMULATOR_TIMEOUT_S = 2.0
 

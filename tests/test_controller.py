@@ -199,7 +199,7 @@ def test_update_is_a_setter_or_a_rebuild():
     assert controller.mpc._warm_start is warm  # a solver change keeps the warm start
     assert controller.update(controller.settings.replace(soft_penalty=5.0)) == 'updated'
     assert controller.mpc.problem.soft_penalty == 5.0
-    assert controller.update(controller.settings.replace(safe_heat_rate_w=100.0)) == \
+    assert controller.update(controller.settings.replace(safe_value=100.0)) == \
         'updated+supervisor'
     assert controller.supervisor.safe_controls.tolist() == [100.0]
     assert controller.update(controller.settings.replace(horizon_steps=6)) == 'rebuilt'

@@ -117,7 +117,7 @@ def test_bad_configuration_exits_non_zero_with_the_reason(tmp_path, r2c2_fmu):
         'typo': ('mpc', ['horizon:=3'], "unknown parameter(s) ['horizon'] for node 'mpc'"),
         'csv': ('emulator', [f'scenario:={bad_csv}'], "missing columns ['Tout', 'occ', 'dpos']"),
         'fmu': ('mpc', [f'model:={r2c2_fmu}'], "invalid inputs ['solrad', 'Tout'"),
-        'safe': ('mpc', ['safe_heat_rate_w:=5000.0'], 'safe_heat_rate_w must be within'),
+        'safe': ('mpc', ['safe_value:=5000.0'], 'safe_value of q [W] must be within'),
     }
     procs = {}
     for name, (exe, params, _) in cases.items():

@@ -101,7 +101,11 @@ class MPC:
         solver_instance = solver if isinstance(solver, Solver) else None
         if solver is not None and solver_instance is None:
             options['solver'] = solver
-        self.settings = (settings or MpcSettings()).replace(options)
+        base = settings or MpcSettings()
+        declared = getattr(model, 'control_specs', None)
+        if declared and not base.problem.controls and 'controls' not in options:
+            options = {'controls': tuple(declared), **options}  # the card's limits, safe values
+        self.settings = base.replace(options)
         bounds = ZONE_STATE_BOUNDS if state_bounds is None else dict(state_bounds)
         unknown = [s for s in bounds if s not in model.state_names]
         if unknown:

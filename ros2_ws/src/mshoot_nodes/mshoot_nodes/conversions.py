@@ -249,7 +249,7 @@ def setpoint_msg(stamp_ns: int, step_s: float, controls: Mapping[str, float],
                  temperatures_c: Mapping[str, float] | None = None,
                  plan_controls: Mapping[str, Sequence[float]] | None = None,
                  plan_temperatures_c: Mapping[str, Sequence[float]] | None = None,
-                 zone: str = '') -> Setpoint:
+                 zone: str = '', released: Sequence[bool] = ()) -> Setpoint:
     """
     Build a setpoint: named controls, zone temperature setpoints and the plan behind them.
 
@@ -260,7 +260,7 @@ def setpoint_msg(stamp_ns: int, step_s: float, controls: Mapping[str, float],
     step_s : float
         Control step [s].
     controls : mapping
-        Every control by name (heat rates [W]).
+        Every control by name (each in its unit).
     temperatures_c : mapping, optional
         Temperature setpoint of every zone by name [degC].
     plan_controls, plan_temperatures_c : mapping, optional
@@ -269,6 +269,8 @@ def setpoint_msg(stamp_ns: int, step_s: float, controls: Mapping[str, float],
         (``temperatures_c``). None: no plan.
     zone : str
         ``header.frame_id``.
+    released : sequence of bool
+        Per control (in the order of ``controls``): its overwrite released (empty: none).
 
     """
     msg = Setpoint()
@@ -282,6 +284,7 @@ def setpoint_msg(stamp_ns: int, step_s: float, controls: Mapping[str, float],
     msg.temperature_setpoints_c = [float(v) for v in temperatures_c.values()]
     msg.plan_controls = flatten(plan_controls)[1] if plan_controls else []
     msg.plan_temperatures_c = flatten(plan_temperatures_c)[1] if plan_temperatures_c else []
+    msg.released = [bool(r) for r in released]
     return msg
 
 
@@ -368,7 +371,7 @@ def decision_setpoint_msg(stamp_ns: int, decision: Decision, step_s: float,
         stamp_ns, step_s, dict(zip(names, controls)), dict(zip(zones, temperatures)),
         {n: plan_u[:, i] for i, n in enumerate(names)} if m else None,
         {n: plan_t[:, j] for j, n in enumerate(zones)} if m and plan_t.shape[0] == m
-        else None, zone)
+        else None, zone, decision.released)
 
 
 def decision_status_msg(stamp_ns: int, decision: Decision, result: MpcResult | None, *,

@@ -28,6 +28,7 @@ import argparse
 import dataclasses
 import json
 import logging
+import math
 import pathlib
 import time
 from typing import Any, Sequence
@@ -410,11 +411,11 @@ def card_setup(args: argparse.Namespace, settings: MpcSettings, control: Model,
 
     What the cards change in the case, and every problem of the pair with the scenario.
 
-    The control card gives the MPC's controls (``control_names``) and, where it
-    bounds them, the heat-rate range (one range for every control: where the
-    controls' ranges differ the MPC plans within their intersection, logged); the
-    emulator card gives the start state (``T`` from the initial temperature, other
-    states from the card) and the actuator limits.
+    The control card gives the MPC's controls (``control_names``) with each one's unit,
+    limits and safe value (``controls``; the settings ``control_min``/``control_max`` only
+    narrow them); the emulator card gives the start state (``T`` from the initial
+    temperature, other states from the card) and the actuator limits (where it has none, the
+    MPC's).
 
     Returns
     -------
@@ -430,18 +431,8 @@ def card_setup(args: argparse.Namespace, settings: MpcSettings, control: Model,
                          else None)
     names = control_card.control_names if control_card else settings.problem.control_names
     changes: dict[str, Any] = {'control_names': names}
-    if control_card:
-        lows = [v.min for v in control_card.controls.values() if v.min is not None]
-        highs = [v.max for v in control_card.controls.values() if v.max is not None]
-        if lows:
-            changes['heat_rate_min_w'] = float(max(lows))
-        if highs:
-            changes['heat_rate_max_w'] = float(min(highs))
-        if len(set(lows)) > 1 or len(set(highs)) > 1:
-            logger.warning('%s: the controls have different ranges; the MPC plans every '
-                           'control within their intersection [%g, %g]', args.control,
-                           changes.get('heat_rate_min_w', -np.inf),
-                           changes.get('heat_rate_max_w', np.inf))
+    if control_card:  # each control's unit, limits and safe value
+        changes['controls'] = control_card.control_specs()
     try:
         settings = settings.replace(changes)
     except ValueError as exc:
@@ -472,9 +463,10 @@ def card_setup(args: argparse.Namespace, settings: MpcSettings, control: Model,
             x0 = emulator_card.initial_state(INITIAL_C + KELVIN)
         except ValueError as exc:
             problems.append(str(exc))
-        default = (settings.problem.heat_rate_min_w, settings.problem.heat_rate_max_w)
-        bounds = dict(zip(emulator_card.control_names, emulator_card.control_bounds(default)))
-        actuators = [bounds.get(c, default) for c in names]
+        mpc = dict(zip(names, settings.problem.control_bounds))
+        own = {c.name: (c.min, c.max) for c in emulator_card.control_specs()}
+        actuators = [tuple(m if math.isnan(e) else e for e, m in zip(own.get(c, mpc[c]), mpc[c]))
+                     for c in names]
     return settings, x0, actuators, problems
 
 

@@ -117,7 +117,7 @@ def multizone_mpc_options(model: MultiZoneModel, solver: str = 'ipopt') -> dict:
     settings of :data:`mshoot_core.solvers.IPOPT_LARGE_PROBLEM_OPTIONS`.
     """
     options = {'control_names': model.control_names,
-               'heat_rate_min_w': -2000.0, 'heat_rate_max_w': 2000.0,
+               'control_min': -2000.0, 'control_max': 2000.0,
                'state_bounds': {name: ('comfort_min', 'comfort_max', KELVIN)
                                 for name in model.comfort_states},
                'solver': solver}

@@ -100,6 +100,25 @@ def _card_problem(path: str, version: tuple[int, int] | None) -> str | None:
     return None
 
 
+def card_controls(name: str) -> tuple:
+    """
+    Return the controls of the card ``name`` (ControlSpecs), or () for another model name.
+
+    For checking settings against a card's limits before its model is built (an invalid card:
+    (), its problems are :func:`check_model`'s).
+    """
+    if not is_card_path(name) or check_model(name) is not None:
+        return ()
+    stat = pathlib.Path(name).expanduser().stat()
+    return _card_controls(name, (stat.st_mtime_ns, stat.st_size))
+
+
+@functools.lru_cache(maxsize=16)
+def _card_controls(path: str, version: tuple[int, int]) -> tuple:
+    from mshoot_core.models.card import load_card
+    return load_card(path).control_specs()
+
+
 def check_model(name: str) -> str | None:
     """
     Say why ``name`` does not name a model, or return None.
