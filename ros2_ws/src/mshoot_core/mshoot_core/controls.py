@@ -24,7 +24,10 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import pathlib
 from typing import Any, Sequence
+
+import yaml
 
 __all__ = ['ControlSpec', 'convention', 'model_controls', 'narrowed', 'safe_values']
 
@@ -67,11 +70,20 @@ class ControlSpec:
         return f'{self.name} [{self.unit or "1"}]'
 
 
+#: The built-in card whose heat rate ``q`` is the R1C1 convention.
+CONVENTION_CARD = pathlib.Path(__file__).resolve().parent / 'cards' / 'r1c1.yaml'
+
+
 @functools.cache
 def convention() -> ControlSpec:
-    """Return the R1C1 convention: the heat rate ``q`` of the built-in card ``r1c1.yaml``."""
-    from mshoot_core.models.card import builtin_card, load_card
-    return load_card(builtin_card('r1c1')).control_specs()[0]
+    """
+    Return the R1C1 convention: the heat rate ``q`` of the built-in card ``r1c1.yaml``.
+
+    Read from the card's YAML (its unit, W, is the canonical one: nothing to convert).
+    """
+    entry = yaml.safe_load(CONVENTION_CARD.read_text(encoding='utf-8'))['controls']['q']
+    return ControlSpec('q', entry['unit'], *(float(entry.get(key, math.nan))
+                                             for key in ('min', 'max', 'safe')))
 
 
 def model_controls(model: Any, names: Sequence[str]) -> tuple[ControlSpec, ...]:
