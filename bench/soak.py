@@ -49,11 +49,12 @@ from typing import Any
 
 from mshoot_core.models.r1c1 import R1C1Model
 from mshoot_core.solvers import make_solver
+from mshoot_core.units import NS_PER_S
 from mshoot_msgs.msg import Forecast, Setpoint, ZoneState
 from mshoot_nodes import contract, sources
 from mshoot_nodes.bags import read_bag
 from mshoot_nodes.contract import message_class
-from mshoot_nodes.conversions import NS_PER_S, stamp_to_ns
+from mshoot_nodes.conversions import stamp_to_ns
 from mshoot_testing.faults import FaultyModel, FaultySolver
 from mshoot_testing.harness import (ClosedLoop, FORECAST_DEFECTS, MALFORMED, malformed_forecast,
                                     malformed_setpoint, malformed_zone_state, SETPOINT_DEFECTS,

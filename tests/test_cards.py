@@ -19,9 +19,10 @@ from mshoot_core.models import card as cards, registry
 from mshoot_core.models.card import CardError, CardFmiModel, load_card
 from mshoot_core.models.fmi import FmiModel
 from mshoot_core.models.network import NetworkModel
-from mshoot_core.models.r1c1 import KELVIN, R1C1Model, R1C1Parameters
+from mshoot_core.models.r1c1 import R1C1Model, R1C1Parameters
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import reference_scenario
+from mshoot_core.units import KELVIN
 from mshoot_studies import card as card_cli, case
 import numpy as np
 import pandas as pd

@@ -22,12 +22,13 @@ from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis
 from mshoot_core.models import card as cards
 from mshoot_core.models.card import builtin_card, CardError, load_card
-from mshoot_core.models.r1c1 import KELVIN, R1C1Model
+from mshoot_core.models.r1c1 import R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.safety import SetpointSupervisor
 from mshoot_core.scenario import reference_scenario
 from mshoot_core.settings import MpcSettings, SettingsError
 from mshoot_core.solvers import make_solver
+from mshoot_core.units import KELVIN
 from mshoot_testing.faults import FaultySolver
 import numpy as np
 import pytest

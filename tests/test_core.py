@@ -16,12 +16,11 @@ from mshoot_core.scenario import forecast_window, synthetic_scenario
 from mshoot_core.settings import ComfortSettings, MpcSettings, ProblemSettings, SettingsError
 from mshoot_core.shooting import NlpIndex, ShootingProblem
 from mshoot_core.solvers import make_solver, SlsqpSolver
+from mshoot_core.units import KELVIN
 import numpy as np
 import pandas as pd
 import pytest
 from scipy import optimize
-
-KELVIN = 273.15
 
 
 def r1c1_closed_form(t, T0, solrad, tout, occ, q, p=R1C1Parameters()):

@@ -15,11 +15,11 @@ from mshoot_core.estimation import (estimation_needed, measured_states, Sensors,
                                     StateEstimator)
 from mshoot_core.kpis import closed_loop_kpis
 from mshoot_core.models.network import NetworkModel
-from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.models.r2c2 import R2C2Model, R2C2Parameters
 from mshoot_core.models.registry import build_model
 from mshoot_core.scenario import reference_scenario, synthetic_scenario
 from mshoot_core.settings import EstimationSettings, MpcSettings, SettingsError
+from mshoot_core.units import KELVIN
 import numpy as np
 import pandas as pd
 import pytest

@@ -14,14 +14,15 @@ import time
 
 from mshoot_core.closed_loop import run_closed_loop
 from mshoot_core.emulation import Emulator
-from mshoot_core.models.r1c1 import KELVIN, R1C1Model
+from mshoot_core.models.r1c1 import R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.safety import SetpointSupervisor
 from mshoot_core.scenario import synthetic_scenario
 from mshoot_core.solvers import make_solver
+from mshoot_core.units import KELVIN, NS_PER_S
 from mshoot_msgs.msg import Setpoint
 from mshoot_nodes import contract
-from mshoot_nodes.conversions import NS_PER_S, setpoint_msg, setpoint_plan, stamp_to_ns
+from mshoot_nodes.conversions import setpoint_msg, setpoint_plan, stamp_to_ns
 from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_testing.faults import FaultyModel, FaultySolver
 from mshoot_testing.harness import ClosedLoop

@@ -12,9 +12,10 @@ import signal
 import subprocess
 import time
 
+from mshoot_core.units import NS_PER_S
 from mshoot_msgs.msg import MpcStatus
 from mshoot_nodes import contract
-from mshoot_nodes.conversions import NS_PER_S, stamp_to_ns
+from mshoot_nodes.conversions import stamp_to_ns
 from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_nodes.forecaster_node import ForecasterNode
 from mshoot_nodes.processes import executable

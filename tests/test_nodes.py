@@ -14,14 +14,15 @@ from mshoot_core.controller import controller_for
 from mshoot_core.emulation import Emulator
 from mshoot_core.models.fmi import r1c1_fmi_model
 from mshoot_core.models.multizone import MultiZoneModel
-from mshoot_core.models.r1c1 import KELVIN, R1C1Model
+from mshoot_core.models.r1c1 import R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import synthetic_scenario
+from mshoot_core.units import KELVIN, NS_PER_S
 from mshoot_msgs.msg import Setpoint
 from mshoot_nodes import contract
 from mshoot_nodes.bags import read_bag, read_messages
 from mshoot_nodes.bringup import run_in_process
-from mshoot_nodes.conversions import NS_PER_S, setpoint_plan, stamp_to_ns
+from mshoot_nodes.conversions import setpoint_plan, stamp_to_ns
 from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_nodes.forecaster_node import ForecasterNode
 from mshoot_nodes.mpc_node import MpcNode

@@ -14,8 +14,8 @@ from mshoot_core.emulation import Emulator, StepRecord
 from mshoot_core.estimation import Sensors
 from mshoot_core.models.base import ModelValueError
 from mshoot_core.mpc import MPC
-from mshoot_core.safety import NS_PER_S
 from mshoot_core.scenario import forecast_rows
+from mshoot_core.units import NS_PER_S
 
 logger = logging.getLogger(__name__)
 

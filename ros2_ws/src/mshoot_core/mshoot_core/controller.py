@@ -62,11 +62,12 @@ from mshoot_core.models.registry import control_interface, ControlInterface
 from mshoot_core.mpc import MPC, MpcResult
 from mshoot_core.safety import (applied_control_ranges, check_forecast, check_history,
                                 check_lengths, check_named, check_series, check_zone_state,
-                                COMFORT_SERIES, Decision, InputWait, LIMITS, NS_PER_S,
-                                PRICE_SERIES, Rejection, RejectionCounter, reorder,
-                                SetpointSupervisor, StampGate, zone_state_caps)
+                                COMFORT_SERIES, Decision, InputWait, LIMITS, PRICE_SERIES,
+                                Rejection, RejectionCounter, reorder, SetpointSupervisor,
+                                StampGate, zone_state_caps)
 from mshoot_core.scenario import column_labels, forecast_window
 from mshoot_core.settings import BY_NAME, MpcSettings
+from mshoot_core.units import NS_PER_S
 
 logger = logging.getLogger(__name__)
 

@@ -37,8 +37,8 @@ import pandas as pd
 
 from mshoot_core.controls import model_controls
 from mshoot_core.models.base import Model, ModelValueError
-from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.scenario import DISTURBANCE_COLUMNS, validate_scenario
+from mshoot_core.units import KELVIN
 
 logger = logging.getLogger(__name__)
 

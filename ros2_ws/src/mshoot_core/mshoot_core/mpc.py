@@ -20,10 +20,10 @@ from mshoot_core.scenario import column_labels
 from mshoot_core.settings import BY_NAME, MpcSettings
 from mshoot_core.shooting import CostFunction, Scaling, ShootingProblem, ShootingResult
 from mshoot_core.solvers import make_solver, Solver
+from mshoot_core.units import KELVIN
 
 logger = logging.getLogger(__name__)
 
-KELVIN = 273.15
 #: Default state-bound mapping of a thermal zone: state 'T' [K] bounded by the comfort
 #: band columns [degC] plus an offset.
 ZONE_STATE_BOUNDS = {'T': ('comfort_min', 'comfort_max', KELVIN)}

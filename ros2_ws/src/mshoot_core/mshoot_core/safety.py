@@ -35,9 +35,10 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from mshoot_core.units import NS_PER_S
+
 logger = logging.getLogger(__name__)
 
-NS_PER_S = 1_000_000_000
 #: Why an input was rejected.
 REJECTION_KINDS = ('non_finite', 'out_of_range', 'length', 'band', 'step', 'stamp', 'grid',
                    'future', 'stale', 'backwards', 'names')

@@ -48,6 +48,7 @@ from mshoot_core.boptest.kpis import kpi_records
 from mshoot_core.boptest.rule import LEADS_H, MARGINS_K, RuleTuning, tune_rule
 from mshoot_core.boptest.testcase import PRICE_SCENARIOS, TestCase
 from mshoot_core.models.card import builtin_card
+from mshoot_core.units import json_ready
 import pandas as pd
 import rclpy
 from rclpy.context import Context
@@ -288,20 +289,14 @@ def load_or_tune(case: TestCase, periods: Sequence[str], path: pathlib.Path, *,
                                        progress=progress, workers=workers)
         out[period] = {'settings': key, 'weight': tuning.weight,
                        'wall_s': time.perf_counter() - began,
-                       'best': {price: {k: _plain(v) for k, v in row.items()}
+                       'best': {price: {k: json_ready(v) for k, v in row.items()}
                                 for price, row in tuning.best.items()},
-                       'grid': [{k: _plain(v) for k, v in row.items()}
+                       'grid': [{k: json_ready(v) for k, v in row.items()}
                                 for row in tuning.grid.to_dict('records')]}
         cached[period] = out[period]
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(cached, indent=1) + '\n')
     return out
-
-
-def _plain(value: Any) -> Any:
-    if hasattr(value, 'item'):
-        return value.item()
-    return value
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -20,6 +20,7 @@ from typing import Iterable, Mapping, Sequence, TYPE_CHECKING
 
 from builtin_interfaces.msg import Time
 from mshoot_core.safety import named_series, PRICE_SERIES, Rejection
+from mshoot_core.units import NS_PER_S
 from mshoot_msgs.msg import Disturbances, Forecast, MpcStatus, Setpoint, ZoneState
 import numpy as np
 import pandas as pd
@@ -30,7 +31,6 @@ if TYPE_CHECKING:  # the emulator process need not import scipy (through mshoot_
     from mshoot_core.mpc import MpcResult
     from mshoot_core.safety import Decision
 
-NS_PER_S = 1_000_000_000
 #: Disturbance series a forecast carries by default (those of the R1C1 zone but the
 #: ventilation, which the MPC assumes).
 FORECAST_DISTURBANCES = ('Tout', 'solrad', 'occ')

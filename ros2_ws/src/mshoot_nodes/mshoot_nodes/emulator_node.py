@@ -96,14 +96,15 @@ from mshoot_core.peers import Peer
 from mshoot_core.safety import (check_lengths, check_setpoint, check_stamp_fields, Rejection,
                                 reorder, setpoint_caps, SetpointHold, StampGate)
 from mshoot_core.settings import BY_NAME
+from mshoot_core.units import NS_PER_S
 from mshoot_msgs.msg import Disturbances, Setpoint, ZoneState
 import numpy as np
 import pandas as pd
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from mshoot_nodes import contract, sources
-from mshoot_nodes.conversions import (clock_msg, disturbances_msg, field_lengths, NS_PER_S,
-                                      seconds_to_ns, stamp_to_ns, zone_state_msg)
+from mshoot_nodes.conversions import (clock_msg, disturbances_msg, field_lengths, seconds_to_ns,
+                                      stamp_to_ns, zone_state_msg)
 from mshoot_nodes.diagnostics import DiagnosticsPublisher, Level, Report
 from mshoot_nodes.lifecycle import ManagedNode
 from mshoot_nodes.params import declare, ParamSpec, values

@@ -59,12 +59,13 @@ from mshoot_core.peers import Peer
 from mshoot_core.safety import (check_lengths, check_setpoint, check_stamp_fields,
                                 forecast_caps, Rejection)
 from mshoot_core.settings import MpcSettings, PARAMETERS, SettingsError
+from mshoot_core.units import NS_PER_S
 from mshoot_msgs.msg import Forecast, MpcStatus, Setpoint, ZoneState
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from mshoot_nodes import contract
-from mshoot_nodes.conversions import (decision_setpoint_msg, decision_status_msg,
-                                      field_lengths, forecast_series, NS_PER_S, stamp_to_ns)
+from mshoot_nodes.conversions import (decision_setpoint_msg, decision_status_msg, field_lengths,
+                                      forecast_series, stamp_to_ns)
 from mshoot_nodes.diagnostics import DiagnosticsPublisher, Level, Report
 from mshoot_nodes.lifecycle import ManagedNode
 from mshoot_nodes.params import declare, ParamSpec, values

@@ -38,7 +38,6 @@ from mshoot_core.controller import Controller
 from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis, FALLBACK_EXIT, fallback_problem
 from mshoot_core.models.base import Model
-from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.models.registry import (build_model, BUILTIN, check_model, CONTROL_TOLERANCE,
                                          EMULATOR_TOLERANCE, is_card_path, model_names,
                                          MODEL_PARAMETERS, ModelSettings)
@@ -47,6 +46,7 @@ from mshoot_core.plotting import FigurePreview, PlotWorker
 from mshoot_core.scenario import DEFAULT_DATA, PUBLISHED, reference_scenario
 from mshoot_core.settings import (add_arguments, from_arguments, MpcSettings, option_wording,
                                   SettingsError)
+from mshoot_core.units import KELVIN
 import numpy as np
 import pandas as pd
 

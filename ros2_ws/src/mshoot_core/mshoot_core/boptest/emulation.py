@@ -32,14 +32,13 @@ import pandas as pd
 
 from mshoot_core.boptest.plant import BoptestPlant, MAX_SAMPLE_S, RECORDED
 from mshoot_core.boptest.testcase import LOWER_SETPOINT, TestCase, UPPER_SETPOINT
+from mshoot_core.units import KELVIN
 
 logger = logging.getLogger(__name__)
 
 #: The calendar year the scenario dates are placed in (a non-leap year; the data are a
 #: typical year without a date).
 YEAR = 2023
-#: Kelvin at 0 degC.
-KELVIN = 273.15
 #: The scenario's weather columns from the test case's: column -> (test case column, offset
 #: added): the outdoor temperature [degC] and the global horizontal irradiance [W/m2].
 SCENARIO_WEATHER = {'Tout': ('TDryBul', -KELVIN), 'solrad': ('HGloHor', 0.0)}

@@ -39,8 +39,8 @@ import scipy.linalg
 
 from mshoot_core.models.base import check_parameters, IntervalJacobians, Model
 from mshoot_core.shooting import Scaling
+from mshoot_core.units import KELVIN
 
-KELVIN = 273.15
 #: Joules per kWh.
 J_PER_KWH = 3.6e6
 

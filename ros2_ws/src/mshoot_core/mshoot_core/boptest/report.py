@@ -17,6 +17,7 @@ import pandas as pd
 
 from mshoot_core.boptest.testcase import LOWER_SETPOINT, PRICE_SCENARIOS, TestCase, \
     UPPER_SETPOINT
+from mshoot_core.units import KELVIN
 
 logger = logging.getLogger(__name__)
 
@@ -28,7 +29,6 @@ TABLE_COLUMNS = (('controller', 'controller', '{}'), ('period', 'period', '{}'),
                  ('emis_tot', 'emis [kgCO2/m2]', '{:.3f}'),
                  ('pele_tot', 'pele [kW/m2]', '{:.4f}'), ('time_rat', 'time_rat [-]', '{:.2e}'),
                  ('starts_per_day', 'starts/day', '{:.2f}'))
-KELVIN = 273.15
 
 
 def _cell(value: object, fmt: str) -> str:

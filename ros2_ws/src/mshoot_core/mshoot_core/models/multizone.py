@@ -17,7 +17,8 @@ from typing import Any
 import numpy as np
 
 from mshoot_core.models.network import NetworkModel
-from mshoot_core.models.r1c1 import KELVIN, R1C1Parameters
+from mshoot_core.models.r1c1 import R1C1Parameters
+from mshoot_core.units import KELVIN
 
 
 def multizone_network(n_zones: int, seed: int = 0,

@@ -48,6 +48,7 @@ from mshoot_core.models.base import Model
 from mshoot_core.models.defaults import (CONTROL_TOLERANCE, EMULATOR_TOLERANCE,  # noqa: F401
                                          is_card_path)
 from mshoot_core.settings import fields_of, setting, SettingField, SettingsGroup
+from mshoot_core.units import KELVIN
 
 logger = logging.getLogger(__name__)
 
@@ -57,8 +58,6 @@ BUILTIN = ('python', 'fmu', 'fmu-cs', 'r2c2')
 MULTIZONE = {'r1c1x2': 2}
 #: The built-in models described by a built-in card (a thermal network): name -> card.
 CARD_MODELS = {'python': 'r1c1', 'r2c2': 'r2c2', 'r1c1x2': 'r1c1x2'}
-#: Offset of a zone temperature state [K] over the comfort band [degC].
-KELVIN = 273.15
 
 #: Factories added by applications: name -> (factory(tolerance) -> Model, description).
 _REGISTERED: dict[str, tuple[Callable[[float], Model], str]] = {}
