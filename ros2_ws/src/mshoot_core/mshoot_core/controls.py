@@ -29,7 +29,8 @@ from typing import Any, Sequence
 
 import yaml
 
-__all__ = ['ControlSpec', 'convention', 'model_controls', 'narrowed', 'safe_values']
+__all__ = ['ControlSpec', 'convention', 'model_controls', 'narrowed', 'safe_values',
+           'specs_for']
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,6 +87,13 @@ def convention() -> ControlSpec:
                                              for key in ('min', 'max', 'safe')))
 
 
+def specs_for(declared: Sequence[ControlSpec], names: Sequence[str]) -> tuple[ControlSpec, ...]:
+    """Return the spec of each control of ``names``: the declared one, else the R1C1 convention."""
+    by_name = {spec.name: spec for spec in declared}
+    return tuple(by_name[n] if n in by_name else dataclasses.replace(convention(), name=n)
+                 for n in names)
+
+
 def model_controls(model: Any, names: Sequence[str]) -> tuple[ControlSpec, ...]:
     """
     Return the specs of the controls ``names`` of ``model``.
@@ -93,11 +101,7 @@ def model_controls(model: Any, names: Sequence[str]) -> tuple[ControlSpec, ...]:
     The model's ``control_specs`` where it declares them, else the R1C1 convention
     (:func:`convention`) under each name.
     """
-    declared = {spec.name: spec for spec in getattr(model, 'control_specs', None) or ()}
-    base = None if declared else convention()
-    return tuple(declared[n] if n in declared else
-                 dataclasses.replace(base or convention(), name=n, switch='')
-                 for n in names)
+    return specs_for(getattr(model, 'control_specs', None) or (), names)
 
 
 def narrowed(limit: tuple[float, float], low: float, high: float) -> tuple[float, float]:

@@ -189,8 +189,10 @@ class Emulator:
                              f'{list(model.input_names)}')
         #: The controls as the model's card describes them (units, limits, safe values).
         self.control_specs = model_controls(model, tuple(control_names))
-        if control_bounds is None:
-            control_bounds = [(c.min, c.max) for c in self.control_specs]
+        if control_bounds is None:  # (a side the card leaves open is not clipped)
+            control_bounds = [(-math.inf if math.isnan(c.min) else c.min,
+                               math.inf if math.isnan(c.max) else c.max)
+                              for c in self.control_specs]
         if len(control_bounds) != len(control_names):
             raise ValueError(f'need one (min, max) per control, got {len(control_bounds)} for '
                              f'{len(control_names)} controls')

@@ -190,10 +190,8 @@ class ProblemSettings(SettingsGroup):
     @property
     def control_specs(self) -> tuple[Any, ...]:
         """Return the ControlSpec of every control (the model's, else the R1C1 convention)."""
-        from mshoot_core.controls import convention
-        by_name = {c.name: c for c in self.controls}
-        return tuple(by_name[n] if n in by_name else
-                     dataclasses.replace(convention(), name=n) for n in self.control_names)
+        from mshoot_core.controls import specs_for
+        return specs_for(self.controls, self.control_names)
 
     @property
     def control_bounds(self) -> tuple[tuple[float, float], ...]:

@@ -243,7 +243,9 @@ def build_emulator(p: dict[str, Any]) -> Emulator:
         model.time_origin_s = time_origin_seconds(card, scenario.attrs.get('start'))
     controls = control_interface(model).control_names
     specs = model_controls(model, controls)  # the card's units, limits and safe values
-    bounds = tuple(narrowed((c.min, c.max), p['control_min'], p['control_max']) for c in specs)
+    bounds = tuple(narrowed((-math.inf if math.isnan(c.min) else c.min,  # open: not clipped
+                             math.inf if math.isnan(c.max) else c.max),
+                            p['control_min'], p['control_max']) for c in specs)
     wrong = [c.label() for c, (low, high) in zip(specs, bounds) if not low < high]
     if wrong:
         raise ValueError(f'controls {wrong} have no range within the limits {list(bounds)} '

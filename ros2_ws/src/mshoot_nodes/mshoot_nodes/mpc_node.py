@@ -123,8 +123,6 @@ def _check(proposed: dict[str, Any]) -> str | None:
     """
     v = {**DEFAULTS, **proposed}
     problems = ModelSettings(v['model'], v['fmu_tolerance']).problems()
-    if problems:
-        return '; '.join(problems)
     try:
         settings_from(v)
     except SettingsError as exc:
