@@ -41,9 +41,10 @@ from typing import Any, Sequence
 import casadi as ca
 from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis
-from mshoot_core.models.r1c1 import (AIR_HEAT_PER_M3H, KELVIN, OCC_HEAT_SPAN_K, OCC_HEAT_W,
+from mshoot_core.models.r1c1 import (AIR_HEAT_PER_M3H, OCC_HEAT_SPAN_K, OCC_HEAT_W,
                                      OCC_HEAT_ZERO_K, R1C1Model, R1C1Parameters)
 from mshoot_core.scenario import DEFAULT_DATA, DISTURBANCE_COLUMNS, reference_scenario
+from mshoot_core.units import KELVIN
 import numpy as np
 import pandas as pd
 

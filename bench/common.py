@@ -10,9 +10,10 @@ import time
 from mshoot_core.closed_loop import run_closed_loop
 from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis
-from mshoot_core.models.r1c1 import KELVIN, R1C1Model
+from mshoot_core.models.r1c1 import R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import DEFAULT_DATA, reference_scenario
+from mshoot_core.units import KELVIN
 from mshoot_studies.case import control_model
 import numpy as np
 

@@ -18,8 +18,8 @@ import pathlib
 
 from mshoot_core.boptest.testcase import default_directory, TestCase
 from mshoot_core.forecast import ForecastSource
-from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.settings import ForecastErrorSettings, UNCERTAINTY_LEVELS
+from mshoot_core.units import KELVIN
 import numpy as np
 
 OUT = pathlib.Path(__file__).resolve().parents[1] / 'docs' / 'forecasts' / 'forecast_band.png'

@@ -50,12 +50,11 @@ import time
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
-from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.safety import check_setpoint
+from mshoot_core.units import KELVIN, NS_PER_S
 from mshoot_msgs.msg import Disturbances, Forecast, MpcStatus, Setpoint, ZoneState
 from mshoot_nodes import contract
-from mshoot_nodes.conversions import (disturbances_msg, NS_PER_S, setpoint_msg, stamp_to_ns,
-                                      zone_state_msg)
+from mshoot_nodes.conversions import disturbances_msg, setpoint_msg, stamp_to_ns, zone_state_msg
 from mshoot_nodes.diagnostics import status_values
 from mshoot_nodes.processes import executable
 from mshoot_nodes.readiness import run_requirements

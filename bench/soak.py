@@ -49,11 +49,12 @@ from typing import Any
 
 from mshoot_core.models.r1c1 import R1C1Model
 from mshoot_core.solvers import make_solver
+from mshoot_core.units import NS_PER_S
 from mshoot_msgs.msg import Forecast, Setpoint, ZoneState
 from mshoot_nodes import contract, sources
 from mshoot_nodes.bags import read_bag
 from mshoot_nodes.contract import message_class
-from mshoot_nodes.conversions import NS_PER_S, stamp_to_ns
+from mshoot_nodes.conversions import stamp_to_ns
 from mshoot_testing.faults import FaultyModel, FaultySolver
 from mshoot_testing.harness import (ClosedLoop, FORECAST_DEFECTS, MALFORMED, malformed_forecast,
                                     malformed_setpoint, malformed_zone_state, SETPOINT_DEFECTS,
@@ -71,7 +72,7 @@ FAULT_RATES = {'solver_fail': 0.02, 'overrun': 0.01, 'model_raise': 0.02,
                'forecast_stop': 0.01, 'mpc_restart': 0.01, 'malformed_burst': 0.06}
 #: Node parameters of the soak (short waits: faults cost seconds, not minutes).
 MPC_PARAMS = {'model': 'python', 'time_budget_s': 2.0, 'input_wait_s': 0.3,
-              'max_plan_age_steps': 3, 'safe_heat_rate_w': 0.0, 'history_length': 48,
+              'max_plan_age_steps': 3, 'safe_value': 0.0, 'history_length': 48,
               'reject_log_period_s': 30.0}
 EMULATOR_TIMEOUT_S = 2.0
 

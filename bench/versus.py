@@ -527,7 +527,7 @@ class ZoneLoop:
 
     def summary(self) -> dict:
         import numpy as np
-        from mshoot_core.models.r1c1 import KELVIN
+        from mshoot_core.units import KELVIN
         return {'variables': self.variables, 'build_s': self.build_s,
                 'first_s': self.times_s[0], 'warm_s': float(np.median(self.times_s[1:])),
                 'warm_cpu_s': float(np.median(self.cpus_s[1:])), 'cpus_s': self.cpus_s,
@@ -617,7 +617,7 @@ class CasadiZones(ZoneLoop):
     def solve(self, k: int) -> tuple[Any, int, bool, float]:
         import numpy as np
         from casadi_ref import function_time_s
-        from mshoot_core.models.r1c1 import KELVIN
+        from mshoot_core.units import KELVIN
         rows = np.arange(k, k + self.horizon + 1)
         zones = self.x.size
         plan = self.casadi.solve(self.x - KELVIN, self.disturbances[rows[:-1]],

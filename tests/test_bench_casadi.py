@@ -11,14 +11,14 @@ from mshoot_core.models import R1C1Model
 from mshoot_core.models.multizone import MultiZoneModel
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import DISTURBANCE_COLUMNS, forecast_window, synthetic_scenario
+from mshoot_core.units import KELVIN
 import numpy as np
 import pytest
 
 ca = pytest.importorskip('casadi')
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / 'bench'))
-from casadi_ref import CasadiMpc, rk4_interval, ZoneParameters  # noqa: E402
 
-KELVIN = 273.15
+from casadi_ref import CasadiMpc, rk4_interval, ZoneParameters  # noqa: E402
 
 
 def random_intervals(rng: np.random.Generator, batch: int, zones: int) -> tuple:

@@ -7,7 +7,7 @@ import sys
 
 from mshoot_core import calibration
 from mshoot_core.models import card as cards
-from mshoot_core.models.r1c1 import KELVIN
+from mshoot_core.units import KELVIN
 from mshoot_studies import calibrate as verb
 import numpy as np
 import pandas as pd

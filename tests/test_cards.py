@@ -19,9 +19,10 @@ from mshoot_core.models import card as cards, registry
 from mshoot_core.models.card import CardError, CardFmiModel, load_card
 from mshoot_core.models.fmi import FmiModel
 from mshoot_core.models.network import NetworkModel
-from mshoot_core.models.r1c1 import KELVIN, R1C1Model, R1C1Parameters
+from mshoot_core.models.r1c1 import R1C1Model, R1C1Parameters
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import reference_scenario
+from mshoot_core.units import KELVIN
 from mshoot_studies import card as card_cli, case
 import numpy as np
 import pandas as pd
@@ -222,7 +223,7 @@ def test_case_rejects_cards_that_do_not_fit_the_scenario(tmp_path, caplog):
 ZONE2_CARD = with_changes(
     ZONE_CARD, fmu='zone2.fmu', parameters={'tmass': 5.0},
     controls={'q': {'variable': 'q', 'unit': 'W', 'min': 0, 'max': 2000},
-              'qc': {'variable': 'Pcool', 'unit': 'kW', 'min': 0, 'max': 2000,
+              'qc': {'variable': 'Pcool', 'unit': 'kW', 'min': 0, 'max': 2,
                      'activate': 'Pcool_activate'}})
 R2C2_CARD = {
     'fmu': 'r2c2.fmu',
@@ -250,8 +251,8 @@ def test_two_control_card_solves_an_mpc_step(zone2_card):
     assert isinstance(model, CardFmiModel)
     assert model.input_names == ('q', 'qc', 'solrad', 'Tout', 'occ')
     assert model.fixed_inputs == {'Pcool_activate': 1}
-    mpc = MPC(model, horizon_steps=6, control_names=zone2_card.control_names,
-              heat_rate_min_w=0.0, heat_rate_max_w=2000.0)
+    mpc = MPC(model, horizon_steps=6, control_names=zone2_card.control_names)
+    assert mpc.problem.control_bounds.tolist() == [[0.0, 2000.0], [0.0, 2000.0]]  # the card's
     rows = 7
     forecast = pd.DataFrame({'solrad': np.full(rows, 100.0), 'Tout': np.full(rows, 24.0),
                              'occ': np.full(rows, 5.0), 'comfort_min': np.full(rows, 21.0),
@@ -280,19 +281,18 @@ def test_two_control_card_runs_the_case(zone2_card, tmp_path, caplog):
     """
     The case takes the controls from the cards.
 
-    The MPC plans q and qc within their common range (logged when the ranges differ), the emulator
+    The MPC plans q and qc each within its own limits (the card writes qc's in kW), the emulator
     clips to its card's limits.
     """
     narrow = with_changes(ZONE2_CARD)
-    narrow['controls']['qc']['max'] = 1500
+    narrow['controls']['qc']['max'] = 1.5
     control = write_card(zone2_card.path.parent, 'narrow.yaml', narrow)
     out = tmp_path / 'case'
     assert case.main(['synthetic', '--hours', '6', '--horizon', '3', '--control', str(control),
                       '--emulator', str(zone2_card.path), '--out', str(out)]) == 0
-    assert 'the MPC plans every control within their intersection [0, 1500]' in caplog.text
     steps = pd.read_csv(out / 'steps.csv')
     assert {'q', 'qc'} <= set(steps.columns) and len(steps) == 6
-    assert steps['q'].between(0.0, 1500.0 + 1e-6).all()
+    assert steps['q'].between(0.0, 2000.0 + 1e-6).all()
     assert steps['qc'].between(0.0, 1500.0 + 1e-6).all()
     kpis = json.loads((out / 'kpis.json').read_text())
     assert kpis['energy_kwh'] == pytest.approx(steps['q'].abs().sum() / 1000.0)
@@ -407,7 +407,7 @@ def test_bad_card_lists_every_problem_at_once(zone_cards, tmp_path):
     expected = [
         "card: unknown key 'colour'",
         "missing required key 'outputs'",
-        "controls.q: unknown key 'mni'; allowed: activate, max, min, unit, variable",
+        "controls.q: unknown key 'mni'; allowed: activate, max, min, safe, unit, variable",
         "controls.q: 'heat' is not a Real input of zone.fmu (Model Exchange); valid: solrad "
         '(input, W/m2), Tout (input, degC), occ (input, 1), q (input, W)',
         "controls.fan: unit 'furlong' differs from the unit 'W' zone.fmu (Model Exchange) "

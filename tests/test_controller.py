@@ -16,12 +16,13 @@ from mshoot_core.controller import Controller, controller_for
 from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis
 from mshoot_core.models.multizone import MultiZoneModel
-from mshoot_core.models.r1c1 import KELVIN, R1C1Model
+from mshoot_core.models.r1c1 import R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.outputs import write_outputs
 from mshoot_core.scenario import forecast_window, reference_scenario, synthetic_scenario
 from mshoot_core.settings import MpcSettings
 from mshoot_core.solvers import make_solver
+from mshoot_core.units import KELVIN
 from mshoot_testing.faults import FaultyModel, FaultySolver
 import numpy as np
 import pandas as pd
@@ -199,7 +200,7 @@ def test_update_is_a_setter_or_a_rebuild():
     assert controller.mpc._warm_start is warm  # a solver change keeps the warm start
     assert controller.update(controller.settings.replace(soft_penalty=5.0)) == 'updated'
     assert controller.mpc.problem.soft_penalty == 5.0
-    assert controller.update(controller.settings.replace(safe_heat_rate_w=100.0)) == \
+    assert controller.update(controller.settings.replace(safe_value=100.0)) == \
         'updated+supervisor'
     assert controller.supervisor.safe_controls.tolist() == [100.0]
     assert controller.update(controller.settings.replace(horizon_steps=6)) == 'rebuilt'

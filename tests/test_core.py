@@ -16,12 +16,11 @@ from mshoot_core.scenario import forecast_window, synthetic_scenario
 from mshoot_core.settings import ComfortSettings, MpcSettings, ProblemSettings, SettingsError
 from mshoot_core.shooting import NlpIndex, ShootingProblem
 from mshoot_core.solvers import make_solver, SlsqpSolver
+from mshoot_core.units import KELVIN
 import numpy as np
 import pandas as pd
 import pytest
 from scipy import optimize
-
-KELVIN = 273.15
 
 
 def r1c1_closed_form(t, T0, solrad, tout, occ, q, p=R1C1Parameters()):
@@ -130,7 +129,7 @@ def test_unconstrained_quadratic_matches_least_squares():
         return float(np.sum((y_hat[:, 0] - r) ** 2) + rho * np.sum(u_hat ** 2))
 
     problem = ShootingProblem(model, ProblemSettings(
-        control_names=('u',), heat_rate_min_w=-100.0, heat_rate_max_w=100.0, horizon_steps=n,
+        control_names=('u',), control_min=-100.0, control_max=100.0, horizon_steps=n,
         step_s=1.0), cost_function=cost, control_nominal=[1.0])
     res = problem.solve([x0], np.zeros((n, 0)), np.full((n, 1), -np.inf),
                         np.full((n, 1), np.inf), SlsqpSolver(tol=1e-12))
@@ -321,15 +320,15 @@ def test_controls_must_be_model_inputs():
 
 def test_bad_settings_are_reported_all_at_once():
     with pytest.raises(SettingsError) as info:
-        MPC(R1C1Model(), heat_rate_min_w=10.0, heat_rate_max_w=-10.0, horizon_steps=0,
+        MPC(R1C1Model(), control_min=10.0, control_max=-10.0, horizon_steps=0,
             cost='cubic', soft_penalty=-1.0)
     problems = ' | '.join(info.value.problems)
     for expected in ('horizon_steps must be in [1, 1000], got 0', 'cost must be one of',
                      'soft_penalty must be in'):
         assert expected in problems
     assert len(info.value.problems) == 3  # the bounds rule waits until every field is valid
-    with pytest.raises(SettingsError, match='heat_rate_min_w must be < heat_rate_max_w'):
-        MpcSettings.from_flat(heat_rate_min_w=10.0, heat_rate_max_w=-10.0)
+    with pytest.raises(SettingsError, match='control_min must be < control_max'):
+        MpcSettings.from_flat(control_min=10.0, control_max=-10.0)
     with pytest.raises(SettingsError, match=r"unknown setting\(s\) \['horizon'\]"):
         MpcSettings.from_flat(horizon=3)
 

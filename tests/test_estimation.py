@@ -15,11 +15,11 @@ from mshoot_core.estimation import (estimation_needed, measured_states, Sensors,
                                     StateEstimator)
 from mshoot_core.kpis import closed_loop_kpis
 from mshoot_core.models.network import NetworkModel
-from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.models.r2c2 import R2C2Model, R2C2Parameters
 from mshoot_core.models.registry import build_model
 from mshoot_core.scenario import reference_scenario, synthetic_scenario
 from mshoot_core.settings import EstimationSettings, MpcSettings, SettingsError
+from mshoot_core.units import KELVIN
 import numpy as np
 import pandas as pd
 import pytest
@@ -165,7 +165,7 @@ def test_cards_say_which_states_are_measured(tmp_path, r2c2_fmu):
     assert isinstance(model, NetworkModel) and model.measured_states == ('T',)
     assert controller_for(model).estimator.measured == ('T',)
     text = (f'fmu: {r2c2_fmu}\n'
-            'controls: {q: {variable: Qhvac, unit: W}}\n'
+            'controls: {q: {variable: Qhvac, unit: W, min: -2000, max: 2000}}\n'
             'disturbances: {Tout: {variable: Tamb}, Qsun: {variable: Qsun}}\n'
             'states: {T: {variable: air.T}, Tw: {variable: wall.T, measured: false}}\n'
             'outputs: {T: {variable: Tair}}\n')
@@ -249,7 +249,7 @@ def test_closed_loop_kpis_against_the_fully_measured_run_with_the_same_sensors(m
     kpis = {}
     for label, measured in (('air', ('T',)), ('full', ('T', 'Tw'))):
         kpis[label] = [closed_loop(measured, NOISE_K, seed=seed, estimation='ekf',
-                                   heat_rate_max_w=CAP_W, comfort_margin_std=margin_std)[1]
+                                   control_max=CAP_W, comfort_margin_std=margin_std)[1]
                        for seed in SEEDS]
     mean = {label: {k: float(np.mean([run[k] for run in runs]))
                     for k in ('energy_kwh', 'discomfort_kh')} for label, runs in kpis.items()}

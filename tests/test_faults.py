@@ -14,14 +14,15 @@ import time
 
 from mshoot_core.closed_loop import run_closed_loop
 from mshoot_core.emulation import Emulator
-from mshoot_core.models.r1c1 import KELVIN, R1C1Model
+from mshoot_core.models.r1c1 import R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.safety import SetpointSupervisor
 from mshoot_core.scenario import synthetic_scenario
 from mshoot_core.solvers import make_solver
+from mshoot_core.units import KELVIN, NS_PER_S
 from mshoot_msgs.msg import Setpoint
 from mshoot_nodes import contract
-from mshoot_nodes.conversions import NS_PER_S, setpoint_msg, setpoint_plan, stamp_to_ns
+from mshoot_nodes.conversions import setpoint_msg, setpoint_plan, stamp_to_ns
 from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_testing.faults import FaultyModel, FaultySolver
 from mshoot_testing.harness import ClosedLoop
@@ -114,7 +115,7 @@ def test_unconverged_solver_publishes_its_best_plan_by_default(context):
 def test_model_error_falls_back_on_the_plan_then_on_the_safe_setpoint(context):
     model = FaultyModel(R1C1Model())
     loop = make_loop(context, hours=7, mpc_model=model, mpc={
-        'max_plan_age_steps': 2, 'safe_heat_rate_w': 500.0, 'safe_temperature_c': 21.5})
+        'max_plan_age_steps': 2, 'safe_value': 500.0, 'safe_temperature_c': 21.5})
     try:
         loop.run_steps(1)
         model.faults.arm('raise', times=100_000)  # an FMU that errors on every call
@@ -132,7 +133,7 @@ def test_model_error_falls_back_on_the_plan_then_on_the_safe_setpoint(context):
             assert list(setpoint.control_values) == [500.0]
             assert list(setpoint.temperature_setpoints_c) == [21.5]
             assert list(setpoint.plan_controls) == []
-            assert 'the safe setpoint [500.0]' in status.message
+            assert 'the safe values [500.0]' in status.message
         assert [s.consecutive_fallbacks for _, s in history] == [0, 1, 2, 3, 4, 0, 0]
         assert_one_sane_setpoint_per_step(loop, 7)
     finally:
@@ -262,7 +263,7 @@ def test_lockstep_without_mpc_times_out_with_a_clear_error(context):
 def test_lockstep_timeout_holds_the_last_setpoint_then_the_safe_default(context):
     loop = make_loop(context, hours=5, emulator={
         'lockstep_timeout_s': 0.2, 'on_lockstep_timeout': 'hold', 'hold_s': 3600.0,
-        'safe_heat_rate_w': -100.0, 'heartbeat_period_s': 0.05})
+        'safe_value': -100.0, 'heartbeat_period_s': 0.05})
     try:
         loop.run_steps(2)
         last = loop.stop_mpc().history[-1][0].control_values[0]
@@ -280,7 +281,7 @@ def test_free_running_emulator_holds_then_applies_the_safe_default(context):
         Parameter('hours', value=4), Parameter('model', value='python'),
         Parameter('mode', value='free'), Parameter('speedup', value=3600.0 / 0.25),
         Parameter('clock_period_s', value=0.01), Parameter('ready_endpoints', value=['']),
-        Parameter('hold_s', value=3600.0), Parameter('safe_heat_rate_w', value=250.0)])
+        Parameter('hold_s', value=3600.0), Parameter('safe_value', value=250.0)])
     talker = rclpy.create_node('talker', context=context)
     publisher = talker.create_publisher(Setpoint, contract.SETPOINT, contract.DATA_QOS)
     executor = SingleThreadedExecutor(context=context)

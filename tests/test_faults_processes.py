@@ -12,9 +12,10 @@ import signal
 import subprocess
 import time
 
+from mshoot_core.units import NS_PER_S
 from mshoot_msgs.msg import MpcStatus
 from mshoot_nodes import contract
-from mshoot_nodes.conversions import NS_PER_S, stamp_to_ns
+from mshoot_nodes.conversions import stamp_to_ns
 from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_nodes.forecaster_node import ForecasterNode
 from mshoot_nodes.processes import executable
@@ -117,7 +118,7 @@ def test_bad_configuration_exits_non_zero_with_the_reason(tmp_path, r2c2_fmu):
         'typo': ('mpc', ['horizon:=3'], "unknown parameter(s) ['horizon'] for node 'mpc'"),
         'csv': ('emulator', [f'scenario:={bad_csv}'], "missing columns ['Tout', 'occ', 'dpos']"),
         'fmu': ('mpc', [f'model:={r2c2_fmu}'], "invalid inputs ['solrad', 'Tout'"),
-        'safe': ('mpc', ['safe_heat_rate_w:=5000.0'], 'safe_heat_rate_w must be within'),
+        'safe': ('mpc', ['safe_value:=5000.0'], 'safe_value of q [W] must be within'),
     }
     procs = {}
     for name, (exe, params, _) in cases.items():

@@ -16,11 +16,12 @@ import signal
 import subprocess
 import time
 
+from mshoot_core.units import NS_PER_S
 from mshoot_msgs.msg import ZoneState
 from mshoot_nodes import bags, contract
 from mshoot_nodes.bags import (IncompleteBagError, read_bag, read_messages, recover_bag,
                                salvage_bag)
-from mshoot_nodes.conversions import NS_PER_S, stamp_to_ns, zone_state_msg
+from mshoot_nodes.conversions import stamp_to_ns, zone_state_msg
 from mshoot_nodes.processes import executable
 import pytest
 import rclpy

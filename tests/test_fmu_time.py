@@ -23,7 +23,6 @@ import pytest
 from timed_fmu import VARIABLES
 
 HOUR = 3600.0
-KELVIN = 273.15
 HOURS = 36
 #: Closed-loop steps of the MPC tests (a day: the gains switch on and off).
 LOOP_HOURS = 24

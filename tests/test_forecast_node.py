@@ -1,8 +1,8 @@
 """The forecaster node serves BOPTEST's forecast uncertainty: what it publishes is the core's."""
 from mshoot_core.boptest.testcase import TestCase
 from mshoot_core.forecast import ForecastSource
-from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.settings import ForecastErrorSettings
+from mshoot_core.units import KELVIN
 import numpy as np
 import pytest
 

@@ -17,16 +17,16 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from mshoot_core.controller import controller_for
-from mshoot_core.models.r1c1 import KELVIN, R1C1Model
+from mshoot_core.models.r1c1 import R1C1Model
 from mshoot_core.peers import format_gid, Peer, PeerWatch, Writer
 from mshoot_core.safety import (check_history, check_lengths, check_on_grid, check_setpoint,
                                 setpoint_caps, StampGate)
 from mshoot_core.scenario import forecast_window, synthetic_scenario
 from mshoot_core.settings import MpcSettings
+from mshoot_core.units import KELVIN, NS_PER_S
 from mshoot_msgs.msg import Forecast, MpcStatus, Setpoint, ZoneState
 from mshoot_nodes import contract
-from mshoot_nodes.conversions import (clock_msg, forecast_msg, NS_PER_S, setpoint_msg,
-                                      zone_state_msg)
+from mshoot_nodes.conversions import clock_msg, forecast_msg, setpoint_msg, zone_state_msg
 from mshoot_nodes.diagnostics import status_values
 from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_nodes.mpc_node import MpcNode

@@ -461,7 +461,7 @@ def test_mpc_deactivate_hands_the_building_back_with_one_safe_setpoint(context):
     loop = ClosedLoop(context, {
         'emulator': {'hours': hours, 'model': 'python', 'lockstep_timeout_s': 60.0},
         'forecaster': {'hours': hours},
-        'mpc': {'model': 'python', 'horizon_steps': 4, 'safe_heat_rate_w': 300.0}})
+        'mpc': {'model': 'python', 'horizon_steps': 4, 'safe_value': 300.0}})
     try:
         loop.run_steps(2)
         mpc = loop.mpc

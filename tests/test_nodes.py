@@ -6,6 +6,7 @@ SingleThreadedExecutor, a private rclpy Context) is shared by the tests of this
 module; tests that spin nodes of their own get a Context of their own.
 Every spin loop has a wall-clock guard, so a deadlock fails instead of hanging.
 """
+import math
 import time
 
 from mshoot_core.closed_loop import run_closed_loop
@@ -13,14 +14,15 @@ from mshoot_core.controller import controller_for
 from mshoot_core.emulation import Emulator
 from mshoot_core.models.fmi import r1c1_fmi_model
 from mshoot_core.models.multizone import MultiZoneModel
-from mshoot_core.models.r1c1 import KELVIN, R1C1Model
+from mshoot_core.models.r1c1 import R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import synthetic_scenario
+from mshoot_core.units import KELVIN, NS_PER_S
 from mshoot_msgs.msg import Setpoint
 from mshoot_nodes import contract
 from mshoot_nodes.bags import read_bag, read_messages
 from mshoot_nodes.bringup import run_in_process
-from mshoot_nodes.conversions import NS_PER_S, setpoint_plan, stamp_to_ns
+from mshoot_nodes.conversions import setpoint_plan, stamp_to_ns
 from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_nodes.forecaster_node import ForecasterNode
 from mshoot_nodes.mpc_node import MpcNode
@@ -306,8 +308,8 @@ def test_invalid_parameters_are_rejected_with_a_reason(context, tmp_path):
     reason = rejected(MpcNode, horizon_steps=0, soft_penalty=-1.0, time_budget_s=-2.0)
     assert all(text in reason for text in ('horizon_steps must be', 'soft_penalty must be',
                                            'time_budget_s must be')), reason
-    assert 'heat_rate_min_w must be < heat_rate_max_w' in rejected(
-        MpcNode, heat_rate_min_w=500.0, heat_rate_max_w=100.0)
+    assert 'control_min must be < control_max' in rejected(
+        MpcNode, control_min=500.0, control_max=100.0)
     assert 'solver must be one of' in rejected(MpcNode, solver='newton')
     assert 'not found' in rejected(MpcNode, model='/nowhere/zone.fmu')
     assert 'not found' in rejected(EmulatorNode, scenario='/nowhere/data.csv')
@@ -324,13 +326,13 @@ def test_invalid_parameters_are_rejected_with_a_reason(context, tmp_path):
 
     # At run time: rejected changes keep the old value, valid ones rebuild the MPC.
     mpc = MpcNode(context=context)
-    result = mpc.set_parameters([Parameter('heat_rate_min_w', value=3000.0)])[0]
-    assert not result.successful and 'heat_rate_max_w' in result.reason
+    result = mpc.set_parameters([Parameter('control_min', value=3000.0)])[0]
+    assert not result.successful and 'control_max' in result.reason
     result = mpc.set_parameters([Parameter('model', value='fmu')])[0]
     assert not result.successful and 'read-only' in result.reason
     result = mpc.set_parameters([Parameter('comfort', value='lukewarm')])[0]
     assert not result.successful and "'hard', 'soft'" in result.reason
-    assert mpc.get_parameter('heat_rate_min_w').value == -2000.0
+    assert math.isnan(mpc.get_parameter('control_min').value)
     assert mpc.set_parameters([Parameter('horizon_steps', value=6)])[0].successful
     assert mpc.mpc.horizon_steps == 6
     assert mpc.set_parameters([Parameter('comfort', value='soft')])[0].successful

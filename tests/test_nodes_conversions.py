@@ -2,11 +2,12 @@
 from mshoot_core.actuation import Schedule
 from mshoot_core.controller import controller_for
 from mshoot_core.models.multizone import MultiZoneModel
-from mshoot_core.models.r1c1 import KELVIN, R1C1Model
+from mshoot_core.models.r1c1 import R1C1Model
 from mshoot_core.models.registry import control_interface
 from mshoot_core.safety import check_setpoint, Decision, reorder
 from mshoot_core.scenario import forecast_window, reference_scenario, synthetic_scenario
 from mshoot_core.settings import MpcSettings
+from mshoot_core.units import KELVIN
 from mshoot_nodes import conversions as cv
 from mshoot_nodes import sources
 import numpy as np

@@ -18,9 +18,10 @@ from lifecycle_msgs.srv import ChangeState, GetState
 from mshoot_core.closed_loop import run_closed_loop
 from mshoot_core.emulation import Emulator
 from mshoot_core.models.fmi import r1c1_fmi_model
-from mshoot_core.models.r1c1 import KELVIN, R1C1Model
+from mshoot_core.models.r1c1 import R1C1Model
 from mshoot_core.mpc import MPC
 from mshoot_core.scenario import synthetic_scenario
+from mshoot_core.units import KELVIN
 from mshoot_nodes import contract
 from mshoot_nodes.bags import read_bag
 from mshoot_nodes.diagnostics import status_values

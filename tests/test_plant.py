@@ -25,7 +25,6 @@ import pytest
 from timed_fmu import VARIABLES
 
 HOUR = 3600.0
-KELVIN = 273.15
 FMI_TYPES = ['CoSimulation', 'ModelExchange']
 
 

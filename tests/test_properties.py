@@ -18,10 +18,10 @@ from hypothesis.extra import numpy as hnp
 from mshoot_core.safety import (check_forecast, check_names, check_setpoint, check_zone_state,
                                 FORECAST_SERIES, Limits, SetpointHold, SetpointSupervisor,
                                 SOURCES, StampGate)
+from mshoot_core.units import KELVIN, NS_PER_S
 from mshoot_msgs.msg import Disturbances, Forecast, MpcStatus, Setpoint, ZoneState
 from mshoot_nodes import contract
-from mshoot_nodes.conversions import (clock_msg, forecast_msg, NS_PER_S, setpoint_msg,
-                                      zone_state_msg)
+from mshoot_nodes.conversions import clock_msg, forecast_msg, setpoint_msg, zone_state_msg
 from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_nodes.mpc_node import MpcNode
 from mshoot_testing.harness import (FORECAST_DEFECTS, malformed_forecast, malformed_setpoint,
@@ -38,7 +38,6 @@ from conftest import private_context
 
 EPOCH_NS = 1522886400 * NS_PER_S
 STEP_NS = 3600 * NS_PER_S
-KELVIN = 273.15
 NODE_SETTINGS = settings(max_examples=200, deadline=None, database=None,
                          suppress_health_check=[HealthCheck.too_slow])
 CORE_SETTINGS = settings(max_examples=150, deadline=None, database=None)

@@ -1,12 +1,13 @@
 """Data-driven zone models: training, batch/sequential agreement, errors."""
 import logging
 
-from mshoot_core.models.r1c1 import KELVIN, R1C1Model
+from mshoot_core.models.r1c1 import R1C1Model
 from mshoot_core.models.sklearn_model import (AnalyticOutput, ESTIMATOR_FACTORIES,
                                               evaluate, input_integral, make_estimator,
                                               make_excitation_data, make_zone_model,
                                               SklearnModel, state_output)
 from mshoot_core.scenario import synthetic_scenario
+from mshoot_core.units import KELVIN
 import numpy as np
 import pandas as pd
 import pytest

@@ -10,13 +10,13 @@ import math
 import pathlib
 
 import matplotlib.image
+from mshoot_core.units import KELVIN
 from mshoot_studies import study
 from mshoot_studies.sweeps import RunSpec, SweepRunner
 import numpy as np
 import pytest
 
 PNG_MAGIC = b'\x89PNG\r\n\x1a\n'
-KELVIN = 273.15
 
 
 # -- independent references -------------------------------------------------------------------

@@ -35,6 +35,8 @@ def _filled(msg_type):
             setattr(m, name, [f'{name}_{k} ✓' for k in range(3)])
         elif kind == 'boolean':
             setattr(m, name, True)
+        elif kind == 'sequence<boolean>':
+            setattr(m, name, [True, False, True])
         elif kind == 'int32':
             setattr(m, name, int(rng.integers(1, 1000)))
         elif kind == 'string':

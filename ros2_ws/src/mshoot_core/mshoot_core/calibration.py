@@ -54,6 +54,7 @@ import scipy.stats
 
 from mshoot_core.models.base import Model
 from mshoot_core.scenario import OU44_COLUMNS, read_ou44
+from mshoot_core.units import json_ready
 
 __all__ = ['calibrate', 'CalibrationResult', 'card_builder', 'cross_validate', 'fmi_builder',
            'NetworkBuilder',
@@ -63,10 +64,10 @@ __all__ = ['calibrate', 'CalibrationResult', 'card_builder', 'cross_validate', '
            'OU44_TRAIN', 'OU44_VALIDATION', 'ou44_periods', 'Period', 'r1c1_builder',
            'r1c1_equivalent',
            'r2c2_builder', 'registry_builder', 'simulate_period']
+from mshoot_core.units import KELVIN
 
 logger = logging.getLogger(__name__)
 
-KELVIN = 273.15
 #: |correlation| above which two parameters are reported as strongly correlated.
 CORRELATION_WARNING = 0.95
 #: Distance to a bound, as a fraction of the bounds' span, reported as 'at a bound'.
@@ -1189,20 +1190,10 @@ def fit_learned(estimator: str | Any, train: Sequence[Period], validation: Seque
                 model.n_training_pairs_, model.fit_time_s_,
                 ', '.join(f'RMSE {k} {v["rmse_k"]:.4f} K' for k, v in scores.items()))
     return LearnedResult(name, type(regressor).__name__,
-                         {k: _json_ready(v) for k, v in params.items()},
+                         {k: json_ready(v) for k, v in params.items()},
                          int(model.n_training_pairs_), step_s, bool(use_state),
                          list(model.feature_names), coefficients, physical, scores, warnings,
                          float(model.fit_time_s_), wall_s, simulated, model)
-
-
-def _json_ready(value: Any) -> Any:
-    """Return ``value`` if JSON can hold it (numbers, strings, None, lists of them), else repr."""
-    if value is None or isinstance(value, (bool, int, float, str)):
-        return value
-    if isinstance(value, (tuple, list)) and all(isinstance(v, (bool, int, float, str))
-                                                for v in value):
-        return list(value)
-    return repr(value)
 
 
 def _extrapolation(model: Any, train: Sequence[Period], validation: Sequence[Period],

@@ -14,8 +14,8 @@ from mshoot_core.emulation import Emulator, StepRecord
 from mshoot_core.estimation import Sensors
 from mshoot_core.models.base import ModelValueError
 from mshoot_core.mpc import MPC
-from mshoot_core.safety import NS_PER_S
 from mshoot_core.scenario import forecast_rows
+from mshoot_core.units import NS_PER_S
 
 logger = logging.getLogger(__name__)
 
@@ -78,8 +78,9 @@ def step_row(outcome: StepOutcome, record: StepRecord, state_names: tuple[str, .
     ``{state}_predicted`` (NaN for the safe setpoint), the solve's
     ``solve_time_s``, ``success``, ``status``, ``iterations``, ``objective``,
     ``max_defect``, ``relaxed``, ``model_evaluations`` (NaN or False without a
-    solve result), and the decision's ``source`` ('optimum', 'plan', 'safe'),
-    ``fallback``, ``fallback_code`` and ``fallback_reason``; with an estimated
+    solve result), and the decision's ``source`` ('optimum', 'plan', 'safe', 'released'),
+    ``fallback``, ``fallback_code`` and ``fallback_reason``, ``released`` (the controls whose
+    overwrite the plant released, separated by spaces; '' for none); with an estimated
     state, also ``{state}_estimate`` (the state the step was planned from) and
     ``{state}_std`` (its standard deviation [K]).
     """
@@ -103,7 +104,8 @@ def step_row(outcome: StepOutcome, record: StepRecord, state_names: tuple[str, .
                    iterations=0, objective=np.nan, max_defect=np.nan, relaxed=False,
                    model_evaluations=0)
     row.update(source=decision.source, fallback=bool(decision.fallback),
-               fallback_code=decision.code, fallback_reason=decision.reason)
+               fallback_code=decision.code, fallback_reason=decision.reason,
+               released=' '.join(record.released))
     if outcome.x0_std is not None and outcome.x0 is not None:
         for i, name in enumerate(state_names):
             row[f'{name}_estimate'] = float(outcome.x0[i])
@@ -236,7 +238,8 @@ def run_closed_loop(controller: Controller | MPC, emulator: Emulator, steps: int
                                f'{now_ns} ns: expected exactly that step')
         outcome = outcomes[0]
         try:
-            record = emulator.advance(outcome.decision.controls)
+            record = emulator.advance(outcome.decision.controls,
+                                      released=outcome.decision.released)
         except ModelValueError as error:
             done = (ClosedLoopResult(pd.DataFrame(rows).set_index('time_s'), pd.concat(fines),
                                      plans, time.perf_counter() - started) if rows else None)

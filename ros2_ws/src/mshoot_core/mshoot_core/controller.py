@@ -56,17 +56,19 @@ import numpy as np
 import pandas as pd
 
 from mshoot_core.actuation import Actuator, Schedule
+from mshoot_core.controls import model_controls
 from mshoot_core.estimation import Estimate, estimation_needed, StateEstimator
 from mshoot_core.models.base import Model, ModelValueError
 from mshoot_core.models.registry import control_interface, ControlInterface
 from mshoot_core.mpc import MPC, MpcResult
 from mshoot_core.safety import (applied_control_ranges, check_forecast, check_history,
                                 check_lengths, check_named, check_series, check_zone_state,
-                                COMFORT_SERIES, Decision, InputWait, LIMITS, NS_PER_S,
-                                PRICE_SERIES, Rejection, RejectionCounter, reorder,
-                                SetpointSupervisor, StampGate, zone_state_caps)
+                                COMFORT_SERIES, Decision, InputWait, LIMITS, PRICE_SERIES,
+                                Rejection, RejectionCounter, reorder, SetpointSupervisor,
+                                StampGate, zone_state_caps)
 from mshoot_core.scenario import column_labels, forecast_window
 from mshoot_core.settings import BY_NAME, MpcSettings
+from mshoot_core.units import NS_PER_S
 
 logger = logging.getLogger(__name__)
 
@@ -254,8 +256,8 @@ class Controller:
 
     def _build_supervisor(self) -> SetpointSupervisor:
         p, s = self.settings.problem, self.settings.supervisor
-        return SetpointSupervisor(p.control_bounds, p.step_s,
-                                  (s.safe_heat_rate_w,) * len(p.control_names),
+        return SetpointSupervisor(p.control_bounds, p.step_s, self.settings.safe_values,
+                                  released=self.settings.released,
                                   max_plan_age_steps=s.max_plan_age_steps,
                                   state_range=self.state_range())
 
@@ -878,8 +880,9 @@ class Controller:
         if self._inflight is not None:  # its result will only warm the next start
             self._inflight.fallback_given = True
         decision = self.supervisor.safe(step / NS_PER_S, 'deactivated', 'the controller was '
-                                        'deactivated: the safe setpoint, then no more '
-                                        'setpoints (the building is back on its own control)')
+                                        f'deactivated: {self.supervisor.last_link}, then no '
+                                        'more setpoints (the building is back on its own '
+                                        'control)')
         return self._actuate(StepOutcome(step, decision, None, 0.0, None))
 
     def close(self) -> None:
@@ -894,8 +897,9 @@ def controller_for(model: Model, settings: MpcSettings | None = None,
     """
     Build a controller of ``model`` with its controls and zone temperatures.
 
-    See :func:`~mshoot_core.models.registry.control_interface`: the settings' ``control_names`` and
-    the MPC's comfort-bounded states follow the model.
+    See :func:`~mshoot_core.models.registry.control_interface`: the settings' ``control_names``
+    and ``controls`` (units, limits, safe values, switches: :mod:`mshoot_core.controls`) and the
+    MPC's comfort-bounded states follow the model.
 
     Parameters
     ----------
@@ -908,7 +912,9 @@ def controller_for(model: Model, settings: MpcSettings | None = None,
 
     """
     interface = control_interface(model)
-    settings = (settings or MpcSettings()).replace(control_names=interface.control_names)
+    settings = (settings or MpcSettings()).replace(
+        control_names=interface.control_names,
+        controls=model_controls(model, interface.control_names))
     return Controller(model, settings, state_bounds=interface.state_bounds, **kwargs)
 
 

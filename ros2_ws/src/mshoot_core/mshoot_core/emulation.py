@@ -35,9 +35,10 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
+from mshoot_core.controls import model_controls
 from mshoot_core.models.base import Model, ModelValueError
-from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.scenario import COMFORT_COLUMNS, validate_scenario
+from mshoot_core.units import KELVIN
 
 logger = logging.getLogger(__name__)
 
@@ -119,7 +120,12 @@ class StepRecord:
         States at the start and end of the step.
     fine : DataFrame
         States and outputs on the fine grid over [t_start, t_start + step], with
-        the comfort band; index time [s].
+        the comfort band, the controls and the overwrite switches of the controls that have
+        one (by the switch's name, e.g. ``oveTSet_activate``: 1 applied, 0 released);
+        index time [s].
+    released : tuple of str
+        The controls whose overwrite was released over the step (the building's own
+        controller acted).
 
     """
 
@@ -128,6 +134,7 @@ class StepRecord:
     x_start: np.ndarray
     x_end: np.ndarray
     fine: pd.DataFrame
+    released: tuple[str, ...] = ()
 
 
 class Emulator:
@@ -144,8 +151,9 @@ class Emulator:
         State at the first scenario time.
     control_names : sequence of str
         Model inputs set by the controller (default ``('q',)``).
-    control_bounds : sequence of (float, float)
-        Actuator limits per control; values outside are clipped with a warning.
+    control_bounds : sequence of (float, float), optional
+        Actuator limits per control; values outside are clipped with a warning (default:
+        the model's, from its card: :func:`mshoot_core.controls.model_controls`).
     step_s : float
         Control step [s].
     fine_step_s : float
@@ -170,7 +178,7 @@ class Emulator:
 
     def __init__(self, model: Model, scenario: pd.DataFrame, x0: Sequence[float], *,
                  control_names: Sequence[str] = ('q',),
-                 control_bounds: Sequence[tuple[float, float]] = ((-2000.0, 2000.0),),
+                 control_bounds: Sequence[tuple[float, float]] | None = None,
                  step_s: float = 3600.0, fine_step_s: float = 60.0,
                  start_index: int = 0, plant_state: bytes | None = None,
                  warmup: Warmup | None = None) -> None:
@@ -179,6 +187,12 @@ class Emulator:
         if unknown:
             raise ValueError(f'controls {unknown} are not inputs of the model '
                              f'{list(model.input_names)}')
+        #: The controls as the model's card describes them (units, limits, safe values).
+        self.control_specs = model_controls(model, tuple(control_names))
+        if control_bounds is None:  # (a side the card leaves open is not clipped)
+            control_bounds = [(-math.inf if math.isnan(c.min) else c.min,
+                               math.inf if math.isnan(c.max) else c.max)
+                              for c in self.control_specs]
         if len(control_bounds) != len(control_names):
             raise ValueError(f'need one (min, max) per control, got {len(control_bounds)} for '
                              f'{len(control_names)} controls')
@@ -256,6 +270,27 @@ class Emulator:
     def t_s(self) -> float:
         """Return the current time [s]."""
         return float(self.scenario.index[self.index])
+
+    def _set_switches(self, released: Sequence[bool]) -> dict[str, int]:
+        """
+        Set the plant's overwrite switches for the step: off for the released controls.
+
+        Returns the switch -> on (1) / off (0) of the controls that have one on this plant.
+        """
+        flags = tuple(bool(r) for r in released)
+        if flags and len(flags) != len(self.control_names):
+            raise ValueError(f'released must have one flag per control '
+                             f'{list(self.control_names)}, got {list(flags)}')
+        setter = getattr(self.model, 'plant_switches', None) if self.plant else None
+        values = {c.switch: int(not (flags and flags[i]))
+                  for i, c in enumerate(self.control_specs) if c.switch}
+        if setter is None or not values:
+            if any(flags):
+                logger.debug('released controls without an overwrite switch on %s: their '
+                             'safe values apply', type(self.model).__name__)
+            return {}
+        setter(values)
+        return values
 
     @property
     def steps_left(self) -> int:
@@ -363,9 +398,15 @@ class Emulator:
                                       variable=str(name), time_s=time)
 
     def advance(self, controls: Sequence[float],
-                schedule: Sequence[tuple[float, Sequence[float]]] | None = None) -> StepRecord:
+                schedule: Sequence[tuple[float, Sequence[float]]] | None = None,
+                released: Sequence[bool] = ()) -> StepRecord:
         """
         Apply ``controls`` over the current step and move to the next one.
+
+        ``released``: per control (or empty: none), whether its overwrite is released over the
+        step: a plant with the control's overwrite switch (the card's ``activate``) turns it
+        off, so the building's own controller acts; a control without a switch gets its value
+        in ``controls`` (the safe value of a released setpoint).
 
         ``schedule``: optional pieces within the step, ``(offset [s] from the step's start,
         controls from there on)`` with increasing offsets, the first 0, each a multiple of
@@ -383,6 +424,7 @@ class Emulator:
         if self.steps_left <= 0:
             raise RuntimeError('the scenario is over: no step left to emulate')
         u = self.clip(controls)
+        switches = self._set_switches(released)
         row = self.scenario.iloc[self.index]
         n_fine = int(round(self.step_s / self.fine_step_s))
         times = self.t_s + np.arange(n_fine + 1) * self.fine_step_s
@@ -415,7 +457,11 @@ class Emulator:
         fine['comfort_max'] = float(row['comfort_max'])
         for i, name in enumerate(self.control_names):
             fine[name] = np.append(fine_controls[:, i], fine_controls[-1, i])
-        record = StepRecord(self.t_s, u, self.x.copy(), xdf.to_numpy()[-1].copy(), fine)
+        for switch, on in switches.items():
+            fine[switch] = on
+        record = StepRecord(self.t_s, u, self.x.copy(), xdf.to_numpy()[-1].copy(), fine,
+                            tuple(n for n, c in zip(self.control_names, self.control_specs)
+                                  if c.switch and not switches.get(c.switch, 1)))
         self.x = record.x_end.copy()
         self.index += 1
         return record

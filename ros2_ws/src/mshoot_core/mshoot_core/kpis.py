@@ -80,7 +80,9 @@ def closed_loop_kpis(steps: pd.DataFrame, fine: pd.DataFrame, step_s: float,
     Parameters
     ----------
     steps : DataFrame
-        Per-step records with the applied control and ``solve_time_s``, ``success``.
+        Per-step records with the applied control and ``solve_time_s``, ``success`` (and
+        ``released``, the controls whose overwrite was released: counted as
+        ``released_steps``).
     fine : DataFrame
         The fine-grid trajectory (see :func:`discomfort_kh`).
     step_s : float
@@ -111,6 +113,8 @@ def closed_loop_kpis(steps: pd.DataFrame, fine: pd.DataFrame, step_s: float,
                 solve_s_max=float(solve.max()),
                 solve_per_control_step=float(solve.sum() / (len(steps) * step_s)),
                 solver_failures=int((~steps['success'].astype(bool)).sum()))
+    if 'released' in steps:  # steps on which the plant's overwrites were released
+        kpis['released_steps'] = int((steps['released'].fillna('').astype(str) != '').sum())
     return kpis
 
 

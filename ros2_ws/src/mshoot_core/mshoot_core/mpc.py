@@ -20,10 +20,10 @@ from mshoot_core.scenario import column_labels
 from mshoot_core.settings import BY_NAME, MpcSettings
 from mshoot_core.shooting import CostFunction, Scaling, ShootingProblem, ShootingResult
 from mshoot_core.solvers import make_solver, Solver
+from mshoot_core.units import KELVIN
 
 logger = logging.getLogger(__name__)
 
-KELVIN = 273.15
 #: Default state-bound mapping of a thermal zone: state 'T' [K] bounded by the comfort
 #: band columns [degC] plus an offset.
 ZONE_STATE_BOUNDS = {'T': ('comfort_min', 'comfort_max', KELVIN)}
@@ -101,7 +101,11 @@ class MPC:
         solver_instance = solver if isinstance(solver, Solver) else None
         if solver is not None and solver_instance is None:
             options['solver'] = solver
-        self.settings = (settings or MpcSettings()).replace(options)
+        base = settings or MpcSettings()
+        declared = getattr(model, 'control_specs', None)
+        if declared and not base.problem.controls and 'controls' not in options:
+            options = {'controls': tuple(declared), **options}  # the card's limits, safe values
+        self.settings = base.replace(options)
         bounds = ZONE_STATE_BOUNDS if state_bounds is None else dict(state_bounds)
         unknown = [s for s in bounds if s not in model.state_names]
         if unknown:

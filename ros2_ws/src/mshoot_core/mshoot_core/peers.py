@@ -20,7 +20,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Sequence
 
-from mshoot_core.safety import NS_PER_S
+from mshoot_core.units import NS_PER_S
 
 
 @dataclasses.dataclass(frozen=True)

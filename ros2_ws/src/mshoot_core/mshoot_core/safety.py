@@ -35,17 +35,19 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from mshoot_core.units import NS_PER_S
+
 logger = logging.getLogger(__name__)
 
-NS_PER_S = 1_000_000_000
 #: Why an input was rejected.
 REJECTION_KINDS = ('non_finite', 'out_of_range', 'length', 'band', 'step', 'stamp', 'grid',
                    'future', 'stale', 'backwards', 'names')
 #: Why a setpoint is a fallback (codes of :attr:`Decision.code`).
 FALLBACK_CODES = ('solve_failed', 'budget', 'not_converged', 'invalid_plan', 'inputs_missing',
                   'deactivated')
-#: Where a published setpoint comes from.
-SOURCES = ('optimum', 'plan', 'safe')
+#: Where a published setpoint comes from: 'released' is the last link for a plant with
+#: overwrite switches (the overwrites released: the building's own controller acts).
+SOURCES = ('optimum', 'plan', 'safe', 'released')
 #: Forecast series, in the column names of :mod:`mshoot_core.scenario` (those a forecast of
 #: the R1C1 zone needs).
 FORECAST_SERIES = ('Tout', 'solrad', 'occ', 'comfort_min', 'comfort_max')
@@ -94,9 +96,9 @@ class Limits:
         Ventilation damper position ``dpos`` [%].
     price_per_kwh : (float, float)
         Energy price [currency/kWh] (negative prices happen).
-    heat_rate_abs_w : float
-        Largest plausible |heat rate| [W] (beyond the actuator limits a
-        setpoint is clipped; beyond this it is rejected).
+    control_abs : float
+        Largest plausible magnitude of any control, in its unit (beyond the actuator
+        limits a setpoint is clipped; beyond this it is rejected).
     max_samples : int
         Longest forecast or plan accepted [-].
     max_names : int
@@ -120,7 +122,7 @@ class Limits:
     comfort_c: tuple[float, float] = (-50.0, 80.0)
     damper_percent: tuple[float, float] = (0.0, 100.0)
     price_per_kwh: tuple[float, float] = (-1e4, 1e4)
-    heat_rate_abs_w: float = 1e7
+    control_abs: float = 1e7
     max_samples: int = 10_000
     max_names: int = 1000
     max_values: int = 100_000
@@ -247,7 +249,8 @@ def setpoint_caps(n_controls: int, limits: Limits = LIMITS) -> dict[str, int]:
             'plan_controls': n_controls * limits.max_samples,
             'plan_temperatures_c': limits.max_values,
             'schedule_offsets_s': limits.max_samples,
-            'schedule_values': n_controls * limits.max_samples}
+            'schedule_values': n_controls * limits.max_samples,
+            'released': n_controls}
 
 
 def check_names(field: str, names: Sequence[str], *, expected: Sequence[str] | None = None,
@@ -411,7 +414,7 @@ def check_zone_state(state_names: Sequence[str], state_values: Sequence[float],
         ``limits.output_abs``.
     control_names, control_values : sequences
         The controls applied over the last step by name (heat rates [W]);
-        finite, within ``limits.heat_rate_abs_w`` (or each within its
+        finite, within ``limits.control_abs`` (or each within its
         ``control_ranges``); empty before the first step.
     expected_states : sequence of str, optional
         The receiver's model states: exactly these names (any order).
@@ -429,7 +432,7 @@ def check_zone_state(state_names: Sequence[str], state_values: Sequence[float],
             or check_named('output', output_names, output_values, -limits.output_abs,
                            limits.output_abs, limits=limits)
             or check_named('control', control_names, control_values,
-                           -limits.heat_rate_abs_w, limits.heat_rate_abs_w,
+                           -limits.control_abs, limits.control_abs,
                            allowed=allowed_controls, ranges=control_ranges, limits=limits))
 
 
@@ -580,6 +583,7 @@ def check_setpoint(step_s: float, control_names: Sequence[str],
                    expected_controls: Sequence[str] | None = None,
                    schedule_offsets_s: Sequence[float] = (),
                    schedule_values: Sequence[float] = (), schedules: bool = True,
+                   released: Sequence[bool] = (),
                    limits: Limits = LIMITS) -> Rejection | None:
     """
     Check a supervisory setpoint: named controls, zone temperature setpoints, the plan.
@@ -589,8 +593,8 @@ def check_setpoint(step_s: float, control_names: Sequence[str],
     step_s : float
         Control step [s].
     control_names, control_values : sequences
-        Every control by name (heat rates [W]): at least one; finite within
-        ``limits.heat_rate_abs_w`` (beyond the actuator limits but within this
+        Every control by name (in its unit): at least one; finite within
+        ``limits.control_abs`` (beyond the actuator limits but within this
         they are not rejected here: the building clips them, with a warning).
     temperature_names, temperatures_c : sequences
         Temperature setpoints of the zones' local loops by name [degC].
@@ -608,6 +612,8 @@ def check_setpoint(step_s: float, control_names: Sequence[str],
     schedules : bool
         Whether the receiver takes a schedule within the step (else a setpoint with one is
         rejected).
+    released : sequence of bool
+        Per control, whether its overwrite is released (empty: none).
     limits : Limits
         Plausible ranges.
 
@@ -621,13 +627,16 @@ def check_setpoint(step_s: float, control_names: Sequence[str],
     if not len(control_names):
         return Rejection('names', 'the setpoint names no control')
     rejection = (check_named('control', control_names, control_values,
-                             -limits.heat_rate_abs_w, limits.heat_rate_abs_w,
+                             -limits.control_abs, limits.control_abs,
                              expected=expected_controls, limits=limits)
                  or check_named('temperature setpoint', temperature_names, temperatures_c,
                                 *limits.zone_temperature_c, limits=limits))
     if rejection:
         return rejection
     nc, nz = len(control_names), len(temperature_names)
+    if len(released) not in (0, nc):
+        return Rejection('length', f'released has {len(released)} flags for {nc} controls '
+                         '(one per control, or none)')
     m, rest = divmod(len(plan_controls), nc)
     if rest or len(plan_temperatures_c) != m * nz:
         return Rejection('length', f'plan arrays do not match {nc} controls and {nz} '
@@ -637,8 +646,8 @@ def check_setpoint(step_s: float, control_names: Sequence[str],
     if m > limits.max_samples:
         return Rejection('length', f'plan has {m} intervals, at most '
                          f'{limits.max_samples} expected')
-    return (check_series('plan_controls', plan_controls, -limits.heat_rate_abs_w,
-                         limits.heat_rate_abs_w)
+    return (check_series('plan_controls', plan_controls, -limits.control_abs,
+                         limits.control_abs)
             or check_series('plan_temperatures_c', plan_temperatures_c,
                             *limits.zone_temperature_c)
             or (check_schedule(schedule_offsets_s, schedule_values, nc, float(step_s),
@@ -658,7 +667,7 @@ def check_schedule(offsets_s: Sequence[float], values: Sequence[float], n_contro
         Start of every piece [s from the step start]: the first 0, increasing, within the step.
     values : sequence of float
         n values per control, flattened name-major [W]; finite within
-        ``limits.heat_rate_abs_w``.
+        ``limits.control_abs``.
     n_controls : int
         Controls of the setpoint.
     step_s : float
@@ -678,8 +687,8 @@ def check_schedule(offsets_s: Sequence[float], values: Sequence[float], n_contro
                          f'per control ({n_controls}), got {n} offsets and {len(values)} values')
     offsets = np.asarray(offsets_s, dtype=float)
     rejection = (check_series('schedule_offsets_s', offsets, 0.0, step_s)
-                 or check_series('schedule_values', values, -limits.heat_rate_abs_w,
-                                 limits.heat_rate_abs_w))
+                 or check_series('schedule_values', values, -limits.control_abs,
+                                 limits.control_abs))
     if rejection:
         return rejection
     if offsets[0] != 0.0 or (n > 1 and not np.all(np.diff(offsets) > 0)) \
@@ -830,13 +839,18 @@ class Decision:
         Predicted states at the end of every planned interval.
     source : str
         'optimum' (this step's solve), 'plan' (the last good plan's interval
-        for this step) or 'safe' (the configured safe setpoint).
+        for this step), 'safe' (the safe values) or 'released' (the overwrites of
+        ``released`` controls released, the safe values of the others).
     fallback : bool
         True unless ``source`` is 'optimum'.
     code : str
         '' or one of :data:`FALLBACK_CODES`: why the solve result was not used.
     reason : str
         '' or one sentence saying why, and what was used instead.
+    released : tuple of bool
+        Per control: whether its overwrite is released (the building's own controller
+        acts; ``controls`` then holds its safe value, applied by a plant without a switch);
+        empty when none is.
 
     """
 
@@ -849,6 +863,7 @@ class Decision:
     fallback: bool
     code: str = ''
     reason: str = ''
+    released: tuple[bool, ...] = ()
 
 
 @dataclasses.dataclass
@@ -860,7 +875,11 @@ class _GoodPlan:
 
 class SetpointSupervisor:
     """
-    The MPC's fallback chain: the optimum, else the last good plan, else the safe setpoint.
+    The MPC's fallback chain: the optimum, else the last good plan, else the last link.
+
+    The last link releases the overwrites of the ``released`` controls (the building's own
+    controller takes over; source 'released') and applies the safe values of the others
+    (source 'safe' when none is released).
 
     Parameters
     ----------
@@ -869,7 +888,7 @@ class SetpointSupervisor:
     step_s : float
         Control step [s].
     safe_controls : sequence of float
-        The configured safe setpoint (clipped to the bounds).
+        The safe values (clipped to the bounds).
     max_plan_age_steps : int
         How many steps after it was computed a good plan may still be used
         (0: never fall back on a plan, go to the safe setpoint at once).
@@ -880,13 +899,17 @@ class SetpointSupervisor:
         Relative slack on the control bounds before a plan is refused (a
         solver's bound satisfaction is only up to its tolerance; within it the
         controls are clipped).
+    released : sequence of bool, optional
+        Per control: the last link releases its overwrite (a plant with an overwrite
+        switch) instead of applying its safe value (default: none).
 
     """
 
     def __init__(self, control_bounds: Sequence[tuple[float, float]], step_s: float,
                  safe_controls: Sequence[float], *, max_plan_age_steps: int = 4,
                  state_range: tuple[Sequence[float], Sequence[float]] | None = None,
-                 bound_tolerance: float = 1e-6) -> None:
+                 bound_tolerance: float = 1e-6,
+                 released: Sequence[bool] | None = None) -> None:
         bounds = np.asarray(control_bounds, dtype=float).reshape(-1, 2)
         if not np.all(np.isfinite(bounds)) or np.any(bounds[:, 0] > bounds[:, 1]):
             raise ValueError(f'control_bounds must be finite (min, max) pairs, got '
@@ -902,6 +925,12 @@ class SetpointSupervisor:
         self.bounds = bounds
         self.step_s = float(step_s)
         self.safe_controls = np.clip(safe, bounds[:, 0], bounds[:, 1])
+        released = tuple(bool(r) for r in (released or ()))
+        if released and len(released) != bounds.shape[0]:
+            raise ValueError(f'released must have one flag per control ({bounds.shape[0]}), '
+                             f'got {list(released)}')
+        #: Per control: released by the last link (empty: none).
+        self.released = released if any(released) else ()
         self.max_plan_age_steps = int(max_plan_age_steps)
         self.state_range = (None if state_range is None else
                             (np.asarray(state_range[0], dtype=float),
@@ -913,6 +942,7 @@ class SetpointSupervisor:
         self.consecutive_fallbacks = 0
         #: Decisions by source since the start.
         self.sources: collections.Counter[str] = collections.Counter()
+        self._at_last_link = False
 
     @property
     def n_controls(self) -> int:
@@ -1000,6 +1030,7 @@ class SetpointSupervisor:
         controls = np.clip(controls, self.bounds[:, 0], self.bounds[:, 1])
         self._plan = _GoodPlan(float(t_s), controls.copy(), states.copy())
         self.consecutive_fallbacks = 0
+        self._at_last_link = False
         self.sources['optimum'] += 1
         return Decision(float(t_s), controls[0].copy(), states[0].copy(), controls.copy(),
                         states.copy(), 'optimum', False)
@@ -1034,16 +1065,34 @@ class SetpointSupervisor:
                    if age >= 1 else 'no earlier plan')
         else:
             why = 'no good plan yet'
-        return self.safe(t_s, code, f'{reason}; fallback: the safe setpoint '
-                         f'{self.safe_controls.tolist()} ({why})')
+        return self.safe(t_s, code, f'{reason}; fallback: {self.last_link} ({why})')
+
+    @property
+    def last_link(self) -> str:
+        """Say what the last link of the chain applies (for reasons and logs)."""
+        if not self.released:
+            return f'the safe values {self.safe_controls.tolist()}'
+        kept = [f'{v:g}' for v, r in zip(self.safe_controls, self.released) if not r]
+        return ("the overwrites released (the building's own controller acts)"
+                + (f', the safe values {kept} for the other controls' if kept else ''))
 
     def safe(self, t_s: float, code: str, reason: str) -> Decision:
-        """Return the last link of the chain: the safe setpoint, with ``reason`` as given."""
-        self.sources['safe'] += 1
+        """
+        Return the last link of the chain, with ``reason`` as given.
+
+        The overwrites of the released controls released (source 'released'), the safe values
+        of the others; without released controls the safe values (source 'safe').
+        """
+        source = 'released' if self.released else 'safe'
+        self.sources[source] += 1
+        if not self._at_last_link:  # logged once per run of last-link steps
+            logger.log(logging.WARNING if self.released else logging.INFO,
+                       'step at %.0f s: %s (%s)', t_s, self.last_link, code)
+            self._at_last_link = True
         nx = self._plan.states.shape[1] if self._plan is not None else 0
         return Decision(float(t_s), self.safe_controls.copy(), None,
-                        np.empty((0, self.n_controls)), np.empty((0, nx)), 'safe', True, code,
-                        reason)
+                        np.empty((0, self.n_controls)), np.empty((0, nx)), source, True, code,
+                        reason, self.released)
 
 
 # -- waiting for inputs -------------------------------------------------------------------
@@ -1092,6 +1141,8 @@ class HoldDecision:
         NaN for 'safe').
     reason : str
         '' for 'setpoint', else one sentence.
+    released : tuple of bool
+        Per control, its overwrite released (empty: none).
 
     """
 
@@ -1099,6 +1150,7 @@ class HoldDecision:
     source: str
     age_s: float
     reason: str = ''
+    released: tuple[bool, ...] = ()
 
 
 class SetpointHold:
@@ -1111,47 +1163,57 @@ class SetpointHold:
         The safe default controls.
     hold_s : float
         How long after its step's start a setpoint may still be applied [s].
+    released : sequence of bool, optional
+        Per control: the safe default releases its overwrite (a plant with its switch) rather
+        than applying its safe value (default: none).
 
     """
 
-    def __init__(self, safe_controls: Sequence[float], hold_s: float) -> None:
+    def __init__(self, safe_controls: Sequence[float], hold_s: float,
+                 released: Sequence[bool] = ()) -> None:
         self.safe_controls = np.asarray(safe_controls, dtype=float).reshape(-1)
         if not np.all(np.isfinite(self.safe_controls)):
             raise ValueError(f'safe_controls must be finite, got {self.safe_controls}')
         if not hold_s >= 0:
             raise ValueError(f'hold_s must be >= 0, got {hold_s}')
         self.hold_s = float(hold_s)
-        self._latest: tuple[float, np.ndarray] | None = None
+        self.released = tuple(bool(r) for r in released) if any(released) else ()
+        self._latest: tuple[float, np.ndarray, tuple[bool, ...]] | None = None
 
     @property
     def latest_t_s(self) -> float | None:
         """Step start of the newest setpoint [s] (None before the first)."""
         return None if self._latest is None else self._latest[0]
 
-    def offer(self, t_s: float, controls: Sequence[float]) -> None:
-        """Offer a validated setpoint for the step starting at ``t_s`` (older ones are ignored)."""
+    def offer(self, t_s: float, controls: Sequence[float], released: Sequence[bool] = ()) -> None:
+        """
+        Offer a validated setpoint for the step starting at ``t_s`` (older ones are ignored).
+
+        ``released``: per control, its overwrite released (empty: none).
+        """
         u = np.asarray(controls, dtype=float).reshape(-1)
         if u.shape != self.safe_controls.shape or not np.all(np.isfinite(u)):
             raise ValueError(f'controls must be {self.safe_controls.size} finite values, '
                              f'got {u}')
         if self._latest is None or float(t_s) >= self._latest[0]:
-            self._latest = (float(t_s), u.copy())
+            self._latest = (float(t_s), u.copy(), tuple(bool(r) for r in released))
 
     def controls_for(self, t_s: float) -> HoldDecision:
         """Return the controls of the step starting at ``t_s``."""
         if self._latest is not None:
-            stamp, u = self._latest
+            stamp, u, released = self._latest
             age = float(t_s) - stamp
             if abs(age) < 1e-6:
-                return HoldDecision(u.copy(), 'setpoint', 0.0)
+                return HoldDecision(u.copy(), 'setpoint', 0.0, released=released)
             if 0 < age <= self.hold_s + 1e-6:
                 return HoldDecision(u.copy(), 'held', age,
                                     f'no setpoint for this step: holding the one from {age:g} s '
-                                    f'earlier ({u.tolist()}; hold {self.hold_s:g} s)')
+                                    f'earlier ({u.tolist()}; hold {self.hold_s:g} s)', released)
             why = (f'the last one is {age:g} s old (hold {self.hold_s:g} s)' if age > 0
                    else 'the last one is for a later step')
         else:
             why = 'none received yet'
+        what = ("releasing the overwrites (the building's own controller acts)" if self.released
+                else f'applying the safe default {self.safe_controls.tolist()}')
         return HoldDecision(self.safe_controls.copy(), 'safe', math.nan,
-                            f'no setpoint for this step and {why}: applying the safe default '
-                            f'{self.safe_controls.tolist()}')
+                            f'no setpoint for this step and {why}: {what}', self.released)

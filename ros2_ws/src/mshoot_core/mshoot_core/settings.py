@@ -21,8 +21,11 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
+import logging
 import math
 from typing import Any, Iterable, Mapping
+
+logger = logging.getLogger(__name__)
 
 #: What a run-time change of a setting implies, in increasing cost:
 #: 'inputs' (input gating, applied at once), 'supervisor' (the fallback chain is
@@ -44,7 +47,7 @@ class SettingsError(ValueError):
 
 def setting(default: Any, description: str, *, low: float | None = None,
             high: float | None = None, choices: tuple[str, ...] = (), apply: str = 'rebuild',
-            cli: str | None = None, also: tuple[str, ...] = ()) -> Any:
+            cli: str | None = None, also: tuple[str, ...] = (), optional: bool = False) -> Any:
     """
     Return a dataclass field described for the CLI and the node parameters.
 
@@ -64,11 +67,13 @@ def setting(default: Any, description: str, *, low: float | None = None,
         Command-line option (default ``--name-with-dashes``).
     also : tuple of str
         Other groups a change also reconfigures (from :data:`APPLY`).
+    optional : bool
+        A float setting that may be NaN: not set (e.g. the card's value holds).
 
     """
     return dataclasses.field(default=default, metadata={
         'description': description, 'low': low, 'high': high, 'choices': tuple(choices),
-        'apply': apply, 'cli': cli, 'also': tuple(also)})
+        'apply': apply, 'cli': cli, 'also': tuple(also), 'optional': optional})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,6 +90,7 @@ class SettingField:
     apply: str
     cli: str | None
     also: tuple[str, ...]
+    optional: bool = False
 
     @property
     def read_only(self) -> bool:
@@ -109,8 +115,11 @@ class SettingField:
             ok = isinstance(value, kind)
         if not ok:
             return f'{self.name} must be a {kind.__name__}, got {value!r}'
+        if kind is float and self.optional and math.isnan(value):
+            return None  # not set
         if kind is float and not math.isfinite(value):
-            return f'{self.name} must be finite, got {value!r}'
+            return f'{self.name} must be finite{" or NaN (not set)" if self.optional else ""}, ' \
+                f'got {value!r}'
         if self.choices and value not in self.choices:
             return f'{self.name} must be one of {list(self.choices)}, got {value!r}'
         if self.low is not None and value < self.low or self.high is not None and \
@@ -157,10 +166,12 @@ class ProblemSettings(SettingsGroup):
                         choices=('quadratic', 'energy', 'output'))
     cost_output: str = setting('cost', 'model output summed over the horizon by the cost '
                                "'output' (e.g. an interval's electricity cost) [its unit]")
-    heat_rate_min_w: float = setting(-2000.0, 'lower bound of every heat rate (largest '
-                                     'cooling) [W]', low=-1e7, high=1e7, also=('supervisor',))
-    heat_rate_max_w: float = setting(2000.0, 'upper bound of every heat rate (largest '
-                                     'heating) [W]', low=-1e7, high=1e7, also=('supervisor',))
+    control_min: float = setting(math.nan, 'lower limit of every control, narrowing the '
+                                 "model card's min (NaN: the card's) [the control's unit]",
+                                 also=('supervisor',), optional=True)
+    control_max: float = setting(math.nan, 'upper limit of every control, narrowing the '
+                                 "model card's max (NaN: the card's) [the control's unit]",
+                                 also=('supervisor',), optional=True)
     relaxation: str = setting('two-phase', "unreachable hard bounds: 'two-phase' (least "
                               "violation, then least cost) or 'exact-penalty' (one solve)",
                               choices=('two-phase', 'exact-penalty'))
@@ -171,20 +182,42 @@ class ProblemSettings(SettingsGroup):
                                 low=0, high=256, apply='fixed')
     #: Optimised model inputs (not a parameter: fixed by the model).
     control_names: tuple[str, ...] = ('q',)
+    #: The model's controls (not a parameter: fixed by the model, from its card; see
+    #: :mod:`mshoot_core.controls`): one ControlSpec per control name; empty: the R1C1
+    #: convention (the heat rate q of the built-in card r1c1.yaml) for every control.
+    controls: tuple[Any, ...] = ()
+
+    @property
+    def control_specs(self) -> tuple[Any, ...]:
+        """Return the ControlSpec of every control (the model's, else the R1C1 convention)."""
+        from mshoot_core.controls import specs_for
+        return specs_for(self.controls, self.control_names)
 
     @property
     def control_bounds(self) -> tuple[tuple[float, float], ...]:
-        """(min, max) of every control [W]."""
-        return ((self.heat_rate_min_w, self.heat_rate_max_w),) * len(self.control_names)
+        """(min, max) of every control [its unit]: the card's, narrowed by the settings."""
+        from mshoot_core.controls import narrowed
+        return tuple(narrowed((c.min, c.max), self.control_min, self.control_max)
+                     for c in self.control_specs)
 
     def rules(self) -> list[str]:
         out = []
-        if not self.heat_rate_min_w < self.heat_rate_max_w:
-            out.append(f'heat_rate_min_w must be < heat_rate_max_w, got {self.heat_rate_min_w}'
-                       f' and {self.heat_rate_max_w}')
         if not self.control_names or not all(isinstance(c, str) for c in self.control_names):
-            out.append(f'control_names must be a non-empty tuple of names, got '
-                       f'{self.control_names!r}')
+            return [f'control_names must be a non-empty tuple of names, got '
+                    f'{self.control_names!r}']
+        if not (math.isnan(self.control_min) or math.isnan(self.control_max)
+                or self.control_min < self.control_max):
+            return [f'control_min must be < control_max, got {self.control_min} and '
+                    f'{self.control_max}']
+        for spec, (low, high) in zip(self.control_specs, self.control_bounds):
+            if not (math.isfinite(low) and math.isfinite(high)):
+                out.append(f'control {spec.label()} needs finite limits, got [{low:g}, '
+                           f'{high:g}]: give min and max in its card (or control_min, '
+                           'control_max)')
+            elif not low < high:
+                out.append(f'control {spec.label()}: control_min/control_max '
+                           f'[{self.control_min:g}, {self.control_max:g}] leave no range '
+                           f"within the card's limits [{spec.min:g}, {spec.max:g}]")
         return out
 
 
@@ -249,11 +282,20 @@ class SupervisorSettings(SettingsGroup):
     on_failure: str = setting('plan', "when the solver does not converge: 'plan' applies its "
                               "best plan if it is sane, 'fallback' the fallback chain",
                               choices=('plan', 'fallback'), apply='inputs')
-    safe_heat_rate_w: float = setting(0.0, 'the safe setpoint: heat rate applied when no '
-                                      'good plan is left to fall back on [W]', low=-1e7,
-                                      high=1e7, apply='supervisor')
-    safe_temperature_c: float = setting(21.0, 'temperature setpoint sent with the safe heat '
-                                        'rate (for the HVAC loop) [degC]', low=-50.0,
+    safe_value: float = setting(math.nan, 'safe value of every control, applied when no '
+                                'good plan is left and the control is not released, '
+                                "overriding the card's safe (NaN: the card's, else 0 "
+                                "clipped into the limits) [the control's unit]",
+                                apply='supervisor', optional=True)
+    release: str = setting('auto', "last link of the fallback chain: 'auto' releases the "
+                           'overwrites of controls whose card has an overwrite switch '
+                           "(activate), so the building's own controller acts, and applies "
+                           "the safe values otherwise; 'release' releases every control (a "
+                           "control model without switches of a plant with them); 'never' "
+                           'always applies the safe values', choices=('auto', 'release', 'never'),
+                           apply='supervisor')
+    safe_temperature_c: float = setting(21.0, 'zone temperature setpoint sent with the safe '
+                                        'values (for the HVAC loop) [degC]', low=-50.0,
                                         high=80.0, apply='inputs')
     max_plan_age_steps: int = setting(4, 'a failed step falls back on the last good plan '
                                       'while it is at most this many steps old, then on the '
@@ -424,7 +466,8 @@ def fields_of(group: type) -> tuple[SettingField, ...]:
         name = next((g for g, cls in GROUPS.items() if cls is group), group.__name__)
         m = f.metadata
         out.append(SettingField(f.name, name, f.default, m['description'], m['low'],
-                                m['high'], m['choices'], m['apply'], m['cli'], m['also']))
+                                m['high'], m['choices'], m['apply'], m['cli'], m['also'],
+                                m.get('optional', False)))
     return tuple(out)
 
 
@@ -457,21 +500,43 @@ class MpcSettings:
             else:
                 problems += group.problems()
         if not problems:
-            p, s = self.problem, self.supervisor
-            if not p.heat_rate_min_w <= s.safe_heat_rate_w <= p.heat_rate_max_w:
-                problems.append(f'safe_heat_rate_w must be within [heat_rate_min_w, '
-                                f'heat_rate_max_w] = [{p.heat_rate_min_w:g}, '
-                                f'{p.heat_rate_max_w:g}], got {s.safe_heat_rate_w:g}')
+            for spec, (low, high), safe, released in zip(
+                    self.problem.control_specs, self.problem.control_bounds, self.safe_values,
+                    self.released):
+                if not (released or low <= safe <= high):  # (released: clipped, not applied)
+                    given = ('safe_value' if not math.isnan(self.supervisor.safe_value)
+                             else "the card's safe")
+                    problems.append(f'{given} of {spec.label()} must be within its limits '
+                                    f'[{low:g}, {high:g}], got {safe:g}')
         if problems:
             raise SettingsError(problems)
+
+    @property
+    def safe_values(self) -> tuple[float, ...]:
+        """
+        Return the safe value of every control [its unit].
+
+        ``safe_value`` if set, else the card's ``safe``, else 0 clipped into the limits.
+        """
+        from mshoot_core.controls import safe_values
+        return safe_values(self.problem.control_specs, self.problem.control_bounds,
+                           self.supervisor.safe_value)
+
+    @property
+    def released(self) -> tuple[bool, ...]:
+        """Return, per control, whether the last fallback releases it (setting ``release``)."""
+        mode = self.supervisor.release
+        return tuple(mode == 'release' or (mode == 'auto' and spec.releasable)
+                     for spec in self.problem.control_specs)
 
     @classmethod
     def from_flat(cls, values: Mapping[str, Any] | None = None, /, **more: Any) -> MpcSettings:
         """
         Build settings from flat names; unknown names are problems too.
 
-        The flat names are those of :data:`PARAMETERS`, plus ``control_names`` and
-        ``solver_extra``.
+        The flat names are those of :data:`PARAMETERS`, plus ``control_names``,
+        ``controls`` (the model's ControlSpecs) and ``solver_extra``; the deprecated names of
+        :data:`DEPRECATED` are taken with a warning.
         """
         return cls().replace(values, **more)
 
@@ -481,7 +546,11 @@ class MpcSettings:
         by_group: dict[str, dict[str, Any]] = {name: {} for name in GROUPS}
         unknown = []
         for key, value in changes.items():
-            if key == 'control_names':
+            if key in DEPRECATED:
+                logger.warning("setting %s is deprecated: use %s (in the control's unit)",
+                               key, DEPRECATED[key])
+                key = DEPRECATED[key]
+            if key in ('control_names', 'controls'):
                 by_group['problem'][key] = tuple(value)
             elif key == 'solver_extra':
                 by_group['solver']['extra'] = dict(value)
@@ -507,8 +576,9 @@ class MpcSettings:
     def changed(self, other: MpcSettings) -> set[str]:
         """Flat names whose value differs in ``other`` (plus 'control_names', 'solver_extra')."""
         a, b = self.flat(), other.flat()
-        out = {name for name in a if a[name] != b[name]}
-        if self.problem.control_names != other.problem.control_names:
+        out = {name for name in a if not _same(a[name], b[name])}
+        if (self.problem.control_names != other.problem.control_names
+                or self.problem.controls != other.problem.controls):
             out.add('control_names')
         if dict(self.solver.extra) != dict(other.solver.extra):
             out.add('solver_extra')
@@ -526,6 +596,12 @@ class MpcSettings:
                       if n == 'control_names' or (n in BY_NAME and BY_NAME[n].read_only))
 
 
+def _same(a: Any, b: Any) -> bool:
+    """Return True when two setting values are equal (NaN equals NaN: both not set)."""
+    return a == b or (isinstance(a, float) and isinstance(b, float) and math.isnan(a)
+                      and math.isnan(b))
+
+
 def _coerce(f: SettingField, value: Any) -> Any:
     """Ints given for float settings become floats (a CLI or YAML habit)."""
     if type(f.default) is float and isinstance(value, int) and not isinstance(value, bool):
@@ -537,6 +613,10 @@ def _coerce(f: SettingField, value: Any) -> Any:
 PARAMETERS: tuple[SettingField, ...] = tuple(f for cls in GROUPS.values() for f in fields_of(cls))
 #: Flat name -> description.
 BY_NAME: dict[str, SettingField] = {f.name: f for f in PARAMETERS}
+#: Deprecated flat names -> their settings (taken by :meth:`MpcSettings.replace` with a
+#: warning): the names of the heat-rate-only era.
+DEPRECATED: dict[str, str] = {'heat_rate_min_w': 'control_min', 'heat_rate_max_w': 'control_max',
+                              'safe_heat_rate_w': 'safe_value'}
 assert len(BY_NAME) == len(PARAMETERS), 'flat setting names must be unique'
 
 

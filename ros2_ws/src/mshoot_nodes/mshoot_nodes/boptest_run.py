@@ -50,6 +50,7 @@ from mshoot_core.models.card import builtin_card, load_card
 from mshoot_studies.boptest_report import count_starts
 from mshoot_studies.boptest_rule import (LEADS_H, MARGINS_K, RuleTarget, RuleTuning,
                                          setpoint_targets, tune_rule)
+from mshoot_core.units import json_ready
 import pandas as pd
 import rclpy
 from rclpy.context import Context
@@ -300,20 +301,14 @@ def load_or_tune(case: TestCase, periods: Sequence[str], path: pathlib.Path, *,
                                        progress=progress, workers=workers)
         out[period] = {'settings': key, 'weight': tuning.weight,
                        'wall_s': time.perf_counter() - began,
-                       'best': {price: {k: _plain(v) for k, v in row.items()}
+                       'best': {price: {k: json_ready(v) for k, v in row.items()}
                                 for price, row in tuning.best.items()},
-                       'grid': [{k: _plain(v) for k, v in row.items()}
+                       'grid': [{k: json_ready(v) for k, v in row.items()}
                                 for row in tuning.grid.to_dict('records')]}
         cached[period] = out[period]
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(cached, indent=1) + '\n')
     return out
-
-
-def _plain(value: Any) -> Any:
-    if hasattr(value, 'item'):
-        return value.item()
-    return value
 
 
 def build_parser() -> argparse.ArgumentParser:

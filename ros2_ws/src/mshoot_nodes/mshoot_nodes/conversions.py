@@ -20,6 +20,7 @@ from typing import Iterable, Mapping, Sequence, TYPE_CHECKING
 
 from builtin_interfaces.msg import Time
 from mshoot_core.safety import named_series, PRICE_SERIES, Rejection
+from mshoot_core.units import NS_PER_S
 from mshoot_msgs.msg import Disturbances, Forecast, MpcStatus, Setpoint, ZoneState
 import numpy as np
 import pandas as pd
@@ -31,7 +32,6 @@ if TYPE_CHECKING:  # the emulator process need not import scipy (through mshoot_
     from mshoot_core.mpc import MpcResult
     from mshoot_core.safety import Decision
 
-NS_PER_S = 1_000_000_000
 #: Disturbance series a forecast carries by default (those of the R1C1 zone but the
 #: ventilation, which the MPC assumes).
 FORECAST_DISTURBANCES = ('Tout', 'solrad', 'occ')
@@ -250,7 +250,7 @@ def setpoint_msg(stamp_ns: int, step_s: float, controls: Mapping[str, float],
                  temperatures_c: Mapping[str, float] | None = None,
                  plan_controls: Mapping[str, Sequence[float]] | None = None,
                  plan_temperatures_c: Mapping[str, Sequence[float]] | None = None,
-                 zone: str = '') -> Setpoint:
+                 zone: str = '', released: Sequence[bool] = ()) -> Setpoint:
     """
     Build a setpoint: named controls, zone temperature setpoints and the plan behind them.
 
@@ -261,7 +261,7 @@ def setpoint_msg(stamp_ns: int, step_s: float, controls: Mapping[str, float],
     step_s : float
         Control step [s].
     controls : mapping
-        Every control by name (heat rates [W]).
+        Every control by name (each in its unit).
     temperatures_c : mapping, optional
         Temperature setpoint of every zone by name [degC].
     plan_controls, plan_temperatures_c : mapping, optional
@@ -270,6 +270,8 @@ def setpoint_msg(stamp_ns: int, step_s: float, controls: Mapping[str, float],
         (``temperatures_c``). None: no plan.
     zone : str
         ``header.frame_id``.
+    released : sequence of bool
+        Per control (in the order of ``controls``): its overwrite released (empty: none).
 
     """
     msg = Setpoint()
@@ -283,6 +285,7 @@ def setpoint_msg(stamp_ns: int, step_s: float, controls: Mapping[str, float],
     msg.temperature_setpoints_c = [float(v) for v in temperatures_c.values()]
     msg.plan_controls = flatten(plan_controls)[1] if plan_controls else []
     msg.plan_temperatures_c = flatten(plan_temperatures_c)[1] if plan_temperatures_c else []
+    msg.released = [bool(r) for r in released]
     return msg
 
 
@@ -375,7 +378,7 @@ def decision_setpoint_msg(stamp_ns: int, decision: Decision, step_s: float,
         stamp_ns, step_s, dict(zip(names, controls)), dict(zip(zones, temperatures)),
         {n: plan_u[:, i] for i, n in enumerate(names)} if m else None,
         {n: plan_t[:, j] for j, n in enumerate(zones)} if m and plan_t.shape[0] == m
-        else None, zone)
+        else None, zone, decision.released)
     if schedule is not None and not schedule.held:
         msg.schedule_offsets_s = [float(o) for o in schedule.offsets_s]
         msg.schedule_values = [float(v) for v in schedule.values.T.reshape(-1)]

@@ -8,8 +8,8 @@ step, by name) at every control step and applies the setpoints from
 ``/mpc/setpoint`` (every control of the model, by name), clipped to the
 actuator limits with a warning. Any model of the registry runs, with one or
 several controls and zones (e.g. ``model:=r1c1x2``: two zones, controls
-``q_0``, ``q_1``); every control has the actuator limits ``heat_rate_min_w``,
-``heat_rate_max_w``.
+``q_0``, ``q_1``); every control has the actuator limits of the model's card
+(:mod:`mshoot_core.controls`), narrowed by ``control_min``, ``control_max``.
 
 Modes (parameter ``mode``):
 
@@ -42,7 +42,7 @@ Safety (the rules are in :mod:`mshoot_core.safety`):
 - when a step has no setpoint (free mode, or lockstep after
   ``lockstep_timeout_s`` of wall time with ``on_lockstep_timeout`` 'hold'),
   the last setpoint is held for ``hold_s`` of simulated time, then the safe
-  default ``safe_heat_rate_w`` is applied to every control
+  values (the card's, or ``safe_value``) are applied
   (:class:`~mshoot_core.safety.SetpointHold`); with 'stop' (default) the run
   ends with a clear error instead of waiting forever (exit code 1);
 - a model that raises or returns non-finite states ends the run with an
@@ -81,10 +81,12 @@ from __future__ import annotations
 import collections
 import json
 import logging
+import math
 import pathlib
 import sys
 from typing import Any
 
+from mshoot_core.controls import model_controls, narrowed, safe_values
 from mshoot_core.emulation import Emulator, initial_state, StepRecord
 from mshoot_core.estimation import Sensors
 from mshoot_core.models.card import time_origin_seconds
@@ -93,17 +95,19 @@ from mshoot_core.models.registry import (control_interface, ControlInterface,
 from mshoot_core.peers import Peer
 from mshoot_core.safety import (check_lengths, check_setpoint, check_stamp_fields, Rejection,
                                 reorder, setpoint_caps, SetpointHold, StampGate)
+from mshoot_core.settings import BY_NAME
+from mshoot_core.units import NS_PER_S
 from mshoot_msgs.msg import Disturbances, Setpoint, ZoneState
 import numpy as np
 import pandas as pd
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from mshoot_nodes import contract, sources
-from mshoot_nodes.conversions import (clock_msg, disturbances_msg, field_lengths, NS_PER_S,
-                                      seconds_to_ns, stamp_to_ns, zone_state_msg)
+from mshoot_nodes.conversions import (clock_msg, disturbances_msg, field_lengths, seconds_to_ns,
+                                      stamp_to_ns, zone_state_msg)
 from mshoot_nodes.diagnostics import DiagnosticsPublisher, Level, Report
 from mshoot_nodes.lifecycle import ManagedNode
-from mshoot_nodes.params import declare, ordered, ParamSpec, values
+from mshoot_nodes.params import declare, ParamSpec, values
 from mshoot_nodes.peers import PeerMonitor
 from mshoot_nodes.readiness import check_requirements, parse_requirements, ReadinessGate
 from mshoot_nodes.startup import run_node
@@ -146,10 +150,8 @@ PARAMS = (
     ParamSpec('step_s', 3600.0, 'control step [s]', low=1.0, high=86400.0, read_only=True),
     ParamSpec('fine_step_s', 60.0, 'grid of the recorded fine trajectory [s]', low=1.0,
               high=86400.0, read_only=True),
-    ParamSpec('heat_rate_min_w', -2000.0, 'actuator limit of every control: largest cooling '
-              'power, negative [W]', low=-1e7, high=1e7, read_only=True),
-    ParamSpec('heat_rate_max_w', 2000.0, 'actuator limit of every control: largest heating '
-              'power [W]', low=-1e7, high=1e7, read_only=True),
+    ParamSpec('control_min', math.nan, BY_NAME['control_min'].description, read_only=True),
+    ParamSpec('control_max', math.nan, BY_NAME['control_max'].description, read_only=True),
     ParamSpec('mode', 'lockstep', 'lockstep: wait for the setpoint of every step (exact, '
               'as fast as the MPC); free: run at speedup times the wall clock',
               choices=('lockstep', 'free'), read_only=True),
@@ -168,8 +170,9 @@ PARAMS = (
     ParamSpec('hold_s', 3600.0, 'a step without its setpoint applies the last one while it is '
               'at most this old (simulated time), else the safe default [s]', low=0.0,
               high=1e7),
-    ParamSpec('safe_heat_rate_w', 0.0, 'safe default heat rate of every control when no '
-              'setpoint can be held [W]', low=-1e7, high=1e7),
+    ParamSpec('safe_value', math.nan, 'safe value of every control when no setpoint can be '
+              "held, overriding the card's safe (NaN: the card's, else 0 within the limits) "
+              "[the control's unit]"),
     ParamSpec('reject_log_period_s', 5.0, 'at most one log line per kind of rejected '
               'setpoint in this wall time [s]', low=0.0, high=3600.0, read_only=True),
     ParamSpec('ready_endpoints', [f'{contract.ZONE_STATE} subscribers>=1',
@@ -216,10 +219,11 @@ def _check_sources(v: dict[str, Any]) -> str | None:
     if {'start_step', 'hours'} <= v.keys() and v['start_step'] >= v['hours']:
         return (f"start_step must be < hours (steps 0 to {v['hours'] - 1}), got "
                 f"{v['start_step']}")
-    if {'safe_heat_rate_w', 'heat_rate_min_w', 'heat_rate_max_w'} <= v.keys() and not (
-            v['heat_rate_min_w'] <= v['safe_heat_rate_w'] <= v['heat_rate_max_w']):
-        return (f"safe_heat_rate_w must be within the actuator limits [{v['heat_rate_min_w']}, "
-                f"{v['heat_rate_max_w']}], got {v['safe_heat_rate_w']}")
+    if {'control_min', 'control_max'} <= v.keys() and not (
+            math.isnan(v['control_min']) or math.isnan(v['control_max'])
+            or v['control_min'] < v['control_max']):
+        return (f"control_min must be < control_max, got {v['control_min']} and "
+                f"{v['control_max']}")
     if 'ready_endpoints' in v and (reason := check_requirements(v['ready_endpoints'])):
         return f'ready_endpoints: {reason}'
     return None
@@ -238,9 +242,14 @@ def build_emulator(p: dict[str, Any]) -> Emulator:
     if card is not None:
         model.time_origin_s = time_origin_seconds(card, scenario.attrs.get('start'))
     controls = control_interface(model).control_names
-    limits = getattr(model, 'control_limits', None)  # the card's limits, where it has them
-    bounds = (tuple(limits) if limits is not None
-              else ((p['heat_rate_min_w'], p['heat_rate_max_w']),) * len(controls))
+    specs = model_controls(model, controls)  # the card's units, limits and safe values
+    bounds = tuple(narrowed((-math.inf if math.isnan(c.min) else c.min,  # open: not clipped
+                             math.inf if math.isnan(c.max) else c.max),
+                            p['control_min'], p['control_max']) for c in specs)
+    wrong = [c.label() for c, (low, high) in zip(specs, bounds) if not low < high]
+    if wrong:
+        raise ValueError(f'controls {wrong} have no range within the limits {list(bounds)} '
+                         "(the card's, narrowed by control_min, control_max)")
     start = p.get('start_step', 0)
     saved = p.get('plant_state_file', '')
     plant_state = None
@@ -295,7 +304,7 @@ class EmulatorNode(ManagedNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('emulator', **kwargs)
-        declare(self, PARAMS, [ordered('heat_rate_min_w', 'heat_rate_max_w'), _check_sources])
+        declare(self, PARAMS, [_check_sources])
         self.params = values(self, PARAMS)
         self.add_post_set_parameters_callback(self._on_parameters_set)
         p = self.params
@@ -329,7 +338,9 @@ class EmulatorNode(ManagedNode):
         self.lockstep_timeouts = 0
         self.setpoint_waits_s: list[float] = []
         self._reported_rejections = 0
-        self._hold = SetpointHold(self._safe_controls(), p['hold_s'])
+        self._hold = SetpointHold(self._safe_controls(), p['hold_s'],
+                                  [c.releasable for c in self.emulator.control_specs]
+                                  if self.emulator is not None else ())
         self._setpoint_gate = StampGate(self.step_ns, max_age_ns=(
             0 if p['mode'] == 'lockstep' else seconds_to_ns(p['hold_s'])),
             origin_ns=self.epoch_ns)  # setpoints are stamped with their step's start
@@ -463,9 +474,11 @@ class EmulatorNode(ManagedNode):
         return self._steady.now().nanoseconds
 
     def _safe_controls(self) -> tuple[float, ...]:
-        """Return the safe default of every model control (one before the first configure)."""
-        count = len(self.emulator.control_names) if self.emulator is not None else 1
-        return (float(self.params['safe_heat_rate_w']),) * count
+        """Return the safe value of every model control (0 before the first configure)."""
+        if self.emulator is None:
+            return (0.0,)
+        e = self.emulator
+        return safe_values(e.control_specs, e.control_bounds, self.params['safe_value'])
 
     # -- parameters -----------------------------------------------------------------------
     def _on_parameters_set(self, params: list) -> None:
@@ -474,7 +487,7 @@ class EmulatorNode(ManagedNode):
             if param.name == 'speedup':
                 self._speedup = float(param.value)
                 self.get_logger().info(f'speed-up set to {self._speedup:g}')
-            elif param.name in ('hold_s', 'safe_heat_rate_w'):
+            elif param.name in ('hold_s', 'safe_value'):
                 self._hold.hold_s = float(self.params['hold_s'])
                 self._hold.safe_controls = np.array(self._safe_controls())
                 if self.params['mode'] != 'lockstep':
@@ -578,7 +591,7 @@ class EmulatorNode(ManagedNode):
         decision = self._hold.controls_for(self._scenario_s(self.stamp_ns))
         self.get_logger().error(f'no setpoint for {step} after {waited_s:.1f} s (lockstep '
                                 f'timeout): {decision.reason}')
-        self._advance(decision.controls, decision.source)
+        self._advance(decision.controls, decision.source, released=decision.released)
 
     def _scenario_s(self, stamp_ns: int) -> float:
         """Scenario time [s] of a ROS stamp."""
@@ -602,7 +615,8 @@ class EmulatorNode(ManagedNode):
                                        expected_step_s=self.params['step_s'],
                                        expected_controls=controls,
                                        schedule_offsets_s=msg.schedule_offsets_s,
-                                       schedule_values=msg.schedule_values, schedules=lockstep)
+                                       schedule_values=msg.schedule_values, schedules=lockstep,
+                                       released=msg.released)
                      or self._setpoint_gate.check(stamp, now))
         if rejection:
             self._reject(stamp, rejection)
@@ -617,6 +631,8 @@ class EmulatorNode(ManagedNode):
                                           f'the current step {self.stamp_ns / NS_PER_S:.3f} s'))
             return
         applied = reorder(msg.control_names, msg.control_values, controls)
+        released = (tuple(bool(r) for r in reorder(msg.control_names, msg.released, controls))
+                    if len(msg.released) else ())
         schedule = None
         if len(msg.schedule_offsets_s):
             n = len(msg.schedule_offsets_s)
@@ -626,10 +642,10 @@ class EmulatorNode(ManagedNode):
                         for k, offset in enumerate(msg.schedule_offsets_s)]
         self._setpoint_gate.accept(stamp, now)
         self.peers.heard('setpoint')
-        self._hold.offer(self._scenario_s(stamp), applied)
+        self._hold.offer(self._scenario_s(stamp), applied, released)
         if lockstep:
             self.setpoint_waits_s.append((self._steady_ns() - self._step_started_ns) / NS_PER_S)
-            self._advance(applied, 'setpoint', schedule)
+            self._advance(applied, 'setpoint', schedule, released)
 
     def _reject(self, stamp_ns: int, rejection: Rejection) -> None:
         self.rejections.reject('setpoint', self.resolve_topic_name(contract.SETPOINT), stamp_ns,
@@ -650,21 +666,25 @@ class EmulatorNode(ManagedNode):
         if decision.source != 'setpoint':
             self.get_logger().warning(f'step {self.stamp_ns / NS_PER_S:.0f} s: '
                                       f'{decision.reason}')
-        self._advance(decision.controls, decision.source)
+        self._advance(decision.controls, decision.source, released=decision.released)
 
     def _advance(self, controls: np.ndarray, source: str = 'setpoint',
-                 schedule: list | None = None) -> None:
-        """Apply ``controls`` (or a ``schedule`` within the step) over the step, go on."""
+                 schedule: list | None = None, released: tuple[bool, ...] = ()) -> None:
+        """
+        Apply ``controls`` (or a ``schedule`` within the step) over the step, go on.
+
+        ``released``: per control, its overwrite released (the building's own controller).
+        """
         bounds = self.emulator.control_bounds
         clipped = np.clip(controls, bounds[:, 0], bounds[:, 1])
         names = self.emulator.control_names
         for k in np.flatnonzero(clipped != controls):
             self.get_logger().warning(
-                f'setpoint {names[k]} = {controls[k]:.1f} W at {self.stamp_ns / NS_PER_S:.0f} s '
-                f'is outside the actuator limits [{bounds[k, 0]:.0f}, {bounds[k, 1]:.0f}] W: '
-                f'applying {clipped[k]:.1f} W')
+                f'setpoint {names[k]} = {controls[k]:g} at {self.stamp_ns / NS_PER_S:.0f} s '
+                f'is outside the actuator limits [{bounds[k, 0]:g}, {bounds[k, 1]:g}]: '
+                f'applying {clipped[k]:g}')
         try:
-            record = self.emulator.advance(clipped, schedule)
+            record = self.emulator.advance(clipped, schedule, released)
         except Exception as exc:  # noqa: BLE001 - the building model failed: stop, clearly
             self._fail(f'the emulation model failed at {self.stamp_ns / NS_PER_S:.0f} s: '
                        f'{type(exc).__name__}: {exc}')
@@ -740,11 +760,12 @@ class EmulatorNode(ManagedNode):
 
     def applied_frame(self) -> pd.DataFrame:
         """
-        One row per step: ROS stamp [ns], applied controls [W], start and end states.
+        One row per step: ROS stamp [ns], applied controls, start and end states.
 
         Index ``time_s`` (scenario time [s]); columns ``stamp_ns``, every
-        control (``q``, or ``q_0``, ``q_1``, ...), ``<state>_start``,
-        ``<state>_end``.
+        control (``q``, or ``q_0``, ``q_1``, ...; each in its unit), ``<state>_start``,
+        ``<state>_end``, ``released`` (the controls whose overwrite was released, separated
+        by spaces; '' for none).
         """
         rows = []
         if not self.records:
@@ -757,6 +778,7 @@ class EmulatorNode(ManagedNode):
             for i, name in enumerate(self.emulator.model.state_names):
                 row[f'{name}_start'] = float(record.x_start[i])
                 row[f'{name}_end'] = float(record.x_end[i])
+            row['released'] = ' '.join(record.released)
             rows.append(row)
         return pd.DataFrame(rows).set_index('time_s')
 

@@ -28,6 +28,7 @@ from mshoot_core.forecast import horizon_problem, ScenarioForecasts
 from mshoot_core.peers import Peer
 from mshoot_core.safety import COMFORT_SERIES, PRICE_SERIES
 from mshoot_core.settings import fields_of, ForecastErrorSettings
+from mshoot_core.units import NS_PER_S
 from mshoot_msgs.msg import Forecast
 import numpy as np
 import pandas as pd
@@ -36,7 +37,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 
 from mshoot_nodes import contract, sources
 from mshoot_nodes.conversions import (floor_to_step, FORECAST_DISTURBANCES, forecast_msg,
-                                      NS_PER_S, seconds_to_ns)
+                                      seconds_to_ns)
 from mshoot_nodes.diagnostics import DiagnosticsPublisher, Level, Report
 from mshoot_nodes.params import declare, ParamSpec, values
 from mshoot_nodes.peers import PeerMonitor

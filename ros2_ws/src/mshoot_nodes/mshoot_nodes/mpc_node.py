@@ -53,18 +53,19 @@ from typing import Any
 
 from mshoot_core.controller import Controller, controller_for, StepOutcome
 from mshoot_core.models.base import Model
-from mshoot_core.models.registry import MODEL_PARAMETERS, ModelSettings
+from mshoot_core.models.registry import card_controls, MODEL_PARAMETERS, ModelSettings
 from mshoot_core.mpc import MpcResult
 from mshoot_core.peers import Peer
 from mshoot_core.safety import (check_lengths, check_setpoint, check_stamp_fields,
                                 forecast_caps, Rejection)
 from mshoot_core.settings import MpcSettings, PARAMETERS, SettingsError
+from mshoot_core.units import NS_PER_S
 from mshoot_msgs.msg import Forecast, MpcStatus, Setpoint, ZoneState
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from mshoot_nodes import contract
-from mshoot_nodes.conversions import (decision_setpoint_msg, decision_status_msg,
-                                      field_lengths, forecast_series, NS_PER_S, stamp_to_ns)
+from mshoot_nodes.conversions import (decision_setpoint_msg, decision_status_msg, field_lengths,
+                                      forecast_series, stamp_to_ns)
 from mshoot_nodes.diagnostics import DiagnosticsPublisher, Level, Report
 from mshoot_nodes.lifecycle import ManagedNode
 from mshoot_nodes.params import declare, ParamSpec, values
@@ -102,8 +103,16 @@ DEFAULTS = {spec.name: spec.default for spec in PARAMS}
 
 
 def settings_from(p: dict[str, Any]) -> MpcSettings:
-    """Return the controller settings of the node's parameter values ``p``."""
-    return MpcSettings.from_flat({name: p[name] for name in SETTING_NAMES})
+    """
+    Return the controller settings of the node's parameter values ``p``.
+
+    With the controls of the model's card (units, limits, safe values), where ``model`` is a
+    card, so the settings are checked against them.
+    """
+    controls = card_controls(p['model'])
+    extra = {'control_names': [c.name for c in controls], 'controls': controls} if controls \
+        else {}
+    return MpcSettings.from_flat({**{name: p[name] for name in SETTING_NAMES}, **extra})
 
 
 def _check(proposed: dict[str, Any]) -> str | None:
@@ -197,15 +206,19 @@ class MpcNode(ManagedNode):
                                                              contract.DATA_QOS)
         self._status_pub = self.create_lifecycle_publisher(MpcStatus, contract.STATUS,
                                                            contract.DATA_QOS)
+        s = self.controller.settings
         self.get_logger().info(
             f"model {p['model'] if self._given_model is None else type(self.model).__name__}, "
             f"horizon {p['horizon_steps']} x {p['step_s']:.0f} s, cost {p['cost']}, comfort "
             f"{p['comfort']}, solver {p['solver']}, controls "
-            f'{list(self.controller.interface.control_names)} within '
-            f"[{p['heat_rate_min_w']:.0f}, {p['heat_rate_max_w']:.0f}] W, zone temperatures "
-            f'{list(self.controller.interface.temperature_names)}, time budget '
-            f"{p['time_budget_s'] or 'none'}, "
-            f"safe setpoint {p['safe_heat_rate_w']:.0f} W / {p['safe_temperature_c']:.1f} degC")
+            + ', '.join(f'{c.label()} in [{low:g}, {high:g}] safe {safe:g}'
+                        + (' (released)' if released else '')
+                        for c, (low, high), safe, released in zip(
+                            s.problem.control_specs, s.problem.control_bounds, s.safe_values,
+                            s.released))
+            + f', zone temperatures {list(self.controller.interface.temperature_names)}, '
+            f"time budget {p['time_budget_s'] or 'none'}, safe zone setpoint "
+            f"{p['safe_temperature_c']:.1f} degC")
 
     def activate(self) -> None:
         """Take inputs and decide on whole steps and every 50 ms of wall time."""
@@ -263,6 +276,7 @@ class MpcNode(ManagedNode):
             'steps_behind': behind,
             'decisions': sum(sources.values()),
             'optimum': sources['optimum'], 'plan': sources['plan'], 'safe': sources['safe'],
+            'released': sources['released'],
             'consecutive_fallbacks': c.supervisor.consecutive_fallbacks,
             'rejected_states': c.rejections.total('state'),
             'rejected_forecasts': c.rejections.total('forecast'),
@@ -296,7 +310,8 @@ class MpcNode(ManagedNode):
             return
         self.controller.assumed_inputs['dpos'] = float(self.params['ventilation_dpos'])
         what = self.controller.update(settings_from(self.params).replace(
-            control_names=self.controller.interface.control_names))
+            control_names=self.controller.interface.control_names,
+            controls=self.controller.settings.problem.controls))
         if what not in ('unchanged', 'updated'):
             self.get_logger().info(f'controller {what} (rebuilt: warm start reset; supervisor:'
                                    ' last good plan forgotten)')

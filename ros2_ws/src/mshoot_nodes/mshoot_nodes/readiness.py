@@ -29,13 +29,13 @@ import dataclasses
 import re
 from typing import Callable, Iterable, Sequence
 
+from mshoot_core.units import NS_PER_S
 from rclpy.exceptions import InvalidTopicNameException
 from rclpy.node import Node
 from rclpy.validate_topic_name import validate_topic_name
 
 from mshoot_nodes import contract
 
-NS_PER_S = 1_000_000_000
 _KINDS = ('publishers', 'subscribers')
 _CONDITION = re.compile(r'(publishers|subscribers)>=(\d+)')
 #: What a requirement looks like (for error messages).

@@ -16,8 +16,8 @@ from typing import Mapping, Sequence
 
 from mshoot_core.closed_loop import ClosedLoopResult
 from mshoot_core.kpis import closed_loop_kpis
-from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.outputs import write_outputs
+from mshoot_core.units import KELVIN
 import numpy as np
 import pandas as pd
 

@@ -19,16 +19,16 @@ from __future__ import annotations
 from typing import Any
 
 from mshoot_core.boptest.testcase import TestCase
+from mshoot_core.units import KELVIN, NS_PER_S
 from mshoot_msgs.msg import Setpoint, ZoneState
 from mshoot_studies.boptest_rule import PreheatRule
 from rclpy.node import Node
 
 from mshoot_nodes import contract, sources
-from mshoot_nodes.conversions import NS_PER_S, setpoint_msg, stamp_to_ns
+from mshoot_nodes.conversions import setpoint_msg, stamp_to_ns
 from mshoot_nodes.params import declare, ParamSpec, values
 from mshoot_nodes.startup import run_node
 
-KELVIN = 273.15
 PARAMS = (
     ParamSpec('scenario', 'boptest:peak_heat_day', "the emulator's scenario: "
               "'boptest:<period>[:<price>]'", read_only=True),

@@ -17,9 +17,9 @@ from typing import Any
 from mshoot_core.models.registry import build_model, check_model  # noqa: F401 (API)
 from mshoot_core.models.registry import BUILTIN as MODELS  # noqa: F401 (API)
 from mshoot_core.scenario import reference_scenario
+from mshoot_core.units import NS_PER_S
 import pandas as pd
 
-from mshoot_nodes.conversions import NS_PER_S
 from mshoot_nodes.params import ParamSpec
 
 logger = logging.getLogger(__name__)

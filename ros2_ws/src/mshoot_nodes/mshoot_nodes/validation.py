@@ -15,10 +15,9 @@ from __future__ import annotations
 import time
 
 from mshoot_core.safety import Rejection, RejectionCounter
+from mshoot_core.units import NS_PER_S
 from rclpy.impl.rcutils_logger import RcutilsLogger
 from rclpy.node import Node
-
-from mshoot_nodes.conversions import NS_PER_S
 
 
 class RejectionLog:

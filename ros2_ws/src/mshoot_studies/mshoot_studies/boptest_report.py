@@ -17,6 +17,7 @@ from mshoot_core.boptest.testcase import PRICE_SCENARIOS, TestCase
 import numpy as np
 import pandas as pd
 
+from mshoot_core.units import KELVIN
 logger = logging.getLogger(__name__)
 
 #: Columns of the KPI table: key, header, format.
@@ -28,7 +29,6 @@ TABLE_COLUMNS = (('controller', 'controller', '{}'), ('period', 'period', '{}'),
                  ('pele_tot', 'pele [kW/m2]', '{:.4f}'), ('pgas_tot', 'pgas [kW/m2]', '{:.4f}'),
                  ('pdih_tot', 'pdih [kW/m2]', '{:.4f}'), ('time_rat', 'time_rat [-]', '{:.2e}'),
                  ('starts_per_day', 'starts/day', '{:.2f}'))
-KELVIN = 273.15
 #: Time tolerance [s].
 _EPS_S = 1e-6
 

@@ -33,6 +33,7 @@ import argparse
 import dataclasses
 import json
 import logging
+import math
 import pathlib
 import time
 from typing import Any, Sequence
@@ -42,7 +43,6 @@ from mshoot_core.controller import Controller
 from mshoot_core.emulation import Emulator
 from mshoot_core.kpis import closed_loop_kpis, FALLBACK_EXIT, fallback_problem
 from mshoot_core.models.base import Model
-from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.models.registry import (build_model, BUILTIN, check_model, CONTROL_TOLERANCE,
                                          EMULATOR_TOLERANCE, is_card_path, model_names,
                                          MODEL_PARAMETERS, ModelSettings)
@@ -51,6 +51,7 @@ from mshoot_core.plotting import FigurePreview, PlotWorker
 from mshoot_core.scenario import data_scenario, DEFAULT_DATA, PUBLISHED, reference_scenario
 from mshoot_core.settings import (add_arguments, from_arguments, MpcSettings, option_wording,
                                   SettingsError)
+from mshoot_core.units import KELVIN
 import numpy as np
 import pandas as pd
 
@@ -456,11 +457,11 @@ def card_setup(args: argparse.Namespace, settings: MpcSettings, control: Model,
 
     What the cards change in the case, and every problem of the pair with the scenario.
 
-    The control card gives the MPC's controls (``control_names``) and, where it
-    bounds them, the heat-rate range (one range for every control: where the
-    controls' ranges differ the MPC plans within their intersection, logged); the
-    emulator card gives the start state (``T`` from the initial temperature, other
-    states from the card) and the actuator limits.
+    The control card gives the MPC's controls (``control_names``) with each one's unit,
+    limits and safe value (``controls``; the settings ``control_min``/``control_max`` only
+    narrow them); the emulator card gives the start state (``T`` from the initial
+    temperature, other states from the card) and the actuator limits (where it has none, the
+    MPC's).
 
     Returns
     -------
@@ -476,18 +477,8 @@ def card_setup(args: argparse.Namespace, settings: MpcSettings, control: Model,
                          else None)
     names = control_card.control_names if control_card else settings.problem.control_names
     changes: dict[str, Any] = {'control_names': names}
-    if control_card:
-        lows = [v.min for v in control_card.controls.values() if v.min is not None]
-        highs = [v.max for v in control_card.controls.values() if v.max is not None]
-        if lows:
-            changes['heat_rate_min_w'] = float(max(lows))
-        if highs:
-            changes['heat_rate_max_w'] = float(min(highs))
-        if len(set(lows)) > 1 or len(set(highs)) > 1:
-            logger.warning('%s: the controls have different ranges; the MPC plans every '
-                           'control within their intersection [%g, %g]', args.control,
-                           changes.get('heat_rate_min_w', -np.inf),
-                           changes.get('heat_rate_max_w', np.inf))
+    if control_card:  # each control's unit, limits and safe value
+        changes['controls'] = control_card.control_specs()
     try:
         settings = settings.replace(changes)
     except ValueError as exc:
@@ -518,9 +509,10 @@ def card_setup(args: argparse.Namespace, settings: MpcSettings, control: Model,
             x0 = emulator_card.initial_state(INITIAL_C + KELVIN)
         except ValueError as exc:
             problems.append(str(exc))
-        default = (settings.problem.heat_rate_min_w, settings.problem.heat_rate_max_w)
-        bounds = dict(zip(emulator_card.control_names, emulator_card.control_bounds(default)))
-        actuators = [bounds.get(c, default) for c in names]
+        mpc = dict(zip(names, settings.problem.control_bounds))
+        own = {c.name: (c.min, c.max) for c in emulator_card.control_specs()}
+        actuators = [tuple(m if math.isnan(e) else e for e, m in zip(own.get(c, mpc[c]), mpc[c]))
+                     for c in names]
     return settings, x0, actuators, problems
 
 

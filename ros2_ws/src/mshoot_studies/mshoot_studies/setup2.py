@@ -17,10 +17,11 @@ import logging
 import pathlib
 from typing import Any
 
-from mshoot_core.models.r1c1 import KELVIN, R1C1Model
+from mshoot_core.models.r1c1 import R1C1Model
 from mshoot_core.models.sklearn_model import (evaluate, make_excitation_data, make_zone_model,
                                               SklearnModel)
 from mshoot_core.scenario import load_ou44
+from mshoot_core.units import KELVIN
 import numpy as np
 import pandas as pd
 

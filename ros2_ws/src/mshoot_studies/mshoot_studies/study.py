@@ -41,9 +41,11 @@ import time
 from typing import Any, Callable, Sequence
 
 from mshoot_core.kpis import JOULES_PER_KWH
-from mshoot_core.models.r1c1 import KELVIN, R1C1Model
+from mshoot_core.models.r1c1 import R1C1Model
 from mshoot_core.models.registry import build_model
 from mshoot_core.scenario import DEFAULT_DATA, PUBLISHED, reference_scenario
+from mshoot_core.units import json_ready
+from mshoot_core.units import KELVIN
 import numpy as np
 import pandas as pd
 
@@ -131,20 +133,6 @@ def markdown_table(rows: Sequence[dict], columns: Sequence[Column]) -> str:
     return '\n'.join(lines)
 
 
-def _json_ready(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _json_ready(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_ready(v) for v in value]
-    if isinstance(value, (np.floating, float)):
-        return None if not math.isfinite(float(value)) else float(value)
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (np.bool_,)):
-        return bool(value)
-    return value
-
-
 def _finish_part(out: pathlib.Path, number: int, name: str, title: str,
                  tables: dict[str, list[dict]], sections: Sequence[str], figure: pathlib.Path,
                  notes: Sequence[str], meta: dict | None = None) -> PartResult:
@@ -152,7 +140,7 @@ def _finish_part(out: pathlib.Path, number: int, name: str, title: str,
     json_path = out / f'study_{number}_{name}.json'
     payload = {'part': number, 'title': title, 'tables': tables, 'notes': list(notes)}
     payload.update(meta or {})
-    json_path.write_text(json.dumps(_json_ready(payload), indent=2) + '\n')
+    json_path.write_text(json.dumps(json_ready(payload), indent=2) + '\n')
     body = [f'## {number}. {title}', '', f'![{title}]({figure.name})', '']
     for section in sections:
         body += [section, '']

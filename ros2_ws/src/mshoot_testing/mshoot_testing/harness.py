@@ -19,10 +19,9 @@ import time
 from typing import Any, Callable, Sequence
 
 from mshoot_core.models.base import Model
-from mshoot_core.models.r1c1 import KELVIN
+from mshoot_core.units import KELVIN, NS_PER_S
 from mshoot_msgs.msg import Forecast, MpcStatus, Setpoint, ZoneState
-from mshoot_nodes.conversions import (forecast_msg, NS_PER_S, ns_to_stamp, setpoint_msg,
-                                      zone_state_msg)
+from mshoot_nodes.conversions import forecast_msg, ns_to_stamp, setpoint_msg, zone_state_msg
 from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_nodes.forecaster_node import ForecasterNode
 from mshoot_nodes.mpc_node import MpcNode

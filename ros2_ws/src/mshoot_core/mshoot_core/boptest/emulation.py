@@ -27,21 +27,20 @@ FMU time = scenario time - ``time_origin_s`` (the card's ``time_origin``, e.g. 1
 from __future__ import annotations
 
 import logging
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
 
 from mshoot_core.boptest.plant import BoptestPlant, MAX_SAMPLE_S, ME_TOLERANCE
 from mshoot_core.boptest.testcase import TestCase
+from mshoot_core.units import KELVIN
 
 logger = logging.getLogger(__name__)
 
 #: The calendar year the scenario dates are placed in (a non-leap year; the data are a
 #: typical year without a date).
 YEAR = 2023
-#: Kelvin at 0 degC.
-KELVIN = 273.15
 #: The scenario's weather columns from the test case's: column -> (test case column, offset
 #: added): the outdoor temperature [degC] and the global horizontal irradiance [W/m2].
 SCENARIO_WEATHER = {'Tout': ('TDryBul', -KELVIN), 'solrad': ('HGloHor', 0.0)}
@@ -158,6 +157,7 @@ class BoptestPlantModel:
         # every output recorded, as BOPTEST stores them (the card's and kpis.json's among them)
         self.plant = BoptestPlant(self.case, tolerance=card.tolerance or ME_TOLERANCE)
         self._controls = [card.controls[n] for n in self.control_names]
+        self._switches: dict[str, int] = {}  # switch -> on (1) / released (0)
         self._states = list(card.states.values())
         self._outputs = list(card.outputs.values())
 
@@ -174,11 +174,26 @@ class BoptestPlantModel:
                              f'{list(self.control_names)}, got {u}')
         out = {}
         for variable, value in zip(self._controls, values):
-            if variable.activate is None:
-                continue
+            if variable.activate is None or not self._switches.get(variable.activate, 1):
+                continue  # the building's own control (no switch, or released)
             scale, offset = variable.conversion()
             out[variable.variable] = scale * float(value) + offset
         return out
+
+    def plant_switches(self, values: Mapping[str, bool]) -> None:
+        """Set overwrite switches (the card's ``activate``): 0 releases the overwrite."""
+        switches = {v.activate for v in self._controls if v.activate is not None}
+        unknown = [name for name in values if name not in switches]
+        if unknown:
+            raise ValueError(f'{unknown} are not overwrite switches of the card: '
+                             f'{sorted(switches)}')
+        self._switches.update({name: int(bool(on)) for name, on in values.items()})
+
+    @property
+    def switch_state(self) -> dict[str, int]:
+        """Return the overwrite switches of the card's controls as applied (1: on)."""
+        return {v.activate: self._switches.get(v.activate, 1) for v in self._controls
+                if v.activate is not None}
 
     def _read(self) -> tuple[np.ndarray, np.ndarray]:
         now = self.plant.read([v.variable for v in (*self._states, *self._outputs)])

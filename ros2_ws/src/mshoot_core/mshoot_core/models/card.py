@@ -13,7 +13,7 @@ the states the MPC shoots over, and the measured outputs::
     monotone: true             # optional: states nondecreasing in their starts and the controls
     parameters: {shgc: 4.6}    # set before every initialisation
     controls:
-      q: {variable: q, unit: W, min: -2000, max: 2000}
+      q: {variable: q, unit: W, min: -2000, max: 2000, safe: 0}
     disturbances:
       Tout: {variable: Tout, unit: degC}
       solrad: {variable: solrad, unit: W/m2}
@@ -57,6 +57,13 @@ K, power W, energy J); inputs and outputs in the scenario's conventions
 taken as it is (no conversion), unless the canonical name needs a quantity
 (``T``, ``Tout``, ``q``, ... in :data:`NAME_QUANTITY`). Built-in cards:
 :data:`CARDS_DIR` (:func:`builtin_card`).
+
+A control's ``min``, ``max`` (actuator limits) and ``safe`` (the value applied when no
+plan is left) are written in the entry's ``unit`` (e.g. ``unit: K, min: 278.15``), converted
+to the canonical unit at the boundary, and checked against the min/max the FMU declares for
+the variable. An entry's unit may differ from the FMU's declared unit of the same quantity
+(``unit: degC`` on a variable in K): the card's numbers are then in its unit, the model
+speaks the FMU's. See ``docs/controls.md`` and :mod:`mshoot_core.controls`.
 """
 from __future__ import annotations
 
@@ -76,6 +83,7 @@ import pandas as pd
 import yaml
 
 from mshoot_core import fmu_binary
+from mshoot_core.controls import ControlSpec
 from mshoot_core.fmu_binary import Library
 from mshoot_core.fmu_cache import extract_fmu
 from mshoot_core.models import network_spec
@@ -167,7 +175,10 @@ class CardVariable:
     unit : str
         Unit of the model variable: the card's, else the FMU's declared unit.
     min, max : float or None
-        Actuator limits of a control, in the canonical unit.
+        Actuator limits of a control, in the canonical unit (the card writes them in its
+        unit).
+    safe : float or None
+        Safe value of a control, in the canonical unit (the card writes it in its unit).
     activate : str or None
         FMU input held at 1 whenever this control is applied (overwrite pairs).
     start : float or None
@@ -196,6 +207,7 @@ class CardVariable:
     activate: str | None = None
     start: float | None = None
     canonical_unit: str = ''
+    safe: float | None = None
     causality: str = ''
     model_start: float | None = None
     measured: bool = True
@@ -312,6 +324,14 @@ class ModelCard:
         return tuple((default[0] if v.min is None else v.min,
                       default[1] if v.max is None else v.max) for v in self.controls.values())
 
+    def control_specs(self) -> tuple[ControlSpec, ...]:
+        """Return every control as :class:`~mshoot_core.controls.ControlSpec` (canonical unit)."""
+        def number(value: float | None) -> float:
+            return math.nan if value is None else float(value)
+        return tuple(ControlSpec(name, v.canonical_unit, number(v.min), number(v.max),
+                                 number(v.safe), v.activate or '')
+                     for name, v in self.controls.items())
+
     def initial_state(self, zone_temperature_k: float) -> np.ndarray:
         """
         Return a start state [canonical units].
@@ -404,6 +424,8 @@ class ModelVariable:
     start: float | None = None
     variability: str = ''
     initial: str = ''
+    min: float | None = None  # noqa: A003 (the FMI attribute)
+    max: float | None = None  # noqa: A003 (the FMI attribute)
 
     def label(self) -> str:
         """``name (causality, unit)``."""
@@ -438,10 +460,14 @@ def fmu_variables(md: Any) -> list[ModelVariable]:
     continuous = {d.variable.derivative.name for d in getattr(md, 'derivatives', [])
                   if d.variable.derivative is not None}
     for v in md.modelVariables:
-        unit = v.unit or (v.declaredType.unit if v.declaredType is not None else None) or ''
+        declared = v.declaredType
+        unit = v.unit or (declared.unit if declared is not None else None) or ''
         causality = v.causality or 'local'
+        low = v.min if v.min is not None else getattr(declared, 'min', None)
+        high = v.max if v.max is not None else getattr(declared, 'max', None)
         out.append(ModelVariable(v.name, causality, v.type, unit, _float(v.start),
-                                 v.variability or '', v.initial or ''))
+                                 v.variability or '', v.initial or '', _float(low),
+                                 _float(high)))
         if v.name in continuous:
             out[-1] = dataclasses.replace(out[-1], causality=f'{causality}, state')
     return out
@@ -599,7 +625,7 @@ def schema_problems(document: Any) -> list[str]:
 
 
 #: The keys of a variable entry, by section (as in the schema).
-ENTRY_KEYS = {'controls': ('variable', 'unit', 'min', 'max', 'activate'),
+ENTRY_KEYS = {'controls': ('variable', 'unit', 'min', 'max', 'safe', 'activate'),
               'disturbances': ('variable', 'unit'),
               'states': ('variable', 'unit', 'start', 'measured', 'computed'),
               'outputs': ('variable', 'unit')}
@@ -876,13 +902,16 @@ def _check_variables(catalogue: _Catalogue, sections: dict[str, dict[str, dict]]
             elif catalogue.python and variable != name:
                 mine.append(f'{where}: {catalogue.label} keeps its own names: use {variable!r} '
                             'as the canonical name too')
-            unit = spec.get('unit')
+            unit = card_unit = spec.get('unit')
             if found is not None and unit is None:
-                unit = found.unit
+                unit = card_unit = found.unit
             elif found is not None and found.unit and not _same_unit(unit, found.unit) and (
                     catalogue.python or found.unit in UNITS):
-                mine.append(f'{where}: unit {unit!r} differs from the unit {found.unit!r} '
-                            f'{catalogue.label} declares for {variable!r}')
+                if _convertible(unit, found.unit) and not catalogue.python:
+                    unit = found.unit  # the card's numbers in its unit, the model in the FMU's
+                else:
+                    mine.append(f'{where}: unit {unit!r} differs from the unit {found.unit!r} '
+                                f'{catalogue.label} declares for {variable!r}')
             canonical, problem = canonical_unit(section, name, unit or '')
             if problem and not mine:  # a unit the model contradicts is one problem
                 mine.append(problem)
@@ -890,16 +919,17 @@ def _check_variables(catalogue: _Catalogue, sections: dict[str, dict[str, dict]]
                 pass
             elif catalogue.python and not _same_unit(canonical, unit or ''):
                 mine.append(f'{where}: {catalogue.label} has no unit conversion')
-            low, high = spec.get('min'), spec.get('max')
-            if low is not None and high is not None and not low <= high:
-                mine.append(f'{where}: min {low} must be <= max {high}')
+            if section == 'controls' and not mine and found is not None:
+                mine += _limit_problems(where, spec, card_unit or '', found, catalogue.label)
             problems += mine
             if mine or found is None:
                 continue
             scale, offset = conversion(canonical, unit)
             model_start = (None if found.start is None else (found.start - offset) / scale)
+            low, high, safe = (_in_unit(spec.get(key), card_unit or '', canonical)
+                               for key in ('min', 'max', 'safe'))
             resolved[name] = CardVariable(
-                variable=variable, unit=unit, min=low, max=high,
+                variable=variable, unit=unit, min=low, max=high, safe=safe,
                 activate=spec.get('activate'), start=spec.get('start'),
                 canonical_unit=canonical, causality=found.causality, model_start=model_start,
                 measured=bool(spec.get('measured', True)),
@@ -914,6 +944,51 @@ def _check_variables(catalogue: _Catalogue, sections: dict[str, dict[str, dict]]
         if missing:
             problems.append(f'{catalogue.label} needs every input mapped: missing {missing} (as '
                             'controls or disturbances)')
+    return out
+
+
+def _convertible(a: str | None, b: str) -> bool:
+    """Return True when units ``a`` and ``b`` are known units of one quantity."""
+    ua, ub = UNITS.get(a or ''), UNITS.get(b)
+    return ua is not None and ub is not None and ua.quantity == ub.quantity
+
+
+def _in_unit(value: float | None, unit: str, target: str) -> float | None:
+    """Return ``value`` [unit] in ``target`` (None stays None)."""
+    if value is None:
+        return None
+    scale, offset = conversion(unit, target) if _convertible(unit, target) else (1.0, 0.0)
+    return scale * float(value) + offset
+
+
+def _limit_problems(where: str, spec: Mapping[str, Any], unit: str, found: ModelVariable,
+                    label: str) -> list[str]:
+    """
+    Check a control's min, max and safe (in the card's ``unit``) against each other and the FMU.
+
+    The FMU's declared min/max of the variable (in its unit) bound the card's limits.
+    """
+    low, high, safe = spec.get('min'), spec.get('max'), spec.get('safe')
+    shown = f' {unit}' if unit else ''
+    if low is not None and high is not None and not low <= high:
+        return [f'{where}: min {low} must be <= max {high}']
+    out = []
+    if safe is not None and not ((low is None or low <= safe) and (high is None or safe <= high)):
+        out.append(f'{where}: safe {safe}{shown} must be within [min, max] = '
+                   f'[{_bound(low, "-inf")}, {_bound(high, "inf")}]{shown}')
+    model_unit = found.unit if _convertible(unit, found.unit) else unit
+    for key, value, fmu_value, outside in (('min', low, found.min, lambda a, b: a < b),
+                                           ('max', high, found.max, lambda a, b: a > b)):
+        if value is None or fmu_value is None:
+            continue
+        in_model = _in_unit(value, unit, model_unit)
+        if outside(in_model, fmu_value) and not math.isclose(in_model, fmu_value,
+                                                             rel_tol=1e-9, abs_tol=1e-9):
+            converted = f' (= {in_model:g} {model_unit})' if model_unit != unit else ''
+            out.append(f'{where}: {key} {value:g}{shown}{converted} is outside the '
+                       f'{"min" if key == "min" else "max"} {fmu_value:g} {model_unit} '
+                       f'{label} declares for {found.name!r} (a limit written in another '
+                       'unit than the entry unit?)')
     return out
 
 
@@ -1083,6 +1158,7 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
                              f'(a plant), not a {role} model')
         model = BoptestPlantModel(card, instance_name=f'mshoot-{role}')
         model.time_origin_s = float(time_origin_s)
+        model.control_specs = card.control_specs()
         return model
     if card.network is not None:
         from mshoot_core.models.network import NetworkModel
@@ -1090,6 +1166,7 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
                              control_names=card.control_names,
                              comfort_states=_comfort_states(card),
                              measured_states=card.measured_states)
+        model.control_specs = card.control_specs()
         return _claim_monotone(model, card)
     options: dict[str, Any] = {}
     if 'time_origin_s' in inspect.signature(FmiModel).parameters:
@@ -1101,6 +1178,7 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
     cls, extra = (FmiModel, {}) if conversions.identity else (CardFmiModel,
                                                               {'conversions': conversions})
     fixed = {v.activate: 1 for v in card.controls.values() if v.activate is not None}
+    # (a plant releases them: FmuPlant.plant_switches)
     computed = tuple(n for n, v in card.states.items() if v.computed)
     if computed:  # a plant only (FmiModel.derived_states)
         options['computed_states'] = computed
@@ -1117,6 +1195,7 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
     # What controllers and nodes read (registry.control_interface): the card's controls, and
     # its zone air temperatures (T, T_<zone>) as the states the comfort band bounds.
     model.control_names = tuple(card.control_names)
+    model.control_specs = card.control_specs()  # units, limits, safe values, switches
     model.comfort_states = _comfort_states(card)
     model.measured_states = card.measured_states  # the others are estimated
     logger.debug('built %r from %s for the %s', model, card.path, role)
@@ -1368,8 +1447,10 @@ def describe(card: ModelCard) -> list[dict[str, str]]:
             extra = []
             if v.min is not None or v.max is not None:
                 extra.append(f'[{_bound(v.min, "-inf")}, {_bound(v.max, "inf")}]')
+            if v.safe is not None:
+                extra.append(f'safe {v.safe:g}')
             if v.activate:
-                extra.append(f'{v.activate} := 1')
+                extra.append(f'{v.activate} := 1 (released by the fallback)')
             if v.start is not None:
                 extra.append(f'start {v.start:g}')
             if v.computed:

@@ -15,6 +15,9 @@ next. :class:`FmuPlant` gives :class:`~mshoot_core.models.fmi.FmiModel`:
   variables that are not model inputs (Real or
   Boolean: an overwrite's value and its ``activate`` switch) from now on; in Model Exchange
   an event;
+- :meth:`FmuPlant.plant_switches`: set overwrite switches (the fixed inputs, e.g. a
+  card's ``activate`` ``X_activate``) from the next step on: 0 releases the overwrite, the
+  building's own controller acts (an input event in Model Exchange);
 - :meth:`FmuPlant.plant_save` / :meth:`FmuPlant.plant_restore`: the whole FMU
   state as bytes (``fmi2SerializeFMUstate``) with the plant's time and
   inputs, to resume a run where the FMU can serialise its state
@@ -103,12 +106,69 @@ class FmuPlant:
         inputs = self._plant_inputs(u)
         self._plant = None
         time = float(t_s) - self.time_origin_s
-        self._initialize(time, x0, inputs)
+        self._initialize(time, x0, inputs)  # (the switches as fixed: on)
+        state = getattr(self, '_switch_state', None)
+        if state:  # switched off before the start: from the first step on
+            self._switch_pending = {n: v for n, v in state.items() if self.fixed_inputs[n] != v}
         self._plant = _PlantRun(time, inputs.copy())
         x, y = self._read()
         self._check_finite(x, y, time, ' (plant initialisation)')
         logger.debug('%s: plant started at FMU time %g s', self.fmu_path.name, time)
         return x, y
+
+    def plant_switches(self, values: Mapping[str, bool]) -> None:
+        """
+        Set overwrite switches (fixed inputs of the model) from the next :meth:`plant_step` on.
+
+        Parameters
+        ----------
+        values : mapping of str to bool
+            Fixed input (e.g. ``oveTSet_activate``) -> on (1, the overwrite applies) or off
+            (0, released: the building's own controller acts).
+
+        Raises
+        ------
+        ValueError
+            For a name that is not a fixed input of the model.
+
+        """
+        unknown = [name for name in values if name not in self.fixed_inputs]
+        if unknown:
+            raise ValueError(f'{self.fmu_path.name}: {unknown} are not overwrite switches '
+                             f'(fixed inputs) of the model: {sorted(self.fixed_inputs)}')
+        current = getattr(self, '_switch_state', None) or dict(self.fixed_inputs)
+        wanted = {**current, **{name: int(bool(on)) for name, on in values.items()}}
+        if wanted != current:
+            self._switch_pending = {n: v for n, v in wanted.items() if current.get(n) != v}
+        self._switch_state = wanted
+
+    @property
+    def switch_state(self) -> dict[str, int]:
+        """Return the overwrite switches (fixed inputs) as the plant applies them."""
+        return dict(getattr(self, '_switch_state', None) or self.fixed_inputs)
+
+    def _apply_switches(self, t: float, inputs: np.ndarray) -> bool:
+        """Apply pending switches (and ``inputs``) at ``t``; return True when there were any."""
+        pending = getattr(self, '_switch_pending', None)
+        if not pending:
+            return False
+        fmu = self._fmu
+        if self.is_model_exchange:
+            fmu.enterEventMode()
+        for name, value in pending.items():
+            var = self._variables[name]
+            kind = {'Enumeration': 'Integer'}.get(var.type, var.type)
+            cast = {'Boolean': bool, 'Integer': int}.get(kind, float)
+            getattr(fmu, f'set{kind}')([var.valueReference], [cast(value)])
+        self._set_inputs(inputs)
+        if self.is_model_exchange:
+            self._event_iteration()
+            fmu.enterContinuousTimeMode()
+            self._ensure_solver(t)
+        self._switch_pending = {}
+        logger.info('%s: overwrite switches %s at FMU time %g s', self.fmu_path.name,
+                    pending, t)
+        return True
 
     def _require_plant(self) -> _PlantRun:
         if self._plant is None:
@@ -145,7 +205,9 @@ class FmuPlant:
             raise ValueError(f'dt_s must be a positive number of seconds, got {dt_s}')
         inputs = self._plant_inputs(u)
         t, t_end = plant.time, plant.time + dt_s
-        if not np.array_equal(inputs, plant.inputs):
+        if self._apply_switches(t, inputs):
+            plant.inputs = inputs.copy()
+        elif not np.array_equal(inputs, plant.inputs):
             self._switch_inputs(t, inputs)
             plant.inputs = inputs.copy()
         self._advance_checked(t, t_end)

@@ -17,7 +17,8 @@ from typing import Any
 import numpy as np
 
 from mshoot_core.models.network import NetworkModel
-from mshoot_core.models.r1c1 import KELVIN, R1C1Parameters
+from mshoot_core.models.r1c1 import R1C1Parameters
+from mshoot_core.units import KELVIN
 
 
 def multizone_network(n_zones: int, seed: int = 0,
@@ -117,7 +118,7 @@ def multizone_mpc_options(model: MultiZoneModel, solver: str = 'ipopt') -> dict:
     settings of :data:`mshoot_core.solvers.IPOPT_LARGE_PROBLEM_OPTIONS`.
     """
     options = {'control_names': model.control_names,
-               'heat_rate_min_w': -2000.0, 'heat_rate_max_w': 2000.0,
+               'control_min': -2000.0, 'control_max': 2000.0,
                'state_bounds': {name: ('comfort_min', 'comfort_max', KELVIN)
                                 for name in model.comfort_states},
                'solver': solver}

@@ -19,8 +19,8 @@ import numpy as np
 
 from mshoot_core.models.network import (card_network, CARDS_DIR, NetworkModel,
                                         parameters_class)
+from mshoot_core.units import KELVIN  # noqa: F401 (re-exported)
 
-KELVIN = 273.15
 #: The card of the R1C1 zone.
 CARD = CARDS_DIR / 'r1c1.yaml'
 #: Metabolic heat per occupant [W] at 293.15 K, falling linearly to 0 W at 325.15 K (the

@@ -48,6 +48,7 @@ from mshoot_core.models.base import Model
 from mshoot_core.models.defaults import (CONTROL_TOLERANCE, EMULATOR_TOLERANCE,  # noqa: F401
                                          is_card_path)
 from mshoot_core.settings import fields_of, setting, SettingField, SettingsGroup
+from mshoot_core.units import KELVIN
 
 logger = logging.getLogger(__name__)
 
@@ -57,8 +58,6 @@ BUILTIN = ('python', 'fmu', 'fmu-cs', 'r2c2')
 MULTIZONE = {'r1c1x2': 2}
 #: The built-in models described by a built-in card (a thermal network): name -> card.
 CARD_MODELS = {'python': 'r1c1', 'r2c2': 'r2c2', 'r1c1x2': 'r1c1x2'}
-#: Offset of a zone temperature state [K] over the comfort band [degC].
-KELVIN = 273.15
 
 #: Factories added by applications: name -> (factory(tolerance) -> Model, description).
 _REGISTERED: dict[str, tuple[Callable[[float], Model], str]] = {}
@@ -98,6 +97,25 @@ def _card_problem(path: str, version: tuple[int, int] | None) -> str | None:
     except CardError as exc:
         return str(exc)
     return None
+
+
+def card_controls(name: str) -> tuple:
+    """
+    Return the controls of the card ``name`` (ControlSpecs), or () for another model name.
+
+    For checking settings against a card's limits before its model is built (an invalid card:
+    (), its problems are :func:`check_model`'s).
+    """
+    if not is_card_path(name) or check_model(name) is not None:
+        return ()
+    stat = pathlib.Path(name).expanduser().stat()
+    return _card_controls(name, (stat.st_mtime_ns, stat.st_size))
+
+
+@functools.lru_cache(maxsize=16)
+def _card_controls(path: str, version: tuple[int, int]) -> tuple:
+    from mshoot_core.models.card import load_card
+    return load_card(path).control_specs()
 
 
 def check_model(name: str) -> str | None:

@@ -52,7 +52,8 @@ from sklearn.svm import SVR
 from sklearn.utils import get_tags
 
 from mshoot_core.models.base import Model
-from mshoot_core.models.r1c1 import KELVIN, R1C1Model
+from mshoot_core.models.r1c1 import R1C1Model
+from mshoot_core.units import KELVIN
 
 logger = logging.getLogger(__name__)
 
