@@ -107,7 +107,7 @@ def _decide(settings: MpcSettings, steps: int = 3) -> list:
 
 
 def test_controller_sends_bursts_of_its_decisions_and_plans_with_a_band_margin():
-    base = MpcSettings.from_flat(horizon_steps=4, heat_rate_min_w=0.0, heat_rate_max_w=4000.0)
+    base = MpcSettings.from_flat(horizon_steps=4, control_min=0.0, control_max=4000.0)
     held = _decide(base)
     assert [o.schedule.held for o in held] == [True] * 3
     np.testing.assert_array_equal(held[0].schedule.values[0], held[0].decision.controls)

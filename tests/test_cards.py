@@ -568,8 +568,8 @@ def test_schema_and_builtin_cards_ship_with_the_package(tmp_path):
         shipped = built / source.relative_to(package / 'mshoot_core')
         assert shipped.read_bytes() == source.read_bytes(), shipped
     assert sorted(p.name for p in (built / 'cards').glob('*.yaml')) == [
-        'boptest_baseline.yaml', 'boptest_modulation.yaml', 'boptest_setpoint.yaml',
-        'boptest_tset.yaml', 'r1c1.yaml',
+        'boptest_baseline.yaml', 'boptest_house.yaml', 'boptest_modulation.yaml',
+        'boptest_setpoint.yaml', 'boptest_tset.yaml', 'r1c1.yaml',
         'r1c1_fmu.yaml', 'r1c1_fmu_cs.yaml', 'r1c1x2.yaml', 'r2c2.yaml',
         'setpoint_zone_identified.yaml', 'setpoint_zone_model.yaml', 'setpoint_zone_plant.yaml']
 

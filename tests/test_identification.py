@@ -144,7 +144,7 @@ def test_setpoint_zone_over_ros_beats_its_local_loop(context, tmp_path, plant_fm
     data = tmp_path / 'day.csv'
     scenario.assign(time_s=scenario.index)[['time_s', 'Tout', 'solrad', 'occ', 'comfort_min',
                                             'comfort_max']].to_csv(data, index=False)
-    limits = {'heat_rate_min_w': 18.0, 'heat_rate_max_w': 24.0, 'safe_heat_rate_w': 21.5}
+    limits: dict = {}  # the setpoint's limits and safe value: the cards'
     run = run_in_process(context, {
         'emulator': {'scenario': str(data), 'hours': hours, 'model': str(PLANT),
                      'initial_temperature_c': 21.0, **limits},

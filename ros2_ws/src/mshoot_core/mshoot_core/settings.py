@@ -590,7 +590,6 @@ class MpcSettings:
 
         Those are the settings described as fixed (``step_s``, ``mode``,
         ``blas_threads``) and the controls, sorted.
-
         """
         return sorted(n for n in self.changed(other)
                       if n == 'control_names' or (n in BY_NAME and BY_NAME[n].read_only))

@@ -47,10 +47,10 @@ from typing import Any, Callable, Sequence
 from mshoot_core.boptest.kpis import kpi_records, zone_discomfort
 from mshoot_core.boptest.testcase import PRICE_SCENARIOS, TestCase
 from mshoot_core.models.card import builtin_card, load_card
+from mshoot_core.units import json_ready
 from mshoot_studies.boptest_report import count_starts
 from mshoot_studies.boptest_rule import (LEADS_H, MARGINS_K, RuleTarget, RuleTuning,
                                          setpoint_targets, tune_rule)
-from mshoot_core.units import json_ready
 import pandas as pd
 import rclpy
 from rclpy.context import Context

@@ -14,10 +14,10 @@ import pathlib
 from typing import Iterable, Mapping, Sequence
 
 from mshoot_core.boptest.testcase import PRICE_SCENARIOS, TestCase
+from mshoot_core.units import KELVIN
 import numpy as np
 import pandas as pd
 
-from mshoot_core.units import KELVIN
 logger = logging.getLogger(__name__)
 
 #: Columns of the KPI table: key, header, format.

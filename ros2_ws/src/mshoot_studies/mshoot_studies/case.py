@@ -234,7 +234,7 @@ def _case_kpis(result: ClosedLoopResult, settings: MpcSettings) -> dict:
 #: Controller settings offered as options of the case command.
 CASE_SETTINGS = ('horizon_steps', 'cost', 'cost_output', 'comfort', 'soft_penalty', 'solver',
                  'mode', 'relaxation', 'solver_max_iter', 'time_budget_s', 'on_failure',
-                 'max_fallback_share', 'safe_heat_rate_w',
+                 'max_fallback_share', 'safe_value',
                  'estimation', 'measured_states', 'measurement_noise_k', 'process_noise_k',
                  'comfort_margin_std')
 

@@ -71,9 +71,9 @@ ACTUATION = {'modulation': ({'actuation': 'burst', 'actuation_send': 'value'}, '
 #: Defaults of the economic MPC.
 DEFAULTS: dict[str, Any] = {
     'horizon_steps': 36, 'step_s': 3600.0, 'cost': 'output', 'cost_output': 'cost',
-    'heat_rate_min_w': 0.0, 'heat_rate_max_w': 1.0, 'comfort': 'soft',
+    'control_min': 0.0, 'control_max': 1.0, 'comfort': 'soft',
     'soft_penalty': 100.0, 'soft_penalty_linear': 200.0, 'solver': 'ipopt',
-    'solver_max_iter': 300, 'safe_heat_rate_w': 0.0, 'on_failure': 'plan'}
+    'solver_max_iter': 300, 'safe_value': 0.0, 'on_failure': 'plan'}
 
 #: The built-in card of the control model (mshoot_core/cards/boptest_house.yaml).
 CARD = 'boptest_house'
