@@ -61,15 +61,8 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     are one line (``<prog>: error: ...``) and exit 2.
     """
     from mshoot_studies.boptest_rule import LEADS_H, MARGINS_K
-    if parser is None:
-        parser = argparse.ArgumentParser(prog='python -m mshoot_studies.boptest',
-                                         description=__doc__,
-                                         formatter_class=argparse.RawDescriptionHelpFormatter)
-    prog = parser.prog
-
-    def error(message: str) -> None:
-        parser.exit(2, f'{prog}: error: {message}\n')
-    parser.error = error  # type: ignore[method-assign]  # one line, no usage block
+    from mshoot_studies.cli import verb_parser
+    parser = verb_parser(parser, 'mshoot_studies.boptest', __doc__)
     parser.add_argument('--testcase', required=True, type=pathlib.Path,
                         help='the BOPTEST test case folder')
     parser.add_argument('--card', required=True, type=pathlib.Path,

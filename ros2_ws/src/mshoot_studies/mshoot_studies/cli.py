@@ -64,6 +64,24 @@ VERB_ENVIRONMENT: dict[str, dict[str, str]] = {'case': {'OPENBLAS_NUM_THREADS': 
 FIGURE_VERBS = frozenset({'case'})
 
 
+def verb_parser(parser: argparse.ArgumentParser | None, prog: str,
+                description: str | None) -> argparse.ArgumentParser:
+    """
+    Return ``parser`` (a verb's, from :func:`build_parser`), or a new one for ``python -m prog``.
+
+    Its errors are one line (``<prog>: error: ...``, no usage block) and exit 2.
+    """
+    if parser is None:
+        parser = argparse.ArgumentParser(prog=f'python -m {prog}', description=description,
+                                         formatter_class=argparse.RawDescriptionHelpFormatter)
+    name = parser.prog
+
+    def error(message: str) -> None:
+        parser.exit(2, f'{name}: error: {message}\n')
+    parser.error = error  # type: ignore[method-assign]
+    return parser
+
+
 def _verb(argv: Sequence[str]) -> str | None:
     """Return the verb of a command line (its first word that is not an option), if it is one."""
     word = next((word for word in argv if not word.startswith('-')), None)

@@ -35,15 +35,8 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     Fills ``parser`` (the ``forecast`` verb of ``mshoot``), or a new parser when None. Its
     errors are one line (``<prog>: error: ...``) and exit 2.
     """
-    if parser is None:
-        parser = argparse.ArgumentParser(prog='python -m mshoot_studies.forecast',
-                                         description=__doc__,
-                                         formatter_class=argparse.RawDescriptionHelpFormatter)
-    prog = parser.prog
-
-    def error(message: str) -> None:
-        parser.exit(2, f'{prog}: error: {message}\n')
-    parser.error = error  # type: ignore[method-assign]  # one line, no usage block
+    from mshoot_studies.cli import verb_parser
+    parser = verb_parser(parser, 'mshoot_studies.forecast', __doc__)
     parser.add_argument('--testcase', default=None,
                         help='the BOPTEST test case folder (Resources/*.csv; default '
                              '$MSHOOT_BOPTEST_DIR)')
