@@ -202,9 +202,14 @@ def test_multizone_office_binary_gets_its_libgfortran3_stand_in():
     (identifier,) = fmu_binary.model_identifiers(folder)
     with pytest.raises(fmu_binary.FmuBinaryError, match='needs the library libgfortran.so.3'):
         fmu_binary._load_in_child(fmu_binary.binary_file(folder, identifier), [])
+    before = [pathlib.Path(p).name for p in fmu_binary.preloaded()]
     preloaded = fmu_binary.check_binary(folder, identifier,
                                         [fmu_binary.Library(source=MULTIZONE / 'shim')])
-    assert [pathlib.Path(p).name for p in preloaded] == ['libgfortran.so.3']
+    # the stand-in is preloaded now: by this check, or by an earlier one in this process (a
+    # BOPTEST run of the office), whose preloads every later check starts from
+    assert [pathlib.Path(p).name for p in preloaded] == (
+        [] if 'libgfortran.so.3' in before else ['libgfortran.so.3'])
+    assert 'libgfortran.so.3' in [pathlib.Path(p).name for p in fmu_binary.preloaded()]
 
 
 # -- one validation policy ----------------------------------------------------------------------

@@ -3,7 +3,7 @@ The rule node: BOPTEST's rule-based supervisory controller (and the baseline's c
 
 Answers every zone state on ``/zone/state`` with a setpoint on ``/mpc/setpoint`` stamped like
 the state: the zone temperature setpoint of the pre-heating rule
-(:class:`mshoot_studies.boptest_rule.PreheatRule`: the comfort band's lower bound of zone
+(:class:`mshoot_core.boptest.rule.PreheatRule`: the comfort band's lower bound of zone
 ``band_zone`` over the coming step and ``lead_h`` after it, plus ``margin_k``) as the control
 ``control`` [degC] and as the zone's temperature setpoint; the emulator's card limits it. The
 scenario parameters are the emulator's (a ``boptest:<period>[:<price>]`` scenario), so both
@@ -18,10 +18,10 @@ from __future__ import annotations
 
 from typing import Any
 
+from mshoot_core.boptest.rule import PreheatRule
 from mshoot_core.boptest.testcase import TestCase
 from mshoot_core.units import KELVIN, NS_PER_S
 from mshoot_msgs.msg import Setpoint, ZoneState
-from mshoot_studies.boptest_rule import PreheatRule
 from rclpy.node import Node
 
 from mshoot_nodes import contract, sources
