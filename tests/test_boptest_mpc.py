@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from mshoot_core import calibration
 from mshoot_core.boptest import economic, identification as ident
-from mshoot_core.boptest.model import ZoneObserver
+from mshoot_core.estimation import StateEstimator
 from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.mpc import MPC
 from mshoot_core.settings import MpcSettings
@@ -64,18 +64,20 @@ def test_card_model_is_the_houses_exact_solution() -> None:
         economic.control_model({'Cx': 1.0})
 
 
-def test_observer_recovers_unmeasured_states() -> None:
-    model = economic.control_model()
+def test_estimator_recovers_unmeasured_states() -> None:
+    config = economic.controller_settings()
+    model = config.model
     rng = np.random.default_rng(3)
     x = np.array([293.0, 298.0, 288.0])
-    observer = ZoneObserver(model, 3600.0)
-    observer.reset(x[0])  # floor and envelope wrong by 5 K
-    for _ in range(24 * 20):
+    estimator = StateEstimator.from_settings(model, config.settings.estimation, 3600.0)
+    assert estimator.measured == ('T',)
+    estimator.update(0.0, {'T': x[0]})  # floor and envelope wrong by 5 K
+    for k in range(24 * 20):
         u = np.array([rng.uniform(-5, 10), rng.uniform(0, 300), 300.0, 0.2,
                       rng.uniform(0, 0.6)])
         x = model.simulate_intervals(x[None, :], u[None, :], 3600.0)[0][0]
-        estimate = observer.update(u, x[0])
-    np.testing.assert_allclose(estimate, x, atol=0.05)
+        estimate = estimator.update((k + 1) * 3600.0, {'T': x[0]}, u)
+    np.testing.assert_allclose(estimate.x, x, atol=0.05)
 
 
 def _synthetic_hourly(model, days: float, seed: int) -> pd.DataFrame:

@@ -19,7 +19,7 @@ price scenario) and the controller answers each step:
 - ``mshoot``: the economic node (:mod:`mshoot_nodes.economic_node`: the core
   :class:`~mshoot_core.boptest.economic.EconomicController`, mode ``modulation``, margin
   0.5 K) on the card ``boptest_modulation.yaml`` (the heat pump's modulation overwritten; the
-  warm-up and the step means of the outputs published for the MPC's observer); the bursts
+  warm-up and the step means of the outputs published for the MPC's state estimator); the bursts
   within the hour travel as the setpoint's schedule within the step. It plans on perfect
   forecasts of the test case's data (not on ``/forecast``: see the node).
 
@@ -547,9 +547,10 @@ def write_docs(args: argparse.Namespace, records: list[dict], runs: list[dict],
              '`modulation`) in the economic node (`mshoot_nodes/economic_node.py`): every hour '
              "it plans the heat pump's duty `d` over 36 h on the control model of the card "
              '`boptest_house` (a thermal network: zone, floor, envelope; its parameters '
-             "identified outside the test periods), from its observer's state (the observer "
-             "follows the warm-up too), the comfort band's lower edge raised by 0.5 K "
-             "(setting `band_margin_k`), and sends the hour's full-load bursts (settings "
+             'identified outside the test periods), from the state estimated by '
+             '`mshoot_core.estimation.StateEstimator` (an extended Kalman filter on the zone '
+             "temperature, through the warm-up too), the comfort band's lower edge raised by "
+             "0.5 K (setting `band_margin_k`), and sends the hour's full-load bursts (settings "
              "`actuation` 'burst', `actuation_send` 'value', no minimum run time `min_run_s`, "
              "60 s resolution: `mshoot_core.actuation`) as the setpoint's schedule within the "
              'step, which the emulator applies to `oveHeaPumY_u`. It plans on perfect '

@@ -2,12 +2,12 @@
 The economic node: BOPTEST's economic MPC over ROS (every decision in core).
 
 Answers every zone state on ``/zone/state`` with a setpoint on ``/mpc/setpoint`` stamped like
-the state. The decision is :class:`mshoot_core.boptest.economic.EconomicController`'s (observer,
-MPC and dispatcher of the planned duty); the node only converts:
+the state. The decision is :class:`mshoot_core.boptest.economic.EconomicController`'s (state
+estimator, MPC and dispatcher of the planned duty); the node only converts:
 
 - the first state carries the warm-up (``history_*`` fields of ZoneState: the emulator's
-  ``boptest`` card with ``history_step_s``): the observer starts from its first zone
-  temperature and observes each of its steps;
+  ``boptest`` card with ``history_step_s``): the state estimate starts from its first zone
+  temperature and observes each of its steps like any later step;
 - every later state: the zone temperature ``T`` [K] and the step means of the outputs
   ``mean_Tout`` [degC], ``mean_solrad`` [W/m2] and ``mean_Q_hp`` [W] (the heat pump's
   condenser heat) over the step just run, observed as
@@ -45,8 +45,8 @@ from mshoot_nodes.startup import run_node
 
 #: FMU overwrite -> (card control, offset from the FMU's unit to the card's).
 OVERWRITE_CONTROLS = {'oveHeaPumY_u': ('Y', 0.0), 'oveTSet_u': ('TSet', -KELVIN)}
-#: ZoneState outputs the observer reads (step means) -> the plant record columns they stand for
-#: and the offset from the output's unit to the record's.
+#: ZoneState outputs the state estimator reads (step means) -> the plant record columns they
+#: stand for and the offset from the output's unit to the record's.
 MEASURED = {'mean_Tout': ('weaSta_reaWeaTDryBul_y', KELVIN),
             'mean_solrad': ('weaSta_reaWeaHGloHor_y', 0.0),
             'mean_Q_hp': ('reaQHeaPumCon_y', 0.0)}
@@ -156,7 +156,7 @@ class EconomicNode(ManagedNode):
         return self.start_fmu_s + (stamp_ns - self.epoch_ns) / NS_PER_S
 
     def _observe_history(self, msg: ZoneState, t_s: float) -> None:
-        """Start the observer from the warm-up carried by the first state and observe it."""
+        """Estimate the state from the warm-up carried by the first state, step by step."""
         m = len(msg.history_offsets_s)
         names = list(msg.state_names)
         zone = self.params['zone_temperature']
@@ -168,7 +168,7 @@ class EconomicNode(ManagedNode):
             len(msg.history_output_names), m)
         times = t_s + np.asarray(msg.history_offsets_s, dtype=float)
         tz = states[names.index(zone)]
-        self.controller.start(tz[0])
+        self.controller.start(times[0], tz[0])
         for k in range(1, m):
             outputs = {f'mean_{name}': float(means[j, k])
                        for j, name in enumerate(msg.history_output_names)}

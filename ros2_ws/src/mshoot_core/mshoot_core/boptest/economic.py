@@ -27,9 +27,13 @@ reaches the building either as the heat pump's modulation ``oveHeaPumY_u`` (mode
 otherwise). Mode ``'tracking'`` sends the plan's zone
 temperature at the end of the step as the setpoint (the supervisory setpoint of the design).
 
-The unmeasured floor and envelope temperatures are estimated by
-:class:`~mshoot_core.boptest.model.ZoneObserver` from the measured zone temperature and the
-measured heat of the heat pump, every control step (from the start of the warm-up).
+The unmeasured floor and envelope temperatures are estimated by the extended Kalman filter
+:class:`~mshoot_core.estimation.StateEstimator` (settings ``estimation``) from the measured zone
+temperature and the step's measured inputs (weather and the heat of the heat pump), every
+control step from the start of the warm-up: a warm-up step is observed like any other. Its
+noise (:data:`DEFAULTS`: measurement 0.07 K, model error 0.05 K per step of every state) was
+tuned on the six BOPTEST runs: against 0.1 K for the measurement, it gave 0.1-0.3 % less cost
+and 0.04 K h less discomfort in total on the typical heat period (peak: equal).
 """
 from __future__ import annotations
 
@@ -45,8 +49,8 @@ import numpy as np
 import pandas as pd
 
 from mshoot_core.actuation import Actuator
-from mshoot_core.boptest.model import ZoneObserver
 from mshoot_core.boptest.testcase import PRICE_SCENARIOS, TestCase
+from mshoot_core.estimation import StateEstimator
 from mshoot_core.models.base import Model
 from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.mpc import MPC
@@ -73,7 +77,8 @@ DEFAULTS: dict[str, Any] = {
     'horizon_steps': 36, 'step_s': 3600.0, 'cost': 'output', 'cost_output': 'cost',
     'control_min': 0.0, 'control_max': 1.0, 'comfort': 'soft',
     'soft_penalty': 100.0, 'soft_penalty_linear': 200.0, 'solver': 'ipopt',
-    'solver_max_iter': 300, 'safe_value': 0.0, 'on_failure': 'plan'}
+    'solver_max_iter': 300, 'safe_value': 0.0, 'on_failure': 'plan',
+    'measurement_noise_k': 0.07}
 
 #: The built-in card of the control model (mshoot_core/cards/boptest_house.yaml).
 CARD = 'boptest_house'
@@ -303,11 +308,11 @@ def hourly_inputs(records: pd.DataFrame, case: TestCase, t0_s: float, t1_s: floa
 
 class EconomicController:
     """
-    One run of the economic MPC: the observer, the MPC and the dispatcher, step by step.
+    One run of the economic MPC: the state estimator, the MPC and the actuator, step by step.
 
     Usage, every control step of length ``step_s`` starting at ``t``::
 
-        controller.start(tz_k)                                # once, at the plant's start
+        controller.start(t0, tz_k)                            # once, at the plant's start
         pieces, result = controller.decide(t)                 # the step's overwrites
         ...advance the plant through the pieces...
         controller.observe(records, t, t + step_s, tz_k)      # the step's measurements
@@ -324,20 +329,23 @@ class EconomicController:
     def __init__(self, config: EconomicConfig) -> None:
         self.config = config
         self.step_s = config.settings.problem.step_s
-        self.observer = ZoneObserver(config.model, self.step_s)
+        self.estimator = StateEstimator.from_settings(config.model, config.settings.estimation,
+                                                      self.step_s)
+        self.zone = self.estimator.measured[0]
         self.mpc = config.mpc()
         self.dispatcher = config.dispatcher()
 
-    def start(self, tz_k: float) -> None:
-        """Start the observer from the measured zone temperature [K]."""
-        self.observer.reset(float(tz_k))
+    def start(self, t_s: float, tz_k: float) -> None:
+        """Start the estimate from the zone temperature [K] measured at ``t_s`` [s]."""
+        self.estimator.reset()
+        self.estimator.update(float(t_s), {self.zone: float(tz_k)})
 
     @property
     def state(self) -> np.ndarray:
         """Return the estimated states (Tz, Tf, Te) [K]."""
-        if self.observer.x is None:
+        if self.estimator.estimate is None:
             raise RuntimeError('call start() first')
-        return self.observer.x.copy()
+        return self.estimator.estimate.x.copy()
 
     def observe(self, records: pd.DataFrame, t0_s: float, t1_s: float,
                 tz_k: float) -> np.ndarray:
@@ -348,7 +356,7 @@ class EconomicController:
         """
         c = self.config
         u = hourly_inputs(records, c.case, t0_s, t1_s, c.price, c.model)
-        self.observer.update(u, float(tz_k))
+        self.estimator.update(float(t1_s), {self.zone: float(tz_k)}, u)
         return u
 
     def decide(self, t_s: float) -> tuple[list[tuple[float, dict[str, float]]], Any]:
@@ -380,8 +388,8 @@ def run_period(case: TestCase, period: str, price: str, mode: str = 'modulation'
     """
     Run the economic MPC on a test period of the plant (core, no ROS).
 
-    The warm-up runs under the building's own control while the observer follows it; every
-    control step of the test period the observer's state and the perfect forecast from the
+    The warm-up runs under the building's own control while the estimator follows it; every
+    control step of the test period the estimated state and the perfect forecast from the
     test case's data go to the MPC, and the plan's first duty to the plant through the
     :class:`~mshoot_core.actuation.Actuator`.
 
@@ -411,7 +419,7 @@ def run_period(case: TestCase, period: str, price: str, mode: str = 'modulation'
     wall0 = time.perf_counter()
     with BoptestPlant(case) as plant:
         out = plant.start(warmup_start)
-        controller.start(out['reaTZon_y'])
+        controller.start(warmup_start, out['reaTZon_y'])
         t = warmup_start
         while t < start - 1e-6:  # the warm-up: the building's own control, observed
             plant.advance(t + step)
