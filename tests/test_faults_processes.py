@@ -116,7 +116,7 @@ def test_bad_configuration_exits_non_zero_with_the_reason(tmp_path, r2c2_fmu):
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='OFF')
     cases = {  # executable, arguments, what the log line must say
         'typo': ('mpc', ['horizon:=3'], "unknown parameter(s) ['horizon'] for node 'mpc'"),
-        'csv': ('emulator', [f'scenario:={bad_csv}'], "bad.csv: no comfort band; expected "
+        'csv': ('emulator', [f'scenario:={bad_csv}'], 'bad.csv: no comfort band; expected '
                 "columns ['comfort_min', 'comfort_max']"),
         'fmu': ('mpc', [f'model:={r2c2_fmu}'], "invalid inputs ['solrad', 'Tout'"),
         'safe': ('mpc', ['safe_value:=5000.0'], 'safe_value of q [W] must be within'),

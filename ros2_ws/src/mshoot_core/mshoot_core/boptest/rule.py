@@ -26,8 +26,9 @@ import logging
 import math
 from typing import Any, Mapping
 
-from mshoot_core.boptest.testcase import TestCase
 import numpy as np
+
+from mshoot_core.boptest.testcase import TestCase
 
 logger = logging.getLogger(__name__)
 
