@@ -11,7 +11,7 @@ in the control's canonical unit (what the MPC, the setpoints and the records spe
 - ``safe``: the value applied when no plan is left (card key ``safe``; setting
   ``safe_value`` overrides it);
 - ``switch``: the control's overwrite switch (card key ``activate``, e.g. BOPTEST's
-  ``oveTSet_activate``): the last link of the fallback chain may *release* the control
+  ``X_activate``): the last link of the fallback chain may *release* the control
   (the switch set to 0), so the building's own controller acts.
 
 A model built from a card declares its controls as ``model.control_specs``

@@ -121,7 +121,7 @@ class StepRecord:
     fine : DataFrame
         States and outputs on the fine grid over [t_start, t_start + step], with
         the comfort band, the controls and the overwrite switches of the controls that have
-        one (by the switch's name, e.g. ``oveTSet_activate``: 1 applied, 0 released);
+        one (by the switch's name, e.g. ``X_activate``: 1 applied, 0 released);
         index time [s].
     released : tuple of str
         The controls whose overwrite was released over the step (the building's own

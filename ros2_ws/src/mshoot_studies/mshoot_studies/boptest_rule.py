@@ -1,18 +1,5 @@
 """
-A rule-based supervisory controller for BOPTEST test cases: pre-heating ahead of the band.
-
-The rule sends a zone temperature setpoint every control step (1 h) to each setpoint input it
-is given (``targets``: overwrite input -> its zone and the input's range): the highest lower
-bound of the zone's comfort band over the coming step and the ``lead`` after it, plus a
-``margin``::
-
-    setpoint(t) = max { LowerSetp[z](s) : t <= s < t + step + lead } + margin    [K]
-
-clipped to the input's range. With a lead the building starts heating for the occupied band
-``lead`` hours before it begins, and it holds that level until the band's end (the max over
-the window, rather than the bound ``lead`` ahead alone, which would drop the setpoint ``lead``
-before the occupied hours end). The band is read from the test case's data (forward-filled, at
-its rows in the window).
+The tuning of the pre-heating rule for BOPTEST test cases: a grid of leads and margins.
 
 The rule itself (:class:`~mshoot_core.boptest.rule.PreheatRule`, its targets) is a decision in
 core; this module tunes it. :func:`tune_rule` runs a grid of leads

@@ -123,7 +123,7 @@ class FmuPlant:
         Parameters
         ----------
         values : mapping of str to bool
-            Fixed input (e.g. ``oveTSet_activate``) -> on (1, the overwrite applies) or off
+            Fixed input (an overwrite switch ``X_activate``) -> on (1, the overwrite applies) or off
             (0, released: the building's own controller acts).
 
         Raises
