@@ -123,8 +123,8 @@ class FmuPlant:
         Parameters
         ----------
         values : mapping of str to bool
-            Fixed input (an overwrite switch ``X_activate``) -> on (1, the overwrite applies) or off
-            (0, released: the building's own controller acts).
+            Fixed input (an overwrite switch ``X_activate``) -> on (1, the overwrite applies)
+            or off (0, released: the building's own controller acts).
 
         Raises
         ------
