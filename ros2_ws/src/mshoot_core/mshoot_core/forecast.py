@@ -412,6 +412,33 @@ class ForecastSource:
                 columns[name] = np.asarray(self.truth(name, times), dtype=float)
         return pd.DataFrame(columns)
 
+    def at(self, point: str, now_s: float, horizon_s: float,
+           times_s: np.ndarray | Sequence[float]) -> np.ndarray:
+        """
+        Return one point of the forecast of a request (``now_s``, ``horizon_s``) at any times.
+
+        The same values :meth:`forecast` gives on its times (the same draw), at ``times_s``
+        [s] within [now, now + H]: a point with errors linear between the draw's hourly points,
+        any other the truth.
+
+        Raises
+        ------
+        ValueError
+            As :meth:`forecast`, or for times outside [now, now + H].
+
+        """
+        self._check(now_s, horizon_s, 1.0, [point])
+        times = np.asarray(times_s, dtype=float)
+        if times.size and (times.min() < now_s or times.max() > now_s + horizon_s):
+            raise ValueError(f'expected times within the request [{now_s:g}, '
+                             f'{now_s + horizon_s:g}] s, got [{times.min():g}, '
+                             f'{times.max():g}] s')
+        if point not in self.uncertain_points:
+            return np.asarray(self.truth(point, times), dtype=float)
+        draw = self._current_draw(float(now_s), float(horizon_s))
+        grid = draw.temperature if point == self.temperature_point else draw.solar
+        return np.interp(times, draw.grid_s, grid)
+
     def _check(self, now_s: float, horizon_s: float, interval_s: float,
                names: list[str]) -> None:
         unknown = [n for n in names if n not in self.series]
