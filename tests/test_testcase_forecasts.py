@@ -15,7 +15,7 @@ OFFICE = pathlib.Path('/work/shared/boptest/multizone_office_simple_hydronic')
 
 
 def old_interval_means(case, column, t_s, step_s):
-    """The definition of ``economic._interval_means`` before the source (data step 900 s)."""
+    """Return interval means as ``economic._interval_means`` did before the source (900 s)."""
     n_sub = max(1, int(round(step_s / 900.0)))
     offsets = (np.arange(n_sub) + 0.5) * step_s / n_sub
     values = case.lookup(column, (t_s[:, None] + offsets[None, :]).reshape(-1))
@@ -23,7 +23,7 @@ def old_interval_means(case, column, t_s, step_s):
 
 
 def old_forecast_frame(case, t_s, steps, step_s, price, margin_k=0.0, upper_margin_k=0.0):
-    """The definition of ``economic.forecast_frame`` before the source, for the house."""
+    """Return the frame as ``economic.forecast_frame`` did before the source (the house)."""
     times = float(t_s) + np.arange(steps + 1) * float(step_s)
     frame = pd.DataFrame(index=pd.Index(times, name='time_s'))
     frame['Tout'] = old_interval_means(case, 'TDryBul', times, step_s) - KELVIN
@@ -135,3 +135,26 @@ def test_errors_touch_temperature_and_solar_only(boptest_case) -> None:
     pd.testing.assert_frame_equal(same_seed, noisy)
     with pytest.raises(ValueError, match='48 h'):
         source.frame(t0, 48, 3600.0)
+
+
+def test_scenario_forecasts_with_a_card_serve_its_source(boptest_case) -> None:
+    """The forecaster's core: a BOPTEST period's step forecast is the card's frame."""
+    from mshoot_core.boptest.emulation import boptest_scenario
+    from mshoot_core.forecast import ScenarioForecasts
+    from mshoot_core.models.card import builtin_card
+    scenario = boptest_scenario(boptest_case, 'typical_heat_day', hours=48, price='constant')
+    errors = ForecastErrorSettings(temperature_uncertainty='low', seed=2)
+    forecasts = ScenarioForecasts(scenario, errors, builtin_card(economic.CARD))
+    assert forecasts.series == ('Tout', 'solar', 'gains')
+    window = forecasts.window(3, 24)
+    source = TestCaseForecasts(boptest_case, ForecastSpec.from_card(economic.CARD), 'constant',
+                               errors)
+    expected = source.frame(scenario['fmu_time_s'].iloc[3], 24, 3600.0)
+    np.testing.assert_array_equal(window.to_numpy(), expected.to_numpy())
+    assert window.index[0] == scenario.index[3] and window.index.name == scenario.index.name
+    with pytest.raises(ValueError, match='48 h'):
+        forecasts.window(3, 48)
+    # a card without the section: the scenario's rows, as without a card
+    plain = ScenarioForecasts(scenario, None, builtin_card('r1c1'))
+    assert plain.testcase is None and plain.series is None
+    pd.testing.assert_frame_equal(plain.window(3, 5), ScenarioForecasts(scenario).window(3, 5))
