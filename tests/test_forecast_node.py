@@ -102,3 +102,14 @@ def test_with_a_control_card_the_forecast_is_its_test_case_source(
         start + 7 * 3600.0, 36, 3600.0)
     assert np.abs(series['Tout'] - exact['Tout']).max() > 0.1
     np.testing.assert_array_equal(series['gains'], exact['gains'])
+
+
+def test_a_model_that_is_not_a_card_file_is_refused() -> None:
+    from mshoot_nodes.forecaster_node import _check_sources
+    assert 'no such file' in _check_sources({'model': '/nonexistent/card.yaml'})
+    assert _check_sources({'model': ''}) is None
+    # with a card the last row is a mean over one more step: 48 steps of 1 h exceed 48 h
+    assert '48 h' in _check_sources({'model': __file__, 'horizon_steps': 48,
+                                     'temperature_uncertainty': 'high'})
+    assert _check_sources({'model': '', 'horizon_steps': 48,
+                           'temperature_uncertainty': 'high'}) is None

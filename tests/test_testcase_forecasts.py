@@ -135,6 +135,9 @@ def test_errors_touch_temperature_and_solar_only(boptest_case) -> None:
     pd.testing.assert_frame_equal(same_seed, noisy)
     with pytest.raises(ValueError, match='48 h'):
         source.frame(t0, 48, 3600.0)
+    # the core runs' thin call: the same forecast with the errors
+    pd.testing.assert_frame_equal(economic.forecast_frame(boptest_case, t0, 36, 3600.0,
+                                                          'dynamic', errors=errors), noisy)
 
 
 def test_scenario_forecasts_with_a_card_serve_its_source(boptest_case) -> None:

@@ -56,7 +56,7 @@ from mshoot_core.estimation import StateEstimator
 from mshoot_core.models.base import Model
 from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.mpc import MPC
-from mshoot_core.settings import MpcSettings
+from mshoot_core.settings import ForecastErrorSettings, MpcSettings
 from mshoot_core.shooting import Scaling
 
 logger = logging.getLogger(__name__)
@@ -220,13 +220,15 @@ def _interval_means(case: TestCase, column: str, t_s: np.ndarray, step_s: float)
 
 
 @functools.lru_cache(maxsize=8)
-def _card_forecasts(case: TestCase, price: str) -> TestCaseForecasts:
+def _card_forecasts(case: TestCase, price: str,
+                    errors: ForecastErrorSettings | None = None) -> TestCaseForecasts:
     """Return the test case forecasts of the card :data:`CARD` (its ``testcase_forecast``)."""
-    return TestCaseForecasts(case, ForecastSpec.from_card(CARD), price)
+    return TestCaseForecasts(case, ForecastSpec.from_card(CARD), price, errors)
 
 
 def forecast_frame(case: TestCase, t_s: float, steps: int, step_s: float, price: str,
-                   margin_k: float = 0.0, upper_margin_k: float = 0.0) -> pd.DataFrame:
+                   margin_k: float = 0.0, upper_margin_k: float = 0.0,
+                   errors: ForecastErrorSettings | None = None) -> pd.DataFrame:
     """
     Return the forecast of the control model from the test case's data.
 
@@ -234,9 +236,10 @@ def forecast_frame(case: TestCase, t_s: float, steps: int, step_s: float, price:
     (its ``testcase_forecast`` section): row k (time t_s + k step_s, k = 0..steps) holds the
     interval means of ``Tout`` [degC], ``solar`` [W/m2], ``gains`` [W] and ``price``
     [EUR/kWh], and the tightest comfort band [degC] over the interval ending there, its lower
-    edge raised by ``margin_k`` and its upper one lowered by ``upper_margin_k``.
+    edge raised by ``margin_k`` and its upper one lowered by ``upper_margin_k``; with
+    ``errors``, BOPTEST's forecast errors on the temperature and solar before the means.
     """
-    frame = _card_forecasts(case, price).frame(t_s, steps, step_s)
+    frame = _card_forecasts(case, price, errors).frame(t_s, steps, step_s)
     if margin_k or upper_margin_k:
         frame['comfort_min'] = frame['comfort_min'] + margin_k
         frame['comfort_max'] = np.maximum(frame['comfort_max'] - upper_margin_k,
