@@ -2,6 +2,8 @@
 BOPTEST test cases run as mshoot plants (core, no ROS).
 
 - :mod:`.testcase`: the test case folder (FMU, periods, KPI map, data, the libgfortran shim);
+- :mod:`.forecasts`: a control model's forecast from the folder's data (interval means of the
+  series its card names, the tightest band per zone, the price), with BOPTEST's errors;
 - :mod:`.plant`: the FMU as one persistent plant instance with BOPTEST overwrites and records;
 - :mod:`.kpis`: BOPTEST's KPIs from a record table;
 - :mod:`.rule`: the rule-based pre-heating controller and its tuning.
