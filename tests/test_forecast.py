@@ -289,3 +289,33 @@ def test_scenario_forecasts_change_the_weather_only() -> None:
     np.testing.assert_array_equal(window['solrad'], expected['solrad'])
     with pytest.raises(ValueError, match='48 h'):
         ScenarioForecasts(scenario, errors).window(0, 49)
+
+
+def test_the_cli_prints_a_control_cards_forecast(boptest_case: TestCase, capsys) -> None:
+    """``--card``: the card source's interval means, band and price, with the errors."""
+    from mshoot_core.boptest.forecasts import ForecastSpec, TestCaseForecasts
+    from mshoot_studies.cli import main
+    t0 = 16 * 86400.0 + 3600.0
+    code = main(['forecast', '--testcase', str(boptest_case.directory), '--card',
+                 'boptest_house', '--price', 'highly_dynamic', '--time', f'{t0:g}',
+                 '--horizon', '43200', '--interval', '3600', '--temperature-uncertainty',
+                 'high', '--solar-uncertainty', 'high', '--seed', '11'])
+    assert code == 0
+    printed = pd.read_csv(io.StringIO(capsys.readouterr().out))
+    errors = ForecastErrorSettings(temperature_uncertainty='high', solar_uncertainty='high',
+                                   seed=11)
+    expected = TestCaseForecasts(boptest_case, ForecastSpec.from_card('boptest_house'),
+                                 'highly_dynamic', errors).frame(t0, 12, 3600.0)
+    assert list(printed.columns) == ['time', *expected.columns]
+    np.testing.assert_array_equal(printed['time'], expected.index)
+    np.testing.assert_allclose(printed[list(expected.columns)], expected, rtol=1e-14, atol=0)
+    bad = {('--interval', '7000'): 'whole number',
+           ('--points', 'Tout,rain'): "unknown columns ['rain']",
+           ('--price', 'free'): "price scenario 'free'",
+           ('--card', 'r1c1'): "no 'testcase_forecast' section"}
+    for extra, wording in bad.items():
+        done = _mshoot('forecast', '--testcase', str(boptest_case.directory), '--card',
+                       'boptest_house', '--time', f'{t0:g}', '--horizon', '43200', *extra)
+        lines = done.stderr.strip().splitlines()
+        assert done.returncode == 2 and done.stdout == '', (extra, done.stderr)
+        assert len(lines) == 1 and wording in lines[0], (extra, done.stderr)

@@ -11,6 +11,14 @@ names and units (``TDryBul`` [K], ``HGloHor`` [W/m2], ...). The errors touch ``T
 ``HGloHor`` only (see :mod:`mshoot_core.forecast`); every other point is the test case's data.
 Horizon and interval are in seconds, as BOPTEST takes them; a horizon over 48 h is refused for
 a point with errors. Bad options: one line on stderr, exit 2.
+
+    mshoot forecast --testcase DIR --card CARD --price dynamic --time T --horizon H
+        --interval DT [--temperature-uncertainty L --solar-uncertainty L --seed S]
+
+prints instead what a control model plans on: the forecast of the card's ``testcase_forecast``
+section (:mod:`mshoot_core.boptest.forecasts`), ``H / DT + 1`` rows of interval means of length
+``DT`` of the series the card names, its tightest band per zone [degC] and the price scenario's
+price, with the errors before the means.
 """
 from __future__ import annotations
 
@@ -19,10 +27,12 @@ import os
 import sys
 from typing import Sequence, TextIO
 
+from mshoot_core.boptest.forecasts import ForecastSpec, TestCaseForecasts
 from mshoot_core.boptest.testcase import TestCase
 from mshoot_core.forecast import ForecastSource
 from mshoot_core.settings import (add_arguments, fields_of, ForecastErrorSettings,
                                   option_wording, SettingsError)
+import pandas as pd
 
 #: The options of the error model (from the settings' descriptions).
 ERROR_FIELDS = fields_of(ForecastErrorSettings)
@@ -52,6 +62,13 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument('--points', default='',
                         help="forecast points, BOPTEST's names separated by commas (default: "
                              "every series of the test case's Resources/*.csv)")
+    parser.add_argument('--card', default=None,
+                        help='a control model card with a testcase_forecast section: print its '
+                             'interval means, band and price instead of the points (a path or '
+                             'a built-in card name)')
+    parser.add_argument('--price', default='constant',
+                        help="with --card: the price scenario (a key of the card's price "
+                             'series; default constant)')
     return parser
 
 
@@ -76,8 +93,11 @@ def print_forecast(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     points = [p.strip() for p in args.points.split(',') if p.strip()] or None
     try:
         case = TestCase.load(args.testcase)
-        source = ForecastSource.from_test_case(case, errors)
-        frame = source.forecast(args.time, args.horizon, args.interval, points)
+        if args.card is not None:
+            frame = card_forecast(case, args, errors, points)
+        else:
+            source = ForecastSource.from_test_case(case, errors)
+            frame = source.forecast(args.time, args.horizon, args.interval, points)
     except (FileNotFoundError, ValueError) as exc:
         err.write(f'mshoot forecast: error: {_one_line(exc)}\n')
         return 2
@@ -85,6 +105,32 @@ def print_forecast(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     if (times == times.round()).all():
         frame['time'] = times.astype('int64')
     return write_text(frame.to_csv(index=False), out)
+
+
+def card_forecast(case: TestCase, args: argparse.Namespace, errors: ForecastErrorSettings,
+                  points: Sequence[str] | None) -> pd.DataFrame:
+    """
+    Return the card's test case forecast of ``args`` (a ``time`` column, then its columns).
+
+    Raises
+    ------
+    ValueError
+        For a card without the section, a horizon that is not a whole number of intervals,
+        an unknown column, or a source's refusal.
+
+    """
+    steps = args.horizon / args.interval if args.interval > 0 else float('nan')
+    if not (steps >= 0 and abs(steps - round(steps)) < 1e-9):
+        raise ValueError(f'with --card, expected a horizon that is a whole number >= 0 of '
+                         f'intervals > 0, got {args.horizon:g} s and {args.interval:g} s')
+    source = TestCaseForecasts(case, ForecastSpec.from_card(args.card), args.price, errors)
+    unknown = [p for p in points or () if p not in source.columns]
+    if unknown:
+        raise ValueError(f'unknown columns {unknown} of the card forecast: expected among '
+                         f'{list(source.columns)}')
+    frame = source.frame(args.time, int(round(steps)), args.interval)
+    frame = frame[list(points)] if points else frame
+    return frame.reset_index().rename(columns={'time_s': 'time'})
 
 
 def _one_line(exc: BaseException) -> str:
