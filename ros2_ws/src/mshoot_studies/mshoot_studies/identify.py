@@ -30,7 +30,9 @@ Writes to ``--out``: ``<model>_identified.yaml`` (the model card with the fitted
 ``mshoot case --control`` or the MPC node's ``model``), ``identification.json`` (the fitted
 parameters with 95 % intervals, warnings, the validation RMSEs), ``excitation.csv`` (the
 records: inputs per step, the plant's states at the steps' starts) and ``identification.png``
-(the held-out zone temperature: the plant, the free run, one step ahead).
+(the held-out zone temperature: the plant, the free run, one step ahead); with
+``--testcase``, ``card_<card>.yaml`` (the card pointed at the folder, as ``mshoot boptest``
+writes it).
 
 Exit codes: 0 done; 2 bad options or cards (one line saying what and why); 1 the plant
 failed during the excitation.
@@ -240,8 +242,9 @@ def _test_case_experiment(args: argparse.Namespace,
                          'boptest.excitation)')
     if args.data is not None:
         raise ValueError('--data goes with --plant (a test case brings its own weather)')
+    from mshoot_studies.boptest import prepare_card
     case = TestCase.load(args.testcase)
-    card = cards.load_card(args.card)
+    card = cards.load_card(prepare_card(args.card, args.testcase, args.out))  # the folder's
     if card.boptest is None:
         raise ValueError(f'--card {args.card}: not a BOPTEST card (no boptest section)')
     changes = {k: v for k, v in (('days', args.days), ('step_s', args.step),
