@@ -198,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
 
 def source_report(args: argparse.Namespace) -> dict:
     """Return what the report says of the plant and the experiment."""
-    return {'plant': str(args.plant or args.testcase), 'card': str(args.card),
+    return {'plant': str(args.plant or args.testcase), 'testcase_card': str(args.card),
             'model': str(args.model), **args.experiment}
 
 
