@@ -1,8 +1,7 @@
 """The BOPTEST control model, its identification, the economic MPC and its dispatch."""
 from __future__ import annotations
 
-from mshoot_core import calibration
-from mshoot_core.boptest import economic, identification as ident
+from mshoot_core.boptest import economic
 from mshoot_core.estimation import StateEstimator
 from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.mpc import MPC
@@ -78,58 +77,6 @@ def test_estimator_recovers_unmeasured_states() -> None:
         x = model.simulate_intervals(x[None, :], u[None, :], 3600.0)[0][0]
         estimate = estimator.update((k + 1) * 3600.0, {'T': x[0]}, u)
     np.testing.assert_allclose(estimate.x, x, atol=0.05)
-
-
-def _synthetic_hourly(model, days: float, seed: int) -> pd.DataFrame:
-    rng = np.random.default_rng(seed)
-    n = int(days * 24)
-    t = np.arange(n + 1) * 3600.0
-    hours = t / 3600.0
-    tout = 5 + 5 * np.sin(2 * np.pi * hours / 24)
-    solar = np.maximum(0, 500 * np.sin(2 * np.pi * (hours - 6) / 24))
-    duty = np.repeat(rng.uniform(0, 0.8, size=n // 4 + 1), 4)[:n + 1]
-    udf = pd.DataFrame({'Tout': tout, 'solar': solar, 'gains': 300.0, 'price': 0.0, 'd': duty},
-                       index=t)
-    ydf, xdf = model.simulate(udf, [294.0, 294.0, 294.0])  # as periods() starts
-    return pd.DataFrame({'Tout': tout, 'solar': solar, 'gains': 300.0,
-                         'Q': duty * (model.parameters['qa'] + model.parameters['qb'] * tout),
-                         'Tz': xdf['T'] - KELVIN}, index=t)
-
-
-def test_identification_recovers_a_known_house() -> None:
-    truth = {'Cz': 2e6, 'Cf': 4e7, 'Ce': 1e8, 'Rzf': 1e-3, 'Rze': 4e-3, 'Rzo': 1e-2,
-             'Reo': 8e-3, 'gz': 8.0, 'ge': 3.0, 'gi': 0.8}
-    table = _synthetic_hourly(economic.control_model(truth), 12, 1)
-    hp = {k: economic.control_model().parameters[k] for k in ('qa', 'qb', 'pa', 'pb', 'paux')}
-    train = ident.periods(table, hp, [(0.0, 9.0)], 'train')
-    validation = ident.periods(table, hp, [(9.0, 12.0)], 'validation')
-    fixed = {k: truth[k] for k in ('Ce', 'Reo', 'ge', 'gi', 'Rzo', 'Rze')}
-    free = [calibration.FreeParameter('Cf', 2e7, 1e6, 1e9),
-            calibration.FreeParameter('Rzf', 3e-3, 1e-5, 1e-1),
-            calibration.FreeParameter('gz', 3.0, 0.0, 50.0)]
-    result = calibration.calibrate(
-        lambda v: economic.control_model({**hp, **fixed, 'Cz': truth['Cz'], **v}),
-        free, train, validation)
-    assert result.parameters['Cf'] == pytest.approx(truth['Cf'], rel=0.02)
-    assert result.parameters['Rzf'] == pytest.approx(truth['Rzf'], rel=0.02)
-    assert result.parameters['gz'] == pytest.approx(truth['gz'], rel=0.02)
-    assert result.metrics['train']['rmse_k'] < 0.01  # validation starts off steady state
-
-
-def test_fit_heat_pump_lines() -> None:
-    tout = np.linspace(-5, 10, 50)
-    records = pd.DataFrame({'reaHeaPumY_y': np.r_[np.ones(50), np.full(5, 0.5)],
-                            'weaSta_reaWeaTDryBul_y': np.r_[tout, np.zeros(5)] + KELVIN,
-                            'reaQHeaPumCon_y': np.r_[9000 + 300 * tout, np.zeros(5)],
-                            'reaPHeaPum_y': np.r_[3000 + 50 * tout, np.zeros(5)],
-                            'reaPFan_y': 510.0, 'reaPPumEmi_y': 20.0,
-                            'reaCOP_y': np.r_[3 + 0.05 * tout, np.ones(5)]})
-    hp = ident.fit_heat_pump(records)
-    assert hp == pytest.approx({'qa': 9000, 'qb': 300, 'pa': 3000, 'pb': 50, 'paux': 530})
-    errors = ident.power_errors(records, hp)
-    assert errors['power_rmse_w'] < 1e-6 and errors['cop_b'] == pytest.approx(0.05)
-    with pytest.raises(ValueError, match='too few'):
-        ident.fit_heat_pump(records.iloc[50:])
 
 
 def test_output_cost_moves_heat_to_cheap_hours() -> None:

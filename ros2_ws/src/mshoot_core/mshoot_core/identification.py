@@ -6,22 +6,33 @@ Stable API::
     from mshoot_core import identification as ident
     plant = cards.build_model(cards.load_card('plant.yaml'), role='emulator')
     table = ident.excite(plant, scenario, ident.Excitation(seed=1))   # one row per step
+    # or a BOPTEST test case and its card (boptest.excitation: days, levels, hold times):
+    experiment = ident.TestCaseExperiment.from_card(card, case.control_step_s)
+    records = ident.excite_test_case(case, card, experiment)         # outside the test periods
+    table = ident.step_table(records, case, card, model_card, experiment)
     model_card = cards.load_card('model.yaml')                        # a network card
     result = ident.identify(model_card, table, validation_share=0.3)  # an Identification
+    ident.score(model_card, table, other_values)                     # the same rows, side by side
     ident.write_card(model_card, result, 'out/model_identified.yaml')
 
 The excitation (:func:`excite`) runs the plant (any model with a plant or a simulation, built
 from its card) through a scenario (disturbances by name), its controls held at random levels
-within their limits for a random number of control steps each (1 to 8 by default), and
-returns per step the disturbances and controls held over it and the plant's states at its
-start (and the last step's end). The identification (:func:`identify`) fits the model card's
-free network parameters (:func:`mshoot_core.calibration.calibrate`, analytic Jacobian) to the
-zone temperatures of the first part of the table and scores the rest (held out): per zone the
-RMSE of a free run from the held-out part's first row and of one step ahead from the measured
-zone temperatures (unmeasured states from the free run). The zones are the model's measured
-zone air temperature states (``T``, ``T_<zone>``), compared through the model outputs of the
-same name. Every period starts its unmeasured states at the first zone's temperature; its first
-``settle_steps`` rows are not fitted (the unmeasured states settle) and not scored.
+within their limits for a random number of control steps each (1 to 8 by default), and returns
+per step the disturbances and controls held over it and the plant's states at its start (and
+the last step's end). A BOPTEST test case (:func:`excite_test_case`) runs under its own weather
+from ``first_day``, after ``lead_days`` under the building's own control, never inside a test
+period or its warm-up; :func:`step_table` makes the same table from its records (each model
+input the step mean of the card's output or control of its name, or of test case data columns).
+The identification (:func:`identify`) fits the model card's free network parameters
+(:func:`mshoot_core.calibration.calibrate`, analytic Jacobian) to the zone temperatures of the
+first part of the table and scores the rest (held out): per zone the RMSE of a free run from
+the held-out part's first row and of one step ahead (from the state the controller's Kalman
+filter estimates from the measured zone temperatures). The zones are the model's measured zone
+air temperature states (``T``, ``T_<zone>``), compared through the model outputs of the same
+name. The fitted period starts its unmeasured states at the first zone's temperature, its first
+``settle_steps`` rows not fitted (the unmeasured states settle); the held-out period starts
+them where the model's free run over the fitted rows ends, its first ``settle_steps`` rows not
+scored.
 
 Nothing here names a building: the plant, its controls and the model come from the cards.
 """
@@ -41,13 +52,17 @@ from mshoot_core.emulation import Emulator, initial_state
 from mshoot_core.models.base import Model
 from mshoot_core.models.r1c1 import KELVIN
 
-__all__ = ['control_limits', 'excite', 'Excitation', 'excitation_levels', 'identify',
-           'Identification', 'one_step_predictions', 'write_card', 'zone_names']
+__all__ = ['check_outside_test_periods', 'control_limits', 'excite', 'excite_test_case',
+           'Excitation', 'excitation_levels', 'identify', 'Identification',
+           'one_step_predictions', 'overlapping_test_periods', 'score', 'step_table',
+           'TestCaseExperiment', 'write_card', 'zone_names']
 
 logger = logging.getLogger(__name__)
 
 #: Seconds between two progress messages of an excitation.
 PROGRESS_S = 10.0
+#: Seconds per day.
+DAY_S = 86400.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -184,17 +199,7 @@ def excite(plant: Model, scenario: pd.DataFrame, excitation: Excitation = Excita
     if control_bounds is None or len(control_bounds) != len(names):
         raise ValueError(f'need (min, max) limits for the controls {list(names)}, got '
                          f'{control_bounds!r}')
-    levels = dict(excitation.levels or {})
-    unknown = sorted(set(levels) - set(names))
-    if unknown:
-        raise ValueError(f'excitation levels of {unknown}, which are not controls {list(names)}')
-    ranges = []
-    for name, (lo, hi) in zip(names, control_bounds):
-        level = levels.get(name, (lo, hi))
-        if level[0] < lo or level[1] > hi:
-            raise ValueError(f'excitation levels of {name!r} {level} outside its limits '
-                             f'({lo:g}, {hi:g})')
-        ranges.append(level)
+    ranges = _level_ranges(names, control_bounds, excitation)
     if len(scenario) < 2:
         raise ValueError(f'the scenario needs at least two rows, got {len(scenario)}')
     if step_s is None:
@@ -224,6 +229,295 @@ def excite(plant: Model, scenario: pd.DataFrame, excitation: Excitation = Excita
     for j, name in enumerate(plant.state_names):
         table[name] = np.array(states)[:, j]
     return table
+
+
+@dataclasses.dataclass(frozen=True)
+class TestCaseExperiment:
+    """
+    An excitation experiment on a BOPTEST test case (a card's ``boptest.excitation``).
+
+    Attributes
+    ----------
+    first_day : float
+        First excited day [days from 1 January].
+    days : float
+        Length of the excitation [days].
+    lead_days : float
+        Days run before it under the building's own control [days].
+    step_s : float
+        Step of the records and of the control model [s]; each level is held whole steps.
+    excitation : Excitation
+        Seed, hold times and level ranges of the card's controls [canonical units].
+    inputs : mapping str -> float or tuple of str
+        Control model input -> a constant, or the test case data columns whose sum it is
+        (their step means); every other input is a card output or control of the same name.
+    sample_s : float
+        Step of the plant's records [s] (at most 60 s).
+
+    """
+
+    __test__ = False  # not a pytest test class
+
+    first_day: float
+    days: float
+    lead_days: float = 3.0
+    step_s: float = 3600.0
+    excitation: Excitation = Excitation()
+    inputs: Mapping[str, float | tuple[str, ...]] = dataclasses.field(default_factory=dict)
+    sample_s: float = 60.0
+
+    def __post_init__(self) -> None:
+        if not (0.0 <= self.first_day - self.lead_days and self.lead_days >= 0.0
+                and self.days > 0.0 and self.first_day + self.days <= 365.0):
+            raise ValueError(f'excitation days: expected 0 <= first_day - lead_days, days > 0 '
+                             f'and first_day + days <= 365, got first_day {self.first_day:g}, '
+                             f'days {self.days:g}, lead_days {self.lead_days:g}')
+        if not 0.0 < self.sample_s <= 60.0 or not self.step_s >= self.sample_s:
+            raise ValueError(f'expected 0 < sample_s <= 60 s and step_s >= sample_s, got '
+                             f'{self.sample_s:g} and {self.step_s:g}')
+        if self.steps < 4:
+            raise ValueError(f'{self.days:g} days are fewer than 4 steps of {self.step_s:g} s')
+
+    @property
+    def steps(self) -> int:
+        """Return the steps of the excitation."""
+        return int(round(self.days * DAY_S / self.step_s))
+
+    @property
+    def start_s(self) -> float:
+        """Start of the excitation [s from 1 January]."""
+        return self.first_day * DAY_S
+
+    @property
+    def end_s(self) -> float:
+        """End of the excitation [s from 1 January]."""
+        return self.start_s + self.steps * self.step_s
+
+    @classmethod
+    def from_card(cls, card: Any, step_s: float, **changes: Any) -> TestCaseExperiment:
+        """
+        Return the experiment of a BOPTEST card's ``boptest.excitation`` section.
+
+        Parameters
+        ----------
+        card : ModelCard
+            A card of kind ``boptest``.
+        step_s : float
+            Step where the section names none (the test case's control step) [s].
+        **changes
+            Fields replaced (e.g. ``days`` for a shortened run, ``seed``).
+
+        Raises
+        ------
+        ValueError
+            For a card without the section or bad values.
+
+        """
+        spec = dict((card.boptest or {}).get('excitation') or {})
+        if not spec:
+            raise ValueError(f'{card.path}: no boptest.excitation section (first_day, days, '
+                             'levels, ...): mshoot identify --testcase needs one')
+        missing = [k for k in ('first_day', 'days') if k not in spec and k not in changes]
+        if missing:
+            raise ValueError(f'{card.path}: boptest.excitation lacks {missing}')
+        excitation = Excitation(
+            seed=int(changes.pop('seed', spec.get('seed', 0))),
+            hold_steps=tuple(int(v) for v in spec.get('hold_steps', (1, 8))),
+            levels={str(k): (float(v[0]), float(v[1]))
+                    for k, v in (spec.get('levels') or {}).items()} or None)
+        inputs = {str(k): float(v) if isinstance(v, (int, float)) else tuple(map(str, v))
+                  for k, v in (spec.get('inputs') or {}).items()}
+        fields = {'first_day': spec.get('first_day'), 'days': spec.get('days'),
+                  'lead_days': spec.get('lead_days', 3.0),
+                  'step_s': spec.get('step_s', step_s), **changes}
+        return cls(**{k: float(v) for k, v in fields.items()}, excitation=excitation,
+                   inputs=inputs)
+
+
+def overlapping_test_periods(case: Any, experiment: TestCaseExperiment,
+                             warmup_days: float) -> list[str]:
+    """
+    Return the test periods (with their warm-ups) the experiment overlaps, lead days included.
+
+    Parameters
+    ----------
+    case : TestCase
+        The test case (its ``days.json``).
+    experiment : TestCaseExperiment
+        The experiment.
+    warmup_days : float
+        The warm-up before each test period [days] (the card's ``boptest.warmup_days``).
+
+    """
+    lo = experiment.start_s - experiment.lead_days * DAY_S
+    out = []
+    for name in sorted(case.days):
+        _, start, end = case.test_period(name, 0.0)
+        warmup_start = max(0.0, start - warmup_days * DAY_S)
+        if lo < end and experiment.end_s > warmup_start:
+            out.append(f'{name} [{warmup_start / DAY_S:g}, {end / DAY_S:g}) days')
+    return out
+
+
+def check_outside_test_periods(case: Any, card: Any, experiment: TestCaseExperiment) -> None:
+    """
+    Refuse an experiment that overlaps a test period or its warm-up (the card's).
+
+    Raises
+    ------
+    ValueError
+        Naming the periods overlapped.
+
+    """
+    overlaps = overlapping_test_periods(case, experiment,
+                                        (card.boptest or {}).get('warmup_days', 7.0))
+    if overlaps:
+        raise ValueError(f'the excitation (days {experiment.first_day - experiment.lead_days:g}'
+                         f' to {experiment.end_s / DAY_S:g}, lead days included) overlaps test '
+                         f'periods with their warm-ups: {", ".join(overlaps)}')
+
+
+def _level_ranges(names: Sequence[str], bounds: Sequence[tuple[float, float]],
+                  excitation: Excitation) -> list[tuple[float, float]]:
+    """Return each control's range of levels: the excitation's, within the limits."""
+    levels = dict(excitation.levels or {})
+    unknown = sorted(set(levels) - set(names))
+    if unknown:
+        raise ValueError(f'excitation levels of {unknown}, which are not controls {list(names)}')
+    ranges = []
+    for name, (lo, hi) in zip(names, bounds):
+        level = levels.get(name, (lo, hi))
+        if level[0] < lo or level[1] > hi:
+            raise ValueError(f'excitation levels of {name!r} {level} outside its limits '
+                             f'({lo:g}, {hi:g})')
+        ranges.append(level)
+    return ranges
+
+
+def excite_test_case(case: Any, card: Any, experiment: TestCaseExperiment) -> pd.DataFrame:
+    """
+    Run a BOPTEST test case's plant under the experiment, outside every test period.
+
+    The plant starts ``lead_days`` before ``first_day`` under the building's own control, then
+    every control of the card is overwritten with random levels (:func:`excitation_levels`, in
+    the card's canonical units, converted to the FMU's), each held whole steps.
+
+    Parameters
+    ----------
+    case : TestCase
+        The test case.
+    card : ModelCard
+        Its card (kind ``boptest``): the controls excited, the states and outputs recorded.
+    experiment : TestCaseExperiment
+        The experiment.
+
+    Returns
+    -------
+    DataFrame
+        The plant's records from the excitation's start to its end (``time`` [s], the card's
+        variables in FMU units, the overwrites applied), every ``sample_s``.
+
+    Raises
+    ------
+    ValueError
+        If the days overlap a test period or its warm-up, or the levels are outside the limits.
+
+    """
+    from mshoot_core.boptest.plant import BoptestPlant
+    check_outside_test_periods(case, card, experiment)
+    names = card.control_names
+    ranges = _level_ranges(names, control_limits(card), experiment.excitation)
+    levels = excitation_levels(experiment.steps, ranges, experiment.excitation)
+    specs = [card.controls[n] for n in names]
+    conversions = [v.conversion() for v in specs]
+    recorded = list(dict.fromkeys(v.variable for v in (*card.states.values(),
+                                                       *card.outputs.values())))
+    started = last = time.perf_counter()
+    with BoptestPlant(case, record=recorded) as plant:
+        plant.start(experiment.start_s - experiment.lead_days * DAY_S)
+        plant.advance(experiment.start_s, sample_s=experiment.sample_s)
+        for k in range(experiment.steps):
+            overwrites = {v.variable: scale * float(level) + offset
+                          for v, (scale, offset), level in zip(specs, conversions, levels[k])}
+            plant.advance(experiment.start_s + (k + 1) * experiment.step_s, overwrites,
+                          sample_s=experiment.sample_s)
+            if time.perf_counter() - last > PROGRESS_S:
+                last = time.perf_counter()
+                logger.info('excitation: step %d of %d, %.0f s', k + 1, experiment.steps,
+                            last - started)
+        logger.info('excitation of %s: %d steps of %g s in %.1f s', case.name,
+                    experiment.steps, experiment.step_s, time.perf_counter() - started)
+        return plant.records(experiment.start_s, experiment.end_s)
+
+
+def step_table(records: pd.DataFrame, case: Any, card: Any, model_card: Any,
+               experiment: TestCaseExperiment) -> pd.DataFrame:
+    """
+    Return a test case's records as :func:`identify` reads them: one row per step.
+
+    Parameters
+    ----------
+    records : DataFrame
+        :func:`excite_test_case`'s records.
+    case : TestCase
+        The test case (its data columns).
+    card : ModelCard
+        Its card: the variables of the outputs, controls and states.
+    model_card : ModelCard
+        The network card identified: its inputs (units from its ``network.inputs``) and
+        zones.
+    experiment : TestCaseExperiment
+        The experiment (its start, step and ``inputs``).
+
+    Returns
+    -------
+    DataFrame
+        Index: every step's start [s]; columns: each model input's mean over the step (a
+        row of the records ends the sample before it) in the model's unit, and each zone's
+        temperature at the step's start [K] (the card's state of the same name). Steps not
+        fully recorded are dropped.
+
+    Raises
+    ------
+    ValueError
+        For a model input that is no card output or control and not in ``inputs``, or a
+        zone that is no state of the card.
+
+    """
+    from mshoot_core.models.card import conversion
+    times = records['time'].to_numpy(dtype=float)
+    series: dict[str, np.ndarray] = {}
+    for name, unit in model_card.network.inputs.items():
+        source = experiment.inputs.get(name)
+        if isinstance(source, float):
+            series[name] = np.full(times.size, source)
+        elif source is not None:
+            series[name] = sum(case.lookup(column, times) for column in source)
+        elif name in card.outputs or name in card.controls:
+            variable = card.outputs.get(name) or card.controls[name]
+            scale, offset = conversion(unit, variable.unit)
+            series[name] = (records[variable.variable].to_numpy(dtype=float) - offset) / scale
+        else:
+            raise ValueError(f'the model input {name!r} is no output or control of '
+                             f'{card.path.name} ({list(card.outputs)}, {list(card.controls)}) '
+                             'and not in its boptest.excitation.inputs')
+    step_of = np.floor((times - experiment.start_s - 1e-6) / experiment.step_s).astype(int)
+    frame = pd.DataFrame(series).assign(step=step_of).iloc[1:]
+    grouped = frame.groupby('step')
+    table = grouped.mean()
+    counts = grouped.size()
+    table = table[counts >= counts.max()]
+    table.index = experiment.start_s + table.index.to_numpy(dtype=float) * experiment.step_s
+    from mshoot_core.models import card as cards
+    for zone in zone_names(cards.build_model(model_card)):
+        if zone not in card.states:
+            raise ValueError(f'the model zone {zone!r} is no state of {card.path.name} '
+                             f'({list(card.states)})')
+        variable = card.states[zone]
+        scale, offset = conversion('K', variable.unit)
+        kelvin = (records[variable.variable].to_numpy(dtype=float) - offset) / scale
+        table[zone] = pd.Series(kelvin, index=times).reindex(table.index).to_numpy()
+    return table.dropna()
 
 
 def zone_names(model: Model) -> tuple[str, ...]:
@@ -256,15 +550,22 @@ def _in_unit(unit: str, kelvin: np.ndarray) -> np.ndarray:
 
 
 def _periods(model: Model, table: pd.DataFrame, zones: Sequence[str], units: Mapping[str, str],
-             name: str, settle_steps: int) -> list[calibration.Period]:
-    """One calibration period per zone over the rows of ``table``."""
+             name: str, settle_steps: int,
+             unmeasured: np.ndarray | None = None) -> list[calibration.Period]:
+    """
+    One calibration period per zone over the rows of ``table``.
+
+    The zones start at their measured temperatures, the other states at ``unmeasured`` (a
+    full state vector [K] whose zone entries are ignored), else at the first zone's.
+    """
     missing = [c for c in (*model.input_names, *zones) if c not in table.columns]
     if missing:
         raise ValueError(f'the excitation records lack {missing}: the model card names inputs or '
                          f'zones the plant card does not (records have {list(table.columns)})')
     first = float(table[zones[0]].iloc[0])
-    x0 = np.array([float(table[s].iloc[0]) if s in table.columns and s in zones else first
-                   for s in model.state_names])
+    x0 = np.array([float(table[s].iloc[0]) if s in zones
+                   else (first if unmeasured is None else float(unmeasured[k]))
+                   for k, s in enumerate(model.state_names)])
     weights = np.ones(len(table))
     weights[:min(settle_steps + 1, len(table) - 1)] = 0.0
     return [calibration.Period(name if len(zones) == 1 else f'{name}_{zone}',
@@ -279,17 +580,25 @@ def one_step_predictions(model: Model, period: calibration.Period,
     """
     Return the model's one-step-ahead prediction of ``period.output`` at rows 1..N.
 
-    Each step starts from the measured zone temperatures ``zones_k`` (state name -> [K] at
-    rows 0..N) at its row and, for the other states, the free run's; the inputs held over it.
+    As a controller predicts: at every row the state is estimated from the measured zone
+    temperatures ``zones_k`` (state name -> [K] at rows 0..N) by the controller's Kalman filter
+    (:class:`~mshoot_core.estimation.StateEstimator` with the default
+    :class:`~mshoot_core.settings.EstimationSettings`, first guess ``period.x0``), then the
+    model runs one step with the inputs held over it.
     """
+    from mshoot_core.estimation import StateEstimator
+    from mshoot_core.settings import EstimationSettings
     inputs = period.inputs[list(model.input_names)]
-    _, xdf = model.simulate(inputs, period.x0)
-    x = xdf.to_numpy(dtype=float)[:-1].copy()
-    for zone, kelvin in zones_k.items():
-        x[:, model.state_names.index(zone)] = np.asarray(kelvin, dtype=float)[:-1]
-    u = inputs.to_numpy(dtype=float)[:-1]
-    dt = float(inputs.index[1] - inputs.index[0])
-    _, y = model.simulate_intervals(x, u, dt)
+    u = inputs.to_numpy(dtype=float)
+    times = inputs.index.to_numpy(dtype=float)
+    dt = float(times[1] - times[0])
+    estimator = StateEstimator.from_settings(model, EstimationSettings(), dt,
+                                             initial_state=period.x0)
+    x_hat = np.empty((len(times) - 1, len(model.state_names)))
+    for k in range(len(times) - 1):
+        measured = {zone: float(kelvin[k]) for zone, kelvin in zones_k.items()}
+        x_hat[k] = estimator.update(times[k], measured, None if k == 0 else u[k - 1]).x
+    _, y = model.simulate_intervals(x_hat, u[:-1], dt)
     return y[:, model.output_names.index(period.output)]
 
 
@@ -313,6 +622,8 @@ class Identification:
         The table's step [s].
     one_step : dict of str -> ndarray
         Per zone the one-step-ahead predictions of the held-out rows 1.. [output unit].
+    free_run : dict of str -> ndarray
+        Per zone the free run over the held-out rows 0.. [output unit].
 
     """
 
@@ -323,6 +634,7 @@ class Identification:
     validation_rows: int
     step_s: float
     one_step: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    free_run: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """Return the JSON-ready report."""
@@ -377,30 +689,86 @@ def identify(model_card: Any, table: pd.DataFrame, validation_share: float = 0.3
     zones = zone_names(model)
     units = {zone: model_card.network.outputs[zone].unit for zone in zones}
     train = _periods(model, table.iloc[:split], zones, units, 'train', settle_steps)
-    validation = _periods(model, table.iloc[split - 1:], zones, units, 'validation',
-                          settle_steps)
     build = calibration.card_builder(model_card)
     logger.info('fitting %s (%d free parameters) to %d rows, %d held out, zones %s',
                 model_card.path.name, len(free), split, n - split, list(zones))
-    result = calibration.calibrate(build, free, train, validation, starts=starts,
+    result = calibration.calibrate(build, free, train, starts=starts,
                                    max_evaluations=max_evaluations)
-    fitted = build(result.parameters)
-    scores, predictions = {}, {}
+    scores, free_run, one_step = _held_out(build(result.parameters), train[0], table, split,
+                                           zones, units, settle_steps)
+    step_s = float(table.index[1] - table.index[0])
+    return Identification(dict(result.parameters), result, scores, split, n - split, step_s,
+                          one_step, free_run)
+
+
+def score(model_card: Any, table: pd.DataFrame, parameters: Mapping[str, float],
+          validation_share: float = 0.3, settle_steps: int = 12) -> dict[str, dict[str, float]]:
+    """
+    Score given parameter values of a network card on the rows :func:`identify` holds out.
+
+    For a side-by-side comparison of an identification with other values of the same
+    parameters (e.g. a packaged card's): the same held-out rows, the unmeasured states started
+    alike (from a free run of these values over the rows fitted).
+
+    Parameters
+    ----------
+    model_card : ModelCard
+        A card with a ``network`` section.
+    table : DataFrame
+        The excitation's records (as for :func:`identify`).
+    parameters : mapping of str -> float
+        Values of the card's parameters (the others keep the card's).
+    validation_share, settle_steps :
+        As for :func:`identify`.
+
+    Returns
+    -------
+    dict of str -> dict
+        Per zone ``free_run_rmse_k``, ``one_step_rmse_k``, ``rows``.
+
+    """
+    unknown = sorted(set(parameters) - set(model_card.network.parameters))
+    if unknown:
+        raise ValueError(f'{unknown} are not parameters of {model_card.path.name} '
+                         f'{sorted(model_card.network.parameters)}')
+    from mshoot_core.models import card as cards
+    model = cards.build_model(model_card)
+    zones = zone_names(model)
+    units = {zone: model_card.network.outputs[zone].unit for zone in zones}
+    split = int(round(len(table) * (1.0 - validation_share)))
+    train = _periods(model, table.iloc[:split], zones, units, 'train', settle_steps)
+    fitted = calibration.card_builder(model_card)(dict(parameters))
+    return _held_out(fitted, train[0], table, split, zones, units, settle_steps)[0]
+
+
+def _held_out(fitted: Model, train: calibration.Period, table: pd.DataFrame, split: int,
+              zones: Sequence[str], units: Mapping[str, str], settle_steps: int
+              ) -> tuple[dict[str, dict[str, float]], dict[str, np.ndarray],
+                         dict[str, np.ndarray]]:
+    """
+    Score a model on the held-out rows (from row ``split - 1``), per zone.
+
+    The zones start measured, the unmeasured states where the model's free run over the rows
+    fitted (``train``) ends. Returns the scores (``free_run_rmse_k``, ``one_step_rmse_k``,
+    ``rows``), the free runs and the one-step-ahead predictions per zone [output unit].
+    """
+    _, xdf = fitted.simulate(train.inputs[list(fitted.input_names)], train.x0)
+    validation = _periods(fitted, table.iloc[split - 1:], zones, units, 'validation',
+                          settle_steps, xdf.to_numpy(dtype=float)[-1])
+    measured_k = {z: table[z].iloc[split - 1:].to_numpy(float) for z in zones}
+    scores, free_runs, predictions = {}, {}, {}
+    keep = slice(settle_steps, None)
     for period, zone in zip(validation, zones):
-        keep = slice(settle_steps, None)
-        free_run = result.simulated[period.name]
-        one_step = one_step_predictions(
-            fitted, period, {z: table[z].iloc[split - 1:].to_numpy(float) for z in zones})
-        predictions[zone] = one_step
+        free_run = calibration.simulate_period(fitted, period)
+        one_step = one_step_predictions(fitted, period, measured_k)
+        free_runs[zone], predictions[zone] = free_run, one_step
         scores[zone] = {
             'free_run_rmse_k': _rmse(free_run[1:][keep], period.measured[1:][keep]),
             'one_step_rmse_k': _rmse(one_step[keep], period.measured[1:][keep]),
             'rows': int(period.measured[1:][keep].size)}
         logger.info('zone %s: validation RMSE free run %.3f K, one step ahead %.3f K', zone,
                     scores[zone]['free_run_rmse_k'], scores[zone]['one_step_rmse_k'])
-    step_s = float(table.index[1] - table.index[0])
-    return Identification(dict(result.parameters), result, scores, split, n - split, step_s,
-                          predictions)
+    return scores, free_runs, predictions
 
 
 def _rmse(simulated: np.ndarray, measured: np.ndarray) -> float:

@@ -487,7 +487,7 @@ def _closing_lines(records: list[dict], periods: Sequence[str], prices: Sequence
             'direct heat pump control about 0.1 K h at 0.61 EUR/m2 (constant price), and about '
             '3.6 K h at 0.28 EUR/m2 on the typical heat period. mshoot plans on perfect '
             "forecasts of the test case's files and a 3-state RC model identified outside the "
-            'test periods (`python -m mshoot_studies.boptest_mpc identify`), and runs the heat '
+            'test periods (docs/identify.md), and runs the heat '
             'pump in full-load bursts (its COP and the fixed fan power favour them; the '
             'emulator charges nothing for starts: see starts/day; a minimum run time is '
             '`min_run_h` of the economic node, the setting `min_run_s`). Where its discomfort '

@@ -1,16 +1,13 @@
 """
-The economic MPC on BOPTEST's heat pump house, in core (no ROS): identify, then evaluate.
+The economic MPC on BOPTEST's heat pump house, in core (no ROS): evaluate.
 
-    python -m mshoot_studies.boptest_mpc identify [--cache DIR] [--out out/boptest/mpc]
-        excite the emulator outside the test periods (cached), fit the control model, write
-        identification.json (parameters, RMSE per period, power model) and, with --install,
-        the values into the packaged card mshoot_core/cards/boptest_house.yaml
     python -m mshoot_studies.boptest_mpc evaluate [--periods ...] [--prices ...] [--modes ...]
         run the MPC (and the baseline and the pre-heating rule of mshoot_studies.boptest_rule,
         tuned on its default grid, for comparison) on the test periods and write kpis.json
         and a markdown table (kpis.md) to --out
 
-Both print their progress; bad options exit with code 2 and one line.
+It prints its progress; bad options exit with code 2 and one line. The control model is
+identified by ``mshoot identify --testcase`` (docs/identify.md).
 """
 from __future__ import annotations
 
@@ -18,7 +15,6 @@ import argparse
 import json
 import logging
 import pathlib
-import re
 import sys
 import time
 from typing import Sequence
@@ -33,58 +29,8 @@ def _say(text: str) -> None:
     print(text, flush=True)
 
 
-def _cache_default() -> pathlib.Path:
-    from mshoot_core.fmu_cache import cache_dir
-    return cache_dir().parent / 'boptest'
-
-
-def identify_command(args: argparse.Namespace) -> int:
-    from mshoot_core.boptest import identification as ident
-    from mshoot_core.boptest.testcase import TestCase
-    case = TestCase.load(args.case)
-    started = time.perf_counter()
-    records = ident.excitation_records(case, args.cache)
-    _say(f'excitation records ready ({time.perf_counter() - started:.1f} s): '
-         + ', '.join(f'days {r["time"].iloc[0] / 86400:.0f}-{r["time"].iloc[-1] / 86400:.0f}'
-                     for r in records))
-    tables = [ident.hourly_table(r, case) for r in records]
-    fit = ident.identify(tables, records, starts=args.starts)
-    out = pathlib.Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    summary = {'train_days': ident.TRAIN, 'validation_days': ident.VALIDATION,
-               'runs': ident.RUNS, **fit.to_dict()}
-    (out / 'identification.json').write_text(json.dumps(summary, indent=1))
-    for name, m in fit.result.metrics.items():
-        _say(f'{name}: RMSE {m["rmse_k"]:.3f} K, MAE {m["mae_k"]:.3f} K over {m["rows"]} h')
-    p = fit.power
-    _say(f'power at full load: RMSE {p["power_rmse_w"]:.0f} W of {p["power_mean_w"]:.0f} W '
-         f'(mean error {p["power_mean_error_w"]:+.0f} W); COP = {p["cop_a"]:.3f} + '
-         f'{p["cop_b"]:.4f} Tout (RMSE {p["cop_rmse"]:.3f})')
-    for warning in fit.result.warnings:
-        _say(f'warning: {warning}')
-    if args.install:
-        _say(f'wrote {install(fit.parameters)}')
-    _say(f'wrote {out / "identification.json"}')
-    return 0
-
-
 #: The heat pump's modulation: its off -> on transitions are the runs' starts per day.
 STARTS_OUTPUT = 'reaHeaPumY_y'
-
-
-def install(parameters: dict[str, float]) -> pathlib.Path:
-    """Write parameter values into the packaged card's ``NAME: {value: ...`` lines; its path."""
-    from mshoot_core.boptest.economic import CARD
-    from mshoot_core.models.card import builtin_card
-    target = builtin_card(CARD)
-    text = target.read_text()
-    for name, value in parameters.items():
-        text, found = re.subn(rf'^(\s+{re.escape(name)}: {{value: )[^,}}]+', rf'\g<1>{value!r}',
-                              text, count=1, flags=re.M)
-        if not found:
-            raise ValueError(f'{target}: no parameter line of {name!r}')
-    target.write_text(text)
-    return target
 
 
 def evaluate_command(args: argparse.Namespace) -> int:
@@ -179,14 +125,6 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument('--case', default=None, help='test case folder (default: the shared one)')
     p.add_argument('--out', default='out/boptest/mpc', help='output folder')
     sub = p.add_subparsers(dest='command', required=True)
-    i = sub.add_parser('identify', help='excite the emulator and fit the control model')
-    i.add_argument('--cache', default=None, type=pathlib.Path,
-                   help='folder of the cached excitation records (default ~/.cache/mshoot/'
-                   'boptest)')
-    i.add_argument('--starts', type=int, default=1, help='starts of the fit')
-    i.add_argument('--install', action='store_true',
-                   help='write the fit into the packaged card mshoot_core/cards/'
-                   'boptest_house.yaml')
     e = sub.add_parser('evaluate', help='closed-loop KPIs on the test periods')
     e.add_argument('--periods', nargs='+', default=list(PERIODS), choices=PERIODS)
     e.add_argument('--prices', nargs='+', default=list(PRICES), choices=PRICES)
@@ -212,12 +150,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format='%(levelname)s %(name)s: %(message)s')
     try:
-        if args.command == 'identify':
-            if args.cache is None:
-                args.cache = _cache_default()
-            if args.starts < 1:
-                raise ValueError(f'--starts must be >= 1, got {args.starts}')
-            return identify_command(args)
         if args.days <= 0 or args.warmup_days < 0 or args.horizon < 1:
             raise ValueError('--days must be > 0, --warmup-days >= 0 and --horizon >= 1')
         return evaluate_command(args)

@@ -375,6 +375,10 @@ class BoptestPlant:
             raise RuntimeError('the plant is not running: call start() first')
         return self._model.plant_get(list(names))
 
+    def drop_records(self) -> None:
+        """Forget the rows recorded so far (a long run kept in pieces); the plant runs on."""
+        self._rows = []
+
     def records(self, start_s: float | None = None, end_s: float | None = None) -> pd.DataFrame:
         """
         Return the record table.

@@ -26,7 +26,9 @@ period days), ``kpis.json`` (which outputs feed which KPI: ``OperativeZoneTemper
 clock). Every series is found by its BOPTEST column name in whichever CSV holds it (the band
 ``LowerSetp[z]`` may be in ``dataFromModel.csv`` or in ``setpoints.csv``; the first file in
 name order wins a name two files share). Between their rows these data are held constant
-(forward-filled), as BOPTEST's KPI calculator does.
+(forward-filled), as BOPTEST's KPI calculator does. A folder without weather (no ``TDryBul``
+column, e.g. no ``weather.csv``) reads the weather derived once from its FMU's weather station
+outputs, from the cache, when it has been derived (:mod:`mshoot_core.boptest.weather`).
 
 The folder is found by :func:`default_directory`: the argument, else the environment variable
 ``MSHOOT_BOPTEST_DIR`` (``env.sh`` sets it to the heat pump house beside the repository).
@@ -78,6 +80,9 @@ CO2_KEY = 'CO2Concentration'
 #: Where the FMU may be in the folder (BOPTEST's release layout and its parser's output).
 FMU_PATHS = ('wrapped.fmu', 'models/wrapped.fmu')
 SECONDS_PER_DAY = 86400.0
+#: Name of the weather derived from the FMU's outputs among the resources (a folder without
+#: weather.csv; :mod:`mshoot_core.boptest.weather`).
+DERIVED_WEATHER = 'weather.csv (derived from the FMU)'
 #: BOPTEST's weather points (the ``weather`` category of its ``data/categories.json``): its
 #: forecasts interpolate them linearly between rows and hold every other series.
 WEATHER_POINTS = frozenset({
@@ -268,7 +273,12 @@ class TestCase:
     # -- data ----------------------------------------------------------------------------------
     @functools.cached_property
     def _resources(self) -> dict[str, pd.DataFrame]:
-        return _read_resources(str(self.directory))
+        frames = _read_resources(str(self.directory))
+        if any('TDryBul' in frame.columns for frame in frames.values()):
+            return frames
+        from mshoot_core.boptest import weather  # no weather.csv: the derived one, if derived
+        derived = weather.cached_weather(self)
+        return frames if derived is None else {**frames, DERIVED_WEATHER: derived}
 
     @functools.cached_property
     def _column_file(self) -> dict[str, str]:
@@ -328,8 +338,12 @@ class TestCase:
 
         """
         if column not in self._column_file:
+            hint = (f' (a weather point: derive the weather of a folder without weather.csv '
+                    f'once, python -m mshoot_core.boptest.weather {self.directory})'
+                    if column in WEATHER_POINTS and DERIVED_WEATHER not in self._resources
+                    else '')
             raise ValueError(f'unknown test case data column {column!r}: expected one of '
-                             f'{self.columns}')
+                             f'{self.columns}{hint}')
         frame = self._resources[self._column_file[column]]
         index = frame.index.to_numpy(dtype=float)
         times = np.asarray(times_s, dtype=float)

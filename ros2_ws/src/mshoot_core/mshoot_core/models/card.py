@@ -251,7 +251,8 @@ class ModelCard:
         Free text.
     boptest : dict or None
         For a card of kind ``boptest``: ``test_case_dir`` (absolute), ``warmup_days``,
-        ``history_step_s`` and ``setpoint_zones`` (setpoint control -> zone).
+        ``history_step_s``, ``setpoint_zones`` (setpoint control -> zone) and ``excitation``
+        (the identification's experiment as the card writes it, or None).
     network : NetworkSpec or None
         For a thermal network (a card's ``network`` section, or ``builtin: r1c1`` /
         ``r2c2``: the built-in card's): the parsed network
@@ -792,7 +793,9 @@ def _boptest_spec(path: pathlib.Path, spec: dict,
     return {'test_case_dir': str(directory), 'warmup_days': float(warmup),
             'history_step_s': float(history),
             'setpoint_zones': {str(k): str(v) for k, v in zones.items()}
-            if isinstance(zones, dict) else {}}, str(fmu)
+            if isinstance(zones, dict) else {},
+            'excitation': dict(spec['excitation']) if isinstance(spec.get('excitation'), dict)
+            else None}, str(fmu)
 
 
 def _time_origin_problem(value: str) -> str | None:

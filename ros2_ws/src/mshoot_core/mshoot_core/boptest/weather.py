@@ -1,0 +1,200 @@
+"""
+The weather of a test case folder without ``weather.csv``, derived once from its FMU's outputs.
+
+Stable API::
+
+    from mshoot_core.boptest import weather
+    frame = weather.derive_weather(case, start_s, end_s)     # BOPTEST columns, rows 900 s apart
+    path = weather.ensure_weather(case)                      # the year, once, into the cache
+    weather.cached_weather(case) -> DataFrame or None        # what TestCase.lookup reads
+
+    python -m mshoot_core.boptest.weather DIR               # derive the year of a folder once
+
+BOPTEST's forecasts read a test case's ``Resources/weather.csv`` (``TDryBul`` [K], ``HGloHor``
+[W/m2], ... the points of :data:`~mshoot_core.boptest.testcase.WEATHER_POINTS`, rows every
+900 s from 1 January). A folder that lacks it but whose FMU reports its weather station (outputs
+``<prefix>reaWea<Point>_y``, the point's first letter capitalised, e.g.
+``weaSta_reaWeaTDryBul_y``, ``weaSta_reaWeaRelHum_y``) gets the same table from those
+outputs: the FMU is run under its own control over the year (one instance, in pieces of
+:data:`PIECE_DAYS`), each output sampled at the row times, and the table is written to the
+cache, ``<cache base>/boptest/weather/<sha256 of the FMU file, 16 hex>/weather.csv`` (the base
+of :func:`mshoot_core.fmu_cache.cache_dir`'s folder: ``~/.cache/mshoot``), never into the test
+case folder. The weather is the building's own input, the same under any control, so the year
+is derived once per FMU file. :class:`~mshoot_core.boptest.testcase.TestCase` then finds its
+columns as it finds those of ``weather.csv``.
+"""
+from __future__ import annotations
+
+import logging
+import pathlib
+import re
+import sys
+import time
+from typing import Any, Sequence
+
+import numpy as np
+import pandas as pd
+
+from mshoot_core import fmu_cache
+from mshoot_core.boptest.testcase import SECONDS_PER_DAY, WEATHER_POINTS
+
+logger = logging.getLogger(__name__)
+
+#: Rows of the derived table [s] (BOPTEST's weather.csv).
+ROW_S = 900.0
+#: Days run between two writes of the records (the memory of a long run) [days].
+PIECE_DAYS = 5.0
+#: File name of the derived table in its cache folder.
+FILE_NAME = 'weather.csv'
+#: An FMU output of the weather station: ``<prefix>reaWea<point>_y``.
+_OUTPUT = re.compile(r'^(?:.*_)?reaWea(?P<point>[A-Za-z]+)_y$')
+#: Seconds between two progress messages.
+_PROGRESS_S = 10.0
+
+
+def weather_outputs(outputs: Sequence[str]) -> dict[str, str]:
+    """
+    Return BOPTEST weather point -> the FMU output that reports it, among ``outputs``.
+
+    Raises
+    ------
+    ValueError
+        When no output reports a weather point.
+
+    """
+    points = {point.lower(): point for point in WEATHER_POINTS}
+    found: dict[str, str] = {}
+    for name in outputs:
+        match = _OUTPUT.match(name)
+        point = points.get(match['point'].lower()) if match else None
+        if point is not None:
+            found.setdefault(point, name)
+    if not found:
+        raise ValueError('the FMU has no weather station outputs (<prefix>reaWea<point>_y, '
+                         f'point one of {sorted(WEATHER_POINTS)})')
+    return found
+
+
+def derive_weather(case: Any, start_s: float, end_s: float, row_s: float = ROW_S,
+                   lead_s: float = 0.0) -> pd.DataFrame:
+    """
+    Run the test case's FMU from ``start_s`` to ``end_s``; return its weather outputs.
+
+    Parameters
+    ----------
+    case : TestCase
+        The test case.
+    start_s, end_s : float
+        First and last row [s from 1 January].
+    row_s : float
+        Row spacing [s].
+    lead_s : float
+        Run before the first row [s] (the FMU starts at ``start_s - lead_s``).
+
+    Returns
+    -------
+    DataFrame
+        Index: time [s from 1 January], every ``row_s`` from ``start_s`` to ``end_s``; columns:
+        the weather points the FMU reports, in its units (K, W/m2, -, ...), each its value at
+        the row time.
+
+    """
+    from mshoot_core.boptest.plant import BoptestPlant
+    if not (0.0 <= start_s - lead_s and start_s < end_s and row_s > 0):
+        raise ValueError(f'expected 0 <= start_s - lead_s, start_s < end_s and row_s > 0, got '
+                         f'{start_s:g}, {end_s:g}, {lead_s:g}, {row_s:g}')
+    rows = start_s + row_s * np.arange(int(np.floor((end_s - start_s) / row_s + 1e-9)) + 1)
+    plant = BoptestPlant(case, record=[])  # reads the FMU's variables, holds no instance
+    outputs = weather_outputs(plant.outputs_available)
+    plant = BoptestPlant(case, record=list(outputs.values()))
+    pieces = []
+    started = last = time.perf_counter()
+    with plant:
+        plant.start(start_s - lead_s)
+        if lead_s > 0:
+            plant.advance(start_s)
+        pieces.append(_at(plant.records(start_s - 1e-3), rows[:1], outputs))
+        plant.drop_records()
+        t = start_s
+        while t < rows[-1] - 1e-6:
+            to = min(rows[-1], t + PIECE_DAYS * SECONDS_PER_DAY)
+            plant.advance(to)
+            pieces.append(_at(plant.records(), rows[(rows > t + 1e-6) & (rows <= to + 1e-6)],
+                              outputs))
+            plant.drop_records()
+            t = to
+            if time.perf_counter() - last > _PROGRESS_S:
+                last = time.perf_counter()
+                logger.info('weather of %s: day %.1f of %.1f, %.0f s', case.name,
+                            t / SECONDS_PER_DAY, rows[-1] / SECONDS_PER_DAY, last - started)
+    frame = pd.concat(pieces)
+    frame.index.name = 'time'
+    return frame
+
+
+def _at(records: pd.DataFrame, times: np.ndarray, outputs: dict[str, str]) -> pd.DataFrame:
+    """Return the recorded outputs at ``times`` (rows of the records, every sample)."""
+    record_times = records['time'].to_numpy(dtype=float)
+    where = np.searchsorted(record_times, times - 1e-6)
+    where = np.clip(where, 0, record_times.size - 1)
+    if np.any(np.abs(record_times[where] - times) > 1e-6):
+        raise ValueError('the plant recorded no sample at a row time (rows must fall on its '
+                         'samples)')
+    return pd.DataFrame({point: records[name].to_numpy(dtype=float)[where]
+                         for point, name in outputs.items()}, index=times)
+
+
+def cache_path(case: Any) -> pathlib.Path:
+    """Return where the derived weather of the test case's FMU file lives (see the module)."""
+    digest = fmu_cache.file_sha256(case.fmu_path)[:16]
+    return fmu_cache.cache_dir().parent / 'boptest' / 'weather' / digest / FILE_NAME
+
+
+def cached_weather(case: Any) -> pd.DataFrame | None:
+    """Return the derived weather of the test case (index: time [s]), None if not derived."""
+    path = cache_path(case)
+    if not path.is_file():
+        return None
+    frame = pd.read_csv(path, index_col=0)
+    frame.index = frame.index.to_numpy(dtype=float)
+    return frame
+
+
+def ensure_weather(case: Any, days: float = 365.0) -> pathlib.Path:
+    """
+    Derive the test case's weather once (from 1 January over ``days``); return the file.
+
+    Written to a temporary file beside the target and renamed into place, so an interrupted
+    run leaves nothing half-written.
+    """
+    path = cache_path(case)
+    if path.is_file():
+        return path
+    logger.info('deriving the weather of %s over %g days from its FMU (once) into %s',
+                case.name, days, path)
+    frame = derive_weather(case, 0.0, days * SECONDS_PER_DAY)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    staging = path.with_suffix(f'.{time.time_ns()}.tmp')
+    frame.to_csv(staging, index_label='time')
+    staging.replace(path)
+    return path
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Derive the weather of the test case folder ``argv[0]``: 0, or 2 with one line."""
+    from mshoot_core.boptest.testcase import TestCase
+    logging.basicConfig(level=logging.INFO, format='%(asctime)s %(levelname)s %(message)s')
+    args = list(sys.argv[1:] if argv is None else argv)
+    if len(args) != 1 or args[0].startswith('-'):
+        sys.stderr.write('usage: python -m mshoot_core.boptest.weather TEST_CASE_DIR\n')
+        return 2
+    try:
+        logger.info('wrote %s', ensure_weather(TestCase.load(args[0])))
+    except (FileNotFoundError, ValueError) as exc:
+        sys.stderr.write(f'{exc}\n')
+        return 2
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
