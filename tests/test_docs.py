@@ -3,7 +3,7 @@ The documentation: the site builds without a warning, the README stays short, th
 
 - The Sphinx site (``docs/``, ``make docs``) is built with warnings as errors; its generated
   tables must hold every setting, every node parameter, every message and every verb.
-- The README is at most 150 lines and starts with its two commands.
+- The README is at most 150 lines, starts with its two commands and links only files that exist.
 - Every tutorial page (``docs/tutorials/*.md``) is run: its ``bash`` code blocks, in order, as
   one script from the repository root (``set -euo pipefail``), so a changed command fails here.
   Blocks fenced as ``shell`` are shown, not run (e.g. ``ros2 launch`` on a full ROS install).
@@ -104,6 +104,16 @@ def test_readme_is_short_and_starts_with_the_two_commands() -> None:
     first = code_blocks('\n'.join(lines) + '\n', 'bash')[0].splitlines()
     assert first[0].startswith('make demo') and first[1].startswith('make test')
     assert not any(line.startswith('```') for line in lines[:lines.index('```bash')])
+
+
+def test_readme_links_reach_files_that_exist() -> None:
+    # the site's build checks the links of docs/, not those of the README (outside the site)
+    text = (ROOT / 'README.md').read_text(encoding='utf-8')
+    links = [link.partition('#')[0] for link in re.findall(r'\]\(([^)\s]+)\)', text)
+             if not link.startswith(('http://', 'https://', '#'))]
+    assert links, 'the README links no page'
+    missing = [link for link in links if not (ROOT / link).exists()]
+    assert not missing, f'README links to missing files: {missing}'
 
 
 @pytest.mark.parametrize('page', TUTORIALS, ids=[p.stem for p in TUTORIALS])
