@@ -68,3 +68,37 @@ def test_the_published_forecast_is_the_core_sources(boptest_case: TestCase, cont
     assert np.abs(series['Tout'] - (truth['TDryBul'].to_numpy() - KELVIN)).max() > 0.1
     assert np.abs(series['solrad'] - truth['HGloHor'].to_numpy()).max() > 1.0
     np.testing.assert_array_equal(series['occ'], truth['Occupancy[1]'])  # exact, as before
+
+
+def test_with_a_control_card_the_forecast_is_its_test_case_source(
+        boptest_case: TestCase, context) -> None:
+    """The card's interval means, band and price at the step's FMU time, with the errors."""
+    from mshoot_core.boptest.forecasts import ForecastSpec, TestCaseForecasts
+    from mshoot_core.models.card import builtin_card
+    from mshoot_nodes.conversions import forecast_series
+    from mshoot_nodes.forecaster_node import ForecasterNode
+    from rclpy.parameter import Parameter
+    card = builtin_card('boptest_house')
+    node = ForecasterNode(context=context, parameter_overrides=[
+        Parameter('scenario', value='boptest:peak_heat_day:dynamic'),
+        Parameter('hours', value=48), Parameter('horizon_steps', value=36),
+        Parameter('model', value=str(card)), Parameter('temperature_uncertainty', value='high'),
+        Parameter('solar_uncertainty', value='medium'), Parameter('seed', value=5)])
+    try:
+        msg = node.publish_forecast(7)
+    finally:
+        node.destroy_node()
+    series, rejection = forecast_series(msg)
+    assert rejection is None
+    assert list(msg.series_names) == ['Tout', 'solar', 'gains']
+    _, start, _ = boptest_case.test_period('peak_heat_day')
+    errors = ForecastErrorSettings(temperature_uncertainty='high', solar_uncertainty='medium',
+                                   seed=5)
+    core = TestCaseForecasts(boptest_case, ForecastSpec.from_card(card), 'dynamic',
+                             errors).frame(start + 7 * 3600.0, 36, 3600.0)
+    for name in ('Tout', 'solar', 'gains', 'price', 'comfort_min', 'comfort_max'):
+        np.testing.assert_allclose(series[name], core[name], rtol=0, atol=1e-9)
+    exact = TestCaseForecasts(boptest_case, ForecastSpec.from_card(card), 'dynamic').frame(
+        start + 7 * 3600.0, 36, 3600.0)
+    assert np.abs(series['Tout'] - exact['Tout']).max() > 0.1
+    np.testing.assert_array_equal(series['gains'], exact['gains'])

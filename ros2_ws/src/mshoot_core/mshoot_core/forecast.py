@@ -61,7 +61,8 @@ from typing import Callable, Sequence
 import numpy as np
 import pandas as pd
 
-from mshoot_core.scenario import forecast_window
+from mshoot_core.safety import COMFORT_SERIES, PRICE_SERIES
+from mshoot_core.scenario import forecast_rows, forecast_window
 from mshoot_core.settings import ForecastErrorSettings, UNCERTAINTY_LEVELS
 
 logger = logging.getLogger(__name__)
@@ -412,6 +413,33 @@ class ForecastSource:
                 columns[name] = np.asarray(self.truth(name, times), dtype=float)
         return pd.DataFrame(columns)
 
+    def at(self, point: str, now_s: float, horizon_s: float,
+           times_s: np.ndarray | Sequence[float]) -> np.ndarray:
+        """
+        Return one point of the forecast of a request (``now_s``, ``horizon_s``) at any times.
+
+        The same values :meth:`forecast` gives on its times (the same draw), at ``times_s``
+        [s] within [now, now + H]: a point with errors linear between the draw's hourly points,
+        any other the truth.
+
+        Raises
+        ------
+        ValueError
+            As :meth:`forecast`, or for times outside [now, now + H].
+
+        """
+        self._check(now_s, horizon_s, 1.0, [point])
+        times = np.asarray(times_s, dtype=float)
+        if times.size and (times.min() < now_s or times.max() > now_s + horizon_s):
+            raise ValueError(f'expected times within the request [{now_s:g}, '
+                             f'{now_s + horizon_s:g}] s, got [{times.min():g}, '
+                             f'{times.max():g}] s')
+        if point not in self.uncertain_points:
+            return np.asarray(self.truth(point, times), dtype=float)
+        draw = self._current_draw(float(now_s), float(horizon_s))
+        grid = draw.temperature if point == self.temperature_point else draw.solar
+        return np.interp(times, draw.grid_s, grid)
+
     def _check(self, now_s: float, horizon_s: float, interval_s: float,
                names: list[str]) -> None:
         unknown = [n for n in names if n not in self.series]
@@ -497,21 +525,36 @@ class ScenarioForecasts:
 
     With no errors the forecast is the scenario's rows, unchanged.
 
+    With a control card that has a ``testcase_forecast`` section and a BOPTEST test period, the
+    step's forecast is instead the card's :class:`~mshoot_core.boptest.forecasts.TestCaseForecasts`
+    frame at the step's FMU time (interval means of the series the card names, the tightest band
+    per zone, the price of the scenario's price column; the errors on the temperature and solar
+    points before the means), on the scenario's time.
+
     Parameters
     ----------
     scenario : pd.DataFrame
         The scenario (:mod:`mshoot_core.scenario`).
     errors : ForecastErrorSettings, optional
         Uncertainty levels and seed.
+    card : ModelCard or path, optional
+        The control model's card (used for a BOPTEST test period if it has a
+        ``testcase_forecast`` section).
+
+    Attributes
+    ----------
+    testcase : TestCaseForecasts or None
+        The card's test case source, when it serves the forecasts.
 
     """
 
     #: The scenario's weather columns (:mod:`mshoot_core.scenario`): temperature, solar.
     WEATHER = ('Tout', 'solrad')
 
-    def __init__(self, scenario: pd.DataFrame,
-                 errors: ForecastErrorSettings | None = None) -> None:
+    def __init__(self, scenario: pd.DataFrame, errors: ForecastErrorSettings | None = None,
+                 card: object = None) -> None:
         self.scenario = scenario
+        self.testcase = None
         self.errors = errors if errors is not None else ForecastErrorSettings()
         times = np.asarray(scenario.index, dtype=float)
         self.step_s = float(times[1] - times[0]) if times.size > 1 else GRID_S
@@ -523,9 +566,10 @@ class ScenarioForecasts:
             self.weather = {str(k): (str(v[0]), float(v[1]))
                             for k, v in boptest['weather'].items()}
             self.clock = scenario['fmu_time_s'].to_numpy(dtype=float)
+            case = TestCase.load(boptest['test_case'])
             self.source = ForecastSource.from_test_case(
-                TestCase.load(boptest['test_case']), self.errors,
-                self.weather[temperature][0], self.weather[solar][0])
+                case, self.errors, self.weather[temperature][0], self.weather[solar][0])
+            self.testcase = _card_source(card, case, str(boptest['price']), self.errors)
         else:
             self.weather = {temperature: (temperature, 0.0), solar: (solar, 0.0)}
             self.clock = times - times[0]
@@ -533,10 +577,20 @@ class ScenarioForecasts:
                                                         self.clock),
                                          self.WEATHER, self.errors, temperature, solar)
 
+    @property
+    def series(self) -> tuple[str, ...] | None:
+        """Return the disturbance series of the card's test case source (None: the rows')."""
+        if self.testcase is None:
+            return None
+        return tuple(c for c in self.testcase.columns
+                     if c not in (*COMFORT_SERIES, PRICE_SERIES))
+
     def check_horizon(self, horizon_steps: int) -> None:
         """Raise ValueError if ``horizon_steps`` rows are too long a horizon for the errors."""
+        # a test case source's last row is a mean over one more step
+        steps = horizon_steps + (self.testcase is not None)
         problem = horizon_problem(list(self.source.uncertain_points.values()),
-                                  horizon_steps * self.step_s)
+                                  steps * self.step_s)
         if problem:
             raise ValueError(f'{problem} ({horizon_steps} steps of {self.step_s:g} s)')
 
@@ -550,6 +604,14 @@ class ScenarioForecasts:
             For a bad index, or a horizon over 48 h with errors.
 
         """
+        if self.testcase is not None:
+            self.check_horizon(horizon_steps)
+            forecast_rows(index, horizon_steps, len(self.scenario))  # checks the index
+            frame = self.testcase.frame(float(self.clock[index]), horizon_steps, self.step_s)
+            frame.index = pd.Index(float(self.scenario.index[index])
+                                   + np.arange(horizon_steps + 1) * self.step_s,
+                                   name=self.scenario.index.name)
+            return frame
         window = forecast_window(self.scenario, index, horizon_steps)
         uncertain = self.source.uncertain_points
         if not uncertain:
@@ -564,3 +626,16 @@ class ScenarioForecasts:
         for column, (point, offset) in points.items():
             window[column] = forecast[point].to_numpy() + offset
         return window
+
+
+def _card_source(card: object, case: object, price: str,
+                 errors: ForecastErrorSettings) -> object:
+    """Return the test case source of a control card with a section, else None."""
+    if card is None or card == '':
+        return None
+    from mshoot_core.boptest.forecasts import ForecastSpec, SECTION, TestCaseForecasts
+    from mshoot_core.models import card as cards
+    loaded = cards.load_card(card) if not hasattr(card, 'testcase_forecast') else card
+    if getattr(loaded, SECTION, None) is None:
+        return None
+    return TestCaseForecasts(case, ForecastSpec.from_card(loaded), price, errors)

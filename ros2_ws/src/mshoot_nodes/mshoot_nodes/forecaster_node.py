@@ -14,6 +14,12 @@ one instead). By default the forecasts are perfect; ``temperature_uncertainty``,
 ``solar_uncertainty`` and ``seed`` give Tout and solrad BOPTEST's forecast errors
 (:class:`mshoot_core.forecast.ScenarioForecasts`: for a BOPTEST scenario, the test case's
 ``TDryBul`` and ``HGloHor`` at the step's FMU time, as BOPTEST serves them).
+With ``model`` a control card that has a ``testcase_forecast`` section and a BOPTEST scenario,
+every forecast is that card's :class:`mshoot_core.boptest.forecasts.TestCaseForecasts` frame
+instead: interval means of the series the card names, the tightest comfort band per zone (the
+first zone's as the band, every zone's as ``comfort_min_<zone>``/``comfort_max_<zone>`` when
+there are several) and the price scenario's price, with the errors on the temperature and
+solar points before the means.
 
 Health on ``/diagnostics`` (``mshoot/forecaster``): forecasts published, the
 last forecast's step, whether forecasts are paused (WARN); with use_sim_time the
@@ -22,6 +28,7 @@ writer of ``/clock``, :mod:`mshoot_nodes.peers`).
 """
 from __future__ import annotations
 
+import pathlib
 from typing import Any
 
 from mshoot_core.forecast import horizon_problem, ScenarioForecasts
@@ -59,6 +66,10 @@ PARAMS = (
     ParamSpec('horizon_steps', 10, 'forecast horizon N: every forecast holds N+1 samples [-]',
               low=1, high=10_000),
     *(ParamSpec.from_setting(f) for f in fields_of(ForecastErrorSettings)),
+    ParamSpec('model', '', "the control model's card ('' = none): with a BOPTEST scenario and a "
+              "card that has a testcase_forecast section, the forecasts are that section's "
+              'interval means of the test case data (its series, the tightest band per zone, '
+              "the scenario's price; series is then not used)", read_only=True),
     ParamSpec('series', list(FORECAST_DISTURBANCES), 'scenario columns sent as named '
               "disturbance series (the control model's disturbances; those it assumes may be "
               'left out)', read_only=True),
@@ -89,9 +100,12 @@ def _check_sources(v: dict[str, Any]) -> str | None:
         clash = [n for n in names if n in (*COMFORT_SERIES, PRICE_SERIES)]
         if clash:
             return f'series must not name {clash}: the comfort band and the price are sent anyway'
+    if 'model' in v and v['model'] and not pathlib.Path(v['model']).is_file():
+        return f"model must be '' or the path of a card, got {v['model']!r} (no such file)"
     if 'horizon_steps' in v and (reason := horizon_problem(
             [v.get('temperature_uncertainty', 'none'), v.get('solar_uncertainty', 'none')],
-            v['horizon_steps'] * v.get('step_s', 3600.0))):
+            # a test case source's last row is a mean over one more step
+            (v['horizon_steps'] + bool(v.get('model'))) * v.get('step_s', 3600.0))):
         return f'horizon_steps x step_s: {reason}'
     if 'price_per_kwh' in v:
         prices = list(v['price_per_kwh'])
@@ -111,14 +125,17 @@ class ForecasterNode(Node):
         self.add_post_set_parameters_callback(self._on_parameters_set)
         p = self.params
         self.scenario = sources.load_scenario(p['scenario'], p['data'], p['hours'])
-        missing = [c for c in p['series'] if c not in self.scenario.columns]
-        if missing:
-            raise ValueError(f'series {missing} are not columns of the {p["scenario"]} '
-                             f'scenario {list(self.scenario.columns)}')
         #: The step forecasts, with the errors of ``temperature_uncertainty``,
         #: ``solar_uncertainty`` and ``seed`` (read-only: fixed for the run).
         self.forecasts = ScenarioForecasts(self.scenario, ForecastErrorSettings(
-            **{f.name: p[f.name] for f in fields_of(ForecastErrorSettings)}))
+            **{f.name: p[f.name] for f in fields_of(ForecastErrorSettings)}), p['model'] or None)
+        #: The disturbance series sent: the card section's, else ``series``.
+        self.series = list(self.forecasts.series or p['series'])
+        missing = [c for c in self.series if c not in self.scenario.columns]
+        if self.forecasts.series is None and missing:
+            raise ValueError(f'series {missing} are not columns of the {p["scenario"]} '
+                             f'scenario {list(self.scenario.columns)}')
+        self.forecasts.check_horizon(p['horizon_steps'])
         self.epoch_ns = sources.start_ns(self.scenario, p['start_time'])
         self.step_ns = seconds_to_ns(p['step_s'])
         self.last_index: int | None = None
@@ -136,9 +153,11 @@ class ForecasterNode(Node):
                                                 peers=self.peers)
         self.get_logger().info(
             f"{p['scenario']} scenario from {pd.Timestamp(self.epoch_ns, tz='UTC').isoformat()}: "
-            f"{p['horizon_steps'] + 1}-sample forecasts of {p['series']} every "
+            f"{p['horizon_steps'] + 1}-sample forecasts of {self.series} every "
             f"{p['step_s']:.0f} s, errors: temperature {p['temperature_uncertainty']}, solar "
             f"{p['solar_uncertainty']} (seed {p['seed']})"
+            + (f", interval means of {p['model']}'s test case section"
+               if self.forecasts.testcase is not None else '')
             + (f", price {p['price_per_kwh']} per kWh" if p['send_price'] else ''))
 
     def _on_parameters_set(self, params: list) -> None:
@@ -212,11 +231,11 @@ class ForecasterNode(Node):
         """Publish the forecast starting at scenario row ``index``."""
         p = self.params
         window = self.forecasts.window(index, p['horizon_steps'])
-        if p['send_price'] and PRICE_SERIES not in self.scenario.columns:
+        if p['send_price'] and PRICE_SERIES not in window.columns:
             window = window.copy()
             window[PRICE_SERIES] = self.prices(window.index.to_numpy(dtype=float))
         stamp = self.epoch_ns + index * self.step_ns
-        msg = forecast_msg(stamp, p['step_s'], window, p['series'], p['zone'])
+        msg = forecast_msg(stamp, p['step_s'], window, self.series, p['zone'])
         self._publisher.publish(msg)
         self.last_index = index
         self.published += 1

@@ -38,6 +38,7 @@ and 0.04 K h less discomfort in total on the typical heat period (peak: equal).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import logging
 import math
@@ -49,6 +50,7 @@ import numpy as np
 import pandas as pd
 
 from mshoot_core.actuation import Actuator
+from mshoot_core.boptest.forecasts import ForecastSpec, TestCaseForecasts
 from mshoot_core.boptest.testcase import PRICE_SCENARIOS, TestCase
 from mshoot_core.estimation import StateEstimator
 from mshoot_core.models.base import Model
@@ -65,8 +67,6 @@ MODES = ('modulation', 'setpoint', 'tracking')
 DISTURBANCES = ('Tout', 'solar', 'gains', 'price')
 #: Comfort band columns [degC] of the forecast (the MPC's zone state bounds).
 BAND_COLUMNS = ('comfort_min', 'comfort_max')
-#: Step of the test case's data [s] (interval means of the forecast are taken on it).
-DATA_STEP_S = 900.0
 #: The actuation settings of each mode (:mod:`mshoot_core.actuation`) and the overwrite the
 #: schedule goes to.
 ACTUATION = {'modulation': ({'actuation': 'burst', 'actuation_send': 'value'}, 'oveHeaPumY_u'),
@@ -215,11 +215,14 @@ def controller_settings(case: TestCase | None = None, price: str = 'constant',
 
 
 def _interval_means(case: TestCase, column: str, t_s: np.ndarray, step_s: float) -> np.ndarray:
-    """Mean of a forward-filled data column over [t, t + step) for every t (exact on its grid)."""
-    n_sub = max(1, int(round(step_s / DATA_STEP_S)))
-    offsets = (np.arange(n_sub) + 0.5) * step_s / n_sub
-    values = case.lookup(column, (t_s[:, None] + offsets[None, :]).reshape(-1))
-    return values.reshape(t_s.size, n_sub).mean(axis=1)
+    """Mean of a data column over [t, t + step) for every t (:mod:`.forecasts`)."""
+    return _card_forecasts(case, 'constant').interval_means(column, t_s, step_s)
+
+
+@functools.lru_cache(maxsize=8)
+def _card_forecasts(case: TestCase, price: str) -> TestCaseForecasts:
+    """Return the test case forecasts of the card :data:`CARD` (its ``testcase_forecast``)."""
+    return TestCaseForecasts(case, ForecastSpec.from_card(CARD), price)
 
 
 def forecast_frame(case: TestCase, t_s: float, steps: int, step_s: float, price: str,
@@ -227,29 +230,17 @@ def forecast_frame(case: TestCase, t_s: float, steps: int, step_s: float, price:
     """
     Return the forecast of the control model from the test case's data.
 
-    Row k (time t_s + k step_s, k = 0..steps): the disturbances of interval k (means over the
-    interval: ``Tout`` [degC], ``solar`` global horizontal irradiance [W/m2], ``gains``
-    convective and radiative internal gains [W], ``price`` [EUR/kWh]) and the comfort band
-    [degC] at the row's time, as bounds of the interval ending there: the highest lower edge
-    and the lowest upper edge over the interval (its end included), the lower edge raised by
-    ``margin_k``, the upper one lowered by ``upper_margin_k``.
+    :meth:`~mshoot_core.boptest.forecasts.TestCaseForecasts.frame` of the card :data:`CARD`
+    (its ``testcase_forecast`` section): row k (time t_s + k step_s, k = 0..steps) holds the
+    interval means of ``Tout`` [degC], ``solar`` [W/m2], ``gains`` [W] and ``price``
+    [EUR/kWh], and the tightest comfort band [degC] over the interval ending there, its lower
+    edge raised by ``margin_k`` and its upper one lowered by ``upper_margin_k``.
     """
-    times = float(t_s) + np.arange(steps + 1) * float(step_s)
-    frame = pd.DataFrame(index=pd.Index(times, name='time_s'))
-    frame['Tout'] = _interval_means(case, 'TDryBul', times, step_s) - KELVIN
-    frame['solar'] = _interval_means(case, 'HGloHor', times, step_s)
-    frame['gains'] = (_interval_means(case, 'InternalGainsCon[1]', times, step_s)
-                      + _interval_means(case, 'InternalGainsRad[1]', times, step_s))
-    frame['price'] = _interval_means(case, case.price_column(price), times, step_s)
-    n_sub = max(1, int(round(step_s / DATA_STEP_S)))
-    ends = (times[:, None] - np.arange(n_sub)[None, :] * step_s / n_sub).reshape(-1)
-    ends = np.maximum(ends, times[0])  # (t_k, t_k+1] on the data's grid, end included
-    lower = case.lookup('LowerSetp[1]', ends).reshape(-1, n_sub)
-    upper = case.lookup('UpperSetp[1]', ends).reshape(-1, n_sub)
-    lo = lower.max(axis=1) - KELVIN + margin_k
-    hi = upper.min(axis=1) - KELVIN - upper_margin_k
-    frame['comfort_min'] = lo
-    frame['comfort_max'] = np.maximum(hi, lo)
+    frame = _card_forecasts(case, price).frame(t_s, steps, step_s)
+    if margin_k or upper_margin_k:
+        frame['comfort_min'] = frame['comfort_min'] + margin_k
+        frame['comfort_max'] = np.maximum(frame['comfort_max'] - upper_margin_k,
+                                          frame['comfort_min'])
     return frame
 
 

@@ -262,6 +262,9 @@ class ModelCard:
     preload : tuple of Library
         Libraries loaded before the FMU's binary (paths, names, stand-in sources; see
         :mod:`mshoot_core.fmu_binary`).
+    testcase_forecast : dict or None
+        The card's ``testcase_forecast`` section as written: where its forecast comes from in
+        a BOPTEST test case folder (:mod:`mshoot_core.boptest.forecasts`).
 
     """
 
@@ -283,6 +286,7 @@ class ModelCard:
     network: Any = None
     validate: bool = True
     preload: tuple[Library, ...] = ()
+    testcase_forecast: dict[str, Any] | None = None
 
     @property
     def source(self) -> str:
@@ -727,7 +731,7 @@ def load_card(path: str | pathlib.Path) -> ModelCard:
         time_origin=time_origin, parameters=dict(parameters),
         description=document.get('description', ''), boptest=boptest,
         monotone=document.get('monotone'), network=network, validate=validate,
-        preload=preload, **variables)
+        preload=preload, testcase_forecast=document.get('testcase_forecast'), **variables)
 
 
 def _preload(path: pathlib.Path, entries: Any, problems: list[str]) -> tuple[Library, ...]:

@@ -1,0 +1,160 @@
+"""The test case forecast source: a control card's series, bands and prices from the data."""
+import pathlib
+
+from mshoot_core.boptest import economic
+from mshoot_core.boptest.forecasts import ForecastSpec, TestCaseForecasts
+from mshoot_core.boptest.testcase import TestCase
+from mshoot_core.forecast import ForecastSource
+from mshoot_core.settings import ForecastErrorSettings
+import numpy as np
+import pandas as pd
+import pytest
+
+KELVIN = 273.15
+OFFICE = pathlib.Path('/work/shared/boptest/multizone_office_simple_hydronic')
+
+
+def old_interval_means(case, column, t_s, step_s):
+    """Return interval means as ``economic._interval_means`` did before the source (900 s)."""
+    n_sub = max(1, int(round(step_s / 900.0)))
+    offsets = (np.arange(n_sub) + 0.5) * step_s / n_sub
+    values = case.lookup(column, (t_s[:, None] + offsets[None, :]).reshape(-1))
+    return values.reshape(t_s.size, n_sub).mean(axis=1)
+
+
+def old_forecast_frame(case, t_s, steps, step_s, price, margin_k=0.0, upper_margin_k=0.0):
+    """Return the frame as ``economic.forecast_frame`` did before the source (the house)."""
+    times = float(t_s) + np.arange(steps + 1) * float(step_s)
+    frame = pd.DataFrame(index=pd.Index(times, name='time_s'))
+    frame['Tout'] = old_interval_means(case, 'TDryBul', times, step_s) - KELVIN
+    frame['solar'] = old_interval_means(case, 'HGloHor', times, step_s)
+    frame['gains'] = (old_interval_means(case, 'InternalGainsCon[1]', times, step_s)
+                      + old_interval_means(case, 'InternalGainsRad[1]', times, step_s))
+    frame['price'] = old_interval_means(case, case.price_column(price), times, step_s)
+    n_sub = max(1, int(round(step_s / 900.0)))
+    ends = (times[:, None] - np.arange(n_sub)[None, :] * step_s / n_sub).reshape(-1)
+    ends = np.maximum(ends, times[0])
+    lower = case.lookup('LowerSetp[1]', ends).reshape(-1, n_sub)
+    upper = case.lookup('UpperSetp[1]', ends).reshape(-1, n_sub)
+    lo = lower.max(axis=1) - KELVIN + margin_k
+    hi = upper.min(axis=1) - KELVIN - upper_margin_k
+    frame['comfort_min'] = lo
+    frame['comfort_max'] = np.maximum(hi, lo)
+    return frame
+
+
+@pytest.mark.parametrize('price', ['constant', 'dynamic', 'highly_dynamic'])
+def test_the_house_forecast_equals_the_old_frame(boptest_case, price) -> None:
+    source = TestCaseForecasts(boptest_case, ForecastSpec.from_card(economic.CARD), price)
+    for t0, steps, step, margins in ((16 * 86400.0, 36, 3600.0, (0.0, 0.0)),
+                                     (23 * 86400.0 + 900.0, 24, 3600.0, (0.3, 0.0)),
+                                     (100 * 86400.0 + 1800.0, 12, 1800.0, (0.5, 0.2)),
+                                     (300 * 86400.0, 4, 900.0, (0.0, 0.4))):
+        old = old_forecast_frame(boptest_case, t0, steps, step, price, *margins)
+        if margins == (0.0, 0.0):
+            new = source.frame(t0, steps, step)
+        else:
+            new = economic.forecast_frame(boptest_case, t0, steps, step, price, *margins)
+        assert list(new.columns) == list(old.columns)
+        np.testing.assert_array_equal(new.index, old.index)
+        np.testing.assert_allclose(new.to_numpy(), old.to_numpy(), rtol=0, atol=1e-12)
+
+
+def test_the_band_is_the_tightest_over_the_interval(boptest_case) -> None:
+    source = TestCaseForecasts(boptest_case, ForecastSpec.from_card(economic.CARD))
+    frame = source.frame(16 * 86400.0, 24, 3600.0)
+    assert set(np.round(frame['comfort_min'], 2)) == {15.0, 21.0}
+    assert set(np.round(frame['comfort_max'], 2)) == {24.0, 30.0}
+    # an occupied interval anywhere in (t_k-1, t_k] makes the row's band the occupied one
+    rises = np.flatnonzero(np.diff(frame['comfort_min'].to_numpy()) > 0) + 1
+    for k in rises:
+        inside = frame.index[k - 1] + np.arange(1, 5) * 900.0
+        assert boptest_case.lookup('LowerSetp[1]', inside).max() - KELVIN == frame[
+            'comfort_min'].iloc[k]
+
+
+def test_a_missing_column_names_the_folder_and_the_files(boptest_case) -> None:
+    spec = ForecastSpec.from_section({'series': {'Tout': {'columns': ['TDryBul'],
+                                                          'offset': -KELVIN},
+                                                 'x': {'columns': ['Nope[1]']}}}, 'card.yaml')
+    with pytest.raises(ValueError, match=r"card.yaml.*lacks the column \['Nope\[1\]'\].*"
+                                         r'searched .*weather\.csv'):
+        TestCaseForecasts(boptest_case, spec)
+    if OFFICE.is_dir():  # no weather.csv there: the temperature is missing, said so
+        with pytest.raises(ValueError, match=r"lacks the columns \['TDryBul', 'Nope\[1\]'\]"):
+            TestCaseForecasts(TestCase.load(OFFICE), spec)
+
+
+def test_a_price_scenario_without_a_column_is_refused(boptest_case) -> None:
+    spec = ForecastSpec.from_section({'series': {'price': {'price': {
+        'constant': 'PriceElectricPowerConstant'}}}})
+    with pytest.raises(ValueError, match=r"no price column for the price scenario 'dynamic'"):
+        TestCaseForecasts(boptest_case, spec, 'dynamic')
+    with pytest.raises(ValueError, match='series'):
+        ForecastSpec.from_section({'series': {'Tout': {'offset': 1.0}}})
+
+
+def test_several_zones_get_a_band_each() -> None:
+    if not OFFICE.is_dir():
+        pytest.skip(f'no office test case at {OFFICE}')
+    case = TestCase.load(OFFICE)
+    spec = ForecastSpec.from_section({
+        'series': {'gas': {'price': {'constant': 'PriceGasPower'}},
+                   'gains_nZ': {'columns': ['InternalGainsCon[nZ]', 'InternalGainsRad[nZ]']}},
+        'bands': {z: {'lower': f'LowerSetp[{z}]', 'upper': f'UpperSetp[{z}]'}
+                  for z in ('nZ', 'sZ')}})
+    frame = TestCaseForecasts(case, spec).frame(20 * 86400.0, 24, 3600.0)
+    assert list(frame.columns) == ['gas', 'gains_nZ', 'comfort_min', 'comfort_max',
+                                   'comfort_min_nZ', 'comfort_max_nZ', 'comfort_min_sZ',
+                                   'comfort_max_sZ']
+    np.testing.assert_array_equal(frame['comfort_min'], frame['comfort_min_nZ'])
+    assert frame['comfort_min_sZ'].max() > frame['comfort_min_sZ'].min()
+
+
+def test_errors_touch_temperature_and_solar_only(boptest_case) -> None:
+    spec = ForecastSpec.from_card(economic.CARD)
+    t0 = 16 * 86400.0 + 1200.0
+    exact = TestCaseForecasts(boptest_case, spec, 'dynamic').frame(t0, 36, 3600.0)
+    errors = ForecastErrorSettings(temperature_uncertainty='high', solar_uncertainty='high',
+                                   seed=3)
+    source = TestCaseForecasts(boptest_case, spec, 'dynamic', errors)
+    noisy = source.frame(t0, 36, 3600.0)
+    for column in ('gains', 'price', 'comfort_min', 'comfort_max'):
+        np.testing.assert_array_equal(noisy[column], exact[column])
+    assert np.abs(noisy['Tout'] - exact['Tout']).mean() > 0.2
+    assert np.abs(noisy['solar'] - exact['solar']).max() > 5.0
+    # the interval means of BOPTEST's forecast of the same request, sampled at the midpoints
+    direct = ForecastSource.from_test_case(boptest_case, errors)
+    times = t0 + np.arange(37 * 4) * 900.0 + 450.0
+    values = direct.at('TDryBul', t0, 37 * 3600.0, times).reshape(37, 4).mean(axis=1)
+    np.testing.assert_allclose(noisy['Tout'], values - KELVIN, rtol=0, atol=1e-12)
+    # the same draw within the hour; a new one the next hour; the seed decides
+    again = source.frame(t0 + 600.0, 36, 3600.0)
+    assert source.source.draws == 1 and np.isfinite(again['Tout']).all()
+    same_seed = TestCaseForecasts(boptest_case, spec, 'dynamic', errors).frame(t0, 36, 3600.0)
+    pd.testing.assert_frame_equal(same_seed, noisy)
+    with pytest.raises(ValueError, match='48 h'):
+        source.frame(t0, 48, 3600.0)
+
+
+def test_scenario_forecasts_with_a_card_serve_its_source(boptest_case) -> None:
+    """The forecaster's core: a BOPTEST period's step forecast is the card's frame."""
+    from mshoot_core.boptest.emulation import boptest_scenario
+    from mshoot_core.forecast import ScenarioForecasts
+    from mshoot_core.models.card import builtin_card
+    scenario = boptest_scenario(boptest_case, 'typical_heat_day', hours=48, price='constant')
+    errors = ForecastErrorSettings(temperature_uncertainty='low', seed=2)
+    forecasts = ScenarioForecasts(scenario, errors, builtin_card(economic.CARD))
+    assert forecasts.series == ('Tout', 'solar', 'gains')
+    window = forecasts.window(3, 24)
+    source = TestCaseForecasts(boptest_case, ForecastSpec.from_card(economic.CARD), 'constant',
+                               errors)
+    expected = source.frame(scenario['fmu_time_s'].iloc[3], 24, 3600.0)
+    np.testing.assert_array_equal(window.to_numpy(), expected.to_numpy())
+    assert window.index[0] == scenario.index[3] and window.index.name == scenario.index.name
+    with pytest.raises(ValueError, match='48 h'):
+        forecasts.window(3, 48)
+    # a card without the section: the scenario's rows, as without a card
+    plain = ScenarioForecasts(scenario, None, builtin_card('r1c1'))
+    assert plain.testcase is None and plain.series is None
+    pd.testing.assert_frame_equal(plain.window(3, 5), ScenarioForecasts(scenario).window(3, 5))
