@@ -1,8 +1,10 @@
 """The general controller on the BOPTEST heat pump house: measured inputs, settings, core loop."""
 from __future__ import annotations
 
+import pathlib
+
 from mshoot_core.boptest.plant import run_period
-from mshoot_core.boptest.supervision import SupervisedPlant
+from mshoot_core.boptest.supervision import supervised_plant
 from mshoot_core.calibration import NetworkBuilder
 from mshoot_core.controller import controller_for
 from mshoot_core.models.card import builtin_card, load_card
@@ -89,16 +91,13 @@ def test_short_core_run_of_the_house(boptest_case) -> None:
 
     Every step an optimum; the estimate followed the warm-up (one update per step, never
     restarted); the heat pump ran the planned bursts (its overwrite 0 or 1, switched inside
-    hours); less cost than the building's own control over the same day.
+    hours), the building's own control during the warm-up.
     """
-    from mshoot_core.boptest.economic import forecast_frame
-    from mshoot_core.boptest.kpis import compute_kpis
     case = boptest_case
     settings = MpcSettings.from_file('boptest_house', horizon_steps=24)
-    controller = controller_for(_house(), settings)
-    plant_card = load_card(builtin_card('boptest_modulation'))
-    policy = SupervisedPlant(controller, plant_card, lambda t: forecast_frame(
-        case, t, 24, 3600.0, 'dynamic'))
+    policy = supervised_plant(case, builtin_card('boptest_modulation'),
+                              builtin_card('boptest_house'), settings, 'dynamic')
+    controller = policy.controller
     run = run_period(case, 'peak_heat_day', policy, 1.0, 1.0, record=policy.recorded(case))
     assert [o.decision.source for o in policy.outcomes] == ['optimum'] * 24
     assert controller.estimator.updates == 49 and controller.estimator.resets == 0
@@ -108,9 +107,35 @@ def test_short_core_run_of_the_house(boptest_case) -> None:
     hours = np.floor((test['time'].to_numpy() - 1e-6 - run.start_s) / 3600.0)
     switched = pd.Series(test['oveHeaPumY_u'].to_numpy()).groupby(hours).nunique()
     assert (switched > 1).any()
-    baseline = run_period(case, 'peak_heat_day', None, 1.0, 1.0,
-                          record=policy.recorded(case))
-    ours = compute_kpis(run.records, case, run.start_s, run.end_s, 'dynamic')
-    theirs = compute_kpis(baseline.records, case, run.start_s, run.end_s, 'dynamic')
-    assert ours['cost_tot'] < 0.95 * theirs['cost_tot']
-    assert ours['tdis_tot'] <= theirs['tdis_tot'] + 1e-9
+
+
+def test_mshoot_boptest_runs_the_mpc_by_configuration(boptest_case, tmp_path,
+                                                      capsys: pytest.CaptureFixture) -> None:
+    """
+    ``mshoot boptest --controllers baseline,rule,mshoot``: the MPC from its cards and settings.
+
+    A shortened run (1 day of warm-up, 1 day); the MPC beats the building's own control on
+    cost and discomfort, ran the heat pump's modulation in bursts (the rule its setpoint).
+    """
+    import json
+    from mshoot_studies import cli
+    card = pathlib.Path(__file__).resolve().parents[1] / 'docs' / 'boptest_cards' / \
+        'bestest_hydronic_heat_pump.yaml'
+    out = tmp_path / 'hp'
+    code = cli.main(['boptest', '--testcase', str(boptest_case.directory), '--card', str(card),
+                     '--controllers', 'baseline,rule,mshoot', '--control-card', 'boptest_house',
+                     '--mpc-settings', 'boptest_house', '--periods', 'peak_heat_day',
+                     '--prices', 'dynamic', '--warmup-days', '1', '--days', '1', '--lead', '3',
+                     '--margin', '0.5', '--workers', '2', '--out', str(out)])
+    assert code == 0
+    assert '| mshoot | peak_heat_day | dynamic |' in capsys.readouterr().out
+    kpis = {r['controller']: r for r in json.loads((out / 'kpis.json').read_text())}
+    assert set(kpis) == {'baseline', 'rule', 'mshoot'}
+    assert kpis['mshoot']['cost_tot'] < 0.95 * kpis['baseline']['cost_tot']
+    assert kpis['mshoot']['tdis_tot'] <= kpis['baseline']['tdis_tot']
+    runs = out / 'runs'
+    ours = pd.read_csv(runs / 'mshoot_peak_heat_day_dynamic' / 'records.csv')
+    test = ours[ours['time'] > kpis['mshoot']['start_s']]
+    assert set(test['oveHeaPumY_u'].unique()) == {0.0, 1.0} and test['oveTSet_u'].isna().all()
+    rule = pd.read_csv(runs / 'rule_peak_heat_day_lead3_margin0.5' / 'records.csv')
+    assert rule.loc[rule['time'] > kpis['rule']['start_s'], 'oveHeaPumY_u'].isna().all()

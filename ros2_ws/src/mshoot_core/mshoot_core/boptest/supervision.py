@@ -6,10 +6,17 @@ The supervisory controller on a BOPTEST plant, in the one period loop.
 
 Stable API::
 
-    from mshoot_core.boptest.supervision import SupervisedPlant
-    policy = SupervisedPlant(controller, card, forecast)    # card: the plant's (kind boptest)
+    from mshoot_core.boptest.supervision import supervised_plant, SupervisedPlant
+    policy = supervised_plant(case, plant_card, control_card, settings, price='dynamic')
+    # or SupervisedPlant(controller, plant_card, forecast)
     run = run_period(case, period, policy, record=policy.recorded(case))
     policy.outcomes                                          # StepOutcome of every step
+
+:func:`supervised_plant` builds it all from configuration: the control model of the control
+card (:func:`~mshoot_core.models.card.build_model`), the controller of the settings
+(:func:`~mshoot_core.controller.controller_for`) and the forecast of the control card's test
+case source (:func:`~mshoot_core.boptest.forecasts.card_forecasts`: interval means, the tightest
+band over each interval; the band's margin is the controller's, ``band_margin_k``).
 
 The plant's card (kind ``boptest``, e.g. ``boptest_modulation.yaml``) maps the FMU's variables:
 its states are the measured states, its outputs the measured outputs, its controls the overwrites.
@@ -177,3 +184,34 @@ def _canonical(variable: Any, value: float) -> float:
     """Return a card variable's value in its canonical unit (from the FMU's)."""
     scale, offset = variable.conversion()
     return (float(value) - offset) / scale
+
+
+def supervised_plant(case: TestCase, plant_card: Any, control_card: Any, settings: Any,
+                     price: str = 'constant', errors: Any = None) -> SupervisedPlant:
+    """
+    Return the controller of a control card and settings on a test case (see the module).
+
+    Parameters
+    ----------
+    case : TestCase
+        The test case.
+    plant_card, control_card : ModelCard or path
+        The plant's card (kind ``boptest``) and the control model's (with a
+        ``testcase_forecast`` section).
+    settings : MpcSettings
+        The controller's settings.
+    price : str
+        The price scenario of the forecast.
+    errors : ForecastErrorSettings, optional
+        The forecast's errors (default: none, the test case's data).
+
+    """
+    from mshoot_core.boptest.forecasts import card_forecasts
+    from mshoot_core.controller import controller_for
+    from mshoot_core.models.card import build_model, load_card
+    plant_card = plant_card if hasattr(plant_card, 'controls') else load_card(plant_card)
+    control_card = control_card if hasattr(control_card, 'controls') else load_card(control_card)
+    controller = controller_for(build_model(control_card), settings)
+    source = card_forecasts(case, control_card, price, errors)
+    horizon, step = controller.mpc.horizon_steps, controller.settings.problem.step_s
+    return SupervisedPlant(controller, plant_card, lambda t_s: source.frame(t_s, horizon, step))
