@@ -40,29 +40,35 @@ def test_inputs_measured_by_outputs_enter_the_estimate() -> None:
 
     A controller with ``measured_inputs`` and a wrong forecast of the weather, told only the
     heat pump's mean heat, estimates what a controller without them estimates when told the
-    weather by its forecast and the duty as applied; a wrong heat moves the estimate.
+    weather by its forecast and the duty as applied; without the heat, the applied duty holds;
+    a wrong heat moves the estimate.
     """
     model = _house()
     settings = MpcSettings.from_file('boptest_house')
     assert settings.estimation.input_measurements == {
         'Tout': ('mean_Tout', ''), 'solar': ('mean_solrad', ''), 'd': ('mean_Q_hp', 'Q')}
     tout, solar, duty = 3.0, 120.0, 0.4
+    weather = {'output_names': ['mean_Tout', 'mean_solrad'], 'output_values': [tout, solar]}
+    applied = {'control_names': ['d'], 'control_values': [duty]}
     estimates = []
-    for measured, forecast, heat in (
-            (True, _forecast(tout + 5.0, 0.0), _heat(model, duty, tout, solar)),
-            (False, _forecast(tout, solar), None),
-            (True, _forecast(tout, solar), _heat(model, 0.6, tout, solar))):
+    for measured, forecast, outputs in (
+            (True, _forecast(tout + 5.0, 0.0), {
+                'output_names': ['mean_Tout', 'mean_solrad', 'mean_Q_hp'],
+                'output_values': [tout, solar, _heat(model, duty, tout, solar)]}),
+            (False, _forecast(tout, solar), applied),
+            (True, _forecast(tout - 4.0, 10.0), {**weather, **applied}),
+            (True, _forecast(tout, solar), {
+                'output_names': ['mean_Tout', 'mean_solrad', 'mean_Q_hp'],
+                'output_values': [tout, solar, _heat(model, 0.6, tout, solar)]})):
         c = controller_for(model, settings if measured else settings.replace(measured_inputs=''))
         assert c.offer_forecast(0, 3600.0, forecast, 0) is None
         assert c.offer_named_state(0, ['T'], [293.15], 0) is None
-        outputs = ({'output_names': ['mean_Tout', 'mean_solrad', 'mean_Q_hp'],
-                    'output_values': [tout, solar, heat]} if measured else
-                   {'control_names': ['d'], 'control_values': [duty]})
         assert c.offer_named_state(HOUR_NS, ['T'], [293.4], HOUR_NS, **outputs) is None
         assert c.estimator.resets == 0 and c.estimator.updates == 2
         estimates.append(c.estimate.x)
     np.testing.assert_allclose(estimates[0], estimates[1], rtol=0, atol=1e-9)
-    assert estimates[2][1] - estimates[1][1] > 1e-4  # more heat: a warmer floor
+    np.testing.assert_allclose(estimates[2], estimates[1], rtol=0, atol=1e-9)
+    assert estimates[3][1] - estimates[1][1] > 1e-4  # more heat: a warmer floor
 
 
 def test_settings_of_measured_inputs_are_checked() -> None:
@@ -77,6 +83,8 @@ def test_settings_of_measured_inputs_are_checked() -> None:
         settings.replace(plant_controls='d')
     with pytest.raises(SettingsError, match='state_offset and state_scale go together'):
         MpcSettings.from_flat(state_offset=288.15)
+    with pytest.raises(SettingsError, match='state_scale must be > 0'):
+        MpcSettings.from_flat(state_offset=288.15, state_scale=0.0)
     with pytest.raises(ValueError, match="'wind' is not an input of the model"):
         controller_for(model, settings.replace(measured_inputs='wind=mean_wind'))
     with pytest.raises(ValueError, match='needs a control'):

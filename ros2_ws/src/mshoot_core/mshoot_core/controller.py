@@ -434,13 +434,16 @@ class Controller:
         controls = self.settings.problem.control_names
         starts = [t0_ns] + list(range((t0_ns // self.step_ns + 1) * self.step_ns, t1_ns,
                                       self.step_ns))
-        measured = self._measured_values(outputs or {}) if outputs else {}
+        outputs = outputs or {}
+        measured = self._measured_values(outputs)
+        by_effect = [n for n, (o, model_output) in self.measured_inputs.items()
+                     if model_output and o in outputs]  # (found once the others are known)
         rows = []
         for k, start in enumerate(starts):
             step = (start // self.step_ns) * self.step_ns
             last = k == len(starts) - 1
-            by_effect = [n for n, (_, o) in self.measured_inputs.items() if o]
-            if last and measured and all(n in measured or n in by_effect for n in controls):
+            if last and (measured or by_effect) and all(n in measured or n in by_effect
+                                                        for n in controls):
                 u = {n: measured[n] for n in controls if n in measured}
             elif last and applied and set(applied) == set(controls):
                 u = dict(applied)
@@ -457,12 +460,12 @@ class Controller:
             frame = self._forecasts[max(stamps)]
             row = frame.iloc[int((start - max(stamps)) // self.step_ns)]
             missing = [n for n in self.model.input_names if n not in u and n not in row.index
-                       and not (last and measured and n in by_effect)]
+                       and not (last and n in by_effect)]
             if missing:
                 return None, f'the forecast lacks the model inputs {missing}'
             values = [float(u[n]) if n in u else float(row[n]) if n in row.index else math.nan
                       for n in self.model.input_names]
-            if last and measured:
+            if last and by_effect:
                 values = self._controls_by_effect(values, outputs, x0, (t1_ns - start) / NS_PER_S)
             rows.append(values)
         return pd.DataFrame(rows, columns=list(self.model.input_names),

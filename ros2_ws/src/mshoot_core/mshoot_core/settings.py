@@ -188,7 +188,7 @@ class ProblemSettings(SettingsGroup):
                                   "from the comfort bounds) [the states' unit, e.g. K]",
                                   optional=True)
     state_scale: float = setting(math.nan, 'scale of the normalised states, with state_offset '
-                                 "(NaN: from the comfort bounds) [the states' unit]", low=1e-9,
+                                 "(NaN: from the comfort bounds), > 0 [the states' unit]",
                                  optional=True)
     #: Optimised model inputs (not a parameter: fixed by the model).
     control_names: tuple[str, ...] = ('q',)
@@ -218,6 +218,8 @@ class ProblemSettings(SettingsGroup):
         if math.isnan(self.state_offset) != math.isnan(self.state_scale):
             return [f'state_offset and state_scale go together (both set or both NaN), got '
                     f'{self.state_offset} and {self.state_scale}']
+        if not (math.isnan(self.state_scale) or self.state_scale > 0):
+            return [f'state_scale must be > 0, got {self.state_scale}']
         if not (math.isnan(self.control_min) or math.isnan(self.control_max)
                 or self.control_min < self.control_max):
             return [f'control_min must be < control_max, got {self.control_min} and '
