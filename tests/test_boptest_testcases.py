@@ -234,7 +234,9 @@ def test_mshoot_boptest_refuses_bad_input_in_one_line(boptest_case: TestCase,
     card = CARDS / 'bestest_hydronic_heat_pump.yaml'
     base = ['boptest', '--testcase', str(boptest_case.directory), '--out', str(tmp_path)]
     cases = [
-        (['--card', str(card), '--controllers', 'mshoot'], 'runs over ROS'),
+        (['--card', str(card), '--controllers', 'mshoot'], 'needs --control-card'),
+        (['--card', str(card), '--controllers', 'mshoot', '--control-card', 'r1c1',
+          '--mpc-settings', 'boptest_house'], 'cost_output must be one of'),
         (['--card', str(card), '--controllers', 'baseline,fancy'], 'expected some of'),
         (['--card', str(card), '--periods', 'peak_cool_day'], 'unknown test period'),
         (['--card', str(CARDS.parent / 'index.md')], 'kind boptest'),

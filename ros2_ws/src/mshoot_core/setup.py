@@ -7,7 +7,8 @@ setup(
     version='0.1.0',
     packages=find_packages(exclude=['test']),
     package_data={package_name: ['fmu_src/*.c', 'fmu_src/*.h', 'fmu_src/*.xml',
-                                 'cards/*.yaml', 'schema/*.json', 'boptest/*.json']},
+                                 'cards/*.yaml', 'mpc_settings/*.yaml', 'schema/*.json',
+                                 'boptest/*.json']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),

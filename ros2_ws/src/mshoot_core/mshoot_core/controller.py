@@ -49,6 +49,7 @@ from __future__ import annotations
 import concurrent.futures
 import dataclasses
 import logging
+import math
 import time
 from typing import Any, Callable, Mapping, Sequence
 
@@ -68,6 +69,7 @@ from mshoot_core.safety import (applied_control_ranges, check_forecast, check_hi
                                 StampGate, zone_state_caps)
 from mshoot_core.scenario import column_labels, forecast_window
 from mshoot_core.settings import BY_NAME, MpcSettings
+from mshoot_core.shooting import Scaling
 from mshoot_core.units import NS_PER_S
 
 logger = logging.getLogger(__name__)
@@ -187,7 +189,8 @@ class Controller:
         if mpc is None:
             if model is None:
                 raise TypeError('Controller needs a model or an MPC')
-            mpc = MPC(model, settings, state_bounds=state_bounds)
+            mpc = MPC(model, settings, state_bounds=state_bounds,
+                      state_scaling=state_scaling(settings, len(model.state_names)))
         elif settings is not None:
             mpc.update(settings)
         self.mpc = mpc
@@ -218,6 +221,7 @@ class Controller:
         self.supervisor = self._build_supervisor()
         self._configure_inputs()
         self.actuator = self._build_actuator()
+        self.measured_inputs = self._check_measured_inputs()
 
     # -- configuration --------------------------------------------------------------------
     @property
@@ -253,6 +257,23 @@ class Controller:
             low[i] = LIMITS.zone_temperature_c[0] + offset
             high[i] = LIMITS.zone_temperature_c[1] + offset
         return low, high
+
+    def _check_measured_inputs(self) -> dict[str, tuple[str, str]]:
+        """Return the settings' ``measured_inputs``, checked against the model."""
+        measured = self.settings.estimation.input_measurements
+        model, controls = self.model, self.settings.problem.control_names
+        for name, (_, output) in measured.items():
+            if name not in model.input_names:
+                raise ValueError(f'measured_inputs: {name!r} is not an input of the model '
+                                 f'{list(model.input_names)}')
+            if output and (name not in controls or output not in model.output_names):
+                raise ValueError(f'measured_inputs: {name}=.../{output} needs a control (got '
+                                 f'{name!r}, controls {list(controls)}) and a model output '
+                                 f'(got {output!r}, outputs {list(model.output_names)})')
+        if measured and self.estimator is None:
+            raise ValueError('measured_inputs needs a state estimate (estimation on, or '
+                             'unmeasured states)')
+        return measured
 
     def _build_supervisor(self) -> SetpointSupervisor:
         p, s = self.settings.problem, self.settings.supervisor
@@ -358,8 +379,14 @@ class Controller:
                                  for name, value in values.items()) if r), None)
 
     def _measure(self, stamp_ns: int, measured: Mapping[str, float], now_ns: int,
-                 applied: Mapping[str, float] | None = None) -> Rejection | None:
-        """Correct the state estimate with the measured states at ``stamp_ns``."""
+                 applied: Mapping[str, float] | None = None,
+                 outputs: Mapping[str, float] | None = None) -> Rejection | None:
+        """
+        Correct the state estimate with the measured states at ``stamp_ns``.
+
+        ``outputs`` are the measured outputs of the last step (by name): the model inputs of
+        the settings' ``measured_inputs`` come from them.
+        """
         rejection = (self._range_rejection(measured)
                      or self._state_gate.check(stamp_ns, now_ns))
         if rejection:
@@ -372,7 +399,8 @@ class Controller:
             return None
         inputs = None
         if last is not None:
-            inputs, why = self._inputs_between(_ns(last.t_s), stamp_ns, applied or {})
+            inputs, why = self._inputs_between(_ns(last.t_s), stamp_ns, applied or {},
+                                               outputs or {}, last.x)
             if inputs is None:
                 logger.warning('state estimate restarted at %.0f s: %s', stamp_ns / NS_PER_S,
                                why)
@@ -391,40 +419,94 @@ class Controller:
         _trim(self._estimates)
         return None
 
-    def _inputs_between(self, t0_ns: int, t1_ns: int, applied: Mapping[str, float]
-                        ) -> tuple[pd.DataFrame | None, str]:
+    def _inputs_between(self, t0_ns: int, t1_ns: int, applied: Mapping[str, float],
+                        outputs: Mapping[str, float] | None = None,
+                        x0: np.ndarray | None = None) -> tuple[pd.DataFrame | None, str]:
         """
         Return the model inputs over [t0, t1) by interval start [s], or None and why not.
 
         One interval per control step touched: the controls decided for the step (the applied
         ones of a ``ZoneState`` for the last step), the disturbances of the newest forecast that
-        covered the step.
+        covered the step; for the last step, the inputs measured by ``outputs`` (settings
+        ``measured_inputs``; a control measured through a model output is found from the model
+        at ``x0`` and the interval's other inputs).
         """
         controls = self.settings.problem.control_names
         starts = [t0_ns] + list(range((t0_ns // self.step_ns + 1) * self.step_ns, t1_ns,
                                       self.step_ns))
+        outputs = outputs or {}
+        measured = self._measured_values(outputs)
+        by_effect = [n for n, (o, model_output) in self.measured_inputs.items()
+                     if model_output and o in outputs]  # (found once the others are known)
         rows = []
         for k, start in enumerate(starts):
             step = (start // self.step_ns) * self.step_ns
-            if k == len(starts) - 1 and applied and set(applied) == set(controls):
+            last = k == len(starts) - 1
+            if last and (measured or by_effect) and all(n in measured or n in by_effect
+                                                        for n in controls):
+                u = {n: measured[n] for n in controls if n in measured}
+            elif last and applied and set(applied) == set(controls):
                 u = dict(applied)
             elif step in self._decided:
                 u = dict(zip(controls, self._decided[step]))
             else:
                 return None, f'no control decided for the step at {step / NS_PER_S:.0f} s'
+            if last:
+                u.update({n: v for n, v in measured.items() if n not in controls})
             stamps = [s for s in self._forecasts
                       if s <= start and (start - s) // self.step_ns < len(self._forecasts[s])]
             if not stamps:
                 return None, f'no forecast covered the step at {step / NS_PER_S:.0f} s'
             frame = self._forecasts[max(stamps)]
             row = frame.iloc[int((start - max(stamps)) // self.step_ns)]
-            missing = [n for n in self.model.input_names if n not in u and n not in row.index]
+            missing = [n for n in self.model.input_names if n not in u and n not in row.index
+                       and not (last and n in by_effect)]
             if missing:
                 return None, f'the forecast lacks the model inputs {missing}'
-            rows.append([float(u[n]) if n in u else float(row[n])
-                         for n in self.model.input_names])
+            values = [float(u[n]) if n in u else float(row[n]) if n in row.index else math.nan
+                      for n in self.model.input_names]
+            if last and by_effect:
+                values = self._controls_by_effect(values, outputs, x0, (t1_ns - start) / NS_PER_S)
+            rows.append(values)
         return pd.DataFrame(rows, columns=list(self.model.input_names),
                             index=pd.Index([s / NS_PER_S for s in starts], name='time_s')), ''
+
+    def _measured_values(self, outputs: Mapping[str, float]) -> dict[str, float]:
+        """Return the inputs measured directly by ``outputs`` (``input=output`` items)."""
+        return {n: float(outputs[o]) for n, (o, effect) in self.measured_inputs.items()
+                if not effect and o in outputs}
+
+    def _controls_by_effect(self, values: list[float], outputs: Mapping[str, float],
+                            x0: np.ndarray | None, span_s: float) -> list[float]:
+        """
+        Return the inputs with the controls measured through a model output filled in.
+
+        The model output is taken linear in the control over the interval: the control is where
+        its value at the control's bounds, interpolated, meets the measured output (at least the
+        lower bound; not capped above).
+        """
+        names = self.model.input_names
+        x = (np.asarray(x0, dtype=float).reshape(1, -1) if x0 is not None
+             else np.zeros((1, len(self.model.state_names))))
+        bounds = dict(zip(self.settings.problem.control_names,
+                          self.settings.problem.control_bounds))
+        out = list(values)
+        for name, (output, model_output) in self.measured_inputs.items():
+            if not model_output or output not in outputs:
+                continue
+            low, high = bounds[name]
+            j = names.index(name)
+            ends = []
+            for value in (low, high):
+                u = np.array(out, dtype=float)
+                u[j] = value
+                u = np.nan_to_num(u)  # (other controls by effect: not in this output)
+                _, y = self.model.simulate_intervals(x, u[None, :], span_s)
+                ends.append(float(y[0, self.model.output_names.index(model_output)]))
+            gain = ends[1] - ends[0]
+            share = (float(outputs[output]) - ends[0]) / gain if gain else 0.0
+            out[j] = low + max(share, 0.0) * (high - low)
+        return out
 
     @property
     def estimate(self) -> Estimate | None:
@@ -488,7 +570,8 @@ class Controller:
                 return self.reject('state', rejection)
             values = dict(zip(state_names, map(float, state_values)))
             return self._measure(stamp_ns, {n: values[n] for n in measured}, now_ns,
-                                 dict(zip(control_names, map(float, control_values))))
+                                 dict(zip(control_names, map(float, control_values))),
+                                 dict(zip(output_names, map(float, output_values))))
         rejection = (check_zone_state(state_names, state_values, output_names, output_values,
                                       control_names, control_values,
                                       expected_states=self.model.state_names,
@@ -916,6 +999,14 @@ def controller_for(model: Model, settings: MpcSettings | None = None,
         control_names=interface.control_names,
         controls=model_controls(model, interface.control_names))
     return Controller(model, settings, state_bounds=interface.state_bounds, **kwargs)
+
+
+def state_scaling(settings: MpcSettings | None, states: int) -> Scaling | None:
+    """Return the states' fixed normalisation of the settings, or None (from the bounds)."""
+    p = (settings or MpcSettings()).problem
+    if math.isnan(p.state_offset):
+        return None
+    return Scaling(np.full(states, p.state_offset), np.full(states, p.state_scale))
 
 
 def _ns(seconds: float) -> int:

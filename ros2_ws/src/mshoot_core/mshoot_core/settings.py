@@ -23,6 +23,7 @@ import dataclasses
 import functools
 import logging
 import math
+import pathlib
 from typing import Any, Iterable, Mapping
 
 logger = logging.getLogger(__name__)
@@ -33,6 +34,8 @@ logger = logging.getLogger(__name__)
 #: warm start kept), 'comfort' (hard/soft bounds switched), 'rebuild' (the MPC is
 #: rebuilt: warm start lost), 'fixed' (cannot change once running).
 APPLY = ('inputs', 'supervisor', 'solver', 'comfort', 'rebuild', 'fixed')
+#: The packaged settings files (:meth:`MpcSettings.from_file` by name).
+SETTINGS_DIR = pathlib.Path(__file__).resolve().parent / 'mpc_settings'
 #: Names of the NLP solvers (see :mod:`mshoot_core.solvers`).
 SOLVER_NAMES = ('ipopt', 'slsqp', 'trust-constr')
 
@@ -180,6 +183,13 @@ class ProblemSettings(SettingsGroup):
                         choices=('fast', 'naive'), apply='fixed')
     blas_threads: int = setting(1, 'BLAS threads during a solve (0: the library default) [-]',
                                 low=0, high=256, apply='fixed')
+    state_offset: float = setting(math.nan, 'offset of the normalised states: every state '
+                                  'enters the solver as (x - state_offset) / state_scale (NaN: '
+                                  "from the comfort bounds) [the states' unit, e.g. K]",
+                                  optional=True)
+    state_scale: float = setting(math.nan, 'scale of the normalised states, with state_offset '
+                                 "(NaN: from the comfort bounds), > 0 [the states' unit]",
+                                 optional=True)
     #: Optimised model inputs (not a parameter: fixed by the model).
     control_names: tuple[str, ...] = ('q',)
     #: The model's controls (not a parameter: fixed by the model, from its card; see
@@ -205,6 +215,11 @@ class ProblemSettings(SettingsGroup):
         if not self.control_names or not all(isinstance(c, str) for c in self.control_names):
             return [f'control_names must be a non-empty tuple of names, got '
                     f'{self.control_names!r}']
+        if math.isnan(self.state_offset) != math.isnan(self.state_scale):
+            return [f'state_offset and state_scale go together (both set or both NaN), got '
+                    f'{self.state_offset} and {self.state_scale}']
+        if not (math.isnan(self.state_scale) or self.state_scale > 0):
+            return [f'state_scale must be > 0, got {self.state_scale}']
         if not (math.isnan(self.control_min) or math.isnan(self.control_max)
                 or self.control_min < self.control_max):
             return [f'control_min must be < control_max, got {self.control_min} and '
@@ -362,7 +377,24 @@ class ActuationSettings(SettingsGroup):
                                       'below the zone temperature [K]', low=0.0, high=100.0,
                                       apply='inputs')
 
+    plant_controls: str = setting('', "the plant's control (its card's) each model control is "
+                                  "sent as, comma-separated 'control=plant_control' (e.g. a "
+                                  "duty sent in bursts as the heat pump's modulation; '' = the "
+                                  'same names)', apply='fixed')
+
+    @property
+    def plant_names(self) -> dict[str, str]:
+        """Return ``plant_controls`` as model control -> plant control."""
+        return {a.strip(): b.strip() for a, _, b in (
+            item.partition('=') for item in self.plant_controls.split(',') if item.strip())}
+
     def rules(self) -> list[str]:
+        items = [i for i in self.plant_controls.split(',') if i.strip()]
+        names = self.plant_names
+        if len(names) != len(items) or not all(a.isidentifier() and b.isidentifier()
+                                               for a, b in names.items()):
+            return ["plant_controls must be distinct 'control=plant_control' items separated "
+                    f'by commas, got {self.plant_controls!r}']
         if self.actuation_send == 'setpoint' and self.actuation != 'burst':
             return ["actuation_send 'setpoint' needs actuation 'burst', got actuation "
                     f'{self.actuation!r}']
@@ -392,6 +424,14 @@ class EstimationSettings(SettingsGroup):
     initial_std_k: float = setting(3.0, 'standard deviation of the first estimate of an '
                                    'unmeasured state [K]', low=1e-6, high=1000.0,
                                    apply='inputs')
+    measured_inputs: str = setting('', 'model inputs measured over each step, taken by the '
+                                   'state estimate instead of the decided controls and the '
+                                   "forecast: comma-separated 'input=output' (the step mean of "
+                                   "a measured output, in the input's unit) or, for a control, "
+                                   "'control=output/model_output' (the control at which the "
+                                   "model's output equals the measured one: e.g. a heat pump's "
+                                   'duty from its measured heat; not capped above); empty: '
+                                   'none', apply='fixed')
     comfort_margin_std: float = setting(0.0, 'with an estimated state: the comfort band is '
                                         'narrowed, on each side, by this many standard '
                                         'deviations of the predicted zone temperature at each '
@@ -404,12 +444,35 @@ class EstimationSettings(SettingsGroup):
         """Return the measured states named by ``measured_states`` (empty: the model's)."""
         return tuple(n.strip() for n in self.measured_states.split(',') if n.strip())
 
+    @property
+    def input_measurements(self) -> dict[str, tuple[str, str]]:
+        """
+        Return ``measured_inputs`` as input -> (measured output, model output or '').
+
+        The model output is set for a control measured through its effect.
+        """
+        out = {}
+        for item in (i.strip() for i in self.measured_inputs.split(',') if i.strip()):
+            name, _, source = (part.strip() for part in item.partition('='))
+            output, _, model_output = (part.strip() for part in source.partition('/'))
+            out[name] = (output, model_output)
+        return out
+
     def rules(self) -> list[str]:
         names = self.measured
         bad = [n for n in names if not n.isidentifier()]
         if bad or len(set(names)) != len(names):
             return [f'measured_states must be distinct state names separated by commas, got '
                     f'{self.measured_states!r}']
+        items = [i.strip() for i in self.measured_inputs.split(',') if i.strip()]
+        pairs = self.input_measurements
+        if len(pairs) != len(items) or not all(
+                name.isidentifier() and output and (not model or model.isidentifier())
+                and '/' not in model and '=' not in output
+                for name, (output, model) in pairs.items()):
+            return ["measured_inputs must be distinct 'input=output' or "
+                    "'control=output/model_output' items separated by commas, got "
+                    f'{self.measured_inputs!r}']
         return []
 
 
@@ -539,6 +602,38 @@ class MpcSettings:
         :data:`DEPRECATED` are taken with a warning.
         """
         return cls().replace(values, **more)
+
+    @classmethod
+    def from_file(cls, path: str | pathlib.Path, /, **more: Any) -> MpcSettings:
+        """
+        Build settings from a YAML file of flat names (see :meth:`from_flat`), ``more`` over it.
+
+        ``path`` is a file, or the name of a packaged settings file (:data:`SETTINGS_DIR`,
+        e.g. ``'boptest_house'``).
+
+        Raises
+        ------
+        ValueError
+            For a missing file, one that is not a mapping, or bad settings (every problem).
+
+        """
+        import yaml
+        file = pathlib.Path(path)
+        if not file.is_file():
+            packaged = SETTINGS_DIR / f'{path}.yaml'
+            if not packaged.is_file():
+                names = sorted(p.stem for p in SETTINGS_DIR.glob('*.yaml'))
+                raise ValueError(f'no settings file {str(path)!r}: expected a YAML file or one '
+                                 f'of the packaged {names}')
+            file = packaged
+        document = yaml.safe_load(file.read_text())
+        if not isinstance(document, dict):
+            raise ValueError(f'{file}: expected a mapping of flat setting names, got '
+                             f'{type(document).__name__}')
+        try:
+            return cls.from_flat({**document, **more})
+        except SettingsError as exc:
+            raise SettingsError([f'{file}: {problem}' for problem in exc.problems]) from None
 
     def replace(self, values: Mapping[str, Any] | None = None, /, **more: Any) -> MpcSettings:
         """Return a copy with flat-named settings changed, validated (every problem at once)."""

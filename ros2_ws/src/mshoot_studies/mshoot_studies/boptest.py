@@ -3,8 +3,9 @@ Any BOPTEST test case folder and a card: the baseline and the pre-heating rule, 
 
     mshoot boptest --testcase DIR --card CARD.yaml --out OUT
         [--periods peak_heat_day typical_heat_day] [--prices constant dynamic]
-        [--controllers baseline rule] [--warmup-days 7] [--days 14]
+        [--controllers baseline,rule,mshoot] [--warmup-days 7] [--days 14]
         [--lead 4 --margin 0.5 | --leads 0 2 4 --margins 0 0.5] [--workers 2]
+        [--control-card CARD.yaml --mpc-settings SETTINGS.yaml]
 
 The folder is in BOPTEST's layout (``wrapped.fmu`` or ``models/wrapped.fmu``, Model Exchange or
 Co-Simulation; ``config.json``, ``days.json``, ``kpis.json``, ``Resources/*.csv``: see
@@ -24,8 +25,12 @@ instance per process). Controllers:
   bound of its zone's band over the step and the lead after it, plus a margin
   (:mod:`mshoot_studies.boptest_rule`); ``--lead``/``--margin`` fixed, else tuned per period and
   price on the grid ``--leads`` x ``--margins`` (each a full run);
-- ``mshoot``: the MPC runs over ROS (``make boptest``: ``python -m mshoot_nodes.boptest_run``);
-  this command refuses it.
+- ``mshoot``: the supervisory MPC (:class:`mshoot_core.controller.Controller`, in the loop by
+  :func:`mshoot_core.boptest.supervision.supervised_plant`) of a control model card
+  (``--control-card``: a file or a built-in card, with its ``testcase_forecast`` section: the
+  forecast from the test case's data) and its settings (``--mpc-settings``: a YAML file of flat
+  settings, or a packaged one, e.g. ``boptest_house``); the card's controls are the overwrites
+  it sends (settings ``plant_controls``). One run per period and price.
 
 The baseline and the rule never read the price: one run serves every price scenario (only
 ``cost_tot`` differs). Writes ``OUT/kpis.json`` (one record per controller, period and price:
@@ -43,7 +48,7 @@ import multiprocessing
 import pathlib
 import sys
 import time
-from typing import Sequence
+from typing import Any, Sequence
 
 from mshoot_core.boptest.testcase import PRICE_SCENARIOS
 
@@ -73,8 +78,13 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument('--prices', nargs='+', default=list(PRICE_SCENARIOS),
                         choices=list(PRICE_SCENARIOS), help='price scenarios')
     parser.add_argument('--controllers', nargs='+', default=['baseline', 'rule'],
-                        help='baseline, rule (mshoot: over ROS, see make boptest); '
-                             'separated by spaces or commas')
+                        help='baseline, rule, mshoot; separated by spaces or commas')
+    parser.add_argument('--control-card', default=None,
+                        help='mshoot: the control model card (a file or a built-in card name, '
+                             'e.g. boptest_house)')
+    parser.add_argument('--mpc-settings', default=None,
+                        help='mshoot: the MPC settings (a YAML file of flat settings or a '
+                             'packaged name, e.g. boptest_house)')
     parser.add_argument('--warmup-days', type=float, default=None,
                         help="warm-up [days] (default the card's boptest.warmup_days)")
     parser.add_argument('--days', type=float, default=14.0,
@@ -104,11 +114,14 @@ def _controllers(values: Sequence[str]) -> list[str]:
     unknown = [name for name in names if name not in CONTROLLERS]
     if unknown or not names:
         raise ValueError(f'--controllers: expected some of {list(CONTROLLERS)}, got {values}')
-    if 'mshoot' in names:
-        raise ValueError('--controllers mshoot: the MPC on a test case runs over ROS '
-                         '(make boptest: python -m mshoot_nodes.boptest_run); this command '
-                         'runs baseline and rule')
     return list(dict.fromkeys(names))
+
+
+def control_card_path(value: str) -> pathlib.Path:
+    """Return the control card of ``--control-card``: a file, else a built-in card's."""
+    from mshoot_core.models.card import builtin_card
+    path = pathlib.Path(value)
+    return path if path.is_file() else builtin_card(value)
 
 
 def prepare_card(card_path: pathlib.Path, testcase: pathlib.Path,
@@ -146,8 +159,13 @@ def prepare_card(card_path: pathlib.Path, testcase: pathlib.Path,
 
 def _run_one(directory: str, card_path: str, controller: str, period: str, lead: float,
              margin: float, warmup_days: float, length_days: float, prices: list[str],
-             record: list[str], records_csv: str, starts_output: str) -> list[dict]:
-    """Run one controller on one period (in a worker): its KPI records, the table written."""
+             record: list[str], records_csv: str, starts_output: str,
+             mpc: tuple[str, str] | None = None) -> list[dict]:
+    """
+    Run one controller on one period (in a worker): its KPI records, the table written.
+
+    ``mpc`` is (control card, settings) of the controller ``mshoot`` (one price).
+    """
     from mshoot_core.boptest.kpis import kpi_records
     from mshoot_core.boptest.plant import run_period
     from mshoot_core.boptest.testcase import TestCase
@@ -160,6 +178,11 @@ def _run_one(directory: str, card_path: str, controller: str, period: str, lead:
         card = load_card(card_path)
         targets = rule_targets(card, case)
         policy = PreheatRule(case, targets, lead, margin, case.control_step_s)
+    elif controller == 'mshoot':
+        from mshoot_core.boptest.supervision import supervised_plant
+        from mshoot_core.settings import MpcSettings
+        policy = supervised_plant(case, card_path, mpc[0], MpcSettings.from_file(mpc[1]),
+                                  prices[0])
     began = time.perf_counter()
     run = run_period(case, period, policy, warmup_days, length_days, record=record)
     wall = time.perf_counter() - began
@@ -176,6 +199,29 @@ def _run_one(directory: str, card_path: str, controller: str, period: str, lead:
             entry['starts_per_day'] = count_starts(run.records, starts_output, run.start_s,
                                                    run.end_s)[1]
     return records
+
+
+def _mpc_configuration(args: argparse.Namespace, case: Any,
+                       card_path: pathlib.Path) -> tuple[str, str]:
+    """
+    Return (control card, settings) of ``mshoot``, checked before any run.
+
+    Raises
+    ------
+    ValueError
+        Without ``--control-card`` or ``--mpc-settings``, for bad settings, or a control card
+        the test case cannot forecast or the plant's card cannot actuate.
+
+    """
+    from mshoot_core.boptest.supervision import supervised_plant
+    from mshoot_core.settings import MpcSettings
+    if args.control_card is None or args.mpc_settings is None:
+        raise ValueError('--controllers mshoot needs --control-card (the control model card) '
+                         'and --mpc-settings (its settings file)')
+    control = control_card_path(args.control_card)
+    settings = args.mpc_settings
+    supervised_plant(case, card_path, control, MpcSettings.from_file(settings), args.prices[0])
+    return str(control), str(settings)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -212,6 +258,7 @@ def _run(args: argparse.Namespace) -> int:
                                                    if args.starts_output else [])])
     plant = BoptestPlant(case, record=record)  # checks the names; no instance
     targets = rule_targets(card, case) if 'rule' in controllers else {}
+    mpc = _mpc_configuration(args, case, card_path) if 'mshoot' in controllers else None
     _say(began, f'{case.name} ({plant.interface}, zones {case.zones}, energy '
                 f'{list(case.energy_outputs)}): {controllers} on {periods}')
     jobs: list[tuple[str, str, float, float, list[str]]] = []
@@ -219,6 +266,9 @@ def _run(args: argparse.Namespace) -> int:
         for controller in controllers:
             if controller == 'baseline':
                 jobs.append((controller, period, 0.0, 0.0, list(args.prices)))
+                continue
+            if controller == 'mshoot':
+                jobs.extend((controller, period, 0.0, 0.0, [price]) for price in args.prices)
                 continue
             if args.lead is not None or args.margin is not None:
                 groups = {(args.lead or 0.0, args.margin or 0.0): list(args.prices)}
@@ -232,11 +282,12 @@ def _run(args: argparse.Namespace) -> int:
                     groups.setdefault(tuning.parameters(price), []).append(price)
             for (lead, margin), prices in groups.items():
                 jobs.append((controller, period, lead, margin, prices))
-    names = [f'{c}_{p}' + (f'_lead{lead:g}_margin{margin:g}' if c == 'rule' else '')
-             for c, p, lead, margin, _ in jobs]
+    names = [f'{c}_{p}' + (f'_lead{lead:g}_margin{margin:g}' if c == 'rule' else
+                           f'_{prices[0]}' if c == 'mshoot' else '')
+             for c, p, lead, margin, prices in jobs]
     arguments = [(str(case.directory), str(card_path), c, p, lead, margin, warmup, args.days,
                   prices, record, str(args.out / 'runs' / name / 'records.csv'),
-                  args.starts_output)
+                  args.starts_output, mpc if c == 'mshoot' else None)
                  for (c, p, lead, margin, prices), name in zip(jobs, names)]
     results: list[list[dict]] = [[] for _ in jobs]
     with concurrent.futures.ProcessPoolExecutor(

@@ -403,45 +403,58 @@ def run_period(case: TestCase, period: str, price: str, mode: str = 'modulation'
         Called with a line of progress once a simulated day.
 
     """
-    from mshoot_core.boptest.plant import BoptestPlant
+    from mshoot_core.boptest.plant import run_period as run_plant
     config = config if config is not None else controller_settings(case, price, mode,
                                                                    **options)
-    step = config.settings.problem.step_s
-    warmup_start, start, end = case.test_period(period, warmup_days, length_days)
-    controller = EconomicController(config)
-    rows = []
-    wall0 = time.perf_counter()
-    with BoptestPlant(case) as plant:
-        out = plant.start(warmup_start)
-        controller.start(warmup_start, out['reaTZon_y'])
-        t = warmup_start
-        while t < start - 1e-6:  # the warm-up: the building's own control, observed
-            plant.advance(t + step)
-            controller.observe(plant.records(t, t + step), t, t + step,
-                               plant.outputs['reaTZon_y'])
-            t += step
-        last_day = None
-        while t < end - 1e-6:
-            began = time.perf_counter()
-            x0 = controller.state
-            pieces, result = controller.decide(t)
-            wall = time.perf_counter() - began
-            for piece_end, overwrites in pieces:
-                plant.advance(piece_end, overwrites)
-            measured = plant.outputs['reaTZon_y']
-            u = controller.observe(plant.records(t, t + step), t, t + step, measured)
-            rows.append({'time_s': t, 'duty': float(result.controls[0, 0]), 'duty_run': u[4],
-                         'Tz_measured_end': measured - KELVIN,
-                         'Tz_planned_end': float(result.states[1, 0]) - KELVIN,
-                         'Tf_est': x0[1] - KELVIN, 'Te_est': x0[2] - KELVIN,
-                         'solve_s': float(result.solve_time_s), 'wall_s': wall,
-                         'success': bool(result.success), 'objective': float(result.fun)})
-            t += step
-            day = int((t - start) // 86400.0)
-            if progress is not None and day != last_day and (t - start) % 86400.0 < step:
-                last_day = day
-                progress(f'{period} {price} {config.mode}: day {day:g}/{length_days:g}, '
-                         f'zone {measured - KELVIN:.2f} degC, mean solve '
-                         f'{np.mean([r["solve_s"] for r in rows]):.3f} s')
-        records = plant.records()
-    return PeriodResult(records, pd.DataFrame(rows), start, end, time.perf_counter() - wall0)
+    policy = _EconomicPolicy(EconomicController(config), period, progress, length_days)
+    run = run_plant(case, period, policy, warmup_days, length_days,
+                    control_step_s=config.settings.problem.step_s)
+    return PeriodResult(run.records, pd.DataFrame(policy.rows), run.start_s, run.end_s,
+                        run.wall_s)
+
+
+class _EconomicPolicy:
+    """:class:`EconomicController` in the one period loop (:func:`plant.run_period`)."""
+
+    def __init__(self, controller: EconomicController, period: str,
+                 progress: Callable[[str], None] | None, length_days: float) -> None:
+        self.controller = controller
+        self.period, self.progress, self.length_days = period, progress, length_days
+        self.step = controller.step_s
+        self.rows: list[dict[str, Any]] = []
+        self._last: tuple[float, np.ndarray, Any, float] | None = None
+        self._start_s: float | None = None
+        self._last_day: int | None = None
+
+    def observe(self, plant: Any) -> None:
+        t, tz = float(plant.time_s), plant.outputs['reaTZon_y']
+        if self._start_s is None:
+            self._start_s = t
+            self.controller.start(t, tz)
+            return
+        u = self.controller.observe(plant.records(t - self.step, t), t - self.step, t, tz)
+        if self._last is None:
+            return
+        t0, x0, result, wall = self._last
+        self._last = None
+        self.rows.append({'time_s': t0, 'duty': float(result.controls[0, 0]), 'duty_run': u[4],
+                          'Tz_measured_end': tz - KELVIN,
+                          'Tz_planned_end': float(result.states[1, 0]) - KELVIN,
+                          'Tf_est': x0[1] - KELVIN, 'Te_est': x0[2] - KELVIN,
+                          'solve_s': float(result.solve_time_s), 'wall_s': wall,
+                          'success': bool(result.success), 'objective': float(result.fun)})
+        day = len(self.rows) * self.step // 86400.0
+        if self.progress is not None and day != self._last_day and \
+                (len(self.rows) * self.step) % 86400.0 < self.step:
+            self._last_day = day
+            self.progress(f'{self.period} {self.controller.config.price} '
+                          f'{self.controller.config.mode}: day {day:g}/{self.length_days:g}, '
+                          f'zone {tz - KELVIN:.2f} degC, mean solve '
+                          f'{np.mean([r["solve_s"] for r in self.rows]):.3f} s')
+
+    def __call__(self, t_s: float, outputs: Mapping[str, float]) -> list:
+        began = time.perf_counter()
+        x0 = self.controller.state
+        pieces, result = self.controller.decide(t_s)
+        self._last = (t_s, x0, result, time.perf_counter() - began)
+        return pieces

@@ -43,7 +43,7 @@ import logging
 import math
 import threading
 import time
-from typing import Any, Callable, Iterable, Mapping, Optional, Sequence
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -407,9 +407,10 @@ class BoptestPlant:
         return table[keep].reset_index(drop=True)
 
 
-#: A step policy of :func:`run_period`: (time [s], outputs now) -> overwrites over the next
-#: control step (None: the building's own control).
-StepPolicy = Callable[[float, Mapping[str, float]], Optional[Mapping[str, float]]]
+#: A step policy of :func:`run_period`: (time [s], outputs now) -> the overwrites over the next
+#: control step (None: the building's own control), or the step's pieces
+#: ``[(end time [s], overwrites), ...]`` in order, the last ending at the step's end.
+StepPolicy = Callable[[float, Mapping[str, float]], Any]
 
 
 @dataclasses.dataclass
@@ -444,7 +445,13 @@ def run_period(case: TestCase, period: str, controller: StepPolicy | None = None
                sample_s: float = MAX_SAMPLE_S,
                record: Sequence[str] | None = None) -> PeriodRun:
     """
-    Run a test period in this process: warm-up under baseline control, then ``controller``.
+    Run a test period in this process: warm-up under the building's own control, then the test.
+
+    The one period loop of every controller: the baseline (None), a rule, the MPC
+    (:class:`~mshoot_core.boptest.supervision.SupervisedPlant`). A controller with an
+    ``observe(plant)`` method observes the plant at the start and at the end of every control
+    step, the warm-up's included (then the warm-up runs in control steps from its start); every
+    control step of the test period it is called for the step's overwrites.
 
     Parameters
     ----------
@@ -453,8 +460,9 @@ def run_period(case: TestCase, period: str, controller: StepPolicy | None = None
     period : str
         A test period (:meth:`TestCase.test_period`).
     controller : callable, optional
-        ``controller(t_s, outputs) -> overwrites`` called at every control step of the test
-        period (see :data:`StepPolicy`); None: the baseline (no overwrite).
+        ``controller(t_s, outputs)`` called at every control step of the test period: the
+        overwrites held over the step, or the step's pieces (see :data:`StepPolicy`); None:
+        the baseline (no overwrite).
     warmup_days, length_days : float
         Warm-up and test period lengths [days] (BOPTEST: 7 and 14).
     control_step_s : float, optional
@@ -468,23 +476,53 @@ def run_period(case: TestCase, period: str, controller: StepPolicy | None = None
     -------
     PeriodRun
 
+    Raises
+    ------
+    ValueError
+        For a bad control step, or pieces that do not end at the step's end in order.
+
     """
     warmup_start, start, end = case.test_period(period, warmup_days, length_days)
     step = case.control_step_s if control_step_s is None else float(control_step_s)
     if not step > 0:
         raise ValueError(f'expected a positive control step, got {control_step_s!r}')
+    observe = getattr(controller, 'observe', None)
     walls: list[float] = []
     began = time.perf_counter()
     with BoptestPlant(case, record=record) as plant:
         plant.start(warmup_start)
-        plant.advance(start, sample_s=sample_s)
+        if observe is None:
+            plant.advance(start, sample_s=sample_s)
+        else:
+            observe(plant)
+            k = 0
+            while plant.time_s < start - _EPS_S:  # the warm-up, observed step by step
+                plant.advance(min(warmup_start + (k + 1) * step, start), sample_s=sample_s)
+                observe(plant)
+                k += 1
         k = 0
         while plant.time_s < end - _EPS_S:
             t_next = min(start + (k + 1) * step, end)
             tic = time.perf_counter()
-            overwrites = controller(plant.time_s, plant.outputs) if controller else None
+            decided = controller(plant.time_s, plant.outputs) if controller else None
             walls.append(time.perf_counter() - tic)
-            plant.advance(t_next, overwrites, sample_s=sample_s)
+            for piece_end, overwrites in _pieces(decided, plant.time_s, t_next):
+                plant.advance(piece_end, overwrites, sample_s=sample_s)
+            if observe is not None:
+                observe(plant)
             k += 1
         records = plant.records()
     return PeriodRun(records, warmup_start, start, end, walls, time.perf_counter() - began)
+
+
+def _pieces(decided: Any, t_s: float, t_next: float) -> list[tuple[float, Any]]:
+    """Return a controller's answer as pieces (end time [s], overwrites) up to ``t_next``."""
+    if decided is None or isinstance(decided, Mapping):
+        return [(t_next, decided)]
+    pieces = [(float(e), o) for e, o in decided]
+    ends = [t_s] + [e for e, _ in pieces]
+    if not pieces or any(b <= a for a, b in zip(ends, ends[1:])) or \
+            abs(pieces[-1][0] - t_next) > _EPS_S:
+        raise ValueError(f'the pieces of the step at {t_s:g} s must end in order at '
+                         f'{t_next:g} s, got ends {ends[1:]}')
+    return pieces
