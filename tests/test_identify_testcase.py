@@ -34,7 +34,7 @@ def test_identify_recovers_a_known_house_network():
     inputs = weather[['Tout', 'solrad']].copy()
     inputs['gains'] = 300.0 + 200.0 * weather['occ'].to_numpy() / max(weather['occ'].max(), 1)
     bounds = [(0.0, 8000.0)]
-    inputs['Q'] = ident.excitation_levels(hours + 1, bounds, ident.Excitation(seed=2))[:, 0]
+    inputs['Q_hp'] = ident.excitation_levels(hours + 1, bounds, ident.Excitation(seed=2))[:, 0]
     x0 = np.full(3, 293.15)
     _, states = truth.simulate(inputs, x0)
     table = inputs.assign(T=states['T'].to_numpy())
