@@ -20,6 +20,8 @@ The standard library only.
 """
 from __future__ import annotations
 
+import _ctypes
+import contextlib
 import ctypes
 import dataclasses
 import hashlib
@@ -34,7 +36,7 @@ import subprocess
 import sys
 import tempfile
 import threading
-from typing import Sequence
+from typing import Iterator, Sequence
 from xml.etree import ElementTree
 
 from mshoot_core import fmu_cache
@@ -142,6 +144,33 @@ def model_identifiers(folder: str | os.PathLike) -> tuple[str, ...]:
         raise FmuBinaryError(f'{path}: cannot read the modelIdentifier ({error})') from None
     return tuple(found[tag] for tag in ('ModelExchange', 'CoSimulation')
                  if found.get(tag))
+
+
+@contextlib.contextmanager
+def isolated(binary: str | os.PathLike) -> Iterator[pathlib.Path]:
+    """
+    Hold an FMU's binary loaded with ``RTLD_DEEPBIND`` while fmpy loads the same path.
+
+    The dynamic loader keeps the binding of an object's first load, so fmpy's load inside
+    the ``with`` block gets it: the binary's own symbols before those of the global scope.
+    An FMU that carries its own BLAS/LAPACK (``dgesv_``, ``dgemm_``, ...) then calls its own
+    copy, not that of a library loaded ``RTLD_GLOBAL`` before it (CasADi's OpenBLAS, with
+    ``MSHOOT_IPOPT_BUILD=casadi``): its results do not depend on what else the process
+    loaded. What the binary does not define still comes from the global scope (the
+    preloaded libraries, :func:`preload`). This handle is closed on exit, so fmpy's is the
+    only one left (freeing the FMU unloads the binary as before). Yields the binary's path.
+    Without ``RTLD_DEEPBIND`` (not glibc) it only yields the path.
+    """
+    path = pathlib.Path(binary).resolve()
+    deepbind = getattr(os, 'RTLD_DEEPBIND', 0)
+    if not deepbind:
+        yield path
+        return
+    library = ctypes.CDLL(str(path), mode=os.RTLD_NOW | deepbind)
+    try:
+        yield path
+    finally:
+        _ctypes.dlclose(library._handle)  # (a CDLL has no close)
 
 
 def preloaded() -> tuple[str, ...]:

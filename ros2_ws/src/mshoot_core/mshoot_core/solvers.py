@@ -277,10 +277,11 @@ def import_cyipopt() -> ModuleType:
     factorises the KKT systems of multiple shooting in a third of the time (docs/speed.md).
     With ``casadi``, its libraries are loaded into the global symbol scope before cyipopt's
     extension module, so that module's IPOPT symbols resolve to them; no Python module of
-    CasADi is imported. It is opt-in because the global scope then also holds CasADi's
-    OpenBLAS: the BLAS/LAPACK calls of an FMU binary loaded later in the process bind to it
-    (the BOPTEST heat pump house's results move by ~1e-6 relative), so a process's results
-    would depend on whether IPOPT ran in it before. Done once per process.
+    CasADi is imported. The global scope then also holds CasADi's OpenBLAS; FMU binaries are
+    loaded with ``RTLD_DEEPBIND`` (:func:`mshoot_core.fmu_binary.isolated`), so an FMU that
+    carries its own BLAS/LAPACK (the BOPTEST heat pump house) still calls its own and its
+    results do not depend on whether IPOPT ran in the process before. Opt-in: CasADi is a
+    benchmark requirement, not a product one. Done once per process.
 
     Raises
     ------

@@ -5,8 +5,11 @@ Bring-up in one process: emulator, forecaster, MPC and the bag recorder in one e
     bringup --scenario ou44 --data ../shared/data/ou44/measurements.csv
 
 The fast path: the four nodes share one rclpy context and one
-SingleThreadedExecutor; the emulator runs in lockstep, so simulated time goes
-as fast as the MPC solves and the run equals the core-only loop. Writes to
+:class:`InProcessExecutor`; the emulator runs in lockstep, so simulated time goes
+as fast as the MPC solves and the run equals the core-only loop. With ``--discovery OFF``
+(the default) no other process can reach the nodes, so they start without rclpy's
+services (parameters, type descriptions, lifecycle transitions): fewer entities for the
+executor to wait on. Writes to
 ``--out``: ``bag/`` (rosbag2, mcap by default), ``kpis.json`` (the keys of
 ``mshoot case``), ``steps.csv``, ``trajectories.csv`` and
 ``plot.png``; prints progress and the KPIs. Parameters come from the YAML
@@ -32,8 +35,10 @@ from mshoot_core.kpis import FALLBACK_EXIT, fallback_problem
 from mshoot_core.scenario import PUBLISHED
 import rclpy
 from rclpy.context import Context
+from rclpy.event_handler import EventHandler
 from rclpy.exceptions import InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.lifecycle import LifecycleNode
 from rclpy.logging import LoggingSeverity
 from rclpy.parameter import Parameter
 
@@ -59,6 +64,42 @@ def overrides(values: dict[str, Any]) -> list[Parameter]:
     return [Parameter(name, value=value) for name, value in values.items() if value is not None]
 
 
+class InProcessExecutor(SingleThreadedExecutor):
+    """
+    rclpy's SingleThreadedExecutor, not waiting on QoS events.
+
+    rclpy gives every publisher and subscription event handlers that log a warning when a
+    peer offers an incompatible QoS or type: two per endpoint, some fifty in an in-process
+    run. The executor rebuilds its wait set from every entity at each wake-up, and these
+    handlers were most of that work (about 1.3 ms per wake-up, several wake-ups per step,
+    ``bench/rosloop.py``). In one process both ends of a topic take their QoS and type from
+    :mod:`mshoot_nodes.contract`; a peer in another process that does not match still logs the
+    warning there, from its own handlers.
+    """
+
+    def can_execute(self, entity: Any) -> bool:
+        return not isinstance(entity, EventHandler) and super().can_execute(entity)
+
+
+def private_node_options(cls: type) -> dict[str, Any]:
+    """
+    Return the constructor options of a node that no other process can reach.
+
+    No parameter services, no lifecycle services (nothing could call them; the nodes
+    autostart) and, with the parameter override of :func:`private_overrides`, no type
+    description service.
+    """
+    options: dict[str, Any] = {'start_parameter_services': False}
+    if issubclass(cls, LifecycleNode):
+        options['enable_communication_interface'] = False
+    return options
+
+
+def private_overrides() -> list[Parameter]:
+    """Return the parameter overrides of a node that no other process can reach."""
+    return [Parameter('start_type_description_service', value=False)]
+
+
 @dataclasses.dataclass
 class RosRun:
     """The nodes of an in-process run, after it ended."""
@@ -72,7 +113,7 @@ class RosRun:
 
 
 def run_in_process(context: Context, node_params: dict[str, dict[str, Any]], *,
-                   record: bool = True, timeout_s: float = 600.0,
+                   record: bool = True, services: bool = False, timeout_s: float = 600.0,
                    progress: Callable[[EmulatorNode], None] | None = None,
                    stop: Callable[[], bool] | None = None) -> RosRun:
     """
@@ -87,6 +128,10 @@ def run_in_process(context: Context, node_params: dict[str, dict[str, Any]], *,
         overrides (None values are skipped).
     record : bool
         Also run the bag recorder.
+    services : bool
+        Give the nodes rclpy's services (parameters, lifecycle, type descriptions), for
+        runs that other processes can discover; without them (the default) the executor
+        has fewer entities to wait on.
     timeout_s : float
         Wall-clock guard [s]: TimeoutError when the run takes longer.
     progress : callable, optional
@@ -119,16 +164,19 @@ def run_in_process(context: Context, node_params: dict[str, dict[str, Any]], *,
         'ready_endpoints', run_requirements('mshoot' if record else 'none'))
 
     def make(cls: type, name: str) -> Any:
+        options = {} if services else private_node_options(cls)
+        extra = [] if services else private_overrides()
         try:
             node = cls(context=context,
-                       parameter_overrides=overrides(node_params.get(name, {})))
+                       parameter_overrides=extra + overrides(node_params.get(name, {})),
+                       **options)
         except Exception as exc:  # noqa: BLE001 - whatever fails at start-up: one clear line
             raise StartupError(f'{name}: cannot start: {startup_reason(exc)}') from exc
         nodes.append(node)  # destroyed below even if a later node fails to start
         executor.add_node(node)
         return node
 
-    executor = SingleThreadedExecutor(context=context)
+    executor = InProcessExecutor(context=context)
     try:
         recorder = make(RecorderNode, 'recorder') if record else None
         forecaster = make(ForecasterNode, 'forecaster')
@@ -312,8 +360,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with StopSignals() as signals:  # SIGINT/SIGTERM: stop cleanly, the bag is closed
             run = run_in_process(context, node_params_from_args(args), record=not args.no_bag,
-                                 timeout_s=args.timeout, progress=progress,
-                                 stop=lambda: signals.requested)
+                                 services=args.discovery != 'OFF', timeout_s=args.timeout,
+                                 progress=progress, stop=lambda: signals.requested)
     except StartupError as exc:  # the configuration: nothing ran
         print(f'[demo] error: {exc}', file=sys.stderr)
         rclpy.try_shutdown(context=context)

@@ -100,6 +100,7 @@ from mshoot_core.units import NS_PER_S
 from mshoot_msgs.msg import Disturbances, Setpoint, ZoneState
 import numpy as np
 import pandas as pd
+from rclpy.logging import LoggingSeverity
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from mshoot_nodes import contract, sources
@@ -361,6 +362,14 @@ class EmulatorNode(ManagedNode):
             # first state is the warmed-up building's and carries the warm-up's history
             self.emulator.start_plant(self._safe_controls())
         self.interface = control_interface(self.emulator.model)
+        # The disturbances it publishes, as an array (a pandas row per step costs more than
+        # the message).
+        self._disturbance_names = [name for name in self.emulator.model.input_names
+                                   if name not in self.emulator.control_names]
+        scenario = self.emulator.scenario
+        self._disturbance_table = np.column_stack(
+            [scenario[name].to_numpy(dtype=float) for name in self._disturbance_names]
+        ) if self._disturbance_names else np.empty((len(scenario), 0))
         self.sensors = Sensors(self.emulator.model.state_names,
                                [n.strip() for n in p['measured_states'].split(',') if n.strip()],
                                p['measurement_noise_k'], p['noise_seed'])
@@ -529,14 +538,15 @@ class EmulatorNode(ManagedNode):
         stamp = self.stamp_ns
         zone = self.params['zone']
         emulator = self.emulator
-        row = emulator.scenario.iloc[emulator.index]
-        self._disturbance_pub.publish(disturbances_msg(stamp, {
-            name: float(row[name]) for name in emulator.model.input_names
-            if name not in emulator.control_names}, zone))
+        self._disturbance_pub.publish(disturbances_msg(stamp, dict(zip(
+            self._disturbance_names, self._disturbance_table[emulator.index].tolist())), zone))
         last = self.records[-1] if self.records else None
-        outputs = ({} if last is None else
-                   {name: float(last.fine[f'y_{name}'].iloc[-1])
-                    for name in emulator.model.output_names})
+        outputs = {}
+        if last is not None:  # the outputs at the step's end (one array, not a pandas row)
+            end = last.fine.to_numpy(dtype=float)[-1]
+            position = {name: k for k, name in enumerate(last.fine.columns)}
+            outputs = {name: float(end[position[f'y_{name}']])
+                       for name in emulator.model.output_names}
         controls = ({} if last is None else
                     dict(zip(emulator.control_names, map(float, last.controls))))
         means = tuple(getattr(emulator.model, 'step_mean_outputs', ()))
@@ -700,11 +710,12 @@ class EmulatorNode(ManagedNode):
         if self.params['records_kept'] and len(self.records) > self.params['records_kept']:
             del self.records[:-self.params['records_kept']]
         self.applied_sources.append(source)
-        self.get_logger().debug(
-            f'step {self.steps_done}: '
-            + ', '.join(f'{n} = {v:.1f}' for n, v in zip(names, record.controls))
-            + f', states {np.round(record.x_start, 3).tolist()} -> '
-            f'{np.round(record.x_end, 3).tolist()}')
+        if self.get_logger().is_enabled_for(LoggingSeverity.DEBUG):  # (the line costs)
+            self.get_logger().debug(
+                f'step {self.steps_done}: '
+                + ', '.join(f'{n} = {v:.1f}' for n, v in zip(names, record.controls))
+                + f', states {np.round(record.x_start, 3).tolist()} -> '
+                f'{np.round(record.x_end, 3).tolist()}')
         self._publish_step()
         if self.emulator.steps_left == 0:
             self._finish()

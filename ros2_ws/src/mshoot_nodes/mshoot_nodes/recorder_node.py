@@ -229,9 +229,10 @@ class RecorderNode(Node):
     def _write(self, topic: str, raw: bytes, info: dict | None = None) -> None:
         if self._closed:
             return
+        clock = self.get_clock()
         received = int((info or {}).get('received_timestamp') or 0)
-        if received <= 0 or self.get_parameter('use_sim_time').value:
-            received = self.get_clock().now().nanoseconds
+        if received <= 0 or clock.ros_time_is_active:  # (use_sim_time)
+            received = clock.now().nanoseconds
         self._writer.write(self._connections[topic], received, raw)
         self.counts[topic] += 1
         self._unflushed += 1

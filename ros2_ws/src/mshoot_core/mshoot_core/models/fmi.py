@@ -75,7 +75,7 @@ from fmpy.model_description import ValidationError
 import numpy as np
 import pandas as pd
 
-from mshoot_core.fmu_binary import check_binary, Library
+from mshoot_core.fmu_binary import binary_file, check_binary, isolated, Library
 from mshoot_core.fmu_cache import extract_fmu, find_fmu
 from mshoot_core.models.base import interval_start_times, Model
 from mshoot_core.models.fmi_drivers import (CsBatchDriver, MeBatchDriver, MeProblem,
@@ -561,10 +561,12 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
         # a damaged binary or a missing library: a clear error, not a signal in this process
         check_binary(self._unzip_dir, self._interface.modelIdentifier, self.libraries,
                      label=self.fmu_path.name)
+        binary = binary_file(self._unzip_dir, self._interface.modelIdentifier)
         try:
-            fmu = cls(guid=md.guid, unzipDirectory=str(self._unzip_dir),
-                      modelIdentifier=self._interface.modelIdentifier,
-                      instanceName=instance_name)
+            with isolated(binary) as path:  # its own BLAS, not one loaded before it
+                fmu = cls(guid=md.guid, unzipDirectory=str(self._unzip_dir),
+                          modelIdentifier=self._interface.modelIdentifier,
+                          instanceName=instance_name, libraryPath=str(path))
             fmu.instantiate(callbacks=_CALLBACKS)
         except Exception as error:  # noqa: BLE001 - fmpy: OSError, plain Exception
             raise ValueError(f'{self.fmu_path.name} ({self.fmi_type}) cannot be instantiated '
