@@ -106,6 +106,7 @@ def test_readme_is_short_and_starts_with_the_two_commands() -> None:
     assert not any(line.startswith('```') for line in lines[:lines.index('```bash')])
 
 
+@pytest.mark.host_discovery
 @pytest.mark.parametrize('page', TUTORIALS, ids=[p.stem for p in TUTORIALS])
 def test_tutorial_runs(page: pathlib.Path, request: pytest.FixtureRequest) -> None:
     text = page.read_text(encoding='utf-8')
