@@ -4,10 +4,10 @@ Shared fixtures and helpers: paths, the OU44 data, private rclpy contexts, guard
 Wall-clock limits here are deadlock guards (a hung test fails instead of hanging CI), set far
 above what any run needs on a loaded 2-core machine; they never judge speed.
 
-``make test`` runs the suite on two pytest-xdist workers (``-n 2 --dist loadgroup``): the tests
-of a file stay on one worker (a module-scoped fixture is built once), and the tests marked
-``host_discovery`` (processes finding each other over DDS on this host) all run on one worker,
-one at a time, first (see :func:`pytest_collection_modifyitems`).
+``make test TEST_WORKERS=2`` runs the suite on two pytest-xdist workers (``-n 2 --dist
+loadgroup``): the tests of a file stay on one worker (a module-scoped fixture is built once),
+and the tests marked ``host_discovery`` (processes finding each other over DDS on this host) all
+run on one worker, one at a time, first (see :func:`pytest_collection_modifyitems`).
 """
 import os
 import pathlib
