@@ -12,8 +12,14 @@ help:  ## list the targets
 setup:  ## create .venv, install pinned wheels, build the FMUs and the ROS 2 workspace (idempotent)
 	@bash $(ROOT)/tools/setup.sh
 
-test: setup  ## run every test, the docs build and its tutorials included (about 5 min on 2 cores)
-	@$(RUN) cd $(ROOT) && python -m pytest $(PYTEST_ARGS)
+# TEST_WORKERS=2: the suite on two pytest-xdist workers (many tests wait on subprocesses and
+# DDS); a file's tests stay on one worker, the tests marked host_discovery run on one worker
+# one at a time (tests/conftest.py). 1 (the default): one process.
+TEST_WORKERS ?= 1
+XDIST_ARGS := $(if $(filter-out 0 1,$(TEST_WORKERS)),-n $(TEST_WORKERS) --dist loadgroup --no-loadscope-reorder)
+
+test: setup  ## run every test, the docs build and its tutorials included (TEST_WORKERS=2: two workers)
+	@$(RUN) cd $(ROOT) && python -m pytest $(XDIST_ARGS) $(PYTEST_ARGS)
 
 docs: setup  ## the documentation site (Sphinx, warnings as errors) -> out/docs/html/index.html
 	@$(RUN) cd $(ROOT) && python -m sphinx -W --keep-going -q -b html -d out/docs/doctrees \

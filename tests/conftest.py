@@ -3,6 +3,11 @@ Shared fixtures and helpers: paths, the OU44 data, private rclpy contexts, guard
 
 Wall-clock limits here are deadlock guards (a hung test fails instead of hanging CI), set far
 above what any run needs on a loaded 2-core machine; they never judge speed.
+
+``make test TEST_WORKERS=2`` runs the suite on two pytest-xdist workers (``-n 2 --dist
+loadgroup``): the tests of a file stay on one worker (a module-scoped fixture is built once),
+and the tests marked ``host_discovery`` (processes finding each other over DDS on this host) all
+run on one worker, one at a time, first (see :func:`pytest_collection_modifyitems`).
 """
 import os
 import pathlib
@@ -15,6 +20,28 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 OU44_CSV = ROOT.parent / 'shared' / 'data' / 'ou44' / 'measurements.csv'
 #: Deadlock guard of a spin [s] (wall time).
 GUARD_S = 90.0
+#: The xdist group of the tests marked ``host_discovery``: one worker runs them, one at a time.
+HOST_DISCOVERY_GROUP = 'host_discovery'
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """
+    Group the tests for pytest-xdist's ``--dist loadgroup``; a plain run is left as it is.
+
+    A test marked ``host_discovery`` joins one group: its processes find each other over DDS on
+    this host (LOCALHOST discovery, a domain drawn at random), so two of them at once on two
+    workers could share a domain. These come first, as the longest unit of work. Every other
+    test is grouped by its file, so a module-scoped fixture (a docs build, a run over ROS) is
+    built on one worker only. Runs before xdist names the groups (``tryfirst``).
+    """
+    if not config.getoption('loadgroup', False):  # set on an xdist worker of --dist loadgroup
+        return
+    for item in items:
+        marked = item.get_closest_marker('host_discovery') is not None
+        item.add_marker(pytest.mark.xdist_group(HOST_DISCOVERY_GROUP if marked
+                                                else item.path.name))
+    items.sort(key=lambda item: item.get_closest_marker('host_discovery') is None)
 
 
 @pytest.fixture(scope='session')
@@ -46,12 +73,13 @@ def private_context() -> Any:
     Return an initialised rclpy context of this test alone, with discovery off.
 
     In-process pub/sub still works, other processes on the machine cannot interfere; the domain
-    comes from the pid.
+    comes from the pid, in 101..119: none of the domains (1..100, 120..209) that this suite's
+    processes use to find each other on this host.
     """
     import rclpy
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'OFF'
     ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=os.getpid() % 100 + 1)
+    rclpy.init(context=ctx, domain_id=101 + os.getpid() % 19)
     return ctx
 
 

@@ -116,6 +116,7 @@ def test_readme_links_reach_files_that_exist() -> None:
     assert not missing, f'README links to missing files: {missing}'
 
 
+@pytest.mark.host_discovery
 @pytest.mark.parametrize('page', TUTORIALS, ids=[p.stem for p in TUTORIALS])
 def test_tutorial_runs(page: pathlib.Path, request: pytest.FixtureRequest) -> None:
     text = page.read_text(encoding='utf-8')

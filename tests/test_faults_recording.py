@@ -30,7 +30,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosbags.rosbag2 import Writer
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.host_discovery]
 MESSAGES = 40
 RECORDERS = {  # name: (storage, how it ends)
     'sigint': ('mcap', signal.SIGINT),

@@ -364,6 +364,7 @@ def test_mpc_plans_from_the_real_state_reports_intruders_and_stale_peers(context
 
 # -- the flood over DDS, short ------------------------------------------------------------
 @pytest.mark.ros
+@pytest.mark.host_discovery
 def test_a_short_hostile_flood_against_the_three_executables(tmp_path):
     """
     ``bench/hostile.py`` for a few seconds: separate processes, DDS on this host, lockstep.

@@ -33,6 +33,7 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 
 HOURS = 24
+pytestmark = pytest.mark.host_discovery
 
 
 @pytest.mark.ros
