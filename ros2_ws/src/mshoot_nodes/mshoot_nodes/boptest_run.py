@@ -59,9 +59,9 @@ from rclpy.parameter import Parameter
 import yaml
 
 from mshoot_nodes import contract
-from mshoot_nodes.economic_node import EconomicNode
 from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_nodes.forecaster_node import ForecasterNode
+from mshoot_nodes.mpc_node import MpcNode
 from mshoot_nodes.rule_node import RuleNode
 from mshoot_nodes.startup import EXIT_CONFIG, startup_reason, StartupError
 
@@ -81,31 +81,42 @@ def rule_targets(case: TestCase) -> dict[str, RuleTarget]:
     return setpoint_targets(case, {variable: case.zones[0]})
 
 
-#: The economic MPC of the mshoot runs (issue 15: mode, margin, minimum run time).
-MSHOOT_SETTINGS = {'mode': 'modulation', 'margin_k': 0.5, 'min_run_h': 0.0}
-#: How mshoot's plan may reach the building over ROS, each with its card ``boptest_<mode>.yaml``.
-MSHOOT_MODES = ('modulation', 'setpoint')
+#: The mshoot runs: the control model's card and the MPC settings (built-in / packaged names).
+MSHOOT_CARD = MSHOOT_SETTINGS = 'boptest_house'
+#: The emulator's card of the mshoot runs (``boptest_<kind>.yaml``): the heat pump's modulation
+#: overwritten, the warm-up and the step means of the outputs published.
+MSHOOT_PLANT = 'modulation'
 
 
-def mshoot_params(period: str, price: str, hours: int,
-                  mode: str = MSHOOT_SETTINGS['mode']) -> dict[str, dict[str, Any]]:
+def mshoot_params(warmup_days: float, step_s: float | None = None,
+                  card: str = MSHOOT_CARD, settings: str = MSHOOT_SETTINGS
+                  ) -> dict[str, dict[str, Any]]:
     """
     Return the node parameters of an mshoot run that differ from the rule's.
-
-    ``mode`` is how the plan reaches the building (:data:`MSHOOT_MODES`): 'modulation'
-    (``oveHeaPumY_u``, card ``boptest_modulation.yaml``) or 'setpoint' (``oveTSet_u``, card
-    ``boptest_setpoint.yaml``).
 
     Returns
     -------
     dict
-        ``{'controller': {...}}``: the economic node's parameters (:data:`MSHOOT_SETTINGS`).
+        ``{'controller': {...}, 'forecaster': {...}}``: the MPC node's (the control card as
+        ``model``, the settings that differ from the defaults) and the forecaster's (the
+        control card's test case source, its first forecast reaching back over the warm-up).
 
     """
-    if mode not in MSHOOT_MODES:
-        raise ValueError(f'mode must be one of {MSHOOT_MODES}, got {mode!r}')
-    return {'controller': {'scenario': f'boptest:{period}:{price}', 'hours': hours,
-                           **MSHOOT_SETTINGS, 'mode': mode}}
+    from mshoot_core.settings import MpcSettings
+    path = builtin_card(card) if not pathlib.Path(card).is_file() else pathlib.Path(card)
+    chosen = MpcSettings.from_file(settings)
+    defaults = MpcSettings().flat()
+    changed = {k: v for k, v in chosen.flat().items() if not _same(v, defaults[k])}
+    step = float(step_s if step_s is not None else chosen.problem.step_s)
+    history = int(round(warmup_days * 86400.0 / step))
+    return {'controller': {'model': str(path), 'use_sim_time': True, **changed},
+            'forecaster': {'model': str(path), 'history_steps': history,
+                           'horizon_steps': int(chosen.problem.horizon_steps)}}
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Return True for equal setting values (NaN equals NaN)."""
+    return a == b or (isinstance(a, float) and isinstance(b, float) and a != a and b != b)
 
 
 def write_card(kind: str, folder: pathlib.Path, case: TestCase,
@@ -157,8 +168,7 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
             price: str = 'constant', warmup_days: float = 7.0, length_days: float = 14.0,
             lead_h: float = 0.0, margin_k: float = 0.0, out: pathlib.Path | None = None,
             cards: pathlib.Path | None = None, timeout_s: float = 3600.0,
-            progress: Callable[[str], None] | None = None,
-            mshoot_mode: str = MSHOOT_SETTINGS['mode']) -> BoptestRun:
+            progress: Callable[[str], None] | None = None) -> BoptestRun:
     """
     Run one controller on one test period over ROS, in this process (module docstring).
 
@@ -186,9 +196,6 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
         Wall-clock guard [s].
     progress : callable, optional
         Called with a line every simulated day.
-    mshoot_mode : str
-        For ``controller='mshoot'``: how the plan reaches the building, one of
-        :data:`MSHOOT_MODES` (the card ``boptest_<mode>.yaml``).
 
     Raises
     ------
@@ -210,7 +217,7 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
     params: dict[str, dict[str, Any]] = {
         'emulator': {**common, 'output_dir': str(out) if out is not None else '',
                      'model': str(write_card({'baseline': 'baseline', 'rule': RULE_CARD,
-                                              'mshoot': mshoot_mode}[controller],
+                                              'mshoot': MSHOOT_PLANT}[controller],
                                              cards, case, warmup_days)),
                      'ready_endpoints': [f'{contract.ZONE_STATE} subscribers>=1',
                                          f'{contract.SETPOINT} publishers>=1',
@@ -222,12 +229,12 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
     }
     controller_cls: type = RuleNode
     if controller == 'mshoot':
-        params['controller'] = {'data': str(case.directory),
-                                **mshoot_params(period, price, hours,
-                                                mshoot_mode)['controller']}
-        controller_cls = EconomicNode
+        mshoot = mshoot_params(warmup_days)
+        params['controller'] = mshoot['controller']
+        params['forecaster'].update(mshoot['forecaster'])
+        controller_cls = MpcNode
     # The one writer of /mpc/setpoint the emulator expects (another one is an intruder).
-    params['emulator']['setpoint_writer'] = 'economic' if controller == 'mshoot' else 'rule'
+    params['emulator']['setpoint_writer'] = 'mpc' if controller == 'mshoot' else 'rule'
     nodes: list[Any] = []
     executor = SingleThreadedExecutor(context=context)
 
@@ -331,11 +338,6 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--workers', type=int, default=2, choices=range(1, 9),
                         metavar='N', help='rule tuning: grid points run at once, one process '
                         'and FMU instance each (default 2)')
-    parser.add_argument('--mshoot-mode', choices=MSHOOT_MODES, default=MSHOOT_SETTINGS['mode'],
-                        help="how mshoot's plan reaches the building: 'modulation' (the heat "
-                             "pump's oveHeaPumY_u) or 'setpoint' (the zone setpoint oveTSet_u: "
-                             'above the zone temperature during a planned burst, below the band '
-                             'otherwise); default: %(default)s')
     parser.add_argument('--out', type=pathlib.Path, default=pathlib.Path('out/boptest'))
     parser.add_argument('--docs', type=pathlib.Path, default=None,
                         help='write <docs>/boptest.md and <docs>/boptest/*.png')
@@ -381,8 +383,7 @@ def run_benchmark(args: argparse.Namespace, context: Context,
                               lead_h=lead if controller == 'rule' else 0.0,
                               margin_k=margin if controller == 'rule' else 0.0,
                               out=args.out / 'runs' / name, cards=args.out / 'cards',
-                              timeout_s=args.timeout, progress=say,
-                              mshoot_mode=args.mshoot_mode)
+                              timeout_s=args.timeout, progress=say)
                 if run.failed:
                     raise RuntimeError(f'{name}: the run failed: {run.failed}')
                 # time_rat: the controller's wall time between two advances over the step;
