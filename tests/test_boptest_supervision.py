@@ -176,9 +176,9 @@ def test_a_warm_up_in_the_first_state_is_observed_like_steps() -> None:
         assert steps.offer_named_state(stamp, ['T'], [zone[k]], stamp, **outputs) is None
         forecast = _forecast(tout[k], solar[k])
         assert steps.offer_forecast(stamp, 3600.0, forecast, stamp) is None
-    # at once: the means over the interval ending at each time (NaN at the first)
+    # at once: the means over the interval ending at each time (NaN at the first), by output
     means = np.array([[np.nan, *tout[:-1]], [np.nan, *solar[:-1]], [np.nan, *heat[:-1]]])
-    history = (list(3600.0 * np.arange(-hours, 1.0)), list(zone), names,
+    history = (list(3600.0 * np.arange(-hours, 1.0)), list(zone), ['Tout', 'solrad', 'Q_hp'],
                list(means.reshape(-1)))
     now = t0 + hours * HOUR_NS
     long = {k: np.concatenate([np.full(hours, v[0]), v]) for k, v in _forecast(0, 0).items()}

@@ -78,6 +78,9 @@ logger = logging.getLogger(__name__)
 STREAMS = ('state', 'forecast')
 #: States and forecasts kept, by stamp.
 KEEP_INPUTS = 8
+#: Prefix of an output's mean over the last step in a zone state (``mean_<output>``); a
+#: history's outputs are such means, named by output.
+MEAN_PREFIX = 'mean_'
 
 
 @dataclasses.dataclass(frozen=True)
@@ -427,7 +430,8 @@ class Controller:
 
         Each history time is observed as a later state would be: the measured states at that
         time, the model inputs over the interval before it from the outputs measured over it
-        (settings ``measured_inputs``) and the forecast that covers it. Waits for a forecast
+        (the history's means, as ``mean_<output>``: settings ``measured_inputs``) and the
+        forecast that covers it. Waits for a forecast
         that covers the whole warm-up (its history samples: :meth:`offer_forecast`), unless
         ``force``d (then an interval not covered restarts the estimate, logged).
         """
@@ -446,7 +450,8 @@ class Controller:
         means = np.asarray(h.output_values, dtype=float).reshape(len(h.output_names), m)
         stamp, now, applied, outputs_now = h.measure[0], h.measure[2], h.measure[3], h.measure[4]
         if times[-1] == stamp and not outputs_now:  # the state's step: the history's last
-            outputs_now = {n: float(means[j, -1]) for j, n in enumerate(h.output_names)}
+            outputs_now = {MEAN_PREFIX + n: float(means[j, -1])
+                           for j, n in enumerate(h.output_names)}
         for k, t in enumerate(times):
             if t >= stamp:  # (the state itself: below)
                 break
@@ -454,7 +459,8 @@ class Controller:
             last = estimator.estimate
             inputs = None
             if last is not None and _ns(last.t_s) < t:
-                outputs = {n: float(means[j, k]) for j, n in enumerate(h.output_names)}
+                outputs = {MEAN_PREFIX + n: float(means[j, k])
+                           for j, n in enumerate(h.output_names)}
                 inputs, why = self._inputs_between(_ns(last.t_s), t, {}, outputs, last.x)
                 if inputs is None:
                     logger.warning('state estimate restarted at %.0f s of the warm-up: %s',
