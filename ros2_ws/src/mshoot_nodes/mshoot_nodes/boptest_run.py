@@ -16,12 +16,15 @@ price scenario) and the controller answers each step:
 - ``rule``: the rule node with the lead and margin tuned offline, in core, beforehand
   (:func:`mshoot_studies.boptest_rule.tune_rule` over the full period; cached in
   ``<out>/rule_tuning.json``), on the card ``boptest_tset.yaml``;
-- ``mshoot``: the economic node (:mod:`mshoot_nodes.economic_node`: the core
-  :class:`~mshoot_core.boptest.economic.EconomicController`, mode ``modulation``, margin
-  0.5 K) on the card ``boptest_modulation.yaml`` (the heat pump's modulation overwritten; the
-  warm-up and the step means of the outputs published for the MPC's state estimator); the bursts
-  within the hour travel as the setpoint's schedule within the step. It plans on perfect
-  forecasts of the test case's data (not on ``/forecast``: see the node).
+- ``mshoot``: the MPC node (:mod:`mshoot_nodes.mpc_node`: the core
+  :class:`~mshoot_core.controller.Controller`) with the control card and the settings
+  ``boptest_house`` (:data:`MSHOOT_CARD`, :data:`MSHOOT_SETTINGS`), on the card
+  ``boptest_modulation.yaml`` (the heat pump's modulation overwritten; the warm-up and the step
+  means of the outputs published for the state estimator); it plans from ``/forecast``: the
+  forecaster with ``model`` = the control card serves its test case source, the first forecast
+  reaching back over the warm-up (``history_steps``). The bursts within the hour travel as the
+  setpoint's schedule within the step. A ROS run equals the core run of
+  :func:`mshoot_core.boptest.supervision.supervised_plant`.
 
 The baseline's and the rule's trajectories do not depend on the price scenario (they never
 read it): each is simulated once per period (the rule once per distinct tuned lead/margin) and
@@ -487,11 +490,12 @@ def _closing_lines(records: list[dict], periods: Sequence[str], prices: Sequence
             '0.02 K h at 2.7 kWh/m2; a straightforward economic MPC with a 3-state RC model and '
             'direct heat pump control about 0.1 K h at 0.61 EUR/m2 (constant price), and about '
             '3.6 K h at 0.28 EUR/m2 on the typical heat period. mshoot plans on perfect '
-            "forecasts of the test case's files and a 3-state RC model identified outside the "
-            'test periods (`python -m mshoot_studies.boptest_mpc identify`), and runs the heat '
+            "forecasts of the test case's files (from /forecast) and a 3-state RC model "
+            'identified outside the test periods (`python -m mshoot_studies.boptest_mpc '
+            'identify`), and runs the heat '
             'pump in full-load bursts (its COP and the fixed fan power favour them; the '
             'emulator charges nothing for starts: see starts/day; a minimum run time is '
-            '`min_run_h` of the economic node, the setting `min_run_s`). Where its discomfort '
+            'the setting `min_run_s`). Where its discomfort '
             'lies (below / above the '
             'band, K h): '
             + '; '.join(f'{period} {price}: {lo:.2f} / {hi:.2f}'
@@ -526,9 +530,10 @@ def write_docs(args: argparse.Namespace, records: list[dict], runs: list[dict],
              'written out independently (raw CSVs, pandas, explicit sums) on the same stored '
              'outputs of a real baseline run, to 1e-9 '
              '(`tests/test_boptest_kpis.py::test_short_baseline_kpis_by_hand`); a shortened '
-             'ROS run (1 day of warm-up, 2 days of test) of each controller equals the core '
-             'run of the same controller to 1e-9, for mshoot with the very same heat pump '
-             'overwrites minute by minute as the core `EconomicController` run '
+             'ROS run (1 day of warm-up, 1 or 2 days of test) of each controller equals the '
+             'core run of the same controller to 1e-9, for mshoot with the very same heat pump '
+             'overwrites minute by minute as the core run of `mshoot boptest --controllers '
+             'mshoot --control-card boptest_house --mpc-settings boptest_house` '
              '(`tests/test_boptest_ros.py`).', '',
              (f'Run time of this benchmark: {wall_s / 60:.1f} min wall on this machine '
               "(2 cores shared with other work), the rule's tuning (grid points on "
@@ -544,8 +549,8 @@ def write_docs(args: argparse.Namespace, records: list[dict], runs: list[dict],
              'grid (leads ' + ', '.join(f'{v:g}' for v in args.leads) + ' h; margins '
              + ', '.join(f'{v:g}' for v in args.margins) + ' K), each a full run of the period '
              'in core, for the smallest `cost_tot + 0.1 EUR/m2 per K h x tdis_tot`.',
-             '- `mshoot`: the economic MPC (`mshoot_core.boptest.economic`, mode '
-             '`modulation`) in the economic node (`mshoot_nodes/economic_node.py`): every hour '
+             '- `mshoot`: the supervisory MPC (`mshoot_core.controller.Controller`, settings '
+             '`boptest_house`) in the MPC node (`mshoot_nodes/mpc_node.py`): every hour '
              "it plans the heat pump's duty `d` over 36 h on the control model of the card "
              '`boptest_house` (a thermal network: zone, floor, envelope; its parameters '
              'identified outside the test periods), from the state estimated by '
@@ -554,10 +559,11 @@ def write_docs(args: argparse.Namespace, records: list[dict], runs: list[dict],
              "0.5 K (setting `band_margin_k`), and sends the hour's full-load bursts (settings "
              "`actuation` 'burst', `actuation_send` 'value', no minimum run time `min_run_s`, "
              "60 s resolution: `mshoot_core.actuation`) as the setpoint's schedule within the "
-             'step, which the emulator applies to `oveHeaPumY_u`. It plans on perfect '
-             "forecasts computed from the test case's files (interval means; the forecaster "
-             'node serves the same files as hourly point values and is not read by this '
-             'node).', '',
+             "step, which the emulator applies to `oveHeaPumY_u` (the model's duty `d` sent as "
+             "the plant's `Y`: setting `plant_controls`). It plans from `/forecast`: the "
+             "forecaster serves the control card's test case source (interval means of the "
+             "test case's files, perfect), its first forecast reaching back over the warm-up "
+             '(`history_steps`).', '',
              'The baseline and the rule never read the price: each is simulated once per '
              'period (the rule once per distinct tuned lead/margin) and its KPIs computed for '
              'each price scenario it stands for; only `cost_tot` differs.', '']
