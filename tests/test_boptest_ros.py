@@ -103,6 +103,61 @@ def test_mshoot_over_ros_equals_the_core_run(boptest_case: TestCase, ros_runs: d
     assert len(run.setpoint_waits_s) == 24
 
 
+def test_mshoot_fault_over_ros_plan_tail_release_and_back(boptest_case: TestCase,
+                                                          tmp_path: pathlib.Path) -> None:
+    """
+    The solver fails for 3 steps on the heat pump house over ROS: plan tail, release, back.
+
+    The MPC node (settings ``boptest_house``, the fallback after one step of the plan's tail)
+    on the emulator's ``boptest_modulation`` card: the plan's tail, then the overwrite
+    released (``oveHeaPumY_u`` not applied: the building's own controller runs the heat pump),
+    then control again; a defined input at every minute.
+    """
+    import rclpy
+    from mshoot_core.solvers import make_solver
+    from mshoot_nodes.boptest_run import run_ros
+    from mshoot_testing.faults import FaultySolver
+    hours, failing = 8, (3, 4, 5)
+    solver = FaultySolver(make_solver('ipopt'))
+    seen: dict = {}
+
+    def inject(steps: int, nodes: dict) -> None:
+        if steps == 0:
+            seen['mpc'] = nodes['controller']
+            nodes['controller'].mpc.set_solver(solver)
+        elif steps == failing[0]:
+            solver.faults.arm('fail', times=100_000)
+        elif steps == failing[-1] + 1:
+            solver.faults.clear()
+
+    context = private_context()
+    try:
+        run = run_ros(context, 'mshoot', 'peak_heat_day', boptest_case, price='dynamic',
+                      warmup_days=1, length_days=hours / 24, out=tmp_path, timeout_s=900.0,
+                      mpc_settings={'on_failure': 'fallback', 'max_plan_age_steps': 1},
+                      on_step=inject)
+    finally:
+        rclpy.try_shutdown(context=context)
+    assert not run.failed and run.steps == hours
+    history = list(seen['mpc'].history)
+    expected = (['optimum'] * failing[0] + ['plan'] + ['released'] * (len(failing) - 1)
+                + ['optimum'] * (hours - failing[-1] - 1))
+    assert [status.source for _, status in history] == expected
+    assert [list(setpoint.released) for setpoint, _ in history] == [
+        [True] if s == 'released' else [] for s in expected]
+    records = run.records
+    for k, source in enumerate(expected):
+        t0 = run.start_s + k * 3600.0
+        minutes = records[(records['time'] > t0) & (records['time'] < t0 + 3600.0)]
+        assert len(minutes) == 59
+        overwritten = minutes['oveHeaPumY_u'].notna()
+        assert (~overwritten).all() if source == 'released' else overwritten.all()
+        assert minutes['reaHeaPumY_y'].notna().all()  # the heat pump runs, by whoever
+    released = records[(records['time'] > run.start_s + failing[1] * 3600.0)
+                       & (records['time'] < run.start_s + (failing[-1] + 1) * 3600.0)]
+    assert released['reaHeaPumY_y'].max() > 0.1  # the building's own controller heats
+
+
 def test_baseline_leaves_the_building_alone_and_the_rule_preheats(ros_runs: dict) -> None:
     baseline, rule = ros_runs['runs']['baseline'], ros_runs['runs']['rule']
     test = baseline.records['time'] > baseline.start_s

@@ -171,7 +171,9 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
             price: str = 'constant', warmup_days: float = 7.0, length_days: float = 14.0,
             lead_h: float = 0.0, margin_k: float = 0.0, out: pathlib.Path | None = None,
             cards: pathlib.Path | None = None, timeout_s: float = 3600.0,
-            progress: Callable[[str], None] | None = None) -> BoptestRun:
+            progress: Callable[[str], None] | None = None,
+            mpc_settings: dict[str, Any] | None = None,
+            on_step: Callable[[int, dict[str, Any]], None] | None = None) -> BoptestRun:
     """
     Run one controller on one test period over ROS, in this process (module docstring).
 
@@ -199,6 +201,11 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
         Wall-clock guard [s].
     progress : callable, optional
         Called with a line every simulated day.
+    mpc_settings : dict, optional
+        For ``controller='mshoot'``: flat MPC settings over :data:`MSHOOT_SETTINGS`'s.
+    on_step : callable, optional
+        ``on_step(steps_done, nodes)`` after each step the emulator ran (and once before the
+        first), nodes by name ('emulator', 'forecaster', 'controller'): e.g. to inject faults.
 
     Raises
     ------
@@ -233,12 +240,13 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
     controller_cls: type = RuleNode
     if controller == 'mshoot':
         mshoot = mshoot_params(warmup_days)
-        params['controller'] = mshoot['controller']
+        params['controller'] = {**mshoot['controller'], **(mpc_settings or {})}
         params['forecaster'].update(mshoot['forecaster'])
         controller_cls = MpcNode
     # The one writer of /mpc/setpoint the emulator expects (another one is an intruder).
     params['emulator']['setpoint_writer'] = 'mpc' if controller == 'mshoot' else 'rule'
     nodes: list[Any] = []
+    by_name: dict[str, Any] = {}
     executor = SingleThreadedExecutor(context=context)
 
     def make(cls: type, name: str) -> Any:
@@ -247,6 +255,7 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
         except Exception as exc:  # noqa: BLE001 - whatever fails at start-up: one clear line
             raise StartupError(f'{name}: cannot start: {startup_reason(exc)}') from exc
         nodes.append(node)
+        by_name[name] = node
         executor.add_node(node)
         return node
 
@@ -256,8 +265,11 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
         make(ForecasterNode, 'forecaster')
         make(controller_cls, 'controller')
         emulator = make(EmulatorNode, 'emulator')
-        day = 0
+        day, seen = 0, -1
         while not emulator.done:
+            if on_step is not None and emulator.steps_done != seen:
+                seen = emulator.steps_done
+                on_step(seen, by_name)
             executor.spin_once(timeout_sec=0.1)
             if progress is not None and emulator.steps_done // 24 > day:
                 day = emulator.steps_done // 24
