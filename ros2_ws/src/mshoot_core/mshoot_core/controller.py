@@ -431,9 +431,9 @@ class Controller:
         Each history time is observed as a later state would be: the measured states at that
         time, the model inputs over the interval before it from the outputs measured over it
         (the history's means, as ``mean_<output>``: settings ``measured_inputs``) and the
-        forecast that covers it. Waits for a forecast
-        that covers the whole warm-up (its history samples: :meth:`offer_forecast`), unless
-        ``force``d (then an interval not covered restarts the estimate, logged).
+        forecast that covers it. Waits for a forecast that covers the whole warm-up (its
+        history samples: :meth:`offer_forecast`), unless ``force``d (then an interval not
+        covered restarts the estimate, logged).
         """
         h = self._history
         times = [h.measure[0] + _ns(o) for o in h.offsets_s]
