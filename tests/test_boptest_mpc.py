@@ -64,11 +64,11 @@ def test_card_model_is_the_houses_exact_solution() -> None:
 
 
 def test_estimator_recovers_unmeasured_states() -> None:
-    config = economic.controller_settings()
-    model = config.model
+    model = economic.control_model()
+    settings = MpcSettings.from_file('boptest_house')
     rng = np.random.default_rng(3)
     x = np.array([293.0, 298.0, 288.0])
-    estimator = StateEstimator.from_settings(model, config.settings.estimation, 3600.0)
+    estimator = StateEstimator.from_settings(model, settings.estimation, 3600.0)
     assert estimator.measured == ('T',)
     estimator.update(0.0, {'T': x[0]})  # floor and envelope wrong by 5 K
     for k in range(24 * 20):
@@ -84,8 +84,8 @@ def test_output_cost_moves_heat_to_cheap_hours() -> None:
     model = economic.control_model({'Cz': 5e6, 'Cf': 3e7, 'Ce': 5e7, 'Rzf': 2e-3, 'Rze': 5e-3,
                                     'Rzo': 2e-2, 'Reo': 1e-2, 'gz': 5.0, 'ge': 5.0, 'gi': 1.0})
     n = 12
-    settings = MpcSettings.from_flat(economic.DEFAULTS, horizon_steps=n,
-                                     control_names=('d',))
+    settings = MpcSettings.from_file('boptest_house', horizon_steps=n, control_names=('d',),
+                                     band_margin_k=0.0)
     forecast = pd.DataFrame({'Tout': 0.0, 'solar': 0.0, 'gains': 300.0,
                              'price': np.where(np.arange(n + 1) < 6, 0.10, 0.40),
                              'comfort_min': np.where(np.arange(n + 1) >= 6, 21.0, 15.0),
@@ -123,30 +123,27 @@ def test_forecast_frame_from_the_data(boptest_case) -> None:
     assert set(np.round(frame['comfort_min'], 2)) == {15.3, 21.3}
 
 
-def test_controller_settings_checked(boptest_case) -> None:
-    config = economic.controller_settings(boptest_case, 'highly_dynamic', 'setpoint',
-                                          horizon_steps=24, min_run_h=1.0)
-    assert config.settings.problem.control_names == ('d',)
-    assert config.settings.problem.horizon_steps == 24 and config.min_run_s == 3600.0
-    assert list(config.forecast(16 * 86400.0).columns) == list(config.forecast_columns)
-    assert config.mpc().forecast_columns == list(config.forecast_columns)
-    with pytest.raises(ValueError, match='price'):
-        economic.controller_settings(boptest_case, 'free')
-    with pytest.raises(ValueError, match='mode'):
-        economic.controller_settings(boptest_case, 'constant', 'fast')
-    with pytest.raises(ValueError, match='min_run_h'):
-        economic.controller_settings(boptest_case, min_run_h=-1.0)
-
-
 def test_short_closed_loop_beats_the_baseline(boptest_case) -> None:
-    """Two test days after one day of warm-up: less discomfort and cost than the baseline."""
+    """
+    Two test days after one day of warm-up: less discomfort and cost than the baseline.
+
+    The economic MPC: the Controller of the settings ``boptest_house`` on the card
+    ``boptest_modulation`` (:func:`~mshoot_core.boptest.supervision.supervised_plant`).
+    """
     from mshoot_core.boptest.kpis import compute_kpis
-    from mshoot_core.boptest.plant import BoptestPlant
+    from mshoot_core.boptest.plant import BoptestPlant, run_period
+    from mshoot_core.boptest.supervision import supervised_plant
+    from mshoot_core.models.card import builtin_card
     case = boptest_case
-    result = economic.run_period(case, 'peak_heat_day', 'dynamic', 'modulation',
-                                 warmup_days=1.0, length_days=2.0, horizon_steps=24)
+    policy = supervised_plant(case, builtin_card('boptest_modulation'),
+                              builtin_card(economic.CARD),
+                              MpcSettings.from_file('boptest_house', horizon_steps=24),
+                              'dynamic')
+    result = run_period(case, 'peak_heat_day', policy, 1.0, 2.0,
+                        record=[*policy.recorded(case), 'reaHeaPumY_y'])
     mpc = compute_kpis(result.records, case, result.start_s, result.end_s, 'dynamic')
-    assert len(result.steps) == 48 and result.steps['success'].all()
+    outcomes = policy.outcomes
+    assert len(outcomes) == 48 and all(o.result.success for o in outcomes)
     warmup_start, start, end = case.test_period('peak_heat_day', 1.0, 2.0)
     with BoptestPlant(case) as plant:
         plant.start(warmup_start)
@@ -159,7 +156,7 @@ def test_short_closed_loop_beats_the_baseline(boptest_case) -> None:
     hours = np.floor((records['time'].to_numpy() - 1e-6 - start) / 3600.0)
     ran = records.assign(h=hours)[(hours >= 0) & (hours < 48)].groupby('h')[
         'reaHeaPumY_y'].apply(lambda y: float(np.mean(y > 0.5)))
-    assert abs(ran.sum() - result.steps['duty'].sum()) < 2.0
+    assert abs(ran.sum() - sum(float(o.decision.controls[0]) for o in outcomes)) < 2.0
 
 
 def test_study_exits_2_on_bad_options(capsys) -> None:

@@ -147,3 +147,77 @@ def test_mshoot_boptest_runs_the_mpc_by_configuration(boptest_case, tmp_path,
     assert set(test['oveHeaPumY_u'].unique()) == {0.0, 1.0} and test['oveTSet_u'].isna().all()
     rule = pd.read_csv(runs / 'rule_peak_heat_day_lead3_margin0.5' / 'records.csv')
     assert rule.loc[rule['time'] > kpis['rule']['start_s'], 'oveHeaPumY_u'].isna().all()
+
+
+def test_a_warm_up_in_the_first_state_is_observed_like_steps() -> None:
+    """
+    A first state carrying the warm-up (ZoneState history) estimates what steps would.
+
+    Step by step: a forecast and a state every hour (as the core loop offers them). At once:
+    one forecast reaching back over the warm-up (``history_steps``), the warm-up as the first
+    state's history, in either order (the history waits for the forecast that covers it).
+    """
+    model = _house()
+    settings = MpcSettings.from_file('boptest_house')
+    hours = 4
+    tout = 2.0 + np.arange(hours + 1.0)
+    solar = 50.0 * np.arange(hours + 1.0)
+    duty = np.array([0.0, 0.3, 1.0, 0.5, 0.0])
+    zone = 293.15 + 0.1 * np.arange(hours + 1.0)
+    heat = [_heat(model, d, t, s) for d, t, s in zip(duty, tout, solar)]
+    t0 = 10 * HOUR_NS
+    names = ['mean_Tout', 'mean_solrad', 'mean_Q_hp']
+    # step by step
+    steps = controller_for(model, settings)
+    for k in range(hours + 1):
+        stamp = t0 + k * HOUR_NS
+        outputs = {} if k == 0 else {'output_names': names, 'output_values': [
+            tout[k - 1], solar[k - 1], heat[k - 1]]}
+        assert steps.offer_named_state(stamp, ['T'], [zone[k]], stamp, **outputs) is None
+        forecast = _forecast(tout[k], solar[k])
+        assert steps.offer_forecast(stamp, 3600.0, forecast, stamp) is None
+    # at once: the means over the interval ending at each time (NaN at the first), by output
+    means = np.array([[np.nan, *tout[:-1]], [np.nan, *solar[:-1]], [np.nan, *heat[:-1]]])
+    history = (list(3600.0 * np.arange(-hours, 1.0)), list(zone), ['Tout', 'solrad', 'Q_hp'],
+               list(means.reshape(-1)))
+    now = t0 + hours * HOUR_NS
+    long = {k: np.concatenate([np.full(hours, v[0]), v]) for k, v in _forecast(0, 0).items()}
+    long['Tout'][:hours], long['solar'][:hours] = tout[:-1], solar[:-1]
+    long['Tout'][hours:], long['solar'][hours:] = tout[-1], solar[-1]
+    for forecast_first in (True, False):
+        c = controller_for(model, settings)
+
+        def forecast() -> None:
+            assert c.offer_forecast(now, 3600.0, long, now, history_steps=hours) is None
+
+        if forecast_first:
+            forecast()
+        assert c.offer_named_state(now, ['T'], [zone[-1]], now, output_names=names,
+                                   output_values=[tout[-2], solar[-2], heat[-2]],
+                                   history=history) is None
+        if not forecast_first:
+            assert c.estimate is None  # waiting for the forecast that covers the warm-up
+            forecast()
+        assert c.estimator.resets == 0 and c.estimator.updates == hours + 1
+        np.testing.assert_allclose(c.estimate.x, steps.estimate.x, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(c.estimate.std, steps.estimate.std, rtol=0, atol=1e-9)
+        assert c.estimate.t_s == now / NS_PER_S
+    # a forecast whose history is as long as itself is refused
+    c = controller_for(model, settings)
+    rejection = c.offer_forecast(now, 3600.0, _forecast(0, 0, rows=3), now, history_steps=3)
+    assert rejection is not None and 'history_steps' in rejection.reason
+
+
+def test_controls_by_plant_name() -> None:
+    """Settings ``plant_controls``: setpoints name the plant's control, states may too."""
+    model = _house()
+    c = controller_for(model, MpcSettings.from_file('boptest_house', measured_inputs=''))
+    assert c.plant_control_names == ('Y',)
+    assert c.offer_forecast(0, 3600.0, _forecast(3.0, 0.0), 0) is None
+    assert c.offer_named_state(0, ['T'], [293.15], 0) is None
+    applied = c.offer_named_state(HOUR_NS, ['T'], [293.3], HOUR_NS, control_names=['Y'],
+                                  control_values=[0.5])
+    assert applied is None and c.estimator.resets == 0 and c.estimator.updates == 2
+    wrong = c.offer_named_state(2 * HOUR_NS, ['T'], [293.3], 2 * HOUR_NS,
+                                control_names=['TSet'], control_values=[0.5])
+    assert wrong is not None and 'TSet' in wrong.reason

@@ -113,3 +113,45 @@ def test_a_model_that_is_not_a_card_file_is_refused() -> None:
                                      'temperature_uncertainty': 'high'})
     assert _check_sources({'model': '', 'horizon_steps': 48,
                            'temperature_uncertainty': 'high'}) is None
+
+
+def test_the_first_forecast_reaches_back_over_the_warm_up(boptest_case: TestCase,
+                                                          context) -> None:
+    """
+    history_steps: the first forecast holds the warm-up's steps before its stamp, then no more.
+
+    Each history row as the forecast of its own step has it first (the card's interval means);
+    the rows from the stamp on are the step's forecast as without a history.
+    """
+    import pytest
+    from mshoot_core.boptest.forecasts import ForecastSpec, TestCaseForecasts
+    from mshoot_core.models.card import builtin_card
+    from mshoot_nodes.conversions import forecast_series, stamp_to_ns
+    from mshoot_nodes.forecaster_node import ForecasterNode
+    from rclpy.parameter import Parameter
+    card = builtin_card('boptest_house')
+    common = [Parameter('scenario', value='boptest:peak_heat_day:dynamic'),
+              Parameter('hours', value=24), Parameter('horizon_steps', value=6),
+              Parameter('model', value=str(card))]
+    node = ForecasterNode(context=context, parameter_overrides=[
+        *common, Parameter('history_steps', value=5)])
+    try:
+        first, second = node.publish_forecast(0), node.publish_forecast(1)
+    finally:
+        node.destroy_node()
+    assert (first.history_steps, second.history_steps) == (5, 0)
+    assert stamp_to_ns(second.header.stamp) - stamp_to_ns(first.header.stamp) == 3600 * 10**9
+    series, rejection = forecast_series(first)
+    assert rejection is None and len(series['Tout']) == 5 + 7
+    _, start, _ = boptest_case.test_period('peak_heat_day')
+    source = TestCaseForecasts(boptest_case, ForecastSpec.from_card(card), 'dynamic')
+    for k in range(5):
+        row = source.frame(start - (5 - k) * 3600.0, 0, 3600.0)
+        for name in ('Tout', 'solar', 'gains', 'price'):
+            assert series[name][k] == pytest.approx(row[name].iloc[0], rel=0, abs=1e-12)
+    now = source.frame(start, 6, 3600.0)
+    for name in ('Tout', 'solar', 'gains', 'price', 'comfort_min', 'comfort_max'):
+        np.testing.assert_allclose(series[name][5:], now[name], rtol=0, atol=1e-12)
+    with pytest.raises(Exception, match='history_steps needs model'):
+        ForecasterNode(context=context, parameter_overrides=[
+            common[0], Parameter('history_steps', value=5)])

@@ -29,7 +29,6 @@ setup(
             'recorder = mshoot_nodes.recorder_node:main',
             'replayer = mshoot_nodes.replayer_node:main',
             'rule = mshoot_nodes.rule_node:main',
-            'economic = mshoot_nodes.economic_node:main',
             'boptest = mshoot_nodes.boptest_run:main',
             'bringup = mshoot_nodes.bringup:main',
             'bringup_processes = mshoot_nodes.processes:main',

@@ -78,6 +78,9 @@ logger = logging.getLogger(__name__)
 STREAMS = ('state', 'forecast')
 #: States and forecasts kept, by stamp.
 KEEP_INPUTS = 8
+#: Prefix of an output's mean over the last step in a zone state (``mean_<output>``); a
+#: history's outputs are such means, named by output.
+MEAN_PREFIX = 'mean_'
 
 
 @dataclasses.dataclass(frozen=True)
@@ -213,6 +216,8 @@ class Controller:
         self._pending: MpcSettings | None = None
         self._decided: dict[int, np.ndarray] = {}
         self._estimates: dict[int, Estimate] = {}
+        #: A first state's warm-up not observed yet (no forecast covered it yet).
+        self._history: _History | None = None
         self.estimator: StateEstimator | None = None
         if estimation_needed(self.model, self.settings.estimation):
             self.estimator = StateEstimator.from_settings(
@@ -419,6 +424,53 @@ class Controller:
         _trim(self._estimates)
         return None
 
+    def _observe_history(self, force: bool = False) -> None:
+        """
+        Observe a first state's warm-up step by step, then the state itself.
+
+        Each history time is observed as a later state would be: the measured states at that
+        time, the model inputs over the interval before it from the outputs measured over it
+        (the history's means, as ``mean_<output>``: settings ``measured_inputs``) and the
+        forecast that covers it. Waits for a forecast that covers the whole warm-up (its
+        history samples: :meth:`offer_forecast`), unless ``force``d (then an interval not
+        covered restarts the estimate, logged).
+        """
+        h = self._history
+        times = [h.measure[0] + _ns(o) for o in h.offsets_s]
+        covered = all(any(s <= t and (t - s) // self.step_ns < len(f)
+                          for s, f in self._forecasts.items()) for t in times[:-1])
+        if not covered and not force:
+            return
+        self._history = None
+        estimator = self.estimator
+        measured = estimator.measured
+        names = list(h.state_names)
+        m = len(times)
+        states = np.asarray(h.state_values, dtype=float).reshape(len(names), m)
+        means = np.asarray(h.output_values, dtype=float).reshape(len(h.output_names), m)
+        stamp, now, applied, outputs_now = h.measure[0], h.measure[2], h.measure[3], h.measure[4]
+        if times[-1] == stamp and not outputs_now:  # the state's step: the history's last
+            outputs_now = {MEAN_PREFIX + n: float(means[j, -1])
+                           for j, n in enumerate(h.output_names)}
+        for k, t in enumerate(times):
+            if t >= stamp:  # (the state itself: below)
+                break
+            values = {n: float(states[names.index(n), k]) for n in measured}
+            last = estimator.estimate
+            inputs = None
+            if last is not None and _ns(last.t_s) < t:
+                outputs = {MEAN_PREFIX + n: float(means[j, k])
+                           for j, n in enumerate(h.output_names)}
+                inputs, why = self._inputs_between(_ns(last.t_s), t, {}, outputs, last.x)
+                if inputs is None:
+                    logger.warning('state estimate restarted at %.0f s of the warm-up: %s',
+                                   t / NS_PER_S, why)
+                    estimator.reset()
+            elif last is not None:
+                continue
+            estimator.update(t / NS_PER_S, values, inputs)
+        self._measure(stamp, h.measure[1], now, applied, outputs_now)
+
     def _inputs_between(self, t0_ns: int, t1_ns: int, applied: Mapping[str, float],
                         outputs: Mapping[str, float] | None = None,
                         x0: np.ndarray | None = None) -> tuple[pd.DataFrame | None, str]:
@@ -519,6 +571,18 @@ class Controller:
         return (self.estimator.measured if self.estimator is not None
                 else tuple(self.model.state_names))
 
+    @property
+    def plant_control_names(self) -> tuple[str, ...]:
+        """
+        Return the controls as the plant names them, in the model's order.
+
+        Settings ``plant_controls`` (e.g. ``d=Y``: the model's duty ``d`` is the plant's
+        modulation ``Y``); a control not named there keeps its model name. Setpoints go out
+        with these names; the applied controls of a zone state may come with them.
+        """
+        names = self.settings.actuation.plant_names
+        return tuple(names.get(c, c) for c in self.settings.problem.control_names)
+
     def offer_named_state(self, stamp_ns: int, state_names: Sequence[str],
                           state_values: Sequence[float], now_ns: int, *,
                           output_names: Sequence[str] = (), output_values: Sequence[float] = (),
@@ -530,8 +594,11 @@ class Controller:
         Offer a measured state as named values, with the measured outputs and applied controls.
 
         Names in any order, states in SI units (e.g. [K]); the controls are those applied over the
-        last step; ``history`` the warm-up a first state may carry (offsets [s], state values,
-        output names, output values: the fields of a ``ZoneState``).
+        last step, by model or plant name (:attr:`plant_control_names`); ``history`` the
+        warm-up a first state may carry (offsets [s], state values, output names, output
+        values: the fields of a ``ZoneState``): with estimation, it is observed step by step
+        like later states, once a forecast covers it (its ``history_steps``,
+        :meth:`offer_forecast`).
 
         The whole message is checked before any of it is used or copied: the array lengths
         against the model's dimensions (:func:`~mshoot_core.safety.zone_state_caps`), the names
@@ -543,6 +610,8 @@ class Controller:
         controls enter the prediction over the last step.
         """
         controls = self.settings.problem.control_names
+        model_names = dict(zip(self.plant_control_names, controls))
+        control_names = [model_names.get(n, n) for n in control_names]
         fields = dict(zip(('state_names', 'state_values', 'output_names', 'output_values',
                            'control_names', 'control_values', 'history_offsets_s',
                            'history_state_values', 'history_output_names',
@@ -569,9 +638,20 @@ class Controller:
             if rejection:
                 return self.reject('state', rejection)
             values = dict(zip(state_names, map(float, state_values)))
-            return self._measure(stamp_ns, {n: values[n] for n in measured}, now_ns,
-                                 dict(zip(control_names, map(float, control_values))),
-                                 dict(zip(output_names, map(float, output_values))))
+            measure = (int(stamp_ns), {n: values[n] for n in measured}, int(now_ns),
+                       dict(zip(control_names, map(float, control_values))),
+                       dict(zip(output_names, map(float, output_values))))
+            if self._history is not None:  # a later state: the warm-up as far as covered
+                self._observe_history(force=True)
+            if len(history[0]) and self.estimator.estimate is None:
+                rejection = self._range_rejection(measure[1]) or self._state_gate.check(
+                    stamp_ns, now_ns)
+                if rejection:
+                    return self.reject('state', rejection)
+                self._history = _History(measure, state_names, *history)
+                self._observe_history()
+                return None
+            return self._measure(*measure)
         rejection = (check_zone_state(state_names, state_values, output_names, output_values,
                                       control_names, control_values,
                                       expected_states=self.model.state_names,
@@ -617,13 +697,16 @@ class Controller:
         return tuple(dict.fromkeys(names))
 
     def offer_forecast(self, stamp_ns: int, step_s: float,
-                       series: Mapping[str, Sequence[float]], now_ns: int) -> Rejection | None:
+                       series: Mapping[str, Sequence[float]], now_ns: int,
+                       history_steps: int = 0) -> Rejection | None:
         """
         Offer a forecast: samples every ``step_s`` [s] from ``stamp_ns`` on, by name.
 
         The series are the model's disturbances (e.g. Tout [degC], solrad [W/m2], occ),
         comfort_min, comfort_max [degC] and optionally price [currency/kWh]
-        (:attr:`forecast_required`, :attr:`forecast_known`).
+        (:attr:`forecast_required`, :attr:`forecast_known`). Its first ``history_steps``
+        samples lie before ``stamp_ns`` (a warm-up's: the inputs a first state's history is
+        observed with, see :meth:`offer_named_state`); the stamp is the forecast's.
 
         Returns
         -------
@@ -633,6 +716,12 @@ class Controller:
         """
         required = self.forecast_required  # (once: forecast_known takes it too)
         known = self._known_with(required)
+        samples = len(next(iter(series.values()), ()))
+        if not 0 <= int(history_steps) < max(samples, 1):
+            return self.reject('forecast', Rejection(
+                'out_of_range', f'history_steps must be >= 0 and below the {samples} samples, '
+                f'got {history_steps}'))
+        history_steps = int(history_steps)
         rejection = (check_forecast(step_s, series,
                                     expected_step_s=self.settings.problem.step_s,
                                     required=required, known=known)
@@ -657,11 +746,16 @@ class Controller:
         if extra:
             values = np.column_stack([values] + [np.full(n, float(self.assumed_inputs[name]))
                                                  for name in extra])
+        first_ns = int(stamp_ns) - history_steps * self.step_ns
         frame = pd.DataFrame(values, columns=column_labels((*names, *extra)), index=pd.Index(
-            stamp_ns / NS_PER_S + np.arange(n) * float(step_s), name='time_s'))
+            first_ns / NS_PER_S + np.arange(n) * float(step_s), name='time_s'))
         self._forecast_gate.accept(stamp_ns, now_ns)
-        self._forecasts[int(stamp_ns)] = frame
+        self._forecasts[int(stamp_ns)] = frame.iloc[history_steps:]
+        if history_steps:  # (the past: for observing a history, never for planning)
+            self._forecasts[first_ns] = frame
         _trim(self._forecasts)
+        if self._history is not None:
+            self._observe_history()
         return None
 
     def _state_stamp(self, step_ns: int) -> int | None:
@@ -1011,6 +1105,18 @@ def state_scaling(settings: MpcSettings | None, states: int) -> Scaling | None:
 
 def _ns(seconds: float) -> int:
     return int(round(float(seconds) * NS_PER_S))
+
+
+@dataclasses.dataclass
+class _History:
+    """A first state (the arguments of ``Controller._measure``) and its warm-up."""
+
+    measure: tuple
+    state_names: Sequence[str]
+    offsets_s: Sequence[float]
+    state_values: Sequence[float]
+    output_names: Sequence[str] = ()
+    output_values: Sequence[float] = ()
 
 
 def _trim(items: dict[int, Any], keep: int = KEEP_INPUTS) -> None:

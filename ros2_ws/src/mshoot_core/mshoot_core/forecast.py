@@ -594,6 +594,34 @@ class ScenarioForecasts:
         if problem:
             raise ValueError(f'{problem} ({horizon_steps} steps of {self.step_s:g} s)')
 
+    def history(self, index: int, steps: int) -> pd.DataFrame:
+        """
+        Return the ``steps`` rows before step ``index`` (e.g. over a warm-up before the scenario).
+
+        Each row as the forecast of its own step would have it first (an interval mean from the
+        card's test case source), so that a state's history is observed with the inputs a
+        step-by-step run had.
+
+        Raises
+        ------
+        ValueError
+            Without a card's test case source, or for ``steps`` < 1.
+
+        """
+        if self.testcase is None or int(steps) < 1:
+            raise ValueError(f'a history needs a test case source (a card with a '
+                             f'testcase_forecast section) and steps >= 1, got '
+                             f'{self.testcase is not None} and {steps!r}')
+        steps = int(steps)
+        t0 = float(self.clock[index])
+        rows = [self.testcase.frame(t0 - k * self.step_s, 0, self.step_s).iloc[:1]
+                for k in range(steps, 0, -1)]
+        frame = pd.concat(rows)
+        frame.index = pd.Index(float(self.scenario.index[index])
+                               - np.arange(steps, 0, -1) * self.step_s,
+                               name=self.scenario.index.name)
+        return frame
+
     def window(self, index: int, horizon_steps: int) -> pd.DataFrame:
         """
         Return the forecast of step ``index``: ``horizon_steps + 1`` rows (class docstring).

@@ -16,12 +16,15 @@ price scenario) and the controller answers each step:
 - ``rule``: the rule node with the lead and margin tuned offline, in core, beforehand
   (:func:`mshoot_studies.boptest_rule.tune_rule` over the full period; cached in
   ``<out>/rule_tuning.json``), on the card ``boptest_tset.yaml``;
-- ``mshoot``: the economic node (:mod:`mshoot_nodes.economic_node`: the core
-  :class:`~mshoot_core.boptest.economic.EconomicController`, mode ``modulation``, margin
-  0.5 K) on the card ``boptest_modulation.yaml`` (the heat pump's modulation overwritten; the
-  warm-up and the step means of the outputs published for the MPC's state estimator); the bursts
-  within the hour travel as the setpoint's schedule within the step. It plans on perfect
-  forecasts of the test case's data (not on ``/forecast``: see the node).
+- ``mshoot``: the MPC node (:mod:`mshoot_nodes.mpc_node`: the core
+  :class:`~mshoot_core.controller.Controller`) with the control card and the settings
+  ``boptest_house`` (:data:`MSHOOT_CARD`, :data:`MSHOOT_SETTINGS`), on the card
+  ``boptest_modulation.yaml`` (the heat pump's modulation overwritten; the warm-up and the step
+  means of the outputs published for the state estimator); it plans from ``/forecast``: the
+  forecaster with ``model`` = the control card serves its test case source, the first forecast
+  reaching back over the warm-up (``history_steps``). The bursts within the hour travel as the
+  setpoint's schedule within the step. A ROS run equals the core run of
+  :func:`mshoot_core.boptest.supervision.supervised_plant`.
 
 The baseline's and the rule's trajectories do not depend on the price scenario (they never
 read it): each is simulated once per period (the rule once per distinct tuned lead/margin) and
@@ -59,9 +62,9 @@ from rclpy.parameter import Parameter
 import yaml
 
 from mshoot_nodes import contract
-from mshoot_nodes.economic_node import EconomicNode
 from mshoot_nodes.emulator_node import EmulatorNode
 from mshoot_nodes.forecaster_node import ForecasterNode
+from mshoot_nodes.mpc_node import MpcNode
 from mshoot_nodes.rule_node import RuleNode
 from mshoot_nodes.startup import EXIT_CONFIG, startup_reason, StartupError
 
@@ -81,31 +84,42 @@ def rule_targets(case: TestCase) -> dict[str, RuleTarget]:
     return setpoint_targets(case, {variable: case.zones[0]})
 
 
-#: The economic MPC of the mshoot runs (issue 15: mode, margin, minimum run time).
-MSHOOT_SETTINGS = {'mode': 'modulation', 'margin_k': 0.5, 'min_run_h': 0.0}
-#: How mshoot's plan may reach the building over ROS, each with its card ``boptest_<mode>.yaml``.
-MSHOOT_MODES = ('modulation', 'setpoint')
+#: The mshoot runs: the control model's card and the MPC settings (built-in / packaged names).
+MSHOOT_CARD = MSHOOT_SETTINGS = 'boptest_house'
+#: The emulator's card of the mshoot runs (``boptest_<kind>.yaml``): the heat pump's modulation
+#: overwritten, the warm-up and the step means of the outputs published.
+MSHOOT_PLANT = 'modulation'
 
 
-def mshoot_params(period: str, price: str, hours: int,
-                  mode: str = MSHOOT_SETTINGS['mode']) -> dict[str, dict[str, Any]]:
+def mshoot_params(warmup_days: float, step_s: float | None = None,
+                  card: str = MSHOOT_CARD, settings: str = MSHOOT_SETTINGS
+                  ) -> dict[str, dict[str, Any]]:
     """
     Return the node parameters of an mshoot run that differ from the rule's.
-
-    ``mode`` is how the plan reaches the building (:data:`MSHOOT_MODES`): 'modulation'
-    (``oveHeaPumY_u``, card ``boptest_modulation.yaml``) or 'setpoint' (``oveTSet_u``, card
-    ``boptest_setpoint.yaml``).
 
     Returns
     -------
     dict
-        ``{'controller': {...}}``: the economic node's parameters (:data:`MSHOOT_SETTINGS`).
+        ``{'controller': {...}, 'forecaster': {...}}``: the MPC node's (the control card as
+        ``model``, the settings that differ from the defaults) and the forecaster's (the
+        control card's test case source, its first forecast reaching back over the warm-up).
 
     """
-    if mode not in MSHOOT_MODES:
-        raise ValueError(f'mode must be one of {MSHOOT_MODES}, got {mode!r}')
-    return {'controller': {'scenario': f'boptest:{period}:{price}', 'hours': hours,
-                           **MSHOOT_SETTINGS, 'mode': mode}}
+    from mshoot_core.settings import MpcSettings
+    path = builtin_card(card) if not pathlib.Path(card).is_file() else pathlib.Path(card)
+    chosen = MpcSettings.from_file(settings)
+    defaults = MpcSettings().flat()
+    changed = {k: v for k, v in chosen.flat().items() if not _same(v, defaults[k])}
+    step = float(step_s if step_s is not None else chosen.problem.step_s)
+    history = int(round(warmup_days * 86400.0 / step))
+    return {'controller': {'model': str(path), 'use_sim_time': True, **changed},
+            'forecaster': {'model': str(path), 'history_steps': history,
+                           'horizon_steps': int(chosen.problem.horizon_steps)}}
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Return True for equal setting values (NaN equals NaN)."""
+    return a == b or (isinstance(a, float) and isinstance(b, float) and a != a and b != b)
 
 
 def write_card(kind: str, folder: pathlib.Path, case: TestCase,
@@ -158,7 +172,8 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
             lead_h: float = 0.0, margin_k: float = 0.0, out: pathlib.Path | None = None,
             cards: pathlib.Path | None = None, timeout_s: float = 3600.0,
             progress: Callable[[str], None] | None = None,
-            mshoot_mode: str = MSHOOT_SETTINGS['mode']) -> BoptestRun:
+            mpc_settings: dict[str, Any] | None = None,
+            on_step: Callable[[int, dict[str, Any]], None] | None = None) -> BoptestRun:
     """
     Run one controller on one test period over ROS, in this process (module docstring).
 
@@ -186,9 +201,11 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
         Wall-clock guard [s].
     progress : callable, optional
         Called with a line every simulated day.
-    mshoot_mode : str
-        For ``controller='mshoot'``: how the plan reaches the building, one of
-        :data:`MSHOOT_MODES` (the card ``boptest_<mode>.yaml``).
+    mpc_settings : dict, optional
+        For ``controller='mshoot'``: flat MPC settings over :data:`MSHOOT_SETTINGS`'s.
+    on_step : callable, optional
+        ``on_step(steps_done, nodes)`` after each step the emulator ran (and once before the
+        first), nodes by name ('emulator', 'forecaster', 'controller'): e.g. to inject faults.
 
     Raises
     ------
@@ -210,7 +227,7 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
     params: dict[str, dict[str, Any]] = {
         'emulator': {**common, 'output_dir': str(out) if out is not None else '',
                      'model': str(write_card({'baseline': 'baseline', 'rule': RULE_CARD,
-                                              'mshoot': mshoot_mode}[controller],
+                                              'mshoot': MSHOOT_PLANT}[controller],
                                              cards, case, warmup_days)),
                      'ready_endpoints': [f'{contract.ZONE_STATE} subscribers>=1',
                                          f'{contract.SETPOINT} publishers>=1',
@@ -222,13 +239,14 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
     }
     controller_cls: type = RuleNode
     if controller == 'mshoot':
-        params['controller'] = {'data': str(case.directory),
-                                **mshoot_params(period, price, hours,
-                                                mshoot_mode)['controller']}
-        controller_cls = EconomicNode
+        mshoot = mshoot_params(warmup_days)
+        params['controller'] = {**mshoot['controller'], **(mpc_settings or {})}
+        params['forecaster'].update(mshoot['forecaster'])
+        controller_cls = MpcNode
     # The one writer of /mpc/setpoint the emulator expects (another one is an intruder).
-    params['emulator']['setpoint_writer'] = 'economic' if controller == 'mshoot' else 'rule'
+    params['emulator']['setpoint_writer'] = 'mpc' if controller == 'mshoot' else 'rule'
     nodes: list[Any] = []
+    by_name: dict[str, Any] = {}
     executor = SingleThreadedExecutor(context=context)
 
     def make(cls: type, name: str) -> Any:
@@ -237,6 +255,7 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
         except Exception as exc:  # noqa: BLE001 - whatever fails at start-up: one clear line
             raise StartupError(f'{name}: cannot start: {startup_reason(exc)}') from exc
         nodes.append(node)
+        by_name[name] = node
         executor.add_node(node)
         return node
 
@@ -246,8 +265,11 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
         make(ForecasterNode, 'forecaster')
         make(controller_cls, 'controller')
         emulator = make(EmulatorNode, 'emulator')
-        day = 0
+        day, seen = 0, -1
         while not emulator.done:
+            if on_step is not None and emulator.steps_done != seen:
+                seen = emulator.steps_done
+                on_step(seen, by_name)
             executor.spin_once(timeout_sec=0.1)
             if progress is not None and emulator.steps_done // 24 > day:
                 day = emulator.steps_done // 24
@@ -331,11 +353,6 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--workers', type=int, default=2, choices=range(1, 9),
                         metavar='N', help='rule tuning: grid points run at once, one process '
                         'and FMU instance each (default 2)')
-    parser.add_argument('--mshoot-mode', choices=MSHOOT_MODES, default=MSHOOT_SETTINGS['mode'],
-                        help="how mshoot's plan reaches the building: 'modulation' (the heat "
-                             "pump's oveHeaPumY_u) or 'setpoint' (the zone setpoint oveTSet_u: "
-                             'above the zone temperature during a planned burst, below the band '
-                             'otherwise); default: %(default)s')
     parser.add_argument('--out', type=pathlib.Path, default=pathlib.Path('out/boptest'))
     parser.add_argument('--docs', type=pathlib.Path, default=None,
                         help='write <docs>/boptest.md and <docs>/boptest/*.png')
@@ -381,8 +398,7 @@ def run_benchmark(args: argparse.Namespace, context: Context,
                               lead_h=lead if controller == 'rule' else 0.0,
                               margin_k=margin if controller == 'rule' else 0.0,
                               out=args.out / 'runs' / name, cards=args.out / 'cards',
-                              timeout_s=args.timeout, progress=say,
-                              mshoot_mode=args.mshoot_mode)
+                              timeout_s=args.timeout, progress=say)
                 if run.failed:
                     raise RuntimeError(f'{name}: the run failed: {run.failed}')
                 # time_rat: the controller's wall time between two advances over the step;
@@ -486,11 +502,11 @@ def _closing_lines(records: list[dict], periods: Sequence[str], prices: Sequence
             '0.02 K h at 2.7 kWh/m2; a straightforward economic MPC with a 3-state RC model and '
             'direct heat pump control about 0.1 K h at 0.61 EUR/m2 (constant price), and about '
             '3.6 K h at 0.28 EUR/m2 on the typical heat period. mshoot plans on perfect '
-            "forecasts of the test case's files and a 3-state RC model identified outside the "
-            'test periods (docs/identify.md), and runs the heat '
+            "forecasts of the test case's files (from /forecast) and a 3-state RC model "
+            'identified outside the test periods (docs/identify.md), and runs the heat '
             'pump in full-load bursts (its COP and the fixed fan power favour them; the '
             'emulator charges nothing for starts: see starts/day; a minimum run time is '
-            '`min_run_h` of the economic node, the setting `min_run_s`). Where its discomfort '
+            'the setting `min_run_s`). Where its discomfort '
             'lies (below / above the '
             'band, K h): '
             + '; '.join(f'{period} {price}: {lo:.2f} / {hi:.2f}'
@@ -525,9 +541,10 @@ def write_docs(args: argparse.Namespace, records: list[dict], runs: list[dict],
              'written out independently (raw CSVs, pandas, explicit sums) on the same stored '
              'outputs of a real baseline run, to 1e-9 '
              '(`tests/test_boptest_kpis.py::test_short_baseline_kpis_by_hand`); a shortened '
-             'ROS run (1 day of warm-up, 2 days of test) of each controller equals the core '
-             'run of the same controller to 1e-9, for mshoot with the very same heat pump '
-             'overwrites minute by minute as the core `EconomicController` run '
+             'ROS run (1 day of warm-up, 1 or 2 days of test) of each controller equals the '
+             'core run of the same controller to 1e-9, for mshoot with the very same heat pump '
+             'overwrites minute by minute as the core run of `mshoot boptest --controllers '
+             'mshoot --control-card boptest_house --mpc-settings boptest_house` '
              '(`tests/test_boptest_ros.py`).', '',
              (f'Run time of this benchmark: {wall_s / 60:.1f} min wall on this machine '
               "(2 cores shared with other work), the rule's tuning (grid points on "
@@ -543,8 +560,8 @@ def write_docs(args: argparse.Namespace, records: list[dict], runs: list[dict],
              'grid (leads ' + ', '.join(f'{v:g}' for v in args.leads) + ' h; margins '
              + ', '.join(f'{v:g}' for v in args.margins) + ' K), each a full run of the period '
              'in core, for the smallest `cost_tot + 0.1 EUR/m2 per K h x tdis_tot`.',
-             '- `mshoot`: the economic MPC (`mshoot_core.boptest.economic`, mode '
-             '`modulation`) in the economic node (`mshoot_nodes/economic_node.py`): every hour '
+             '- `mshoot`: the supervisory MPC (`mshoot_core.controller.Controller`, settings '
+             '`boptest_house`) in the MPC node (`mshoot_nodes/mpc_node.py`): every hour '
              "it plans the heat pump's duty `d` over 36 h on the control model of the card "
              '`boptest_house` (a thermal network: zone, floor, envelope; its parameters '
              'identified outside the test periods), from the state estimated by '
@@ -553,10 +570,11 @@ def write_docs(args: argparse.Namespace, records: list[dict], runs: list[dict],
              "0.5 K (setting `band_margin_k`), and sends the hour's full-load bursts (settings "
              "`actuation` 'burst', `actuation_send` 'value', no minimum run time `min_run_s`, "
              "60 s resolution: `mshoot_core.actuation`) as the setpoint's schedule within the "
-             'step, which the emulator applies to `oveHeaPumY_u`. It plans on perfect '
-             "forecasts computed from the test case's files (interval means; the forecaster "
-             'node serves the same files as hourly point values and is not read by this '
-             'node).', '',
+             "step, which the emulator applies to `oveHeaPumY_u` (the model's duty `d` sent as "
+             "the plant's `Y`: setting `plant_controls`). It plans from `/forecast`: the "
+             "forecaster serves the control card's test case source (interval means of the "
+             "test case's files, perfect), its first forecast reaching back over the warm-up "
+             '(`history_steps`).', '',
              'The baseline and the rule never read the price: each is simulated once per '
              'period (the rule once per distinct tuned lead/margin) and its KPIs computed for '
              'each price scenario it stands for; only `cost_tot` differs.', '']

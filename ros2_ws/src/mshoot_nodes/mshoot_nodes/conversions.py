@@ -344,7 +344,8 @@ def status_msg(stamp_ns: int, result: MpcResult | None, *, fallback: bool = Fals
 
 def decision_setpoint_msg(stamp_ns: int, decision: Decision, step_s: float,
                           interface: ControlInterface, safe_temperature_c: float,
-                          zone: str = '', schedule: Schedule | None = None) -> Setpoint:
+                          zone: str = '', schedule: Schedule | None = None,
+                          control_names: Sequence[str] | None = None) -> Setpoint:
     """
     Build the setpoint of a supervisor decision.
 
@@ -371,9 +372,13 @@ def decision_setpoint_msg(stamp_ns: int, decision: Decision, step_s: float,
         What is sent within the step (:class:`~mshoot_core.actuation.Actuator`): with more than
         one piece, the setpoint's schedule within the step and ``control_values`` its first
         piece's; one piece: its values held over the step.
+    control_names : sequence of str, optional
+        The controls' names sent (default ``interface.control_names``; e.g. the plant's:
+        :attr:`mshoot_core.controller.Controller.plant_control_names`).
 
     """
     names, zones = interface.control_names, interface.temperature_names
+    names = tuple(control_names) if control_names is not None else names
     controls = np.asarray(decision.controls, dtype=float).reshape(-1)
     if schedule is not None:
         controls = schedule.values[0]

@@ -70,6 +70,10 @@ PARAMS = (
               "card that has a testcase_forecast section, the forecasts are that section's "
               'interval means of the test case data (its series, the tightest band per zone, '
               "the scenario's price; series is then not used)", read_only=True),
+    ParamSpec('history_steps', 0, "with model's test case source: the first forecast reaches "
+              'back this many steps before its stamp (its history_steps: the inputs over a '
+              "warm-up a first zone state's history is observed with) [-]", low=0,
+              high=10_000, read_only=True),
     ParamSpec('series', list(FORECAST_DISTURBANCES), 'scenario columns sent as named '
               "disturbance series (the control model's disturbances; those it assumes may be "
               'left out)', read_only=True),
@@ -100,6 +104,8 @@ def _check_sources(v: dict[str, Any]) -> str | None:
         clash = [n for n in names if n in (*COMFORT_SERIES, PRICE_SERIES)]
         if clash:
             return f'series must not name {clash}: the comfort band and the price are sent anyway'
+    if v.get('history_steps') and not v.get('model'):
+        return 'history_steps needs model (a card with a testcase_forecast section)'
     if 'model' in v and v['model'] and not pathlib.Path(v['model']).is_file():
         return f"model must be '' or the path of a card, got {v['model']!r} (no such file)"
     if 'horizon_steps' in v and (reason := horizon_problem(
@@ -234,8 +240,12 @@ class ForecasterNode(Node):
         if p['send_price'] and PRICE_SERIES not in window.columns:
             window = window.copy()
             window[PRICE_SERIES] = self.prices(window.index.to_numpy(dtype=float))
+        history = p['history_steps'] if self.last_index is None else 0
+        if history:  # the first forecast: the warm-up's inputs before it
+            window = pd.concat([self.forecasts.history(index, history), window])
         stamp = self.epoch_ns + index * self.step_ns
         msg = forecast_msg(stamp, p['step_s'], window, self.series, p['zone'])
+        msg.history_steps = history
         self._publisher.publish(msg)
         self.last_index = index
         self.published += 1

@@ -347,7 +347,8 @@ class MpcNode(ManagedNode):
                    or check_lengths('forecast', field_lengths(msg, caps), caps))
         series, problem = ({}, problem) if problem else forecast_series(msg)
         if self._rejected('forecast', contract.FORECAST, stamp, problem, lambda: (
-                self.controller.offer_forecast(stamp, msg.step_s, series, self._now_ns()))):
+                self.controller.offer_forecast(stamp, msg.step_s, series, self._now_ns(),
+                                               msg.history_steps))):
             return
         self.peers.heard('forecast')
         self.try_solve()
@@ -378,13 +379,14 @@ class MpcNode(ManagedNode):
         p = self.params
         interface = self.controller.interface
         step_ns, decision, result = outcome.step_ns, outcome.decision, outcome.result
+        sent = self.controller.plant_control_names
         setpoint = decision_setpoint_msg(step_ns, decision, p['step_s'], interface,
-                                         p['safe_temperature_c'], p['zone'], outcome.schedule)
+                                         p['safe_temperature_c'], p['zone'], outcome.schedule,
+                                         sent)
         problem = check_setpoint(setpoint.step_s, setpoint.control_names,
                                  setpoint.control_values, setpoint.temperature_names,
                                  setpoint.temperature_setpoints_c, setpoint.plan_controls,
-                                 setpoint.plan_temperatures_c,
-                                 expected_controls=interface.control_names)
+                                 setpoint.plan_temperatures_c, expected_controls=sent)
         if problem:  # cannot happen unless the supervisor has a bug: never publish it
             self.get_logger().error(f'setpoint for {step_ns / NS_PER_S:.0f} s failed its final '
                                     f'check ({problem.reason}): publishing the safe setpoint')
@@ -392,7 +394,8 @@ class MpcNode(ManagedNode):
                 step_ns / NS_PER_S, 'invalid_plan', f'{problem.reason}; fallback: the safe '
                 'setpoint')
             setpoint = decision_setpoint_msg(step_ns, decision, p['step_s'], interface,
-                                             p['safe_temperature_c'], p['zone'])
+                                             p['safe_temperature_c'], p['zone'],
+                                             control_names=sent)
         status = decision_status_msg(
             step_ns, decision, result, solve_time_s=outcome.solve_time_s,
             rejected_states=self.rejections.total('state'),

@@ -1,10 +1,12 @@
 """
 The economic MPC on BOPTEST's heat pump house, in core (no ROS): evaluate.
 
-    python -m mshoot_studies.boptest_mpc evaluate [--periods ...] [--prices ...] [--modes ...]
-        run the MPC (and the baseline and the pre-heating rule of mshoot_studies.boptest_rule,
-        tuned on its default grid, for comparison) on the test periods and write kpis.json
-        and a markdown table (kpis.md) to --out
+    python -m mshoot_studies.boptest_mpc evaluate [--periods ...] [--prices ...]
+        run the MPC (the supervisory Controller of the settings boptest_house on the card
+        boptest_modulation: mshoot_core.boptest.supervision; and the baseline and the
+        pre-heating rule of mshoot_studies.boptest_rule, tuned on its default grid, for
+        comparison) on the test periods and write kpis.json and a markdown table (kpis.md)
+        to --out
 
 It prints its progress; bad options exit with code 2 and one line. The control model is
 identified by ``mshoot identify --testcase`` (docs/identify.md).
@@ -15,6 +17,7 @@ import argparse
 import json
 import logging
 import pathlib
+import re
 import sys
 import time
 from typing import Sequence
@@ -33,11 +36,35 @@ def _say(text: str) -> None:
 STARTS_OUTPUT = 'reaHeaPumY_y'
 
 
+def install(parameters: dict[str, float], target: pathlib.Path | None = None) -> pathlib.Path:
+    """
+    Write parameter values into the card's ``NAME: {value: ...`` lines; return its path.
+
+    ``target``: a copy of the packaged card ``boptest_house`` written there (default: the
+    packaged card itself).
+    """
+    from mshoot_core.boptest.economic import CARD
+    from mshoot_core.models.card import builtin_card
+    text = builtin_card(CARD).read_text()
+    target = target if target is not None else builtin_card(CARD)
+    for name, value in parameters.items():
+        text, found = re.subn(rf'^(\s+{re.escape(name)}: {{value: )[^,}}]+', rf'\g<1>{value!r}',
+                              text, count=1, flags=re.M)
+        if not found:
+            raise ValueError(f'{target}: no parameter line of {name!r}')
+    target.write_text(text)
+    return target
+
+
 def evaluate_command(args: argparse.Namespace) -> int:
-    from mshoot_core.boptest import economic
+    import numpy as np
+    from mshoot_core.boptest.economic import CARD
     from mshoot_core.boptest.kpis import compute_kpis, kpi_records
-    from mshoot_core.boptest.plant import BoptestPlant
+    from mshoot_core.boptest.plant import BoptestPlant, run_period
+    from mshoot_core.boptest.supervision import supervised_plant
     from mshoot_core.boptest.testcase import TestCase
+    from mshoot_core.models.card import builtin_card
+    from mshoot_core.settings import MpcSettings
     from mshoot_studies.boptest_report import count_starts
     case = TestCase.load(args.case)
     out = pathlib.Path(args.out)
@@ -80,27 +107,31 @@ def evaluate_command(args: argparse.Namespace) -> int:
                 row['controller'] = (f'rule (lead {row["lead_h"]:g} h, '
                                      f'+{row["margin_k"]:g} K)')
                 keep([row], float(row['wall_s']))
-        for mode in args.modes:
-            for price in args.prices:
-                config = economic.controller_settings(
-                    case, price, mode, parameters=args.parameters, margin_k=args.margin,
-                    min_run_h=args.min_run_h, horizon_steps=args.horizon)
-                result = economic.run_period(case, period, price, mode, config=config,
-                                             warmup_days=args.warmup_days,
-                                             length_days=args.days,
-                                             progress=_say if args.verbose else None)
-                kpis = compute_kpis(result.records, case, result.start_s, result.end_s, price,
-                                    step_wall_s=result.steps['wall_s'].to_numpy(),
-                                    control_step_s=config.settings.problem.step_s)
-                name = f'mshoot ({mode}' + (f', min run {args.min_run_h:g} h'
-                                            if args.min_run_h else '') + ')'
-                kpis['starts_per_day'] = count_starts(result.records, STARTS_OUTPUT,
-                                                      result.start_s, result.end_s)[1]
-                keep([{'controller': name, 'period': period, 'price': price, **kpis,
-                       'mean_solve_s': float(result.steps['solve_s'].mean()),
-                       'max_solve_s': float(result.steps['solve_s'].max()),
-                       'solver_success': float(result.steps['success'].mean())}],
-                     result.wall_s)
+        for price in args.prices:
+            card = builtin_card(CARD)
+            if args.parameters:
+                values = json.loads(pathlib.Path(args.parameters).read_text())
+                card = install(values.get('parameters', values), out / 'boptest_house.yaml')
+            settings = MpcSettings.from_file(CARD, band_margin_k=args.margin,
+                                             min_run_s=args.min_run_h * 3600.0,
+                                             horizon_steps=args.horizon)
+            policy = supervised_plant(case, builtin_card('boptest_modulation'), card, settings,
+                                      price)
+            began = time.perf_counter()
+            run = run_period(case, period, policy, args.warmup_days, args.days,
+                             record=[*policy.recorded(case), STARTS_OUTPUT])
+            wall = time.perf_counter() - began
+            kpis = compute_kpis(run.records, case, run.start_s, run.end_s, price,
+                                step_wall_s=np.asarray(run.step_wall_s),
+                                control_step_s=settings.problem.step_s)
+            name = 'mshoot' + (f' (min run {args.min_run_h:g} h)' if args.min_run_h else '')
+            kpis['starts_per_day'] = count_starts(run.records, STARTS_OUTPUT, run.start_s,
+                                                  run.end_s)[1]
+            solves = [o.result for o in policy.outcomes if o.result is not None]
+            keep([{'controller': name, 'period': period, 'price': price, **kpis,
+                   'mean_solve_s': float(np.mean([r.solve_time_s for r in solves])),
+                   'max_solve_s': float(np.max([r.solve_time_s for r in solves])),
+                   'solver_success': float(np.mean([r.success for r in solves]))}], wall)
     (out / 'kpis.md').write_text(markdown_table(rows))
     _say(f'wrote {out / "kpis.json"} and {out / "kpis.md"}')
     return 0
@@ -128,8 +159,6 @@ def parser() -> argparse.ArgumentParser:
     e = sub.add_parser('evaluate', help='closed-loop KPIs on the test periods')
     e.add_argument('--periods', nargs='+', default=list(PERIODS), choices=PERIODS)
     e.add_argument('--prices', nargs='+', default=list(PRICES), choices=PRICES)
-    e.add_argument('--modes', nargs='*', default=['modulation'],
-                   choices=('modulation', 'setpoint', 'tracking'))
     e.add_argument('--no-baseline', dest='baseline', action='store_false')
     e.add_argument('--no-rule', dest='rule', action='store_false')
     e.add_argument('--parameters', default=None, help='JSON of parameters over the card '

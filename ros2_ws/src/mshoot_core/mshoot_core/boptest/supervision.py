@@ -41,13 +41,11 @@ import pandas as pd
 
 from mshoot_core.boptest.plant import BoptestPlant, recorded_outputs
 from mshoot_core.boptest.testcase import TestCase
-from mshoot_core.controller import Controller, StepOutcome
+from mshoot_core.controller import Controller, MEAN_PREFIX, StepOutcome
 from mshoot_core.units import NS_PER_S
 
 logger = logging.getLogger(__name__)
 
-#: Prefix of the step means of the outputs (as the emulator node publishes them).
-MEAN_PREFIX = 'mean_'
 #: Time tolerance [s].
 _EPS_S = 1e-6
 
