@@ -12,9 +12,10 @@ import subprocess
 
 from mshoot_core.boptest.testcase import TestCase
 from mshoot_core.forecast import (ForecastSource, hourly_grid, MAX_HORIZON_S, moving_average,
-                                  ScenarioForecasts, SOLAR_ERRORS, solar_on_grid,
-                                  TEMPERATURE_ERRORS, temperature_on_grid)
+                                  SOLAR_ERRORS, solar_on_grid, TEMPERATURE_ERRORS,
+                                  temperature_on_grid)
 from mshoot_core.scenario import forecast_window, synthetic_scenario
+from mshoot_core.scenario_forecasts import ScenarioForecasts
 from mshoot_core.settings import ForecastErrorSettings, SettingsError
 import numpy as np
 import pandas as pd

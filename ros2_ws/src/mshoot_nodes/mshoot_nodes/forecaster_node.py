@@ -12,7 +12,7 @@ ventilation it assumes) as named series, the comfort band and, with
 the day; a scenario with its own ``price`` column, e.g. a BOPTEST test period, sends that
 one instead). By default the forecasts are perfect; ``temperature_uncertainty``,
 ``solar_uncertainty`` and ``seed`` give Tout and solrad BOPTEST's forecast errors
-(:class:`mshoot_core.forecast.ScenarioForecasts`: for a BOPTEST scenario, the test case's
+(:class:`mshoot_core.scenario_forecasts.ScenarioForecasts`: for a BOPTEST scenario, the test case's
 ``TDryBul`` and ``HGloHor`` at the step's FMU time, as BOPTEST serves them).
 With ``model`` a control card that has a ``testcase_forecast`` section and a BOPTEST scenario,
 every forecast is that card's :class:`mshoot_core.boptest.forecasts.TestCaseForecasts` frame
@@ -31,9 +31,10 @@ from __future__ import annotations
 import pathlib
 from typing import Any
 
-from mshoot_core.forecast import horizon_problem, ScenarioForecasts
+from mshoot_core.forecast import horizon_problem
 from mshoot_core.peers import Peer
 from mshoot_core.safety import COMFORT_SERIES, PRICE_SERIES
+from mshoot_core.scenario_forecasts import ScenarioForecasts
 from mshoot_core.settings import fields_of, ForecastErrorSettings
 from mshoot_core.units import NS_PER_S
 from mshoot_msgs.msg import Forecast

@@ -276,9 +276,23 @@ class TestCase:
         frames = _read_resources(str(self.directory))
         if any('TDryBul' in frame.columns for frame in frames.values()):
             return frames
-        from mshoot_core.boptest import weather  # no weather.csv: the derived one, if derived
-        derived = weather.cached_weather(self)
-        return frames if derived is None else {**frames, DERIVED_WEATHER: derived}
+        path = self.derived_weather_path  # no weather.csv: the derived one, if derived
+        if not path.is_file():
+            return frames
+        derived = pd.read_csv(path, index_col=0)
+        derived.index = derived.index.to_numpy(dtype=float)
+        return {**frames, DERIVED_WEATHER: derived}
+
+    @property
+    def derived_weather_path(self) -> pathlib.Path:
+        """
+        Return where the weather derived from this FMU file's outputs lives (in the cache).
+
+        ``<cache base>/boptest/weather/<sha256 of the FMU file, 16 hex>/weather.csv``, written
+        by :func:`mshoot_core.boptest.weather.ensure_weather`, never in the test case folder.
+        """
+        digest = fmu_cache.file_sha256(self.fmu_path)[:16]
+        return fmu_cache.cache_dir().parent / 'boptest' / 'weather' / digest / 'weather.csv'
 
     @functools.cached_property
     def _column_file(self) -> dict[str, str]:

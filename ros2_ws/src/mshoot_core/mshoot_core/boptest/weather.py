@@ -6,7 +6,7 @@ Stable API::
     from mshoot_core.boptest import weather
     frame = weather.derive_weather(case, start_s, end_s)     # BOPTEST columns, rows 900 s apart
     path = weather.ensure_weather(case)                      # the year, once, into the cache
-    weather.cached_weather(case) -> DataFrame or None        # what TestCase.lookup reads
+    weather.cache_path(case)                                 # where TestCase.lookup reads it
 
     python -m mshoot_core.boptest.weather DIR               # derive the year of a folder once
 
@@ -35,7 +35,6 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
-from mshoot_core import fmu_cache
 from mshoot_core.boptest.testcase import SECONDS_PER_DAY, WEATHER_POINTS
 
 logger = logging.getLogger(__name__)
@@ -44,8 +43,6 @@ logger = logging.getLogger(__name__)
 ROW_S = 900.0
 #: Days run between two writes of the records (the memory of a long run) [days].
 PIECE_DAYS = 5.0
-#: File name of the derived table in its cache folder.
-FILE_NAME = 'weather.csv'
 #: An FMU output of the weather station: ``<prefix>reaWea<point>_y``.
 _OUTPUT = re.compile(r'^(?:.*_)?reaWea(?P<point>[A-Za-z]+)_y$')
 #: Seconds between two progress messages.
@@ -146,18 +143,7 @@ def _at(records: pd.DataFrame, times: np.ndarray, outputs: dict[str, str]) -> pd
 
 def cache_path(case: Any) -> pathlib.Path:
     """Return where the derived weather of the test case's FMU file lives (see the module)."""
-    digest = fmu_cache.file_sha256(case.fmu_path)[:16]
-    return fmu_cache.cache_dir().parent / 'boptest' / 'weather' / digest / FILE_NAME
-
-
-def cached_weather(case: Any) -> pd.DataFrame | None:
-    """Return the derived weather of the test case (index: time [s]), None if not derived."""
-    path = cache_path(case)
-    if not path.is_file():
-        return None
-    frame = pd.read_csv(path, index_col=0)
-    frame.index = frame.index.to_numpy(dtype=float)
-    return frame
+    return case.derived_weather_path
 
 
 def ensure_weather(case: Any, days: float = 365.0) -> pathlib.Path:
