@@ -1,8 +1,10 @@
 """The BOPTEST control model, its identification, the economic MPC and its dispatch."""
 from __future__ import annotations
 
-from mshoot_core.boptest import economic
+from mshoot_core.boptest.forecasts import ForecastSpec, TestCaseForecasts
+from mshoot_core.calibration import NetworkBuilder
 from mshoot_core.estimation import StateEstimator
+from mshoot_core.models.card import builtin_card, load_card
 from mshoot_core.models.r1c1 import KELVIN
 from mshoot_core.mpc import MPC
 from mshoot_core.settings import MpcSettings
@@ -16,6 +18,13 @@ U = np.array([[2.0, 150.0, 300.0, 0.25, 0.4],
               [-3.0, 0.0, 0.0, 0.40, 1.0],
               [8.0, 400.0, 365.0, 0.10, 0.0]])
 X = np.array([[294.0, 297.0, 290.0], [291.0, 293.0, 285.0], [296.0, 300.0, 295.0]])
+#: The packaged control model of the heat pump house.
+CARD = 'boptest_house'
+
+
+def control_model(parameters: dict | None = None):
+    """Return the card's thermal network with parameter values over the card's."""
+    return NetworkBuilder(load_card(builtin_card(CARD)))(dict(parameters or {}))
 
 
 def _house_rates(p: dict, u: np.ndarray):
@@ -37,7 +46,7 @@ def _house_rates(p: dict, u: np.ndarray):
 
 def test_card_model_is_the_houses_exact_solution() -> None:
     """The card boptest_house's network: the house's equations integrated, outputs and cost."""
-    model = economic.control_model()
+    model = control_model()
     assert model.state_names == ('T', 'Tf', 'Te') and model.control_names == ('d',)
     assert model.comfort_states == ('T',) and model.measured_states == ('T',)
     p = model.parameters
@@ -58,13 +67,13 @@ def test_card_model_is_the_houses_exact_solution() -> None:
         x, cost = x[0], cost + y[0, 3]
         np.testing.assert_allclose(xdf.to_numpy()[k + 1], x)
         np.testing.assert_allclose(ydf.to_numpy()[k + 1], [*y[0, :3], cost])
-    assert economic.control_model({'Cz': 2e4}).parameters['Cz'] == 2e4
+    assert control_model({'Cz': 2e4}).parameters['Cz'] == 2e4
     with pytest.raises(ValueError, match='unknown network parameters'):
-        economic.control_model({'Cx': 1.0})
+        control_model({'Cx': 1.0})
 
 
 def test_estimator_recovers_unmeasured_states() -> None:
-    model = economic.control_model()
+    model = control_model()
     settings = MpcSettings.from_file('boptest_house')
     rng = np.random.default_rng(3)
     x = np.array([293.0, 298.0, 288.0])
@@ -81,8 +90,8 @@ def test_estimator_recovers_unmeasured_states() -> None:
 
 def test_output_cost_moves_heat_to_cheap_hours() -> None:
     """The cost 'output' (price x power) shifts the heat pump's runs to the cheap hours."""
-    model = economic.control_model({'Cz': 5e6, 'Cf': 3e7, 'Ce': 5e7, 'Rzf': 2e-3, 'Rze': 5e-3,
-                                    'Rzo': 2e-2, 'Reo': 1e-2, 'gz': 5.0, 'ge': 5.0, 'gi': 1.0})
+    model = control_model({'Cz': 5e6, 'Cf': 3e7, 'Ce': 5e7, 'Rzf': 2e-3, 'Rze': 5e-3,
+                           'Rzo': 2e-2, 'Reo': 1e-2, 'gz': 5.0, 'ge': 5.0, 'gi': 1.0})
     n = 12
     settings = MpcSettings.from_file('boptest_house', horizon_steps=n, control_names=('d',),
                                      band_margin_k=0.0)
@@ -107,20 +116,22 @@ def test_output_cost_moves_heat_to_cheap_hours() -> None:
 def test_forecast_frame_from_the_data(boptest_case) -> None:
     case = boptest_case
     t0 = 16 * 86400.0
-    frame = economic.forecast_frame(case, t0, 24, 3600.0, 'dynamic', margin_k=0.3)
-    assert list(frame.columns) == list(economic.DISTURBANCES + economic.BAND_COLUMNS)
+    source = TestCaseForecasts(case, ForecastSpec.from_card(CARD), 'dynamic')
+    frame = source.frame(t0, 24, 3600.0)  # the raw band: the margin is the controller's
+    assert list(frame.columns) == ['Tout', 'solar', 'gains', 'price', 'comfort_min',
+                                   'comfort_max']
     assert len(frame) == 25
     sub = t0 + 3 * 3600.0 + np.arange(4) * 900.0 + 450.0
     assert frame['price'].iloc[3] == pytest.approx(
         case.lookup('PriceElectricPowerDynamic', sub).mean())
     assert frame['Tout'].iloc[3] == pytest.approx(case.lookup('TDryBul', sub).mean() - KELVIN)
-    for k in range(1, 25):  # bound of interval k-1: the tightest band over it, with margin
+    for k in range(1, 25):  # bound of interval k-1: the tightest band over it
         inside = t0 + (k - 1) * 3600.0 + np.arange(1, 5) * 900.0  # (t_k-1, t_k]
         assert frame['comfort_min'].iloc[k] == pytest.approx(
-            case.lookup('LowerSetp[1]', inside).max() - KELVIN + 0.3)
+            case.lookup('LowerSetp[1]', inside).max() - KELVIN)
         assert frame['comfort_max'].iloc[k] == pytest.approx(
             case.lookup('UpperSetp[1]', inside).min() - KELVIN)
-    assert set(np.round(frame['comfort_min'], 2)) == {15.3, 21.3}
+    assert set(np.round(frame['comfort_min'], 2)) == {15.0, 21.0}
 
 
 def test_short_closed_loop_beats_the_baseline(boptest_case) -> None:
@@ -136,7 +147,7 @@ def test_short_closed_loop_beats_the_baseline(boptest_case) -> None:
     from mshoot_core.models.card import builtin_card
     case = boptest_case
     policy = supervised_plant(case, builtin_card('boptest_modulation'),
-                              builtin_card(economic.CARD),
+                              builtin_card(CARD),
                               MpcSettings.from_file('boptest_house', horizon_steps=24),
                               'dynamic')
     result = run_period(case, 'peak_heat_day', policy, 1.0, 2.0,

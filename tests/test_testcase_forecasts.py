@@ -1,7 +1,6 @@
 """The test case forecast source: a control card's series, bands and prices from the data."""
 import pathlib
 
-from mshoot_core.boptest import economic
 from mshoot_core.boptest.forecasts import ForecastSpec, TestCaseForecasts
 from mshoot_core.boptest.testcase import TestCase
 from mshoot_core.forecast import ForecastSource
@@ -11,11 +10,14 @@ import pandas as pd
 import pytest
 
 KELVIN = 273.15
-OFFICE = pathlib.Path('/work/shared/boptest/multizone_office_simple_hydronic')
+OFFICE = (pathlib.Path(__file__).resolve().parents[1].parent / 'shared' / 'boptest'
+          / 'multizone_office_simple_hydronic')
+#: The packaged control model of the heat pump house (its testcase_forecast section).
+CARD = 'boptest_house'
 
 
 def old_interval_means(case, column, t_s, step_s):
-    """Return interval means as ``economic._interval_means`` did before the source (900 s)."""
+    """Return interval means as the house's forecast took them before the source (900 s)."""
     n_sub = max(1, int(round(step_s / 900.0)))
     offsets = (np.arange(n_sub) + 0.5) * step_s / n_sub
     values = case.lookup(column, (t_s[:, None] + offsets[None, :]).reshape(-1))
@@ -23,7 +25,7 @@ def old_interval_means(case, column, t_s, step_s):
 
 
 def old_forecast_frame(case, t_s, steps, step_s, price, margin_k=0.0, upper_margin_k=0.0):
-    """Return the frame as ``economic.forecast_frame`` did before the source (the house)."""
+    """Return the house's forecast frame as it was built before the source."""
     times = float(t_s) + np.arange(steps + 1) * float(step_s)
     frame = pd.DataFrame(index=pd.Index(times, name='time_s'))
     frame['Tout'] = old_interval_means(case, 'TDryBul', times, step_s) - KELVIN
@@ -45,23 +47,23 @@ def old_forecast_frame(case, t_s, steps, step_s, price, margin_k=0.0, upper_marg
 
 @pytest.mark.parametrize('price', ['constant', 'dynamic', 'highly_dynamic'])
 def test_the_house_forecast_equals_the_old_frame(boptest_case, price) -> None:
-    source = TestCaseForecasts(boptest_case, ForecastSpec.from_card(economic.CARD), price)
+    source = TestCaseForecasts(boptest_case, ForecastSpec.from_card(CARD), price)
     for t0, steps, step, margins in ((16 * 86400.0, 36, 3600.0, (0.0, 0.0)),
                                      (23 * 86400.0 + 900.0, 24, 3600.0, (0.3, 0.0)),
                                      (100 * 86400.0 + 1800.0, 12, 1800.0, (0.5, 0.2)),
                                      (300 * 86400.0, 4, 900.0, (0.0, 0.4))):
         old = old_forecast_frame(boptest_case, t0, steps, step, price, *margins)
-        if margins == (0.0, 0.0):
-            new = source.frame(t0, steps, step)
-        else:
-            new = economic.forecast_frame(boptest_case, t0, steps, step, price, *margins)
+        new = source.frame(t0, steps, step)  # the raw band: margins are the controller's
+        if margins != (0.0, 0.0):
+            new['comfort_min'] = new['comfort_min'] + margins[0]
+            new['comfort_max'] = np.maximum(new['comfort_max'] - margins[1], new['comfort_min'])
         assert list(new.columns) == list(old.columns)
         np.testing.assert_array_equal(new.index, old.index)
         np.testing.assert_allclose(new.to_numpy(), old.to_numpy(), rtol=0, atol=1e-12)
 
 
 def test_the_band_is_the_tightest_over_the_interval(boptest_case) -> None:
-    source = TestCaseForecasts(boptest_case, ForecastSpec.from_card(economic.CARD))
+    source = TestCaseForecasts(boptest_case, ForecastSpec.from_card(CARD))
     frame = source.frame(16 * 86400.0, 24, 3600.0)
     assert set(np.round(frame['comfort_min'], 2)) == {15.0, 21.0}
     assert set(np.round(frame['comfort_max'], 2)) == {24.0, 30.0}
@@ -112,7 +114,7 @@ def test_several_zones_get_a_band_each() -> None:
 
 
 def test_errors_touch_temperature_and_solar_only(boptest_case) -> None:
-    spec = ForecastSpec.from_card(economic.CARD)
+    spec = ForecastSpec.from_card(CARD)
     t0 = 16 * 86400.0 + 1200.0
     exact = TestCaseForecasts(boptest_case, spec, 'dynamic').frame(t0, 36, 3600.0)
     errors = ForecastErrorSettings(temperature_uncertainty='high', solar_uncertainty='high',
@@ -135,9 +137,6 @@ def test_errors_touch_temperature_and_solar_only(boptest_case) -> None:
     pd.testing.assert_frame_equal(same_seed, noisy)
     with pytest.raises(ValueError, match='48 h'):
         source.frame(t0, 48, 3600.0)
-    # the core runs' thin call: the same forecast with the errors
-    pd.testing.assert_frame_equal(economic.forecast_frame(boptest_case, t0, 36, 3600.0,
-                                                          'dynamic', errors=errors), noisy)
 
 
 def test_scenario_forecasts_with_a_card_serve_its_source(boptest_case) -> None:
@@ -147,10 +146,10 @@ def test_scenario_forecasts_with_a_card_serve_its_source(boptest_case) -> None:
     from mshoot_core.models.card import builtin_card
     scenario = boptest_scenario(boptest_case, 'typical_heat_day', hours=48, price='constant')
     errors = ForecastErrorSettings(temperature_uncertainty='low', seed=2)
-    forecasts = ScenarioForecasts(scenario, errors, builtin_card(economic.CARD))
+    forecasts = ScenarioForecasts(scenario, errors, builtin_card(CARD))
     assert forecasts.series == ('Tout', 'solar', 'gains')
     window = forecasts.window(3, 24)
-    source = TestCaseForecasts(boptest_case, ForecastSpec.from_card(economic.CARD), 'constant',
+    source = TestCaseForecasts(boptest_case, ForecastSpec.from_card(CARD), 'constant',
                                errors)
     expected = source.frame(scenario['fmu_time_s'].iloc[3], 24, 3600.0)
     np.testing.assert_array_equal(window.to_numpy(), expected.to_numpy())

@@ -37,7 +37,7 @@ def _filled(msg_type):
             setattr(m, name, True)
         elif kind == 'sequence<boolean>':
             setattr(m, name, [True, False, True])
-        elif kind == 'int32':
+        elif kind in ('int32', 'uint32'):
             setattr(m, name, int(rng.integers(1, 1000)))
         elif kind == 'string':
             setattr(m, name, 'solver: converged ✓')

@@ -24,6 +24,9 @@ from typing import Sequence
 
 logger = logging.getLogger('mshoot_studies.boptest_mpc')
 
+#: The packaged control card of the heat pump house.
+CARD = 'boptest_house'
+
 PERIODS = ('peak_heat_day', 'typical_heat_day')
 PRICES = ('constant', 'dynamic', 'highly_dynamic')
 
@@ -43,7 +46,6 @@ def install(parameters: dict[str, float], target: pathlib.Path | None = None) ->
     ``target``: a copy of the packaged card ``boptest_house`` written there (default: the
     packaged card itself).
     """
-    from mshoot_core.boptest.economic import CARD
     from mshoot_core.models.card import builtin_card
     text = builtin_card(CARD).read_text()
     target = target if target is not None else builtin_card(CARD)
@@ -58,7 +60,6 @@ def install(parameters: dict[str, float], target: pathlib.Path | None = None) ->
 
 def evaluate_command(args: argparse.Namespace) -> int:
     import numpy as np
-    from mshoot_core.boptest.economic import CARD
     from mshoot_core.boptest.kpis import compute_kpis, kpi_records
     from mshoot_core.boptest.plant import BoptestPlant, run_period
     from mshoot_core.boptest.supervision import supervised_plant

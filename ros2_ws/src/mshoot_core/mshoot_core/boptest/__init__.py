@@ -6,5 +6,7 @@ BOPTEST test cases run as mshoot plants (core, no ROS).
   series its card names, the tightest band per zone, the price), with BOPTEST's errors;
 - :mod:`.plant`: the FMU as one persistent plant instance with BOPTEST overwrites and records;
 - :mod:`.kpis`: BOPTEST's KPIs from a record table;
-- :mod:`.rule`: the rule-based pre-heating controller and its tuning.
+- :mod:`.rule`: the rule-based pre-heating controller;
+- :mod:`.supervision`: the supervisory :class:`~mshoot_core.controller.Controller` on a plant;
+- :mod:`.weather`: the weather of a folder without ``weather.csv``, derived from its FMU.
 """
