@@ -273,7 +273,7 @@ def test_office_weather_derived_once_and_found_by_lookup(office, tmp_path, monke
     with pytest.raises(ValueError, match='python -m mshoot_core.boptest.weather'):
         case.lookup('TDryBul', [0.0])
     path = weather.ensure_weather(case, days=1.0)
-    assert path == weather.cache_path(case) and tmp_path in path.parents
+    assert path == case.derived_weather_path and tmp_path in path.parents
     stamp = path.stat().st_mtime_ns
     assert weather.ensure_weather(case, days=1.0) == path and path.stat().st_mtime_ns == stamp
     case = TestCase.load(office.directory)

@@ -176,9 +176,9 @@ def _card_source(card: object, case: object, price: str,
     """Return the test case source of a control card with a section, else None."""
     if card is None or card == '':
         return None
-    from mshoot_core.boptest.forecasts import ForecastSpec, SECTION, TestCaseForecasts
+    from mshoot_core.boptest.forecasts import card_forecasts, SECTION
     from mshoot_core.models import card as cards
     loaded = cards.load_card(card) if not hasattr(card, 'testcase_forecast') else card
     if getattr(loaded, SECTION, None) is None:
         return None
-    return TestCaseForecasts(case, ForecastSpec.from_card(loaded), price, errors)
+    return card_forecasts(case, loaded, price, errors)

@@ -39,16 +39,14 @@ def _say(text: str) -> None:
 STARTS_OUTPUT = 'reaHeaPumY_y'
 
 
-def install(parameters: dict[str, float], target: pathlib.Path | None = None) -> pathlib.Path:
+def install(parameters: dict[str, float], target: pathlib.Path) -> pathlib.Path:
     """
-    Write parameter values into the card's ``NAME: {value: ...`` lines; return its path.
+    Write a copy of the packaged card with parameter values in its ``NAME: {value: ...`` lines.
 
-    ``target``: a copy of the packaged card ``boptest_house`` written there (default: the
-    packaged card itself).
+    Returns ``target``, the copy (the packaged card itself is never written).
     """
     from mshoot_core.models.card import builtin_card
     text = builtin_card(CARD).read_text()
-    target = target if target is not None else builtin_card(CARD)
     for name, value in parameters.items():
         text, found = re.subn(rf'^(\s+{re.escape(name)}: {{value: )[^,}}]+', rf'\g<1>{value!r}',
                               text, count=1, flags=re.M)

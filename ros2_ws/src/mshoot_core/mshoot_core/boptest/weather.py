@@ -6,7 +6,7 @@ Stable API::
     from mshoot_core.boptest import weather
     frame = weather.derive_weather(case, start_s, end_s)     # BOPTEST columns, rows 900 s apart
     path = weather.ensure_weather(case)                      # the year, once, into the cache
-    weather.cache_path(case)                                 # where TestCase.lookup reads it
+    case.derived_weather_path                                # where TestCase.lookup reads it
 
     python -m mshoot_core.boptest.weather DIR               # derive the year of a folder once
 
@@ -141,11 +141,6 @@ def _at(records: pd.DataFrame, times: np.ndarray, outputs: dict[str, str]) -> pd
                          for point, name in outputs.items()}, index=times)
 
 
-def cache_path(case: Any) -> pathlib.Path:
-    """Return where the derived weather of the test case's FMU file lives (see the module)."""
-    return case.derived_weather_path
-
-
 def ensure_weather(case: Any, days: float = 365.0) -> pathlib.Path:
     """
     Derive the test case's weather once (from 1 January over ``days``); return the file.
@@ -153,7 +148,7 @@ def ensure_weather(case: Any, days: float = 365.0) -> pathlib.Path:
     Written to a temporary file beside the target and renamed into place, so an interrupted
     run leaves nothing half-written.
     """
-    path = cache_path(case)
+    path = case.derived_weather_path
     if path.is_file():
         return path
     logger.info('deriving the weather of %s over %g days from its FMU (once) into %s',
