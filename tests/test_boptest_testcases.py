@@ -5,7 +5,7 @@ import pathlib
 
 from mshoot_core import fmu_cache
 from mshoot_core.boptest import weather
-from mshoot_core.boptest.kpis import compute_kpis
+from mshoot_core.boptest.kpi_calculator import compute_kpis
 from mshoot_core.boptest.plant import BoptestPlant
 from mshoot_core.boptest.testcase import DIR_ENV, TestCase
 import numpy as np

@@ -141,10 +141,10 @@ def test_errors_touch_temperature_and_solar_only(boptest_case) -> None:
 
 def test_scenario_forecasts_with_a_card_serve_its_source(boptest_case) -> None:
     """The forecaster's core: a BOPTEST period's step forecast is the card's frame."""
-    from mshoot_core.boptest.emulation import boptest_scenario
+    from mshoot_core.boptest.period_scenario import period_scenario
     from mshoot_core.scenario_forecasts import ScenarioForecasts
     from mshoot_core.models.card import builtin_card
-    scenario = boptest_scenario(boptest_case, 'typical_heat_day', hours=48, price='constant')
+    scenario = period_scenario(boptest_case, 'typical_heat_day', hours=48, price='constant')
     errors = ForecastErrorSettings(temperature_uncertainty='low', seed=2)
     forecasts = ScenarioForecasts(scenario, errors, builtin_card(CARD))
     assert forecasts.series == ('Tout', 'solar', 'gains')

@@ -166,7 +166,7 @@ def _run_one(directory: str, card_path: str, controller: str, period: str, lead:
 
     ``mpc`` is (control card, settings) of the controller ``mshoot`` (one price).
     """
-    from mshoot_core.boptest.kpis import kpi_records
+    from mshoot_core.boptest.kpi_calculator import kpi_records
     from mshoot_core.boptest.plant import run_period
     from mshoot_core.boptest.testcase import TestCase
     from mshoot_core.models.card import load_card

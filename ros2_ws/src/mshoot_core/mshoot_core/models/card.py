@@ -1159,11 +1159,11 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
     if isinstance(tol, bool) or not 0.0 < float(tol) < 1.0:
         raise ValueError(f'tolerance must be in (0, 1), got {tol!r}')
     if card.boptest is not None:
-        from mshoot_core.boptest.emulation import BoptestPlantModel
+        from mshoot_core.boptest.card_plant import CardPlant
         if role != 'emulator':
             raise ValueError(f'model card {card.path}: a BOPTEST test case is an emulator '
                              f'(a plant), not a {role} model')
-        model = BoptestPlantModel(card, instance_name=f'mshoot-{role}')
+        model = CardPlant(card, instance_name=f'mshoot-{role}')
         model.time_origin_s = float(time_origin_s)
         model.control_specs = card.control_specs()
         return model
