@@ -251,8 +251,9 @@ class ModelCard:
         Free text.
     boptest : dict or None
         For a card of kind ``boptest``: ``test_case_dir`` (absolute), ``warmup_days``,
-        ``history_step_s``, ``setpoint_zones`` (setpoint control -> zone) and ``excitation``
-        (the identification's experiment as the card writes it, or None).
+        ``history_step_s``, ``setpoint_zones`` (setpoint control -> zone), ``excitation``
+        (the identification's experiment as the card writes it, or None) and ``control``
+        (the MPC's ``card`` and ``settings`` as absolute paths, or None).
     network : NetworkSpec or None
         For a thermal network (a card's ``network`` section, or ``builtin: r1c1`` /
         ``r2c2``: the built-in card's): the parsed network
@@ -795,7 +796,38 @@ def _boptest_spec(path: pathlib.Path, spec: dict,
             'setpoint_zones': {str(k): str(v) for k, v in zones.items()}
             if isinstance(zones, dict) else {},
             'excitation': dict(spec['excitation']) if isinstance(spec.get('excitation'), dict)
-            else None}, str(fmu)
+            else None,
+            'control': _boptest_control(path, spec.get('control'), problems)}, str(fmu)
+
+
+def _boptest_control(path: pathlib.Path, entry: Any,
+                     problems: list[str]) -> dict[str, str] | None:
+    """
+    Resolve ``boptest.control``: its ``card`` and ``settings`` as absolute file paths.
+
+    Each is a file relative to the card's folder, or else the name of a packaged one (a
+    built-in card, :func:`builtin_card`; packaged settings,
+    :data:`mshoot_core.settings.SETTINGS_DIR`). Problems are appended; None without the entry.
+    """
+    from mshoot_core.settings import SETTINGS_DIR
+    if not isinstance(entry, dict):
+        return None  # none, or the schema reported it
+    packaged = {'card': CARDS_DIR, 'settings': SETTINGS_DIR}
+    out = {}
+    for key, value in entry.items():
+        if key not in packaged or not isinstance(value, str) or not value:
+            continue  # the schema reported it
+        local = (path.parent / pathlib.Path(value).expanduser()).resolve()
+        named = packaged[key] / f'{value}.yaml'
+        if local.is_file():
+            out[key] = str(local)
+        elif '/' not in value and named.is_file():
+            out[key] = str(named)
+        else:
+            names = sorted(p.stem for p in packaged[key].glob('*.yaml'))
+            problems.append(f'boptest.control.{key}: {value!r} is neither a file relative to '
+                            f"the card's folder ({local}) nor a packaged {key} {names}")
+    return out
 
 
 def _time_origin_problem(value: str) -> str | None:
