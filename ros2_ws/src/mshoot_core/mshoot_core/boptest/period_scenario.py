@@ -6,8 +6,9 @@ seconds since the start, the scenario convention; ``attrs['start']`` the ISO dat
 start in :data:`YEAR`): ``Tout`` [degC] and ``solrad`` [W/m2] from ``weather.csv`` (what the
 building sees), ``occ`` [persons], ``dpos`` 0, the band ``comfort_min``/``comfort_max``
 [degC] from ``LowerSetp[z]``/``UpperSetp[z]`` of one zone (the first of ``kpis.json`` unless
-named; each row: the band at its time), the electricity price ``price`` [EUR/kWh] of the
-chosen scenario, and ``fmu_time_s`` (the FMU clock, seconds from 1 January).
+named; each row: the tightest band over the step ending there, as the forecasts have it:
+:func:`~mshoot_core.boptest.forecasts.interval_band`), the electricity price ``price``
+[EUR/kWh] of the chosen scenario, and ``fmu_time_s`` (the FMU clock, seconds from 1 January).
 
 The plant the emulator drives on it is a card of kind ``boptest``
 (:class:`~mshoot_core.boptest.card_plant.CardPlant`).
@@ -19,6 +20,7 @@ import logging
 import numpy as np
 import pandas as pd
 
+from mshoot_core.boptest.forecasts import BandSource, interval_band
 from mshoot_core.boptest.testcase import TestCase
 from mshoot_core.units import KELVIN
 
@@ -73,8 +75,9 @@ def period_scenario(case: TestCase, period: str, hours: int | None = None,
     zone = case.zones[0] if zone is None else str(zone)
     lower, upper = case.band_columns(zone)
     occupancy = f'Occupancy[{zone}]'
-    data = case.lookup_frame([*(c for c, _ in SCENARIO_WEATHER.values()), lower, upper,
+    data = case.lookup_frame([*(c for c, _ in SCENARIO_WEATHER.values()),
                               case.price_column(price)], fmu_times)
+    comfort_min, comfort_max = interval_band(case, BandSource(lower, upper), fmu_times, step)
     occupants = (case.lookup(occupancy, fmu_times) if occupancy in case.columns
                  else np.zeros(fmu_times.size))
     weather = {name: data[column].to_numpy() + offset
@@ -82,8 +85,7 @@ def period_scenario(case: TestCase, period: str, hours: int | None = None,
     scenario = pd.DataFrame({
         'solrad': weather['solrad'], 'Tout': weather['Tout'],
         'occ': occupants, 'dpos': np.zeros(fmu_times.size),
-        'comfort_min': data[lower].to_numpy() - KELVIN,
-        'comfort_max': data[upper].to_numpy() - KELVIN,
+        'comfort_min': comfort_min, 'comfort_max': comfort_max,
         'price': data[case.price_column(price)].to_numpy(), 'fmu_time_s': fmu_times,
     }, index=pd.Index(fmu_times - start, name='time_s'))
     scenario.attrs['start'] = (year_start() + pd.Timedelta(seconds=start)).isoformat()
