@@ -429,7 +429,6 @@ def excite_test_case(case: Any, card: Any, experiment: TestCaseExperiment) -> pd
     ranges = _level_ranges(names, control_limits(card), experiment.excitation)
     levels = excitation_levels(experiment.steps, ranges, experiment.excitation)
     specs = [card.controls[n] for n in names]
-    conversions = [v.conversion() for v in specs]
     recorded = list(dict.fromkeys(v.variable for v in (*card.states.values(),
                                                        *card.outputs.values())))
     started = last = time.perf_counter()
@@ -437,8 +436,7 @@ def excite_test_case(case: Any, card: Any, experiment: TestCaseExperiment) -> pd
         plant.start(experiment.start_s - experiment.lead_days * DAY_S)
         plant.advance(experiment.start_s, sample_s=experiment.sample_s)
         for k in range(experiment.steps):
-            overwrites = {v.variable: scale * float(level) + offset
-                          for v, (scale, offset), level in zip(specs, conversions, levels[k])}
+            overwrites = {v.variable: v.to_model(level) for v, level in zip(specs, levels[k])}
             plant.advance(experiment.start_s + (k + 1) * experiment.step_s, overwrites,
                           sample_s=experiment.sample_s)
             if time.perf_counter() - last > PROGRESS_S:

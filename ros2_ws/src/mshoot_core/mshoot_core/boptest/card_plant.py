@@ -18,7 +18,7 @@ FMU time = scenario time - ``time_origin_s`` (the card's ``time_origin``, e.g. 1
 from __future__ import annotations
 
 import logging
-from typing import Any, Mapping, Sequence
+from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -27,6 +27,30 @@ from mshoot_core.boptest.plant import BoptestPlant, MAX_SAMPLE_S, ME_TOLERANCE
 from mshoot_core.boptest.testcase import TestCase
 
 logger = logging.getLogger(__name__)
+
+
+def record_means(plant: BoptestPlant, variables: Sequence[Any], t0_s: float,
+                 t1_s: float) -> Iterator[float]:
+    """
+    Yield the mean of each card variable over a plant's records in (t0, t1] [canonical unit].
+
+    The step means of a card's outputs, as the emulator publishes them (``mean_<output>``) and
+    the supervisory controller measures them.
+
+    Parameters
+    ----------
+    plant : BoptestPlant
+        The plant (recording the variables' FMU outputs).
+    variables : sequence of CardVariable
+        The card's variables.
+    t0_s, t1_s : float
+        The interval [s, FMU time].
+
+    """
+    table = plant.records(t0_s, t1_s)
+    window = table[(table['time'] > t0_s) & (table['time'] <= t1_s + 1e-6)]
+    for v in variables:
+        yield v.from_model(float(window[v.variable].mean()))
 
 
 class CardPlant:
@@ -98,8 +122,7 @@ class CardPlant:
         for variable, value in zip(self._controls, values):
             if variable.activate is None or not self._switches.get(variable.activate, 1):
                 continue  # the building's own control (no switch, or released)
-            scale, offset = variable.conversion()
-            out[variable.variable] = scale * float(value) + offset
+            out[variable.variable] = variable.to_model(value)
         return out
 
     def plant_switches(self, values: Mapping[str, bool]) -> None:
@@ -119,11 +142,8 @@ class CardPlant:
 
     def _read(self) -> tuple[np.ndarray, np.ndarray]:
         now = self.plant.read([v.variable for v in (*self._states, *self._outputs)])
-        x = np.array([(now[v.variable] - v.conversion()[1]) / v.conversion()[0]
-                      for v in self._states])
-        y = np.array([(now[v.variable] - v.conversion()[1]) / v.conversion()[0]
-                      for v in self._outputs])
-        return x, y
+        return (np.array([v.from_model(now[v.variable]) for v in self._states]),
+                np.array([v.from_model(now[v.variable]) for v in self._outputs]))
 
     # -- the plant -----------------------------------------------------------------------------
     @property
@@ -181,10 +201,7 @@ class CardPlant:
 
     def _step_means(self, t0_s: float, t1_s: float) -> np.ndarray:
         """Means of the outputs over the records in (t0, t1] (FMU time) [canonical units]."""
-        table = self.plant.records(t0_s, t1_s)
-        window = table[(table['time'] > t0_s) & (table['time'] <= t1_s + 1e-6)]
-        return np.array([(float(window[v.variable].mean()) - v.conversion()[1])
-                         / v.conversion()[0] for v in self._outputs])
+        return np.array(list(record_means(self.plant, self._outputs, t0_s, t1_s)))
 
     def step_means(self, t0_s: float, t1_s: float) -> dict[str, float]:
         """Return the means of the outputs over (t0, t1] (scenario time) by output name."""

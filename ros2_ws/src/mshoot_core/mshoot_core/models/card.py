@@ -217,6 +217,16 @@ class CardVariable:
         """``(scale, offset)`` with model value = scale * canonical value + offset."""
         return conversion(self.canonical_unit, self.unit)
 
+    def to_model(self, value: float) -> float:
+        """Return a canonical value in the model's (FMU's) unit."""
+        scale, offset = self.conversion()
+        return scale * float(value) + offset
+
+    def from_model(self, value: float) -> float:
+        """Return a model's (FMU's) value in the canonical unit."""
+        scale, offset = self.conversion()
+        return (float(value) - offset) / scale
+
 
 @dataclasses.dataclass(frozen=True)
 class ModelCard:
