@@ -19,7 +19,7 @@ import uuid
 import zipfile
 
 from mshoot_core.fmu_build import CFLAGS, find_compiler
-from mshoot_core.fmu_cache import cache_dir, FMI2_HEADERS, platform, SOURCE_DIR
+from mshoot_core.fmu_cache import cache_dir, FMI2_HEADERS, MODEL_HEADER, platform, SOURCE_DIR
 
 FMU_SOURCES = pathlib.Path(__file__).resolve().parent / 'fmus'
 #: name -> (model identifier, C file, modelDescription template, compiler defines)
@@ -34,7 +34,7 @@ def build_test_fmu(name: str) -> pathlib.Path:
     """Return the test FMU ``name`` (a key of :data:`TEST_FMUS`), built if not built yet."""
     identifier, c_file, template, defines = TEST_FMUS[name]
     sources = [FMU_SOURCES / c_file, FMU_SOURCES / template,
-               *(SOURCE_DIR / h for h in FMI2_HEADERS)]
+               *(SOURCE_DIR / h for h in (MODEL_HEADER, *FMI2_HEADERS))]
     digest = hashlib.sha256()
     for path in sources:
         digest.update(path.read_bytes())

@@ -10,7 +10,10 @@ Two models ship as C sources:
   Exchange only, no FMU state), used by the tests to show that any FMI 2.0 FMU
   works through :class:`mshoot_core.models.fmi.FmiModel`.
 
-and two batch drivers (``cs_batch.c``, ``me_batch.c``) that
+Each model's C file holds what is its own (variables, equations, steps) and includes
+``fmi2_model.h``, the FMI 2.0 functions every mshoot FMU shares (instance, life cycle,
+logging, FMU state, the Model Exchange and Co-Simulation calls around the model's own).
+There are two batch drivers too (``cs_batch.c``, ``me_batch.c``) that
 :class:`~mshoot_core.models.fmi.FmiModel` loads with ctypes
 (:mod:`mshoot_core.models.fmi_drivers`).
 
@@ -81,8 +84,8 @@ def build_fmu(name: str, out_dir: str | os.PathLike) -> pathlib.Path:
     Compile the FMU ``name`` and write ``out_dir/<modelIdentifier>.fmu``.
 
     The archive holds ``modelDescription.xml``,
-    ``binaries/<platform>/<modelIdentifier>.so`` and ``sources/`` (the C file
-    and the FMI headers). The file appears atomically (written to a temporary
+    ``binaries/<platform>/<modelIdentifier>.so`` and ``sources/`` (the C file,
+    ``fmi2_model.h`` and the FMI headers). The file appears atomically (written to a temporary
     name, then renamed), so concurrent builders do not see half-written FMUs.
 
     Parameters
