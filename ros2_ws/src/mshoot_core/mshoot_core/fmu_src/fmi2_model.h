@@ -13,6 +13,9 @@
  *   MODEL_PARTIALS        1: directional derivatives from model_partial; 0: they fail
  *   MODEL_TIME_EVENTS     defined: fmi2NewDiscreteStates calls model_events
  *   MODEL_BOOLEANS        defined: the model writes fmi2GetBoolean/fmi2SetBoolean itself
+ *   MODEL_NVARS           defined: the Real variables are ModelData's `double r[MODEL_NVARS]`
+ *                         by value reference; fmi2GetReal and fmi2SetReal are written here
+ *                         (from model_evaluate and model_settable), not by the model
  *   ModelData             plain data copied as the FMU state, with the fields
  *                         `double time` [s] and `int phase` (a Phase)
  *
@@ -67,6 +70,14 @@ static void model_events(ModelData *d, fmi2EventInfo *info);
 /* d(unknown)/d(known) at the current values; 0, or -1 if the pair is not offered. */
 static int model_partial(const ModelData *d, fmi2ValueReference unknown,
                          fmi2ValueReference known, double *value);
+#endif
+#ifdef MODEL_NVARS
+/* Compute the values of d->r that follow from the others (derivatives, outputs). */
+static void model_evaluate(ModelData *d);
+/* How a Real variable is set: REAL_FIXED (not), REAL_START (before initialization only: a
+ * parameter or start value) or REAL_INPUT (any time). */
+enum { REAL_FIXED, REAL_START, REAL_INPUT };
+static int model_settable(fmi2ValueReference vr);
 #endif
 #if MODEL_CO_SIMULATION
 /* Advance d from the communication point t (d->time) by h >= 0 [s]; the caller then sets
@@ -216,6 +227,37 @@ fmi2Status fmi2Reset(fmi2Component c) {
     reset_data(&inst->d);
     return fmi2OK;
 }
+
+#ifdef MODEL_NVARS
+fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                       fmi2Real value[]) {
+    Instance *inst = (Instance *)c;
+    size_t i;
+    if (inst == NULL) return fmi2Error;
+    model_evaluate(&inst->d);
+    for (i = 0; i < nvr; i++) {
+        if (vr[i] >= MODEL_NVARS) return fail(inst, "fmi2GetReal: no value reference %u", vr[i]);
+        value[i] = inst->d.r[vr[i]];
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                       const fmi2Real value[]) {
+    Instance *inst = (Instance *)c;
+    size_t i;
+    if (inst == NULL) return fmi2Error;
+    for (i = 0; i < nvr; i++) {
+        const int how = vr[i] < MODEL_NVARS ? model_settable(vr[i]) : REAL_FIXED;
+        if (how == REAL_FIXED) return fail(inst, "fmi2SetReal: vr %u is not settable", vr[i]);
+        if (how == REAL_START && !before_initialization(&inst->d))
+            return fail(inst, "fmi2SetReal: vr %u is settable before initialization only",
+                        vr[i]);
+        inst->d.r[vr[i]] = value[i];
+    }
+    return fmi2OK;
+}
+#endif
 
 /* The variable types a model has none of: only empty calls succeed. */
 #define NO_VARIABLES(function, type, constness)                                              \

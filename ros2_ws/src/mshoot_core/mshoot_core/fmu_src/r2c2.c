@@ -38,6 +38,7 @@ static const double start_values[NVARS] = {
 
 #define MODEL_NAME "R2C2"
 #define MODEL_NX NSTATES
+#define MODEL_NVARS NVARS
 #define MODEL_EXCHANGE 1
 #define MODEL_CO_SIMULATION 0
 #define MODEL_PARTIALS 1
@@ -102,33 +103,11 @@ static int model_partial(const ModelData *d, fmi2ValueReference unknown,
     return jac(d->r, unknown, known, value);
 }
 
-fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Real v[]) {
-    Instance *m = (Instance *)c;
-    size_t i;
-    if (m == NULL) return fmi2Error;
-    evaluate(m->d.r);
-    for (i = 0; i < n; i++) {
-        if (vr[i] >= NVARS) return fail(m, "GetReal: no value reference %u", vr[i]);
-        v[i] = m->d.r[vr[i]];
-    }
-    return fmi2OK;
-}
+static void model_evaluate(ModelData *d) { evaluate(d->r); }
 
-fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n,
-                       const fmi2Real v[]) {
-    Instance *m = (Instance *)c;
-    size_t i;
-    if (m == NULL) return fmi2Error;
-    for (i = 0; i < n; i++) {
-        const unsigned int k = vr[i];
-        if (k <= FSUN || k == AIR_T || k == WALL_T) {
-            if (!before_initialization(&m->d)) return fail(m, "SetReal: vr %u is settable before init only", k);
-        } else if (!(k == TAMB || k == QHVAC || k == QSUN)) {
-            return fail(m, "SetReal: vr %u is not settable", k);
-        }
-        m->d.r[k] = v[i];
-    }
-    return fmi2OK;
+static int model_settable(fmi2ValueReference k) {
+    if (k <= FSUN || k == AIR_T || k == WALL_T) return REAL_START;
+    return k == TAMB || k == QHVAC || k == QSUN ? REAL_INPUT : REAL_FIXED;
 }
 
 static void model_get_states(const ModelData *d, double x[]) {

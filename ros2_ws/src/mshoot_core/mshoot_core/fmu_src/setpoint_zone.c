@@ -56,6 +56,7 @@ static const double start_values[NVARS] = {
 
 #define MODEL_NAME "SetpointZone"
 #define MODEL_NX NSTATES
+#define MODEL_NVARS NVARS
 #define MODEL_EXCHANGE 1
 #define MODEL_CO_SIMULATION 0
 #define MODEL_PARTIALS 0
@@ -106,33 +107,11 @@ static fmi2Status model_initialize(Instance *inst) {
     return fmi2OK;
 }
 
-fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Real v[]) {
-    Instance *m = (Instance *)c;
-    size_t i;
-    if (m == NULL) return fmi2Error;
-    evaluate(&m->d);
-    for (i = 0; i < n; i++) {
-        if (vr[i] >= NVARS) return fail(m, "GetReal: no value reference %u", vr[i]);
-        v[i] = m->d.r[vr[i]];
-    }
-    return fmi2OK;
-}
+static void model_evaluate(ModelData *d) { evaluate(d); }
 
-fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n,
-                       const fmi2Real v[]) {
-    Instance *m = (Instance *)c;
-    size_t i;
-    if (m == NULL) return fmi2Error;
-    for (i = 0; i < n; i++) {
-        const unsigned int k = vr[i];
-        if (k < NPARAMS) {
-            if (!before_initialization(&m->d)) return fail(m, "SetReal: parameter %u is settable before init only", k);
-        } else if (!(k >= TOUT && k <= OVE_TSET)) {
-            return fail(m, "SetReal: vr %u is not settable", k);
-        }
-        m->d.r[k] = v[i];
-    }
-    return fmi2OK;
+static int model_settable(fmi2ValueReference k) {
+    if (k < NPARAMS) return REAL_START;
+    return k >= TOUT && k <= OVE_TSET ? REAL_INPUT : REAL_FIXED;
 }
 
 fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t n,
