@@ -14,12 +14,11 @@ from __future__ import annotations
 import hashlib
 import os
 import pathlib
-import subprocess
+import shutil
 import uuid
-import zipfile
 
-from mshoot_core.fmu_build import CFLAGS, find_compiler
-from mshoot_core.fmu_cache import cache_dir, FMI2_HEADERS, platform, SOURCE_DIR
+from mshoot_core.fmu_build import CFLAGS, compile_library, pack_fmu
+from mshoot_core.fmu_cache import cache_dir, FMI2_HEADERS, MODEL_HEADER, platform, SOURCE_DIR
 
 FMU_SOURCES = pathlib.Path(__file__).resolve().parent / 'fmus'
 #: name -> (model identifier, C file, modelDescription template, compiler defines)
@@ -34,7 +33,7 @@ def build_test_fmu(name: str) -> pathlib.Path:
     """Return the test FMU ``name`` (a key of :data:`TEST_FMUS`), built if not built yet."""
     identifier, c_file, template, defines = TEST_FMUS[name]
     sources = [FMU_SOURCES / c_file, FMU_SOURCES / template,
-               *(SOURCE_DIR / h for h in FMI2_HEADERS)]
+               *(SOURCE_DIR / h for h in (MODEL_HEADER, *FMI2_HEADERS))]
     digest = hashlib.sha256()
     for path in sources:
         digest.update(path.read_bytes())
@@ -45,20 +44,13 @@ def build_test_fmu(name: str) -> pathlib.Path:
         return target
     target.parent.mkdir(parents=True, exist_ok=True)
     guid = '{' + str(uuid.uuid5(uuid.NAMESPACE_URL, f'mshoot-test-fmu:{name}:{key}')) + '}'
-    platform_dir, suffix = platform()
-    library = target.parent / f'.{identifier}.{os.getpid()}{suffix}'
-    command = [find_compiler(), *CFLAGS, *defines, f'-DMODEL_GUID="{guid}"', '-I',
-               str(SOURCE_DIR), '-o', str(library), str(FMU_SOURCES / c_file), '-lm']
-    result = subprocess.run(command, capture_output=True, text=True, check=False)
-    if result.returncode != 0:
-        raise RuntimeError(f'compiling the {name} test FMU failed:\n{result.stderr}')
+    library = target.parent / f'.{os.getpid()}' / f'{identifier}{platform()[1]}'
+    library.parent.mkdir(exist_ok=True)
+    compile_library(FMU_SOURCES / c_file, library, f'the {name} test FMU',
+                    [*defines, f'-DMODEL_GUID="{guid}"'])
     description = (FMU_SOURCES / template).read_text(encoding='utf-8')
     description = description.replace('@GUID@', guid)
     description = description.replace('@DATETIME@', '2026-01-01T00:00:00Z')
-    staged = target.parent / f'.{target.name}.{os.getpid()}.tmp'
-    with zipfile.ZipFile(staged, 'w', compression=zipfile.ZIP_DEFLATED) as archive:
-        archive.writestr('modelDescription.xml', description)
-        archive.write(library, f'binaries/{platform_dir}/{identifier}{suffix}')
-    library.unlink()
-    os.replace(staged, target)
+    pack_fmu(target, description, library)
+    shutil.rmtree(library.parent)
     return target

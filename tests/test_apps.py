@@ -86,6 +86,17 @@ def test_mshoot_verbs_use_their_modules_parsers():
     assert exc.value.code == 2
 
 
+@pytest.mark.parametrize('words', [[verb, '--no-such-option'] for verb in cli.VERBS]
+                         + [['case', 'ou44', '--hours', 'x'], ['card', 'check'], ['nope']])
+def test_every_verb_reports_a_bad_command_line_in_one_line(words, capsys):
+    """Whichever parser finds the error (mshoot's, the verb's, its action's): one line, exit 2."""
+    with pytest.raises(SystemExit) as stop:
+        cli.main(words)
+    error = capsys.readouterr().err
+    assert stop.value.code == 2
+    assert error.startswith('mshoot') and ': error: ' in error and len(error.splitlines()) == 1
+
+
 def test_mshoot_command_is_on_the_path_with_help_per_verb():
     """
     The command of the colcon install, as a shell that sourced env.sh finds it.

@@ -111,6 +111,30 @@ def test_builtin_cards_are_the_registry_models(card_name, registry_name):
         np.testing.assert_allclose(got, want, rtol=1e-6)
 
 
+def test_write_parameters_copies_a_card_with_new_values(tmp_path, zone_cards):
+    """A network card's entries take the values, bounds kept; an FMU card's its parameters."""
+    source = cards.builtin_card('boptest_house')
+    before = load_card(source).network.parameters
+    copy = cards.write_parameters(source, {'Cz': 2.5e4, 'gi': 0.5}, tmp_path / 'out' / 'c.yaml',
+                                  ['fitted by a test', 'second line'], 'the house, fitted')
+    text = copy.read_text()
+    assert text.startswith('# fitted by a test\n# second line\n')
+    after = load_card(copy)
+    assert after.description == 'the house, fitted'
+    assert after.network.parameters['Cz'] == dataclasses.replace(before['Cz'], value=2.5e4)
+    assert after.network.parameters['gi'].value == 0.5
+    assert {n: p for n, p in after.network.parameters.items() if n not in ('Cz', 'gi')} == {
+        n: p for n, p in before.items() if n not in ('Cz', 'gi')}
+    assert source.read_text() != text and load_card(source).network.parameters == before
+    with pytest.raises(ValueError, match=r"unknown network parameters \['nope'\]"):
+        cards.write_parameters(source, {'nope': 1.0}, tmp_path / 'bad.yaml')
+    # an FMU card (its FMU beside it): the copy elsewhere names the FMU by its absolute path
+    fmu_copy = cards.write_parameters(zone_cards[0], {'shgc': 1.5}, tmp_path / 'fmu' / 'z.yaml')
+    loaded = load_card(fmu_copy)
+    assert loaded.parameters == {'shgc': 1.5}
+    assert loaded.fmu == load_card(zone_cards[0]).fmu
+
+
 def test_a_cards_parameters_reach_its_model(tmp_path):
     """The built-in Python card with a parameter of its own is that R1C1, not the default."""
     document = yaml.safe_load(cards.builtin_card('r1c1').read_text())

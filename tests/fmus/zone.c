@@ -18,21 +18,11 @@
  *   Pc = 1000*Pcool when Pcool_activate, else 0 (the local loop keeps the cooler off)
  *
  * Model Exchange offers directional derivatives and FMU states; Co-Simulation steps with the
- * exact solution of the affine ODE (inputs held over the step). The tests build this file
+ * exact solution of the affine ODE (inputs held over the step); the FMI boilerplate is that of
+ * every mshoot FMU (fmi2_model.h, in mshoot_core/fmu_src). The tests build this file
  * with -DMODEL_GUID="{...}" into an FMU (tests/card_fmus.py); value references must match
  * zone.xml / zone2.xml.
  */
-#include <math.h>
-#include <stdarg.h>
-#include <stdio.h>
-#include <string.h>
-
-#include "fmi2Functions.h"
-
-#ifndef MODEL_GUID
-#error "MODEL_GUID must be defined"
-#endif
-
 enum {
     R_TMASS = 0, R_SHGC = 1, R_OCCHEFF = 2, R_REXT = 3, R_VI = 4,
     R_SOLRAD = 10, R_TOUT = 11, R_OCC = 12, R_Q = 13, R_PCOOL = 14,
@@ -40,56 +30,50 @@ enum {
     B_PCOOL_ACTIVATE = 0
 };
 
-#define N_STATES 2
 #define ZERO_C 273.15
 
-enum { INSTANTIATED, INITIALIZING, EVENT_MODE, CONTINUOUS, STEPPING, TERMINATED };
+#define MODEL_NAME "Zone"
+#define MODEL_NX 2
+#define MODEL_EXCHANGE 1
+#define MODEL_CO_SIMULATION 1
+#define MODEL_PARTIALS 1
+#define MODEL_STATE_MAGIC 0x5a4f4e45u /* "ZONE" */
+#ifdef TWO_CONTROLS
+#define MODEL_BOOLEANS
+#endif
 
+/* Everything an FMU state holds. */
 typedef struct {
     double tmass, shgc, occheff, RExt, Vi;
     double solrad, Tout, occ, q, Pcool;
     int cooler_on;
     double Tair, Qr, time;
-    int mode;
-} Zone;
+    int phase;
+} ModelData;
 
-typedef struct {
-    Zone z;
-    fmi2Type kind;
-    char name[128];
-    fmi2CallbackFunctions cb;
-} Component;
+#include "fmi2_model.h"
 
-static fmi2Status fail(Component *comp, const char *fmt, ...) {
-    char text[256];
-    va_list args;
-    if (comp == NULL || comp->cb.logger == NULL) return fmi2Error;
-    va_start(args, fmt);
-    vsnprintf(text, sizeof(text), fmt, args);
-    va_end(args);
-    comp->cb.logger(comp->cb.componentEnvironment, comp->name, fmi2Error, "logStatusError",
-                    "%s", text);
-    return fmi2Error;
-}
-
-static void defaults(Zone *z) {
-    memset(z, 0, sizeof(*z));
+static void model_defaults(ModelData *z) {
     z->tmass = 50.0;
     z->shgc = 4.608961327935981;
     z->occheff = 2.0836995296486704;
     z->RExt = 4.0;
     z->Vi = 486.5;
     z->Tair = 293.15;
-    z->mode = INSTANTIATED;
 }
 
-static double heat_capacity(const Zone *z) { return z->tmass * 1.2 * 1005.0 * z->Vi; }
+static fmi2Status model_initialize(Instance *inst) {
+    (void)inst;
+    return fmi2OK;
+}
 
-static double conductance_out(const Zone *z) {
+static double heat_capacity(const ModelData *z) { return z->tmass * 1.2 * 1005.0 * z->Vi; }
+
+static double conductance_out(const ModelData *z) {
     return 3.0 * pow(z->Vi, 2.0 / 3.0) / z->RExt;
 }
 
-static double cooling_w(const Zone *z) {
+static double cooling_w(const ModelData *z) {
 #ifdef TWO_CONTROLS
     return z->cooler_on ? 1000.0 * z->Pcool : 0.0;
 #else
@@ -99,7 +83,7 @@ static double cooling_w(const Zone *z) {
 }
 
 /* C dT/dt = gain - loss*T */
-static void balance(const Zone *z, double *gain, double *loss) {
+static void balance(const ModelData *z, double *gain, double *loss) {
     const double people = z->occheff * z->occ * 84.0 / 32.0;
     const double ua = conductance_out(z);
     *loss = ua + people;
@@ -107,7 +91,7 @@ static void balance(const Zone *z, double *gain, double *loss) {
             - cooling_w(z);
 }
 
-static double dTair(const Zone *z) {
+static double dTair(const ModelData *z) {
     double gain, loss;
     balance(z, &gain, &loss);
     return (gain - loss * z->Tair) / heat_capacity(z);
@@ -124,8 +108,8 @@ static int is_input(fmi2ValueReference vr) {
 }
 
 /* d(unknown)/d(known) for derivatives and outputs w.r.t. states and inputs. */
-static int partial(const Zone *z, fmi2ValueReference unknown, fmi2ValueReference known,
-                   double *out) {
+static int model_partial(const ModelData *z, fmi2ValueReference unknown,
+                         fmi2ValueReference known, double *out) {
     const double c = heat_capacity(z);
     if (!(known == R_TAIR || known == R_QR || is_input(known))) return -1;
     *out = 0.0;
@@ -146,81 +130,13 @@ static int partial(const Zone *z, fmi2ValueReference unknown, fmi2ValueReference
     return -1;
 }
 
-const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
-const char *fmi2GetVersion(void) { return fmi2Version; }
-
-fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean on, size_t n,
-                               const fmi2String categories[]) {
-    (void)on; (void)n; (void)categories;
-    return c ? fmi2OK : fmi2Error;
-}
-
-fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String guid,
-                              fmi2String resources, const fmi2CallbackFunctions *functions,
-                              fmi2Boolean visible, fmi2Boolean loggingOn) {
-    Component *comp;
-    (void)resources; (void)visible; (void)loggingOn;
-    if (functions == NULL || functions->allocateMemory == NULL || instanceName == NULL)
-        return NULL;
-    if (guid == NULL || strcmp(guid, MODEL_GUID) != 0) return NULL;
-    comp = (Component *)functions->allocateMemory(1, sizeof(Component));
-    if (comp == NULL) return NULL;
-    comp->kind = fmuType;
-    comp->cb = *functions;
-    strncpy(comp->name, instanceName, sizeof(comp->name) - 1);
-    defaults(&comp->z);
-    return comp;
-}
-
-void fmi2FreeInstance(fmi2Component c) {
-    Component *comp = (Component *)c;
-    if (comp != NULL) comp->cb.freeMemory(comp);
-}
-
-fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean tolDefined, fmi2Real tol,
-                               fmi2Real start, fmi2Boolean stopDefined, fmi2Real stop) {
-    Component *comp = (Component *)c;
-    (void)tolDefined; (void)tol; (void)stopDefined; (void)stop;
-    if (comp == NULL) return fmi2Error;
-    comp->z.time = start;
-    return fmi2OK;
-}
-
-fmi2Status fmi2EnterInitializationMode(fmi2Component c) {
-    Component *comp = (Component *)c;
-    if (comp == NULL || comp->z.mode != INSTANTIATED) return fail(comp, "not instantiated");
-    comp->z.mode = INITIALIZING;
-    return fmi2OK;
-}
-
-fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
-    Component *comp = (Component *)c;
-    if (comp == NULL || comp->z.mode != INITIALIZING) return fail(comp, "not initializing");
-    comp->z.mode = comp->kind == fmi2ModelExchange ? EVENT_MODE : STEPPING;
-    return fmi2OK;
-}
-
-fmi2Status fmi2Terminate(fmi2Component c) {
-    Component *comp = (Component *)c;
-    if (comp == NULL) return fmi2Error;
-    comp->z.mode = TERMINATED;
-    return fmi2OK;
-}
-
-fmi2Status fmi2Reset(fmi2Component c) {
-    Component *comp = (Component *)c;
-    if (comp == NULL) return fmi2Error;
-    defaults(&comp->z);
-    return fmi2OK;
-}
-
 fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                        fmi2Real value[]) {
-    Component *comp = (Component *)c;
-    const Zone *z;
+    Instance *comp = (Instance *)c;
+    const ModelData *z;
     size_t i;
     if (comp == NULL) return fmi2Error;
-    z = &comp->z;
+    z = &comp->d;
     for (i = 0; i < nvr; i++) {
         switch (vr[i]) {
         case R_TMASS: value[i] = z->tmass; break;
@@ -248,14 +164,14 @@ fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
 
 fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                        const fmi2Real value[]) {
-    Component *comp = (Component *)c;
-    Zone *z;
+    Instance *comp = (Instance *)c;
+    ModelData *z;
     size_t i;
     if (comp == NULL) return fmi2Error;
-    z = &comp->z;
+    z = &comp->d;
     for (i = 0; i < nvr; i++) {
         if ((is_parameter(vr[i]) || vr[i] == R_TAIR || vr[i] == R_QR)
-            && z->mode != INSTANTIATED && z->mode != INITIALIZING)
+            && !before_initialization(z))
             return fail(comp, "fmi2SetReal: %u is settable before initialisation only", vr[i]);
         if (is_parameter(vr[i]) && !isfinite(value[i]))
             return fail(comp, "fmi2SetReal: parameter %u must be finite", vr[i]);
@@ -280,28 +196,14 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
     return fmi2OK;
 }
 
-fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                          fmi2Integer value[]) {
-    (void)vr; (void)value;
-    return c && nvr == 0 ? fmi2OK : fail((Component *)c, "no Integer variables");
-}
-
-fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                          const fmi2Integer value[]) {
-    (void)vr; (void)value;
-    return c && nvr == 0 ? fmi2OK : fail((Component *)c, "no Integer variables");
-}
-
+#ifdef TWO_CONTROLS  /* the cooler's overwrite switch */
 fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           fmi2Boolean value[]) {
-    Component *comp = (Component *)c;
+    Instance *comp = (Instance *)c;
     size_t i;
     if (comp == NULL) return fmi2Error;
     for (i = 0; i < nvr; i++) {
-#ifdef TWO_CONTROLS
-        if (vr[i] == B_PCOOL_ACTIVATE) { value[i] = comp->z.cooler_on; continue; }
-#endif
-        (void)value;
+        if (vr[i] == B_PCOOL_ACTIVATE) { value[i] = comp->d.cooler_on; continue; }
         return fail(comp, "fmi2GetBoolean: no variable %u", vr[i]);
     }
     return fmi2OK;
@@ -309,195 +211,44 @@ fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t
 
 fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           const fmi2Boolean value[]) {
-    Component *comp = (Component *)c;
+    Instance *comp = (Instance *)c;
     size_t i;
     if (comp == NULL) return fmi2Error;
     for (i = 0; i < nvr; i++) {
-#ifdef TWO_CONTROLS
-        if (vr[i] == B_PCOOL_ACTIVATE) { comp->z.cooler_on = value[i] ? 1 : 0; continue; }
-#endif
-        (void)value;
+        if (vr[i] == B_PCOOL_ACTIVATE) { comp->d.cooler_on = value[i] ? 1 : 0; continue; }
         return fail(comp, "fmi2SetBoolean: no variable %u", vr[i]);
     }
     return fmi2OK;
 }
-
-fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                         fmi2String value[]) {
-    (void)vr; (void)value;
-    return c && nvr == 0 ? fmi2OK : fail((Component *)c, "no String variables");
-}
-
-fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                         const fmi2String value[]) {
-    (void)vr; (void)value;
-    return c && nvr == 0 ? fmi2OK : fail((Component *)c, "no String variables");
-}
-
-/* FMU states: plain copies of the zone. */
-fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *state) {
-    Component *comp = (Component *)c;
-    if (comp == NULL || state == NULL) return fmi2Error;
-    if (*state == NULL) *state = comp->cb.allocateMemory(1, sizeof(Zone));
-    if (*state == NULL) return fail(comp, "out of memory");
-    memcpy(*state, &comp->z, sizeof(Zone));
-    return fmi2OK;
-}
-
-fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate state) {
-    Component *comp = (Component *)c;
-    if (comp == NULL || state == NULL) return fmi2Error;
-    memcpy(&comp->z, state, sizeof(Zone));
-    return fmi2OK;
-}
-
-fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *state) {
-    Component *comp = (Component *)c;
-    if (comp == NULL || state == NULL) return fmi2Error;
-    if (*state != NULL) comp->cb.freeMemory(*state);
-    *state = NULL;
-    return fmi2OK;
-}
-
-fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate state, size_t *size) {
-    (void)state;
-    if (c == NULL || size == NULL) return fmi2Error;
-    *size = sizeof(Zone);
-    return fmi2OK;
-}
-
-fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state, fmi2Byte data[],
-                                 size_t size) {
-    if (c == NULL || state == NULL || size < sizeof(Zone)) return fmi2Error;
-    memcpy(data, state, sizeof(Zone));
-    return fmi2OK;
-}
-
-fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte data[], size_t size,
-                                   fmi2FMUstate *state) {
-    Component *comp = (Component *)c;
-    if (comp == NULL || state == NULL || size != sizeof(Zone)) return fmi2Error;
-    if (*state == NULL) *state = comp->cb.allocateMemory(1, sizeof(Zone));
-    if (*state == NULL) return fail(comp, "out of memory");
-    memcpy(*state, data, sizeof(Zone));
-    return fmi2OK;
-}
-
-fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference unknowns[],
-                                        size_t nu, const fmi2ValueReference knowns[],
-                                        size_t nk, const fmi2Real dknown[],
-                                        fmi2Real dunknown[]) {
-    Component *comp = (Component *)c;
-    size_t i, j;
-    if (comp == NULL) return fmi2Error;
-    for (i = 0; i < nu; i++) {
-        double sum = 0.0, p;
-        for (j = 0; j < nk; j++) {
-            if (partial(&comp->z, unknowns[i], knowns[j], &p) != 0)
-                return fail(comp, "no partial d(%u)/d(%u)", unknowns[i], knowns[j]);
-            sum += p * dknown[j];
-        }
-        dunknown[i] = sum;
-    }
-    return fmi2OK;
-}
+#endif
 
 /* Model Exchange */
-fmi2Status fmi2EnterEventMode(fmi2Component c) {
-    Component *comp = (Component *)c;
-    if (comp == NULL) return fmi2Error;
-    comp->z.mode = EVENT_MODE;
-    return fmi2OK;
+static void model_get_states(const ModelData *z, double x[]) {
+    x[0] = z->Tair;
+    x[1] = z->Qr;
 }
 
-fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *info) {
-    if (c == NULL || info == NULL) return fmi2Error;
-    memset(info, 0, sizeof(*info));
-    return fmi2OK;
+static void model_set_states(ModelData *z, const double x[]) {
+    z->Tair = x[0];
+    z->Qr = x[1];
 }
 
-fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) {
-    Component *comp = (Component *)c;
-    if (comp == NULL) return fmi2Error;
-    comp->z.mode = CONTINUOUS;
-    return fmi2OK;
+static void model_derivatives(ModelData *z, double dx[]) {
+    dx[0] = dTair(z);
+    dx[1] = z->q;
 }
 
-fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetPrior,
-                                       fmi2Boolean *enterEventMode, fmi2Boolean *terminate) {
-    (void)noSetPrior;
-    if (c == NULL || enterEventMode == NULL || terminate == NULL) return fmi2Error;
-    *enterEventMode = fmi2False;
-    *terminate = fmi2False;
-    return fmi2OK;
-}
-
-fmi2Status fmi2SetTime(fmi2Component c, fmi2Real time) {
-    Component *comp = (Component *)c;
-    if (comp == NULL) return fmi2Error;
-    comp->z.time = time;
-    return fmi2OK;
-}
-
-fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t nx) {
-    Component *comp = (Component *)c;
-    if (comp == NULL || nx != N_STATES) return fmi2Error;
-    comp->z.Tair = x[0];
-    comp->z.Qr = x[1];
-    return fmi2OK;
-}
-
-fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real dx[], size_t nx) {
-    Component *comp = (Component *)c;
-    if (comp == NULL || nx != N_STATES) return fmi2Error;
-    dx[0] = dTair(&comp->z);
-    dx[1] = comp->z.q;
-    return fmi2OK;
-}
-
-fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real indicators[], size_t ni) {
-    (void)indicators;
-    return c && ni == 0 ? fmi2OK : fmi2Error;
-}
-
-fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t nx) {
-    Component *comp = (Component *)c;
-    if (comp == NULL || nx != N_STATES) return fmi2Error;
-    x[0] = comp->z.Tair;
-    x[1] = comp->z.Qr;
-    return fmi2OK;
-}
-
-fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real nominal[], size_t nx) {
-    if (c == NULL || nx != N_STATES) return fmi2Error;
+static void model_nominals(const ModelData *z, double nominal[]) {
+    (void)z;
     nominal[0] = 300.0;
     nominal[1] = 1.0e6;
-    return fmi2OK;
 }
 
 /* Co-Simulation: the exact solution of the affine ODE over the step. */
-fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[],
-                                       size_t nvr, const fmi2Integer order[],
-                                       const fmi2Real value[]) {
-    (void)vr; (void)order; (void)value;
-    return c && nvr == 0 ? fmi2OK : fmi2Error;
-}
-
-fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[],
-                                        size_t nvr, const fmi2Integer order[],
-                                        fmi2Real value[]) {
-    (void)vr; (void)order; (void)value;
-    return c && nvr == 0 ? fmi2OK : fmi2Error;
-}
-
-fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSetPrior) {
-    Component *comp = (Component *)c;
-    Zone *z;
+static fmi2Status model_do_step(Instance *comp, double t, double h) {
+    ModelData *z = &comp->d;
     double gain, loss, rate;
-    (void)noSetPrior;
-    if (comp == NULL) return fmi2Error;
-    z = &comp->z;
-    if (z->mode != STEPPING) return fail(comp, "fmi2DoStep: not initialized");
+    (void)t;
     balance(z, &gain, &loss);
     rate = loss * h / heat_capacity(z);
     if (fabs(rate) > 1e-300) {
@@ -507,37 +258,5 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSet
         z->Tair += (gain - loss * z->Tair) * h / heat_capacity(z);
     }
     z->Qr += z->q * h;
-    z->time = t + h;
     return fmi2OK;
-}
-
-fmi2Status fmi2CancelStep(fmi2Component c) { (void)c; return fmi2Error; }
-
-fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value) {
-    (void)c; (void)s; (void)value;
-    return fmi2Discard;
-}
-
-fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value) {
-    Component *comp = (Component *)c;
-    if (comp == NULL || value == NULL || s != fmi2LastSuccessfulTime) return fmi2Discard;
-    *value = comp->z.time;
-    return fmi2OK;
-}
-
-fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value) {
-    (void)c; (void)s; (void)value;
-    return fmi2Discard;
-}
-
-fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value) {
-    (void)c;
-    if (value == NULL || s != fmi2Terminated) return fmi2Discard;
-    *value = fmi2False;
-    return fmi2OK;
-}
-
-fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value) {
-    (void)c; (void)s; (void)value;
-    return fmi2Discard;
 }

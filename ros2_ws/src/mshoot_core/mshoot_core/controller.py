@@ -51,7 +51,7 @@ import dataclasses
 import logging
 import math
 import time
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping, NamedTuple, Sequence
 
 import numpy as np
 import pandas as pd
@@ -436,7 +436,7 @@ class Controller:
         covered restarts the estimate, logged).
         """
         h = self._history
-        times = [h.measure[0] + _ns(o) for o in h.offsets_s]
+        times = [h.measure.stamp_ns + _ns(o) for o in h.offsets_s]
         covered = all(any(s <= t and (t - s) // self.step_ns < len(f)
                           for s, f in self._forecasts.items()) for t in times[:-1])
         if not covered and not force:
@@ -448,7 +448,7 @@ class Controller:
         m = len(times)
         states = np.asarray(h.state_values, dtype=float).reshape(len(names), m)
         means = np.asarray(h.output_values, dtype=float).reshape(len(h.output_names), m)
-        stamp, now, applied, outputs_now = h.measure[0], h.measure[2], h.measure[3], h.measure[4]
+        stamp, outputs_now = h.measure.stamp_ns, h.measure.outputs
         if times[-1] == stamp and not outputs_now:  # the state's step: the history's last
             outputs_now = {MEAN_PREFIX + n: float(means[j, -1])
                            for j, n in enumerate(h.output_names)}
@@ -469,7 +469,7 @@ class Controller:
             elif last is not None:
                 continue
             estimator.update(t / NS_PER_S, values, inputs)
-        self._measure(stamp, h.measure[1], now, applied, outputs_now)
+        self._measure(*h.measure._replace(outputs=outputs_now))
 
     def _inputs_between(self, t0_ns: int, t1_ns: int, applied: Mapping[str, float],
                         outputs: Mapping[str, float] | None = None,
@@ -638,13 +638,13 @@ class Controller:
             if rejection:
                 return self.reject('state', rejection)
             values = dict(zip(state_names, map(float, state_values)))
-            measure = (int(stamp_ns), {n: values[n] for n in measured}, int(now_ns),
-                       dict(zip(control_names, map(float, control_values))),
-                       dict(zip(output_names, map(float, output_values))))
+            measure = _Measurement(int(stamp_ns), {n: values[n] for n in measured}, int(now_ns),
+                                   dict(zip(control_names, map(float, control_values))),
+                                   dict(zip(output_names, map(float, output_values))))
             if self._history is not None:  # a later state: the warm-up as far as covered
                 self._observe_history(force=True)
             if len(history[0]) and self.estimator.estimate is None:
-                rejection = self._range_rejection(measure[1]) or self._state_gate.check(
+                rejection = self._range_rejection(measure.measured) or self._state_gate.check(
                     stamp_ns, now_ns)
                 if rejection:
                     return self.reject('state', rejection)
@@ -1107,11 +1107,26 @@ def _ns(seconds: float) -> int:
     return int(round(float(seconds) * NS_PER_S))
 
 
+class _Measurement(NamedTuple):
+    """
+    A state's measurement: the arguments of ``Controller._measure``.
+
+    Its stamp and the time it came [ns], the measured states, the controls applied over the
+    last step and the outputs measured over it (by name, physical units).
+    """
+
+    stamp_ns: int
+    measured: Mapping[str, float]
+    now_ns: int
+    applied: Mapping[str, float]
+    outputs: Mapping[str, float]
+
+
 @dataclasses.dataclass
 class _History:
-    """A first state (the arguments of ``Controller._measure``) and its warm-up."""
+    """A first state (its measurement) and its warm-up."""
 
-    measure: tuple
+    measure: _Measurement
     state_names: Sequence[str]
     offsets_s: Sequence[float]
     state_values: Sequence[float]

@@ -10,7 +10,10 @@ Two models ship as C sources:
   Exchange only, no FMU state), used by the tests to show that any FMI 2.0 FMU
   works through :class:`mshoot_core.models.fmi.FmiModel`.
 
-and two batch drivers (``cs_batch.c``, ``me_batch.c``) that
+Each model's C file holds what is its own (variables, equations, steps) and includes
+``fmi2_model.h``, the FMI 2.0 functions every mshoot FMU shares (instance, life cycle,
+logging, FMU state, the Model Exchange and Co-Simulation calls around the model's own).
+There are two batch drivers too (``cs_batch.c``, ``me_batch.c``) that
 :class:`~mshoot_core.models.fmi.FmiModel` loads with ctypes
 (:mod:`mshoot_core.models.fmi_drivers`).
 
@@ -37,6 +40,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+from typing import Sequence
 import uuid
 import zipfile
 
@@ -76,13 +80,77 @@ def find_compiler() -> str:
     return found
 
 
+def compile_library(c_file: pathlib.Path, library: pathlib.Path, what: str,
+                    defines: Sequence[str] = ()) -> str:
+    """
+    Compile the C file ``c_file`` into the shared library ``library``.
+
+    With :data:`CFLAGS`, ``defines`` (e.g. ``-DMODEL_GUID="{...}"``) and the headers of
+    :data:`~mshoot_core.fmu_cache.SOURCE_DIR` (the FMI 2.0 ones and ``fmi2_model.h``).
+
+    Parameters
+    ----------
+    c_file, library : pathlib.Path
+        The source compiled and the library written.
+    what : str
+        What is compiled, for messages (e.g. ``'the r1c1 FMU'``).
+    defines : sequence of str
+        More compiler arguments.
+
+    Returns
+    -------
+    str
+        The compiler's warnings ('' for none; logged too).
+
+    Raises
+    ------
+    RuntimeError
+        If the compiler is missing or the compilation fails.
+
+    """
+    command = [find_compiler(), *CFLAGS, *defines, '-I', str(SOURCE_DIR), '-o', str(library),
+               str(c_file), '-lm']
+    logger.info('compiling %s: %s', what, ' '.join(command))
+    result = subprocess.run(command, capture_output=True, text=True, check=False)
+    if result.returncode != 0:
+        raise RuntimeError(f'compiling {what} failed (exit {result.returncode}):\n'
+                           f'{" ".join(command)}\n{result.stderr.strip()}')
+    warnings = result.stderr.strip()
+    if warnings:
+        logger.warning('compiler warnings for %s:\n%s', what, warnings)
+    return warnings
+
+
+def pack_fmu(target: pathlib.Path, description: str, library: pathlib.Path,
+             sources: Sequence[pathlib.Path] = ()) -> pathlib.Path:
+    """
+    Write the FMU archive ``target`` (it appears atomically: written beside it, then renamed).
+
+    It holds ``modelDescription.xml`` (the text ``description``), the shared library
+    under ``binaries/<platform>/`` and ``sources`` under ``sources/``. Every entry is dated
+    2020-01-01, so that the same inputs give the same bytes (one folder in the extraction
+    cache).
+    """
+    platform_dir, _ = platform()
+    entries = [('modelDescription.xml', description.encode('utf-8')),
+               (f'binaries/{platform_dir}/{library.name}', library.read_bytes()),
+               *((f'sources/{path.name}', path.read_bytes()) for path in sources)]
+    staged = target.parent / f'.{target.name}.{os.getpid()}.tmp'
+    with zipfile.ZipFile(staged, 'w', compression=zipfile.ZIP_DEFLATED) as archive:
+        for name, data in entries:
+            archive.writestr(zipfile.ZipInfo(name, date_time=(2020, 1, 1, 0, 0, 0)), data,
+                             compress_type=zipfile.ZIP_DEFLATED)
+    os.replace(staged, target)
+    return target
+
+
 def build_fmu(name: str, out_dir: str | os.PathLike) -> pathlib.Path:
     """
     Compile the FMU ``name`` and write ``out_dir/<modelIdentifier>.fmu``.
 
     The archive holds ``modelDescription.xml``,
-    ``binaries/<platform>/<modelIdentifier>.so`` and ``sources/`` (the C file
-    and the FMI headers). The file appears atomically (written to a temporary
+    ``binaries/<platform>/<modelIdentifier>.so`` and ``sources/`` (the C file,
+    ``fmi2_model.h`` and the FMI headers). The file appears atomically (written to a temporary
     name, then renamed), so concurrent builders do not see half-written FMUs.
 
     Parameters
@@ -106,37 +174,20 @@ def build_fmu(name: str, out_dir: str | os.PathLike) -> pathlib.Path:
 
     """
     source = model_source(name)
-    compiler = find_compiler()
-    platform_dir, suffix = platform()
+    _, suffix = platform()
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     guid = _guid(name)
     target = out_dir / f'{source.model_identifier}.fmu'
     with tempfile.TemporaryDirectory(prefix='mshoot-fmu-') as tmp:
         library = pathlib.Path(tmp) / f'{source.model_identifier}{suffix}'
-        command = [compiler, *CFLAGS, f'-DMODEL_GUID="{guid}"', '-I', str(SOURCE_DIR),
-                   '-o', str(library), str(SOURCE_DIR / source.c_file), '-lm']
-        logger.info('compiling %s: %s', name, ' '.join(command))
-        result = subprocess.run(command, capture_output=True, text=True, check=False)
-        if result.returncode != 0:
-            raise RuntimeError(f'compiling the {name} FMU failed (exit {result.returncode}):\n'
-                               f'{" ".join(command)}\n{result.stderr.strip()}')
-        if result.stderr.strip():
-            logger.warning('compiler warnings for %s:\n%s', name, result.stderr.strip())
+        compile_library(SOURCE_DIR / source.c_file, library, f'the {name} FMU',
+                        [f'-DMODEL_GUID="{guid}"'])
         stamp = datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%dT%H:%M:%SZ')
         description = (SOURCE_DIR / source.description_template).read_text(encoding='utf-8')
         description = description.replace('@GUID@', guid).replace('@DATETIME@', stamp)
-        partial = pathlib.Path(tmp) / target.name
-        with zipfile.ZipFile(partial, 'w', compression=zipfile.ZIP_DEFLATED) as archive:
-            archive.writestr('modelDescription.xml', description)
-            archive.write(library, f'binaries/{platform_dir}/{library.name}')
-            for path in source.files():
-                if path.suffix in ('.c', '.h'):
-                    archive.write(path, f'sources/{path.name}')
-        # Same filesystem as the target for an atomic rename.
-        staged = out_dir / f'.{target.name}.{os.getpid()}.tmp'
-        shutil.copyfile(partial, staged)
-        os.replace(staged, target)
+        pack_fmu(target, description, library,
+                 [path for path in source.files() if path.suffix in ('.c', '.h')])
     logger.info('built %s', target)
     return target
 
@@ -188,22 +239,14 @@ def build_driver(name: str, target: str | os.PathLike) -> pathlib.Path:
 
     """
     source = driver_source(name)
-    compiler = find_compiler()
     target = pathlib.Path(target)
     target.parent.mkdir(parents=True, exist_ok=True)
     staged = target.parent / f'.{target.name}.{os.getpid()}.tmp'
-    command = [compiler, *CFLAGS, '-I', str(SOURCE_DIR), '-o', str(staged),
-               str(SOURCE_DIR / source.c_file), '-lm']
-    logger.info('compiling the %s: %s', source.description, ' '.join(command))
-    result = subprocess.run(command, capture_output=True, text=True, check=False)
-    if result.returncode != 0:
+    try:
+        compile_library(SOURCE_DIR / source.c_file, staged, f'the {source.description}')
+    except RuntimeError:
         staged.unlink(missing_ok=True)
-        raise RuntimeError(f'compiling the {source.description} failed (exit '
-                           f'{result.returncode}):\n{" ".join(command)}\n'
-                           f'{result.stderr.strip()}')
-    if result.stderr.strip():
-        logger.warning('compiler warnings for the %s:\n%s', source.description,
-                       result.stderr.strip())
+        raise
     os.replace(staged, target)
     logger.info('built %s', target)
     return target

@@ -42,6 +42,8 @@ logger = logging.getLogger(__name__)
 SOURCE_DIR = pathlib.Path(__file__).resolve().parent / 'fmu_src'
 #: The standard FMI 2.0 headers (2-clause BSD, Modelica Association), as shipped by fmpy.
 FMI2_HEADERS = ('fmi2Functions.h', 'fmi2FunctionTypes.h', 'fmi2TypesPlatform.h')
+#: The FMI 2.0 functions every model's C file shares (it includes this header once).
+MODEL_HEADER = 'fmi2_model.h'
 #: The builder (its compiler flags and archive layout are part of every build).
 BUILDER = pathlib.Path(__file__).resolve().parent / 'fmu_build.py'
 #: Environment variable naming the cache base directory.
@@ -77,7 +79,7 @@ class FmuSource:
 
     def files(self) -> list[pathlib.Path]:
         """Every source file the build depends on (C file, template, headers)."""
-        names = [self.c_file, self.description_template, *FMI2_HEADERS]
+        names = [self.c_file, self.description_template, MODEL_HEADER, *FMI2_HEADERS]
         return [SOURCE_DIR / name for name in names]
 
 

@@ -786,24 +786,14 @@ def write_card(model_card: Any, identification: Identification,
         What it was identified from, for the header comment.
 
     """
-    import yaml
-    path = pathlib.Path(path)
-    document = yaml.safe_load(model_card.path.read_text(encoding='utf-8'))
-    parameters = document['network']['parameters']
-    for name, value in identification.parameters.items():
-        if isinstance(parameters.get(name), dict):
-            parameters[name]['value'] = float(value)
-        else:
-            parameters[name] = float(value)
-    document['description'] = (f"{document.get('description', model_card.path.stem)} "
-                               f'(identified)')
-    header = [f'# {model_card.path.name} identified by mshoot identify{source}:',
-              '# its fitted values in place of the start values (its comments explain the',
-              '# model). Validation RMSE per zone on held-out data [K]:']
-    header += [f'#   {zone}: free run {s["free_run_rmse_k"]:.3f}, one step ahead '
+    from mshoot_core.models.card import write_parameters
+    name = model_card.path.name
+    header = [f'{name} identified by mshoot identify{source}:',
+              'its fitted values in place of the start values (the comments of the card it',
+              'copies explain the model). Validation RMSE per zone on held-out data [K]:']
+    header += [f'  {zone}: free run {s["free_run_rmse_k"]:.3f}, one step ahead '
                f'{s["one_step_rmse_k"]:.3f} ({s["rows"]} steps)'
                for zone, s in identification.validation.items()]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    body = yaml.safe_dump(document, sort_keys=False, width=99)
-    path.write_text('\n'.join(header) + '\n' + body, encoding='utf-8')
-    return path
+    description = f'{model_card.description or model_card.path.stem} (identified)'
+    return write_parameters(model_card.path, identification.parameters, path, header,
+                            description)

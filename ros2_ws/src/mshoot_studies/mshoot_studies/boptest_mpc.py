@@ -17,7 +17,6 @@ import argparse
 import json
 import logging
 import pathlib
-import re
 import sys
 import time
 from typing import Sequence
@@ -41,19 +40,13 @@ STARTS_OUTPUT = 'reaHeaPumY_y'
 
 def install(parameters: dict[str, float], target: pathlib.Path) -> pathlib.Path:
     """
-    Write a copy of the packaged card with parameter values in its ``NAME: {value: ...`` lines.
+    Write a copy of the packaged card with ``parameters`` as its network parameters' values.
 
     Returns ``target``, the copy (the packaged card itself is never written).
     """
-    from mshoot_core.models.card import builtin_card
-    text = builtin_card(CARD).read_text()
-    for name, value in parameters.items():
-        text, found = re.subn(rf'^(\s+{re.escape(name)}: {{value: )[^,}}]+', rf'\g<1>{value!r}',
-                              text, count=1, flags=re.M)
-        if not found:
-            raise ValueError(f'{target}: no parameter line of {name!r}')
-    target.write_text(text)
-    return target
+    from mshoot_core.models.card import builtin_card, write_parameters
+    return write_parameters(builtin_card(CARD), parameters, target,
+                            [f'The packaged {CARD} card with the parameters of --parameters.'])
 
 
 def evaluate_command(args: argparse.Namespace) -> int:

@@ -64,6 +64,8 @@ from mshoot_core.scenario import DEFAULT_DATA
 import numpy as np
 import yaml
 
+from mshoot_studies.cli import verb_parser
+
 logger = logging.getLogger(__name__)
 
 #: Wide bounds of every R1C1 parameter that may be freed (``--bounds wide``).
@@ -117,11 +119,10 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     Build the command line of the calibration.
 
     Fills ``parser`` (the ``calibrate`` verb of ``mshoot``), or a new parser when None.
+    Its errors are one line (``<prog>: error: ...``) and exit 2
+    (:func:`~mshoot_studies.cli.verb_parser`).
     """
-    if parser is None:
-        parser = argparse.ArgumentParser(prog='python -m mshoot_studies.calibrate',
-                                         description=__doc__,
-                                         formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = verb_parser(parser, 'mshoot_studies.calibrate', __doc__)
     parser.add_argument('case', choices=['ou44'], help='the measured building (ou44)')
     parser.add_argument('--data', type=pathlib.Path, default=None,
                         help=f'the OU44 measurements.csv (default: {DEFAULT_DATA})')
@@ -129,10 +130,11 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                         help='output folder (default: out/calibration)')
     parser.add_argument('--train', nargs=2, metavar=('START', 'END'),
                         default=list(calibration.OU44_TRAIN),
-                        help='training period, inclusive (default: %(default)s)')
+                        help='training period, inclusive: local times of the data, '
+                             'YYYY-MM-DD HH:MM (default: %(default)s)')
     parser.add_argument('--validation', nargs=2, metavar=('START', 'END'),
                         default=list(calibration.OU44_VALIDATION),
-                        help='validation period, inclusive (default: %(default)s)')
+                        help='validation period, inclusive, as --train (default: %(default)s)')
     parser.add_argument('--model', type=pathlib.Path, default=None, metavar='CARD',
                         help='model card of the model to calibrate (e.g. the built-in R1C1 FMU '
                              "card), or 'r2c2' (the Python R2C2); default: the Python R1C1")
@@ -147,16 +149,19 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                              '1:250, shgc 0:20, occheff 0:10, RExt 0.1:40) (default: '
                              '%(default)s)')
     parser.add_argument('--bound', action='append', default=[], metavar='NAME=LO:HI',
-                        help='bounds of a free parameter over --bounds (repeatable; others: '
+                        help='bounds of a free parameter over --bounds, in its unit (repeatable; '
+                             'others: '
                              + ', '.join(f'{k} {lo:g}:{hi:g}' for k, (lo, hi) in BOUNDS.items()
                                          if k not in calibration.OU44_STUDY_BOUNDS)
                              + ')')
     parser.add_argument('--prior', action='append', default=[], metavar='NAME=MEAN:SD',
-                        help='Gaussian prior on a free parameter (repeatable)')
+                        help='Gaussian prior on a free parameter, in its unit (repeatable; '
+                             'default: none)')
     parser.add_argument('--starts', type=int, default=1,
                         help='number of starts: the published values, then random points '
                              'within the bounds (default: 1)')
-    parser.add_argument('--seed', type=int, default=0, help='seed of the random starts')
+    parser.add_argument('--seed', type=int, default=0,
+                        help='seed of the random starts (default: %(default)s)')
     parser.add_argument('--loss', choices=calibration.LOSSES, default='linear',
                         help='fit criterion: least squares or a robust loss of '
                              'scipy.optimize.least_squares (default: %(default)s)')

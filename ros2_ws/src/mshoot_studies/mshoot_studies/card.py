@@ -26,6 +26,8 @@ from typing import Sequence, TextIO
 from mshoot_core.models import card as cards
 from mshoot_core.models.registry import CONTROL_TOLERANCE, EMULATOR_TOLERANCE
 
+from mshoot_studies.cli import verb_parser
+
 #: Longest list of a card's problems printed by ``card check`` (then their count).
 MAX_PROBLEMS = 20
 #: Columns of the mapping table of ``card check``.
@@ -39,22 +41,23 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     Build the command line of the card tools.
 
     Fills ``parser`` (the ``card`` verb of ``mshoot``), or a new parser when None.
+    Its errors are one line (``<prog>: error: ...``) and exit 2
+    (:func:`~mshoot_studies.cli.verb_parser`).
     """
-    if parser is None:
-        parser = argparse.ArgumentParser(prog='python -m mshoot_studies.card',
-                                         description=__doc__,
-                                         formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = verb_parser(parser, 'mshoot_studies.card', __doc__)
     actions = parser.add_subparsers(title='actions', dest='action', metavar='ACTION',
                                     required=True)
-    check = actions.add_parser('check', help='validate a model card against its model and '
-                                             'print what it maps (exit 2 with every problem)')
+    check = verb_parser(actions.add_parser(
+        'check', help='validate a model card against its model and print what it maps (exit 2 '
+                      'with every problem)'), 'mshoot_studies.card', None)
     check.add_argument('card', type=pathlib.Path, help='the model card (.yaml)')
-    listing = actions.add_parser('variables', help="list an FMU's variables (name, causality, "
-                                                   'type, unit, start), to write a card')
+    listing = verb_parser(actions.add_parser(
+        'variables', help="list an FMU's variables (name, causality, type, unit, start), to "
+                          'write a card'), 'mshoot_studies.card', None)
     listing.add_argument('fmu', type=pathlib.Path, help='the FMU (.fmu file or folder)')
     listing.add_argument('--causality', default=None,
                          help='only variables of this causality (input, output, parameter, '
-                              'local, ...)')
+                              'local, ...; default: every causality)')
     return parser
 
 

@@ -55,6 +55,8 @@ from mshoot_core.units import KELVIN
 import numpy as np
 import pandas as pd
 
+from mshoot_studies.cli import verb_parser
+
 logger = logging.getLogger(__name__)
 
 #: Data-driven control models (scikit-learn estimators trained as in Setup 2).
@@ -304,11 +306,10 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     Build the command line of the case.
 
     It fills ``parser`` (e.g. the ``case`` verb of ``mshoot``), or a new parser when None.
+    Its errors are one line (``<prog>: error: ...``) and exit 2
+    (:func:`~mshoot_studies.cli.verb_parser`).
     """
-    if parser is None:
-        parser = argparse.ArgumentParser(
-            prog='python -m mshoot_studies.case', description=__doc__,
-            formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = verb_parser(parser, 'mshoot_studies.case', __doc__)
     parser.add_argument('scenario', choices=('ou44', 'synthetic', 'data'),
                         help='ou44: the reference case (needs --data); synthetic: built-in; '
                              'data: the data CSV of --data (a column per series and a band)')
@@ -319,7 +320,8 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                              'the band comfort_min, comfort_max [degC] (or --band), read as '
                              'hourly means from its first row')
     parser.add_argument('--band', type=_band, default=None, metavar='LO,HI',
-                        help='data: a constant comfort band [degC] for a CSV without one')
+                        help='data: a constant comfort band [degC] for a CSV without one '
+                             "(default: the CSV's band)")
     parser.add_argument('--control', type=model_choice, default='python', metavar='MODEL',
                         help=f'control model, one of {{{",".join(CONTROL_MODELS)}}}: exact '
                              'Python R1C1, R1C1 FMU (Model Exchange or Co-Simulation), or a '

@@ -69,7 +69,9 @@ def verb_parser(parser: argparse.ArgumentParser | None, prog: str,
     """
     Return ``parser`` (a verb's, from :func:`build_parser`), or a new one for ``python -m prog``.
 
-    Its errors are one line (``<prog>: error: ...``, no usage block) and exit 2.
+    Its errors are one line (``<prog>: error: ...``, no usage block) and exit 2. Every parser
+    of the verbs is made here: ``mshoot`` itself, each verb's (its module's ``build_parser``
+    fills the one it is given, or a new one) and their sub-commands.
     """
     if parser is None:
         parser = argparse.ArgumentParser(prog=f'python -m {prog}', description=description,
@@ -99,9 +101,9 @@ def build_parser(verbs: Sequence[str] | None = None) -> argparse.ArgumentParser:
         others are listed with their summary only. Default: all.
 
     """
-    parser = argparse.ArgumentParser(
+    parser = verb_parser(argparse.ArgumentParser(
         prog='mshoot', description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter)
+        formatter_class=argparse.RawDescriptionHelpFormatter), 'mshoot', __doc__)
     subparsers = parser.add_subparsers(title='verbs', dest='verb', metavar='VERB',
                                        required=True)
     for name, (module_name, summary) in VERBS.items():

@@ -1,4 +1,4 @@
-"""
+r"""
 Identify a control model from a plant: an excitation experiment, then a calibration.
 
     mshoot identify --plant PLANT.yaml --model MODEL.yaml --out out/identify
@@ -51,6 +51,8 @@ from mshoot_core.models.base import ModelValueError
 from mshoot_core.units import json_ready
 import pandas as pd
 
+from mshoot_studies.cli import verb_parser
+
 logger = logging.getLogger(__name__)
 
 #: Files written to ``--out`` (the card's name depends on the model card).
@@ -77,11 +79,10 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     Build the command line of the identification.
 
     Fills ``parser`` (the ``identify`` verb of ``mshoot``), or a new parser when None.
+    Its errors are one line (``<prog>: error: ...``) and exit 2
+    (:func:`~mshoot_studies.cli.verb_parser`).
     """
-    if parser is None:
-        parser = argparse.ArgumentParser(prog='python -m mshoot_studies.identify',
-                                         description=__doc__,
-                                         formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = verb_parser(parser, 'mshoot_studies.identify', __doc__)
     plant = parser.add_mutually_exclusive_group(required=True)
     plant.add_argument('--plant', type=pathlib.Path, metavar='CARD',
                        help='model card of the plant excited (e.g. an FMU with overwrites)')
@@ -105,17 +106,17 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                         help='seed of the random levels (and of the synthetic weather; '
                              "default 0, a test case: its card's)")
     parser.add_argument('--hold', type=_pair, default=None, metavar='MIN,MAX',
-                        help='steps each level is held, fewest and most (default 1,8; a test '
-                             "case: its card's)")
+                        help='control steps each level is held, fewest and most (default 1,8; a '
+                             "test case: its card's)")
     parser.add_argument('--level', type=_level, action='append', default=[],
                         metavar='NAME=LO,HI',
-                        help='range of the levels of a control (default its card limits); '
-                             'repeatable')
+                        help="range of the levels of a control, in the control's canonical unit "
+                             '(default its card limits); repeatable')
     parser.add_argument('--validation-share', type=float, default=0.3,
-                        help='share of the records held out at the end (default 0.3)')
+                        help='share of the records held out at the end, in (0, 1) (default 0.3)')
     parser.add_argument('--settle', type=int, default=12,
-                        help='steps at the start of each period not fitted nor scored, while '
-                             'the unmeasured states settle (default 12)')
+                        help='control steps at the start of each period not fitted nor scored, '
+                             'while the unmeasured states settle (default 12)')
     parser.add_argument('--reference', type=pathlib.Path, default=None, metavar='CARD',
                         help="a network card whose values of the model's parameters are "
                              'scored on the same held-out steps (e.g. a packaged card)')

@@ -1,4 +1,4 @@
-"""
+r"""
 A plant under its own local loop next to an MPC run of it: discomfort and heat delivered.
 
     python -m mshoot_studies.local_loop --plant PLANT.yaml --scenario DATA.csv --hours 72 \
@@ -29,6 +29,8 @@ from mshoot_core.kpis import discomfort_kh
 from mshoot_core.scenario import reference_scenario
 import numpy as np
 import pandas as pd
+
+from mshoot_studies.cli import verb_parser
 
 logger = logging.getLogger(__name__)
 
@@ -110,18 +112,22 @@ def figure(path: pathlib.Path, local: pd.DataFrame, mpc: pd.DataFrame,
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    """Build the command line (see the module docstring)."""
-    if parser is None:
-        parser = argparse.ArgumentParser(prog='python -m mshoot_studies.local_loop',
-                                         description=__doc__,
-                                         formatter_class=argparse.RawDescriptionHelpFormatter)
+    """
+    Build the command line (see the module docstring).
+
+    Fills ``parser``, or a new parser when None. Its errors are one line
+    (``<prog>: error: ...``) and exit 2 (:func:`~mshoot_studies.cli.verb_parser`).
+    """
+    parser = verb_parser(parser, 'mshoot_studies.local_loop', __doc__)
     parser.add_argument('--plant', type=pathlib.Path, required=True, metavar='CARD',
                         help='model card of the plant (with overwrite switches)')
     parser.add_argument('--scenario', required=True,
                         help="the scenario: 'synthetic', or a data CSV with a band")
-    parser.add_argument('--hours', type=int, default=72, help='control steps (default 72)')
+    parser.add_argument('--hours', type=int, default=72,
+                        help='hours simulated, one control step each (default 72)')
     parser.add_argument('--mpc', type=pathlib.Path, default=None,
-                        help='output folder of an MPC run (its trajectories.csv) to compare')
+                        help='output folder of an MPC run (its trajectories.csv) to compare '
+                             '(default: none, the local loop alone)')
     parser.add_argument('--meter', default='Qheat_total',
                         help='output of the plant metering the heat delivered [J] (default '
                              'Qheat_total)')

@@ -49,6 +49,7 @@ from mshoot_core.units import KELVIN
 import numpy as np
 import pandas as pd
 
+from mshoot_studies.cli import verb_parser
 from mshoot_studies.sweeps import LOG_FORMAT, RunOutcome, RunSpec, SweepRunner
 
 logger = logging.getLogger(__name__)
@@ -992,11 +993,10 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     Build the command line of the study.
 
     It fills ``parser`` (e.g. the ``study`` verb of ``mshoot``), or a new parser when None.
+    Its errors are one line (``<prog>: error: ...``) and exit 2
+    (:func:`~mshoot_studies.cli.verb_parser`).
     """
-    if parser is None:
-        parser = argparse.ArgumentParser(
-            prog='python -m mshoot_studies.study', description=__doc__,
-            formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = verb_parser(parser, 'mshoot_studies.study', __doc__)
     parser.add_argument('--data', type=pathlib.Path, default=None,
                         help=f'OU44 measurements.csv (default: {DEFAULT_DATA.resolve()})')
     parser.add_argument('--out', type=pathlib.Path, default=pathlib.Path('docs'),

@@ -95,7 +95,7 @@ from mshoot_core.models.fmi import FmiModel, read_cached_description, read_fmu_d
 __all__ = ['builtin_card', 'build_model', 'CardError', 'CardFmiModel', 'CardVariable',
            'CARDS_DIR', 'conversion', 'describe', 'fmu_variables', 'is_card_path', 'load_card',
            'ModelCard', 'ModelVariable', 'SCHEMA_PATH', 'schema', 'schema_problems',
-           'time_origin_seconds', 'UNITS']
+           'time_origin_seconds', 'UNITS', 'write_parameters']
 
 logger = logging.getLogger(__name__)
 
@@ -1097,6 +1097,76 @@ def _parameter_problems(catalogue: _Catalogue, parameters: Mapping[str, Any]) ->
             problems.append(f'parameters.{name}: expected a {kind} value for {var.label()}, '
                             f'got {value!r}')
     return problems
+
+
+# -- writing ----------------------------------------------------------------------------------
+def write_parameters(source: str | pathlib.Path, values: Mapping[str, float],
+                     target: str | pathlib.Path, header: Sequence[str] = (),
+                     description: str | None = None) -> pathlib.Path:
+    """
+    Write a copy of the card ``source`` with the parameter ``values``; the card it is loads.
+
+    A thermal network card's values replace those of its ``network.parameters`` (an entry's
+    ``value``; its ``min``, ``max`` and ``free`` kept); another card's go to its
+    ``parameters`` (set before every initialisation). The rest of the card is kept as it is,
+    but a relative ``fmu`` path, made absolute for the copy's folder. The copy is written
+    from the parsed YAML: the comments of ``source`` are not kept; ``header`` (lines of text)
+    heads the copy as comments.
+
+    Parameters
+    ----------
+    source : path
+        The card copied (not written).
+    values : mapping of str -> float
+        Parameter name -> value (in the parameter's unit).
+    target : path
+        The copy written (its folder created).
+    header : sequence of str
+        Comment lines, without their ``#``.
+    description : str, optional
+        The copy's ``description`` (default: that of ``source``).
+
+    Returns
+    -------
+    pathlib.Path
+        ``target``.
+
+    Raises
+    ------
+    ValueError
+        For a name that is not a parameter of a network card.
+    CardError
+        If ``source`` cannot be read, or the copy does not load.
+
+    """
+    source, target = pathlib.Path(source), pathlib.Path(target)
+    document = _read_yaml(source)
+    if not isinstance(document, dict):
+        raise CardError(source, [f'expected a mapping, got {document!r}'])
+    if isinstance(document.get('network'), dict):
+        parameters = document['network'].setdefault('parameters', {})
+        unknown = sorted(set(values) - set(parameters))
+        if unknown:
+            raise ValueError(f'{source}: unknown network parameters {unknown}; expected names '
+                             f'from {list(parameters)}')
+    else:
+        parameters = document.setdefault('parameters', {})
+    for name, value in values.items():
+        if isinstance(parameters.get(name), dict):
+            parameters[name]['value'] = float(value)
+        else:
+            parameters[name] = float(value)
+    if description is not None:
+        document['description'] = description
+    if isinstance(document.get('fmu'), str):  # as load_card reads it, for the copy's folder
+        document['fmu'] = str((source.parent / pathlib.Path(document['fmu']).expanduser())
+                              .resolve())
+    target.parent.mkdir(parents=True, exist_ok=True)
+    comments = ''.join(f'# {line}\n' if line else '#\n' for line in header)
+    target.write_text(comments + yaml.safe_dump(document, sort_keys=False, width=99),
+                      encoding='utf-8')
+    load_card(target)
+    return target
 
 
 # -- building the model -----------------------------------------------------------------------
