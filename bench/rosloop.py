@@ -11,20 +11,21 @@ loop's wall and CPU time of each (process CPU, every thread: the DDS threads and
 solver thread too), their medians and the ratios ROS / core (issue 26: the ROS loop at
 most 1.3x the core loop).
 
-Then one more run of each, instrumented: timers wrapped around the functions of every
-phase (exclusive time: a phase called inside another is counted in its own line only),
-printed per step side by side:
+Then one more run of each, instrumented: timers of the calling thread's CPU time wrapped
+around the functions of every phase (exclusive time: a phase called inside another is
+counted in its own line only), printed per step side by side (CPU time: under load, wall
+time goes to whichever phase was running when the process lost its core):
 
 - the core's work, in both loops: the emulation (``Emulator.advance``), the MPC solve
-  (``MPC.solve``; in the ROS loop on the MPC node's solver thread), the controller's
+  (``MPC.solve``; with ``--async-solve`` on the MPC node's solver thread), the controller's
   bookkeeping (``Controller.poll`` and its ``offer_*``);
 - the ROS loop's own: conversions (message <-> values, :mod:`mshoot_nodes.conversions`),
   message checks (:mod:`mshoot_core.safety`, called by the nodes), publishing
-  (serialisation and the DDS write), taking (the DDS read and deserialisation), the bag
-  recorder's writes, the rest of the node callbacks, the executor (building wait sets,
-  dispatching) and the time the executor thread was blocked in ``rcl_wait`` (waiting for
-  a message, a timer or the solver thread: the lockstep waits), with the wake-ups (rcl
-  waits and callbacks) per step.
+  (serialisation, the DDS write and the in-process delivery), the bag recorder's writes, the
+  rest of the node callbacks (every subscription, timer and task callback of the nodes), and
+  what is left of the loop: rclpy's executor (``EventsExecutor``, in C++: waiting for the
+  middleware's events, taking and deserialising the messages, dispatching), with the
+  callbacks per step.
 
 The instrumentation costs time of its own (a few microseconds per wrapped call): the
 phases say where the overhead goes, the first table how large it is.
@@ -33,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import functools
 import inspect
 import os
 import pathlib
@@ -53,7 +55,7 @@ from mshoot_nodes import (bringup, emulator_node, forecaster_node, mpc_node,  # 
                           recorder_node)
 from mshoot_nodes.config import default_params_files, ros_args  # noqa: E402
 import rclpy  # noqa: E402
-from rclpy import executors, publisher  # noqa: E402
+from rclpy import node, publisher  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 from rclpy.logging import LoggingSeverity  # noqa: E402
 
@@ -77,16 +79,12 @@ ROS_PHASES = (
     *((module, name, 'message checks (core safety)') for module in (emulator_node, mpc_node)
       for name in ('check_lengths', 'check_setpoint', 'check_stamp_fields')),
     (publisher.Publisher, 'publish', 'publish (serialise, DDS write)'),
-    (executors.Executor, '_take_subscription', 'take (DDS read, deserialise)'),
     (recorder_node.RecorderNode, '_write', 'bag recorder (write)'),
-    (executors, 'await_or_execute', 'node callbacks (the rest)'),
-    (executors.SingleThreadedExecutor, 'spin_once', 'executor (wait sets, dispatch)'),
 )
-WAIT = 'rcl_wait (blocked: lockstep waits)'
+CALLBACKS = 'node callbacks (the rest)'
 ORDER = ('emulation (core)', 'MPC solve (core)', 'controller bookkeeping (core)',
          'conversions', 'message checks (core safety)', 'publish (serialise, DDS write)',
-         'take (DDS read, deserialise)', 'bag recorder (write)', 'node callbacks (the rest)',
-         'executor (wait sets, dispatch)', WAIT)
+         'bag recorder (write)', CALLBACKS)
 
 
 class Phases:
@@ -104,13 +102,13 @@ class Phases:
         return self._local.stack
 
     def enter(self, phase: str) -> None:
-        stack, now = self._stack(), time.perf_counter()
+        stack, now = self._stack(), time.thread_time()
         if stack:
             self._add(stack[-1][0], now - stack[-1][1])
         stack.append([phase, now])
 
     def leave(self) -> None:
-        stack, now = self._stack(), time.perf_counter()
+        stack, now = self._stack(), time.thread_time()
         phase, since = stack.pop()
         self._add(phase, now - since)
         self.calls[phase] += 1
@@ -147,27 +145,35 @@ class Phases:
         for owner, name, phase in specs:
             self.wrap(owner, name, phase)
 
-    def time_waits(self) -> None:
-        """Time ``rcl_wait`` of the executor's wait sets (a subclass of rclpy's WaitSet)."""
-        real, phases = executors._rclpy, self
+    def time_callbacks(self) -> None:
+        """Time every subscription, timer and task callback of the nodes built from now on."""
+        enter, leave = self.enter, self.leave
 
-        class TimedWaitSet(real.WaitSet):
-
-            def wait(self, timeout_ns: int) -> None:
-                phases.enter(WAIT)
+        def timed(callback: Any) -> Any:
+            @functools.wraps(callback)  # the same signature: rclpy inspects it
+            def timed_callback(*args: Any, **kwargs: Any) -> Any:
+                enter(CALLBACKS)
                 try:
-                    super().wait(timeout_ns)
+                    return callback(*args, **kwargs)
                 finally:
-                    phases.leave()
+                    leave()
+            return timed_callback
 
-        class Implementation:
-            WaitSet = TimedWaitSet
+        real_subscription = node.Node.create_subscription
+        real_timer = node.Node.create_timer
 
-            def __getattr__(self, name: str) -> Any:
-                return getattr(real, name)
+        def create_subscription(self: Any, msg_type: Any, topic: str, callback: Any,
+                                *args: Any, **kwargs: Any) -> Any:
+            return real_subscription(self, msg_type, topic, timed(callback), *args, **kwargs)
 
-        executors._rclpy = Implementation()
-        self._restore.append((executors, '_rclpy', real))
+        def create_timer(self: Any, period: float, callback: Any, *args: Any,
+                         **kwargs: Any) -> Any:
+            return real_timer(self, period, timed(callback), *args, **kwargs)
+
+        node.Node.create_subscription = create_subscription
+        node.Node.create_timer = create_timer
+        self._restore += [(node.Node, 'create_subscription', real_subscription),
+                          (node.Node, 'create_timer', real_timer)]
 
     def remove(self) -> None:
         for owner, name, original in reversed(self._restore):
@@ -189,7 +195,7 @@ def ros_run(hours: int, record: bool, out: pathlib.Path, phases: Phases | None =
     try:
         if phases is not None:
             phases.install(ROS_PHASES)
-            phases.time_waits()
+            phases.time_callbacks()
         return bringup.run_in_process(context, node_params, record=record)
     finally:
         if phases is not None:
@@ -250,7 +256,7 @@ def phase_table(hours: int, record: bool, out: pathlib.Path,
     def main_ms(phases: Phases, phase: str) -> float:
         return 1e3 * phases.seconds.get(('main', phase), 0.0) / steps
 
-    print(f'\nBy phase, one instrumented run of each ({steps} steps): ms per step on the '
+    print(f'\nBy phase, one instrumented run of each ({steps} steps): CPU ms per step on the '
           'executor thread (exclusive times)')
     print(f"{'phase':40s} {'ROS':>8} {'core':>8} {'calls/step':>10}")
     ros_total = core_total = 0.0
@@ -259,20 +265,20 @@ def phase_table(hours: int, record: bool, out: pathlib.Path,
         ros_total, core_total = ros_total + ros_ms, core_total + core_ms
         print(f'{phase:40s} {ros_ms:8.2f} {core_ms:8.2f} '
               f'{ros_phases.calls[phase] / steps:10.1f}')
-    ros_rest = 1e3 * run.wall_s / steps - ros_total
-    core_rest = 1e3 * core.wall_s / steps - core_total
-    print(f"{'the loop outside these':40s} {ros_rest:8.2f} {core_rest:8.2f}")
+    ros_rest = 1e3 * run.cpu_s / steps - ros_total
+    core_rest = 1e3 * core.cpu_s / steps - core_total
+    print(f"{'the rest: executor, DDS threads / loop':40s} {ros_rest:8.2f} {core_rest:8.2f}")
+    print(f"{'CPU per step (the process)':40s} {1e3 * run.cpu_s / steps:8.2f} "
+          f'{1e3 * core.cpu_s / steps:8.2f}')
     print(f"{'wall per step':40s} {1e3 * run.wall_s / steps:8.2f} "
           f'{1e3 * core.wall_s / steps:8.2f}')
     worker = {phase: 1e3 * seconds / steps for (thread, phase), seconds
               in ros_phases.seconds.items() if thread == 'worker'}
     if worker:
-        print("on the MPC node's solver thread (ms per step): "
+        print("on the MPC node's solver thread (CPU ms per step): "
               + ', '.join(f'{phase} {ms:.2f}' for phase, ms in sorted(worker.items())))
-    waits = ros_phases.calls[WAIT] / steps
-    callbacks = ros_phases.calls['node callbacks (the rest)'] / steps
-    print(f'wake-ups per step: {waits:.1f} rcl waits, {callbacks:.1f} callbacks; the '
-          f'emulator waited {1e3 * median(run.emulator.setpoint_waits_s):.2f} ms (median) from '
+    print(f'{ros_phases.calls[CALLBACKS] / steps:.1f} node callbacks per step; the emulator '
+          f'waited {1e3 * median(run.emulator.setpoint_waits_s):.2f} ms (median) from '
           'publishing a step to its setpoint')
 
 

@@ -346,6 +346,22 @@ def test_forecast_window_pads_with_last_row():
     assert w.index[0] == s.index[3]
 
 
+@pytest.mark.parametrize('labelled', [False, True])
+def test_forecast_window_is_the_scenario_rows_with_their_times(labelled):
+    """The rows (the last repeated), times on the step grid, the attrs; a text column kept."""
+    s = synthetic_scenario(hours=7)
+    if labelled:
+        s['label'] = [f'row {k}' for k in range(len(s))]
+    w = forecast_window(s, 5, 4)
+    last = len(s) - 1
+    expected = s.iloc[[min(k, last) for k in range(5, 10)]].copy()
+    expected.index = pd.Index(s.index[5] + 3600.0 * np.arange(5), name=s.index.name)
+    pd.testing.assert_frame_equal(w, expected)
+    assert w.attrs == s.attrs and w.attrs
+    w.iloc[0, 0] = -1.0  # a copy: the scenario is not changed through it
+    assert s.iloc[5, 0] != -1.0
+
+
 def test_mpc_rejects_bad_forecast():
     mpc = MPC(R1C1Model(), horizon_steps=3)
     s = synthetic_scenario(hours=10)

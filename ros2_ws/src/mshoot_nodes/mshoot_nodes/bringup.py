@@ -4,12 +4,11 @@ Bring-up in one process: emulator, forecaster, MPC and the bag recorder in one e
     bringup --scenario synthetic --hours 72 --out out/demo        # the demo (make demo)
     bringup --scenario ou44 --data ../shared/data/ou44/measurements.csv
 
-The fast path: the four nodes share one rclpy context and one
-:class:`InProcessExecutor`; the emulator runs in lockstep, so simulated time goes
-as fast as the MPC solves and the run equals the core-only loop. With ``--discovery OFF``
-(the default) no other process can reach the nodes, so they start without rclpy's
-services (parameters, type descriptions, lifecycle transitions): fewer entities for the
-executor to wait on. Writes to
+The fast path: the four nodes share one rclpy context and one executor, rclpy's
+``EventsExecutor`` (:func:`in_process_executor`); the emulator runs in lockstep, so simulated
+time goes as fast as the MPC solves and the run equals the core-only loop. With
+``--discovery OFF`` (the default) no other process can reach the nodes, so they start
+without rclpy's services (parameters, type descriptions, lifecycle transitions). Writes to
 ``--out``: ``bag/`` (rosbag2, mcap by default), ``kpis.json`` (the keys of
 ``mshoot case``), ``steps.csv``, ``trajectories.csv`` and
 ``plot.png``; prints progress and the KPIs. Parameters come from the YAML
@@ -35,9 +34,9 @@ from mshoot_core.kpis import FALLBACK_EXIT, fallback_problem
 from mshoot_core.scenario import PUBLISHED
 import rclpy
 from rclpy.context import Context
-from rclpy.event_handler import EventHandler
 from rclpy.exceptions import InvalidParameterValueException
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.executors import Executor
+from rclpy.experimental import EventsExecutor
 from rclpy.lifecycle import LifecycleNode
 from rclpy.logging import LoggingSeverity
 from rclpy.parameter import Parameter
@@ -64,21 +63,19 @@ def overrides(values: dict[str, Any]) -> list[Parameter]:
     return [Parameter(name, value=value) for name, value in values.items() if value is not None]
 
 
-class InProcessExecutor(SingleThreadedExecutor):
+def in_process_executor(context: Context) -> Executor:
     """
-    rclpy's SingleThreadedExecutor, not waiting on QoS events.
+    Return the executor of an in-process run: rclpy's ``EventsExecutor`` (experimental in Jazzy).
 
-    rclpy gives every publisher and subscription event handlers that log a warning when a
-    peer offers an incompatible QoS or type: two per endpoint, some fifty in an in-process
-    run. The executor rebuilds its wait set from every entity at each wake-up, and these
-    handlers were most of that work (about 1.3 ms per wake-up, several wake-ups per step,
-    ``bench/rosloop.py``). In one process both ends of a topic take their QoS and type from
-    :mod:`mshoot_nodes.contract`; a peer in another process that does not match still logs the
-    warning there, from its own handlers.
+    It dispatches in C++ from a queue of middleware events, in the order they came: no wait set
+    rebuilt from every entity of every node at each wake-up, no Python task per callback (the
+    ``SingleThreadedExecutor`` spent about as much time dispatching as the nodes spent in their
+    callbacks, ``bench/rosloop.py``). What it does not support, the nodes do not use: guard
+    conditions (the MPC node polls after a solve through ``executor.create_task``) and
+    subscription callbacks taking the ``MessageInfo`` (the recorder, built with
+    ``message_info=False``, stamps with its clock at the callback: in the order of arrival).
     """
-
-    def can_execute(self, entity: Any) -> bool:
-        return not isinstance(entity, EventHandler) and super().can_execute(entity)
+    return EventsExecutor(context=context)
 
 
 def private_node_options(cls: type) -> dict[str, Any]:
@@ -130,8 +127,8 @@ def run_in_process(context: Context, node_params: dict[str, dict[str, Any]], *,
         Also run the bag recorder.
     services : bool
         Give the nodes rclpy's services (parameters, lifecycle, type descriptions), for
-        runs that other processes can discover; without them (the default) the executor
-        has fewer entities to wait on.
+        runs that other processes can discover; without them (the default) the nodes
+        have fewer entities (nothing could call them).
     timeout_s : float
         Wall-clock guard [s]: TimeoutError when the run takes longer.
     progress : callable, optional
@@ -163,8 +160,8 @@ def run_in_process(context: Context, node_params: dict[str, dict[str, Any]], *,
     node_params.setdefault('emulator', {}).setdefault(
         'ready_endpoints', run_requirements('mshoot' if record else 'none'))
 
-    def make(cls: type, name: str) -> Any:
-        options = {} if services else private_node_options(cls)
+    def make(cls: type, name: str, **options: Any) -> Any:
+        options.update({} if services else private_node_options(cls))
         extra = [] if services else private_overrides()
         try:
             node = cls(context=context,
@@ -176,9 +173,9 @@ def run_in_process(context: Context, node_params: dict[str, dict[str, Any]], *,
         executor.add_node(node)
         return node
 
-    executor = InProcessExecutor(context=context)
+    executor = in_process_executor(context)
     try:
-        recorder = make(RecorderNode, 'recorder') if record else None
+        recorder = make(RecorderNode, 'recorder', message_info=False) if record else None
         forecaster = make(ForecasterNode, 'forecaster')
         emulator = make(EmulatorNode, 'emulator')
         # Lockstep: nothing is due while the MPC solves (the emulator waits for its setpoint),

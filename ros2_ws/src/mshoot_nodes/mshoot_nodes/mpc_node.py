@@ -61,6 +61,7 @@ from mshoot_core.safety import (check_lengths, check_setpoint, check_stamp_field
 from mshoot_core.settings import MpcSettings, PARAMETERS, SettingsError
 from mshoot_core.units import NS_PER_S
 from mshoot_msgs.msg import Forecast, MpcStatus, Setpoint, ZoneState
+from rclpy.logging import LoggingSeverity
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from mshoot_nodes import contract
@@ -175,7 +176,6 @@ class MpcNode(ManagedNode):
         self.rejections = RejectionLog(self, p['reject_log_period_s'])
         self._last_setpoint: Setpoint | None = None
         self._steady = self.steady_clock
-        self._done_gc = self.create_guard_condition(self.try_solve)
         timeout = p['peer_timeout_s']
         peers = [Peer('state', contract.ZONE_STATE, p['state_writer'], timeout),
                  Peer('forecast', contract.FORECAST, p['forecast_writer'], timeout)]
@@ -198,7 +198,7 @@ class MpcNode(ManagedNode):
                       if p['async_solve'] else None)
         self.controller = controller_for(self.model, settings_from(p), executor=self._pool,
                                          assumed_inputs={'dpos': p['ventilation_dpos']},
-                                         on_solve_done=self._done_gc.trigger,
+                                         on_solve_done=self._solve_done,
                                          history_length=p['history_length'])
         self.rejections = RejectionLog(self, p['reject_log_period_s'],
                                        self.controller.rejections)
@@ -219,6 +219,12 @@ class MpcNode(ManagedNode):
             + f', zone temperatures {list(self.controller.interface.temperature_names)}, '
             f"time budget {p['time_budget_s'] or 'none'}, safe zone setpoint "
             f"{p['safe_temperature_c']:.1f} degC")
+
+    def _solve_done(self) -> None:
+        """From the solver thread: poll the controller in the executor's thread at once."""
+        executor = self.executor
+        if executor is not None:
+            executor.create_task(self.try_solve)
 
     def activate(self) -> None:
         """Take inputs and decide on whole steps and every 50 ms of wall time."""
@@ -408,28 +414,32 @@ class MpcNode(ManagedNode):
         self._status_pub.publish(status)
         self._last_setpoint = setpoint
         self.history.append((setpoint, status))
-        step_s = step_ns / NS_PER_S
-        controls = ', '.join(f'{name} = {value:.1f}' for name, value in
-                             zip(setpoint.control_names, setpoint.control_values))
-        if not decision.fallback and result is not None:
-            x0 = outcome.x0
-            starts = (interface.temperatures_c(x0) if x0 is not None
-                      else [None] * len(setpoint.temperature_names))
-            zones = ', '.join(
-                f'{name} {"" if start is None else f"{start:.2f} -> "}{end:.2f} degC'
-                for name, start, end in zip(setpoint.temperature_names, starts,
-                                            setpoint.temperature_setpoints_c))
-            line = (f'step {step_s:.0f} s: {controls} W, {zones}, '
-                    f"{'ok' if result.success else 'NOT CONVERGED'} in {result.nit} it, "
-                    f'{result.solve_time_s:.3f} s')
-            # One call site per severity (rclpy keeps a severity per call site).
-            if result.success:
-                self.get_logger().info(line)
-            else:
-                self.get_logger().warning(line)
-        else:
-            self.get_logger().warning(f'step {step_s:.0f} s: fallback {controls} W '
-                                      f'({decision.source}): {decision.reason}')
+        if decision.fallback or result is None:
+            self.get_logger().warning(f'step {step_ns / NS_PER_S:.0f} s: fallback '
+                                      f'{self._controls_text(setpoint)} W ({decision.source}): '
+                                      f'{decision.reason}')
+        elif not result.success:
+            self.get_logger().warning(self._step_line(step_ns, setpoint, outcome))
+        elif self.get_logger().is_enabled_for(LoggingSeverity.INFO):  # (the line costs)
+            self.get_logger().info(self._step_line(step_ns, setpoint, outcome))
+
+    @staticmethod
+    def _controls_text(setpoint: Setpoint) -> str:
+        return ', '.join(f'{name} = {value:.1f}' for name, value in
+                         zip(setpoint.control_names, setpoint.control_values))
+
+    def _step_line(self, step_ns: int, setpoint: Setpoint, outcome: StepOutcome) -> str:
+        """Return the log line of a solved step: controls, zone temperatures, the solve."""
+        result, x0 = outcome.result, outcome.x0
+        starts = (self.controller.interface.temperatures_c(x0) if x0 is not None
+                  else [None] * len(setpoint.temperature_names))
+        zones = ', '.join(
+            f'{name} {"" if start is None else f"{start:.2f} -> "}{end:.2f} degC'
+            for name, start, end in zip(setpoint.temperature_names, starts,
+                                        setpoint.temperature_setpoints_c))
+        return (f'step {step_ns / NS_PER_S:.0f} s: {self._controls_text(setpoint)} W, {zones}, '
+                f"{'ok' if result.success else 'NOT CONVERGED'} in {result.nit} it, "
+                f'{result.solve_time_s:.3f} s')
 
 
 def main(args: list[str] | None = None) -> None:

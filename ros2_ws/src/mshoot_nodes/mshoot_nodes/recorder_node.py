@@ -8,7 +8,9 @@ topic, so ``ros2 bag info`` and ``ros2 bag play`` on a ROS 2 install accept the
 bag. Receive times are the middleware's reception times (system clock: the
 bag keeps the order in which messages arrived across topics, not the order in
 which the executor happened to take them), or with use_sim_time the node's
-simulated clock (as ``ros2 bag record --use-sim-time``).
+simulated clock (as ``ros2 bag record --use-sim-time``). Built with
+``message_info=False`` (the in-process bring-up, whose ``EventsExecutor`` runs the
+callbacks in the order the messages came), the node's clock when the callback runs.
 
 Contract topics are subscribed at once with their contract QoS (nothing is
 missed at start-up); other topics when a publisher shows up, with its type and
@@ -100,6 +102,16 @@ class RecorderNode(Node):
     """
     Records topics into a rosbag2 bag (see the module docstring).
 
+    Parameters
+    ----------
+    message_info : bool
+        Stamp every message with the middleware's reception time (its ``MessageInfo``);
+        False: with the node's clock when its callback runs (for rclpy's ``EventsExecutor``,
+        which cannot pass the ``MessageInfo`` in Jazzy, and runs the callbacks in the order
+        the messages came).
+    **kwargs
+        Passed to :class:`rclpy.node.Node` (context, parameter_overrides, ...).
+
     Attributes
     ----------
     counts : dict
@@ -111,8 +123,9 @@ class RecorderNode(Node):
 
     """
 
-    def __init__(self, **kwargs: Any) -> None:
+    def __init__(self, message_info: bool = True, **kwargs: Any) -> None:
         super().__init__('recorder', **kwargs)
+        self._message_info = message_info
         declare(self, PARAMS, [_check])
         self.params = values(self, PARAMS)
         p = self.params
@@ -223,7 +236,8 @@ class RecorderNode(Node):
             offered_qos_profiles=[qos_to_rosbags(offered)])
         self.counts[topic] = 0
         self._recorded[topic] = self.create_subscription(
-            cls, topic, lambda raw, info, t=topic: self._write(t, raw, info), qos, raw=True)
+            cls, topic, (lambda raw, info, t=topic: self._write(t, raw, info))
+            if self._message_info else (lambda raw, t=topic: self._write(t, raw)), qos, raw=True)
         self.get_logger().debug(f'recording {topic} [{type_name}]')
 
     def _write(self, topic: str, raw: bytes, info: dict | None = None) -> None:
