@@ -248,9 +248,9 @@ class CasadiMpc:
                 'iterations': int(stats['iter_count']), 'stats': stats}
 
 
-def function_time_s(stats: dict) -> float:
-    """Wall time [s] IPOPT spent in CasADi's function and derivative evaluations."""
-    return float(sum(stats.get(f't_wall_{name}', 0.0) for name in (
+def function_time_s(stats: dict, clock: str = 'wall') -> float:
+    """Time [s] IPOPT spent in CasADi's function and derivative evaluations (clock: wall, proc)."""
+    return float(sum(stats.get(f't_{clock}_{name}', 0.0) for name in (
         'nlp_f', 'nlp_g', 'nlp_grad', 'nlp_grad_f', 'nlp_jac_g', 'nlp_hess_l')))
 
 

@@ -496,27 +496,32 @@ class ZoneLoop:
         self.times_s: list[float] = []
         self.cpus_s: list[float] = []
         self.model_s: list[float] = []
+        self.solver_cpu_s: list[float] = []
         self.iterations: list[int] = []
         self.failures = 0
         self.controls_w: list = []
         self.states_k: list = []
 
-    def solve(self, k: int) -> tuple[Any, int, bool, float]:
+    def solve(self, k: int) -> tuple[Any, int, bool, float, float]:
         """
         Plan step k from ``self.x``.
 
-        Return the applied heat rates [W] (Z,), the iterations, success, and the model or function
-        evaluation time [s].
+        Return the applied heat rates [W] (Z,), the iterations, success, the model or function
+        evaluation time [s] and the CPU time of the NLP solver's call less that of the
+        evaluations [s] (ours: ``IpoptSolver.solve`` less the model's batch calls, so that our
+        callbacks count with IPOPT; CasADi's: ``CasadiMpc.solve`` less its ``t_proc``
+        evaluation times).
         """
         raise NotImplementedError
 
     def step(self, k: int) -> None:
         import numpy as np
         started, cpu = time.perf_counter(), time.process_time()
-        q, iterations, success, model_s = self.solve(k)
+        q, iterations, success, model_s, solver_cpu_s = self.solve(k)
         self.times_s.append(time.perf_counter() - started)
         self.cpus_s.append(time.process_time() - cpu)
         self.model_s.append(model_s)
+        self.solver_cpu_s.append(solver_cpu_s)
         self.iterations.append(iterations)
         self.failures += not success
         inputs = np.concatenate([self.scenario[['solrad', 'Tout', 'occ', 'dpos']].to_numpy(
@@ -533,6 +538,9 @@ class ZoneLoop:
                 'warm_cpu_s': float(np.median(self.cpus_s[1:])), 'cpus_s': self.cpus_s,
                 'iterations': float(np.mean(self.iterations[1:])),
                 'model_warm_s': float(np.median(self.model_s[1:])),
+                # IPOPT itself per iteration (CPU; ours with our callbacks' glue)
+                'solver_cpu_per_iteration_s': float(np.median(
+                    [s / max(i, 1) for s, i in zip(self.solver_cpu_s[1:], self.iterations[1:])])),
                 'failures': self.failures, 'times_s': self.times_s,
                 **zone_figures(self.controls_w, self.states_k, self.scenario, KELVIN)}
 
@@ -557,14 +565,19 @@ class OurZones(ZoneLoop):
             batch.jacobians = self.timers.wrap('simulations', batch.jacobians)
             return batch
         self.model.interval_batch = timed_batch
+        solver = self.mpc.solver  # (the instance's: the class's method stays untimed)
+        solver.solve = self.timers.wrap('solver', solver.solve)
 
-    def solve(self, k: int) -> tuple[Any, int, bool, float]:
+    def solve(self, k: int) -> tuple[Any, int, bool, float, float]:
         from mshoot_core.scenario import forecast_window
+        cpu = self.timers.cpu
         before = self.timers.total['simulations']
+        cpu_before = cpu['solver'] - cpu['simulations']
         result = self.mpc.solve(self.x, self.scenario.index[k],
                                 forecast_window(self.scenario, k, self.horizon))
         model_s = self.timers.total['simulations'] - before
-        return result.controls[0], result.nit, result.success, model_s
+        return (result.controls[0], result.nit, result.success, model_s,
+                cpu['solver'] - cpu['simulations'] - cpu_before)
 
     def step(self, k: int) -> None:
         timed, self.model.simulate_intervals = self.model.simulate_intervals, self._plant
@@ -614,17 +627,19 @@ class CasadiZones(ZoneLoop):
         self.disturbances = self.scenario[['solrad', 'Tout', 'occ', 'dpos']].to_numpy(float)
         self.band = self.scenario[['comfort_min', 'comfort_max']].to_numpy(dtype=float)
 
-    def solve(self, k: int) -> tuple[Any, int, bool, float]:
+    def solve(self, k: int) -> tuple[Any, int, bool, float, float]:
         import numpy as np
         from casadi_ref import function_time_s
         from mshoot_core.units import KELVIN
         rows = np.arange(k, k + self.horizon + 1)
         zones = self.x.size
+        started = time.process_time()
         plan = self.casadi.solve(self.x - KELVIN, self.disturbances[rows[:-1]],
                                  np.repeat(self.band[rows[1:], :1], zones, axis=1),
                                  np.repeat(self.band[rows[1:], 1:], zones, axis=1))
         return (plan['q'][0], plan['iterations'], plan['success'],
-                function_time_s(plan['stats']))
+                function_time_s(plan['stats']),
+                time.process_time() - started - function_time_s(plan['stats'], clock='proc'))
 
 
 def zone_rows(cases: Sequence[tuple[int, int]], steps: int) -> list[dict]:
@@ -769,6 +784,17 @@ def report(whole: dict, zones: list[dict], growth: list[dict], parts: dict) -> N
                         ('casadi_tuned_first_ratio', 'ratio first', '.2f'),
                         ('casadi_tuned_warm_ratio', 'ratio warm', '.2f'),
                         ('casadi_tuned_warm_cpu_ratio', 'ratio cpu', '.2f')])
+    logger.info('IPOPT itself per iteration of a warm step, CPU [ms]: the solver call less the '
+                'evaluations (ours: IpoptSolver.solve less the model, our callbacks counted '
+                "with IPOPT; CasADi's: CasadiMpc.solve less its function evaluations):")
+    print_table([{**row, **{key: row[key] * 1e3 for key in (
+        'ours_solver_cpu_per_iteration_s', 'casadi_tuned_solver_cpu_per_iteration_s')}}
+        for row in zones],
+        [('zones', 'Z', 'd'), ('horizon_h', 'H', 'd'),
+         ('ours_solver_cpu_per_iteration_s', 'ours', '.2f'),
+         ('casadi_tuned_solver_cpu_per_iteration_s', 'casadi same', '.2f'),
+         ('ours_iterations', 'ours iters', '.1f'),
+         ('casadi_tuned_iterations', 'casadi same iters', '.1f')])
     if growth:
         logger.info('growth of the warm time per step: exponent p of time ~ Z^p or H^p '
                     '(least squares on the logs; wall, and cpu):')

@@ -131,21 +131,25 @@ def test_python_m_modules_keep_working():
         assert done.stdout.startswith('usage: ')
 
 
-def test_mshoot_case_loads_only_what_the_case_uses(tmp_path):
+@pytest.mark.parametrize('solver', ['slsqp', 'ipopt'])
+def test_mshoot_case_loads_only_what_the_case_uses(tmp_path, solver):
     """
     ``mshoot case`` imports neither the study (nor its cluster client) nor matplotlib.
 
-    Matplotlib is imported by its plot worker. Nor, with an FMU control model and SLSQP, the
-    SciPy optimisers (SLSQP's core is loaded on its own), SciPy's sparse matrices, or the
-    model cards' JSON Schema (the emulated R1C1 is the network of its card: YAML is read).
+    Matplotlib is imported by its plot worker. Nor, with an FMU control model and SLSQP or
+    IPOPT, the SciPy optimisers (SLSQP's core is loaded on its own; cyipopt without its SciPy
+    interface), SciPy's sparse matrices, or the model cards' JSON Schema (the emulated R1C1 is
+    the network of its card: YAML is read).
     """
+    if solver == 'ipopt':
+        pytest.importorskip('cyipopt', reason='the IPOPT case needs cyipopt-wheels')
     probe = ('import json, sys\n'
              'from mshoot_studies import cli\n'
              'code = cli.main(sys.argv[1:])\n'
              'print(json.dumps([code, sorted(sys.modules)]))\n')
     done = subprocess.run(
         [sys.executable, '-c', probe, 'case', 'synthetic', '--horizon', '3', '--hours', '4',
-         '--control', 'fmu', '--out', str(tmp_path / 'case')],
+         '--control', 'fmu', '--solver', solver, '--out', str(tmp_path / 'case')],
         capture_output=True, text=True, timeout=120, env=dict(os.environ))
     assert done.returncode == 0, done.stderr
     code, modules = json.loads(done.stdout.splitlines()[-1])

@@ -311,6 +311,38 @@ def test_ipopt_build_is_the_one_chosen(tmp_path, build):
         assert bound == 'None' and mumps < (5, 6), (bound, banner.group(0))
 
 
+CYIPOPT_SCIPY_INTERFACE_SCRIPT = """
+import json, sys
+import numpy as np
+from mshoot_core import solvers
+cyipopt = solvers.import_cyipopt()
+before = 'scipy.optimize' in sys.modules
+problem = cyipopt.Problem  # (a name of the extension: no import)
+after_problem = 'scipy.optimize' in sys.modules
+result = cyipopt.minimize_ipopt(lambda x: float(np.sum((x - 2.0) ** 2)), np.zeros(2),
+                                options={'print_level': 0, 'sb': 'yes'})
+import cyipopt as again
+print(json.dumps([before, after_problem, 'scipy.optimize' in sys.modules, again is cyipopt,
+                  result.x.tolist(), cyipopt.__version__]))
+"""
+
+
+def test_cyipopt_scipy_interface_is_imported_when_used():
+    """import_cyipopt leaves out cyipopt's SciPy interface until one of its names is used."""
+    import json
+    import subprocess
+    import sys
+
+    pytest.importorskip('cyipopt', reason='needs cyipopt-wheels')
+    done = subprocess.run([sys.executable, '-c', CYIPOPT_SCIPY_INTERFACE_SCRIPT],
+                          capture_output=True, text=True, timeout=120, env=dict(os.environ))
+    assert done.returncode == 0, done.stderr[-2000:]
+    before, after_problem, after, same, x, version = json.loads(done.stdout.splitlines()[-1])
+    assert (before, after_problem, after, same) == (False, False, True, True)
+    np.testing.assert_allclose(x, [2.0, 2.0], atol=1e-6)
+    assert version
+
+
 def test_ipopt_build_refuses_an_unknown_name(monkeypatch):
     from mshoot_core import solvers
     monkeypatch.setenv('MSHOOT_IPOPT_BUILD', 'fastest')

@@ -308,10 +308,56 @@ def import_cyipopt() -> ModuleType:
         ipopt_library = paths[-1]
         logger.info('IPOPT: the build of CasADi (%s)', ipopt_library)
     try:
-        import cyipopt
+        return _cyipopt_without_scipy()
     except ImportError as exc:  # pragma: no cover - depends on the install
         raise ValueError('solver "ipopt" needs cyipopt: pip install cyipopt-wheels') from exc
-    return cyipopt
+
+
+def _cyipopt_without_scipy() -> ModuleType:
+    """
+    Import the ``cyipopt`` package with its IPOPT interface but not yet its SciPy interface.
+
+    cyipopt's ``__init__`` imports ``cyipopt.scipy_interface`` (``minimize_ipopt``), which
+    imports ``scipy.optimize``: a third of a second of CPU, a tenth of the whole OU44 command
+    with ``--solver ipopt``, for an interface mshoot does not use. Where the package lays its
+    extension out as ``cyipopt-wheels`` does (the top-level module ``ipopt_wrapper``), the
+    package module is made from its spec without running ``__init__``, given what
+    ``__init__`` takes from the extension and ``cyipopt.exceptions`` (``Problem``,
+    ``set_logging_level``, ``CyIpoptEvaluationError``, ...) and ``__version__``, and runs
+    ``__init__`` at the first use of any other name (``cyipopt.minimize_ipopt`` works as
+    before, a module ``__getattr__``). Another layout: ``import cyipopt`` as it is.
+    """
+    if 'cyipopt' in sys.modules:
+        return sys.modules['cyipopt']
+    spec = importlib.util.find_spec('cyipopt')
+    if (spec is None or spec.loader is None or not spec.submodule_search_locations
+            or importlib.util.find_spec('ipopt_wrapper') is None):
+        import cyipopt
+        return cyipopt
+    package = importlib.util.module_from_spec(spec)
+    sys.modules['cyipopt'] = package
+    try:
+        # the extension imports cyipopt.exceptions: a submodule of the package made above
+        parts = [importlib.import_module('ipopt_wrapper'),
+                 importlib.import_module('cyipopt.exceptions')]
+        version = importlib.import_module('cyipopt.version')
+    except BaseException:
+        for name in [name for name in sys.modules if name.split('.')[0] == 'cyipopt']:
+            del sys.modules[name]
+        raise
+    for part in parts:  # as ``from part import *``
+        names = getattr(part, '__all__', None) or [
+            name for name in vars(part) if not name.startswith('_')]
+        for name in names:
+            setattr(package, name, getattr(part, name))
+    package.__version__ = version.__version__
+
+    def rest_of_package(name: str) -> Any:
+        del package.__getattr__  # (once: __init__ then defines every name it has)
+        spec.loader.exec_module(package)
+        return getattr(package, name)
+    package.__getattr__ = rest_of_package
+    return package
 
 
 class IpoptSolver(Solver):
