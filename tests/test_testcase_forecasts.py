@@ -1,6 +1,7 @@
 """The test case forecast source: a control card's series, bands and prices from the data."""
 import pathlib
 
+from mshoot_core import fmu_cache
 from mshoot_core.boptest.forecasts import ForecastSpec, TestCaseForecasts
 from mshoot_core.boptest.testcase import TestCase
 from mshoot_core.forecast import ForecastSource
@@ -75,7 +76,8 @@ def test_the_band_is_the_tightest_over_the_interval(boptest_case) -> None:
             'comfort_min'].iloc[k]
 
 
-def test_a_missing_column_names_the_folder_and_the_files(boptest_case) -> None:
+def test_a_missing_column_names_the_folder_and_the_files(boptest_case, monkeypatch,
+                                                         tmp_path) -> None:
     spec = ForecastSpec.from_section({'series': {'Tout': {'columns': ['TDryBul'],
                                                           'offset': -KELVIN},
                                                  'x': {'columns': ['Nope[1]']}}}, 'card.yaml')
@@ -83,6 +85,8 @@ def test_a_missing_column_names_the_folder_and_the_files(boptest_case) -> None:
                                          r'searched .*weather\.csv'):
         TestCaseForecasts(boptest_case, spec)
     if OFFICE.is_dir():  # no weather.csv there: the temperature is missing, said so
+        # (in an empty cache: a weather derived by another run would supply it)
+        monkeypatch.setenv(fmu_cache.CACHE_ENV, str(tmp_path / 'fmu'))
         with pytest.raises(ValueError, match=r"lacks the columns \['TDryBul', 'Nope\[1\]'\]"):
             TestCaseForecasts(TestCase.load(OFFICE), spec)
 
