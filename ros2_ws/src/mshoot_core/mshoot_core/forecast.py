@@ -504,3 +504,67 @@ def truth_of_frame(frame: pd.DataFrame, clock: np.ndarray | None = None) -> Trut
         return np.interp(np.asarray(at_s, dtype=float), times,
                          frame[series].to_numpy(dtype=float))
     return truth
+
+
+#: The forecast scenarios of a benchmark's MPC runs by default: perfect forecasts, BOPTEST's
+#: ``high`` level (temperature and solar) with three seeds, ``low`` and ``medium`` with one
+#: (:func:`uncertainty_runs`).
+BENCHMARK_UNCERTAINTY = ('none', 'high=1,2,3', 'low=1', 'medium=1')
+
+
+def uncertainty_runs(specs: Sequence[str]) -> list[ForecastErrorSettings]:
+    """
+    Return the forecast scenarios of ``specs``: ``LEVEL`` or ``LEVEL=SEED,SEED,...`` each.
+
+    The level applies to both points (temperature and solar), as in the benchmark's scenarios;
+    ``LEVEL`` alone is seed 1 (``none``: perfect, seed 0). Duplicates are dropped.
+
+    Raises
+    ------
+    ValueError
+        For an unknown level, a seed that is not a whole number in range, or no scenario.
+
+    """
+    runs: list[ForecastErrorSettings] = []
+    for spec in specs:
+        level, _, seeds = str(spec).partition('=')
+        level = _level(level.strip(), 'forecast')
+        if level == 'none':
+            values = [0]
+        else:
+            try:
+                values = [int(s) for s in seeds.split(',')] if seeds.strip() else [1]
+            except ValueError as exc:
+                raise ValueError(f'expected LEVEL or LEVEL=SEED,SEED,... (whole seeds), got '
+                                 f'{spec!r}') from exc
+        for seed in values:
+            errors = ForecastErrorSettings(temperature_uncertainty=level,
+                                           solar_uncertainty=level, seed=seed)
+            if errors not in runs:
+                runs.append(errors)
+    if not runs:
+        raise ValueError('expected at least one forecast scenario (e.g. none, high=1,2,3)')
+    return runs
+
+
+def scenario_fields(errors: ForecastErrorSettings | None) -> dict[str, object]:
+    """
+    Return a run record's forecast fields: ``uncertainty`` (the level) and ``seed``.
+
+    None (a controller that reads no weather forecast): level ``none``, seed None; perfect
+    forecasts: seed None too (no draw).
+    """
+    if errors is None or (errors.temperature_uncertainty == errors.solar_uncertainty == 'none'):
+        return {'uncertainty': 'none', 'seed': None}
+    levels = {errors.temperature_uncertainty, errors.solar_uncertainty}
+    level = levels.pop() if len(levels) == 1 else (
+        f'temperature {errors.temperature_uncertainty}, solar {errors.solar_uncertainty}')
+    return {'uncertainty': level, 'seed': int(errors.seed)}
+
+
+def scenario_suffix(errors: ForecastErrorSettings | None) -> str:
+    """Return a run name's suffix of its forecast scenario: '' (perfect) or ``_high_s1``."""
+    fields = scenario_fields(errors)
+    if fields['seed'] is None:
+        return ''
+    return f'_{str(fields["uncertainty"]).replace(", ", "_").replace(" ", "-")}_s{fields["seed"]}'
