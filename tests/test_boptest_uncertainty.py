@@ -1,4 +1,4 @@
-"""The BOPTEST benchmark under forecast uncertainty: scenarios, the forecast margin, ROS == core."""
+"""The BOPTEST benchmark under forecast uncertainty: scenarios, forecast margin, ROS == core."""
 import json
 import math
 import pathlib
@@ -124,9 +124,10 @@ def test_uncertainty_table_means_ranges_and_verdict() -> None:
 def test_benchmark_under_uncertainty_over_ros_equals_the_core_run(
         boptest_case: TestCase, tmp_path: pathlib.Path) -> None:
     """
-    The benchmark's mshoot run under ``high`` (seed 3) over ROS: its records carry the scenario,
-    and it equals the core run with the same errors to 1e-9, which differs from the core run on
-    perfect forecasts (the errors reached the plan).
+    The benchmark's mshoot run under ``high`` over ROS equals the core run with its errors.
+
+    Seed 3: its records carry the scenario, and it equals the core run with the same errors to
+    1e-9, which differs from the core run on perfect forecasts (the errors reached the plan).
 
     Shortened: peak_heat_day, 1 day of warm-up, 1 day of test, the dynamic price.
     """

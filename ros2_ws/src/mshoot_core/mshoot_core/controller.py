@@ -888,10 +888,11 @@ class Controller:
         """
         Return the forecast window with the comfort band narrowed for an uncertain state.
 
-        The lower edge raised by ``band_margin_k`` and, with a ``forecast_uncertainty``, by
-        ``forecast_margin_std`` standard deviations of the largest bounded state that the
-        forecast errors cause along the plan from ``state``
-        (:func:`mshoot_core.forecast_margin.forecast_error_std`, controls held as below).
+        The lower edge raised by ``band_margin_k``; then, with a ``forecast_uncertainty``,
+        both edges moved in by ``forecast_margin_std`` standard deviations of the largest
+        bounded state that the forecast errors cause along the plan from ``state``
+        (:func:`mshoot_core.forecast_margin.forecast_error_std`, controls held as below), at
+        most to the band's middle: an error can leave the zone too cold or too warm.
 
         Back-off by ``comfort_margin_std`` standard deviations of the predicted zone
         temperatures (the largest bounded state's) at each row: the estimate's covariance
@@ -938,7 +939,7 @@ class Controller:
 
     def _with_forecast_margin(self, step_ns: int, window: pd.DataFrame, state: np.ndarray,
                               bounded: list[int]) -> pd.DataFrame:
-        """Return the window with the lower edge raised for the forecast errors."""
+        """Return the window with the band narrowed for the forecast errors."""
         from mshoot_core.forecast_margin import forecast_error_std
         try:
             std = forecast_error_std(self.model, state, self._held_inputs(step_ns, window),
@@ -948,10 +949,11 @@ class Controller:
             logger.warning('no forecast margin at %.0f s: the prediction failed (%s)',
                            step_ns / NS_PER_S, exc)
             return window
+        margin = self.settings.comfort.forecast_margin_std * std[:, bounded].max(axis=1)
         out = window.copy()
-        out['comfort_min'] = out['comfort_min'] + (self.settings.comfort.forecast_margin_std
-                                                   * std[:, bounded].max(axis=1))
-        out['comfort_max'] = np.maximum(out['comfort_max'], out['comfort_min'])
+        half = 0.5 * (out['comfort_max'] - out['comfort_min']).to_numpy()
+        out['comfort_min'] = out['comfort_min'] + np.minimum(margin, half)
+        out['comfort_max'] = out['comfort_max'] - np.minimum(margin, half)
         return out
 
     def _held_inputs(self, step_ns: int, window: pd.DataFrame) -> np.ndarray:

@@ -19,8 +19,9 @@ state and the errors are propagated together (:func:`forecast_error_std`): the c
 ``P[k+1] = M_k P[k] M_k' + diag(0, s**2)``, ``P[0] = diag(0, s0**2)``; the result is the
 standard deviation of every state at every row.
 
-The controller raises the comfort band's lower edge by ``forecast_margin_std`` of these
-standard deviations of the zone temperature (settings ``forecast_error_inputs``,
+The controller narrows the comfort band on each side by ``forecast_margin_std`` of these
+standard deviations of the zone temperature (an error can leave the zone too cold or, with more
+sun than forecast on a slab heated ahead, too warm) (settings ``forecast_error_inputs``,
 ``forecast_uncertainty``: :class:`~mshoot_core.settings.ComfortSettings`).
 """
 from __future__ import annotations

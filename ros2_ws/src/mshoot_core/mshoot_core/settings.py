@@ -266,9 +266,10 @@ class ComfortSettings(SettingsGroup):
         "parameters of the level); 'none': no forecast margin", choices=UNCERTAINTY_LEVELS,
         apply='inputs')
     forecast_margin_std: float = setting(
-        1.0, "raise of the comfort band's lower edge, on top of band_margin_k, by this many "
-        'standard deviations of the zone temperature that the forecast errors cause along '
-        'the plan (the errors propagated through the model: mshoot_core.forecast_margin) [-]',
+        1.0, 'the comfort band narrowed on each side (after band_margin_k, at most to its '
+        'middle) by this many standard deviations of the zone temperature that the forecast '
+        'errors cause along the plan (the errors propagated through the model: '
+        'mshoot_core.forecast_margin) [-]',
         low=0.0, high=10.0, apply='inputs')
 
     @property
@@ -513,7 +514,6 @@ class EstimationSettings(SettingsGroup):
                     "'control=output/model_output' items separated by commas, got "
                     f'{self.measured_inputs!r}']
         return []
-
 
 
 @dataclasses.dataclass(frozen=True)

@@ -6,10 +6,11 @@ BOPTEST over ROS 2: the baseline, the tuned rule and mshoot on the test periods 
     boptest --controllers mshoot --uncertainty none high=1,2,3 --out out/boptest_high
 
 Every run goes over the ROS nodes in one process (one executor, a private context, discovery
-off; ``--workers`` runs at once, each in a worker process of its own): the emulator runs the test case from a ``boptest`` model card (one persistent FMU
-instance, FMU time = seconds of the year, the warm-up under the building's own control, outputs
-recorded every 60 s), the forecaster serves the test case's data (weather, band, occupancy, the
-price scenario) and the controller answers each step:
+off; ``--workers`` runs at once, each in a worker process of its own): the emulator runs the
+test case from a ``boptest`` model card (one persistent FMU instance, FMU time = seconds of the
+year, the warm-up under the building's own control, outputs recorded every 60 s), the
+forecaster serves the test case's data (weather, band, occupancy, the price scenario) and the
+controller answers each step:
 
 - ``baseline``: the card ``boptest_baseline.yaml`` maps the setpoint without its overwrite
   switch, so the building's own controller is in charge; the rule node (mode ``baseline``) only
@@ -41,8 +42,8 @@ read it): each is simulated once per period (the rule once per distinct tuned le
 its KPIs are computed for every price scenario it stands for; only ``cost_tot`` differs.
 
 Writes ``<out>/kpis.json`` (records: controller, period, price, uncertainty, seed, BOPTEST's
-KPIs, starts_per_day, wall_s), ``<out>/runs/<controller>_<period>[_<price>]/`` (the emulator's files
-with ``boptest_records.csv``) and, with ``--docs``, ``<docs>/boptest.md`` and
+KPIs, starts_per_day, wall_s), ``<out>/runs/<controller>_<period>[_<price>[_<level>_s<seed>]]/``
+(the emulator's files with ``boptest_records.csv``) and, with ``--docs``, ``<docs>/boptest.md`` and
 ``<docs>/boptest/*.png``.
 """
 from __future__ import annotations
@@ -637,22 +638,23 @@ def _uncertainty_lines(args: argparse.Namespace, case: TestCase, records: list[d
     return ['## Under forecast uncertainty', '',
             "mshoot's forecasts carry BOPTEST's forecast errors (v0.8.0 scenarios "
             '`temperature_uncertainty` = `solar_uncertainty` = the level, `seed`; '
-            '`mshoot_core.forecast`, reproducing BOPTEST\'s reference forecasts): AR(1) errors '
+            "`mshoot_core.forecast`, reproducing BOPTEST's reference forecasts): AR(1) errors "
             'on the outdoor temperature and the irradiance, redrawn every hour for the '
             f'forecast of the next 37 h; levels {levels}. The forecaster node serves them on '
-            "`/forecast`; the MPC re-plans every hour from the newest forecast and its state "
+            '`/forecast`; the MPC re-plans every hour from the newest forecast and its state '
             'estimate. It is told the level (setting `forecast_uncertainty`, '
-            '`mshoot_core.forecast_margin.allowance`) and raises the comfort band\'s lower '
-            'edge, on top of `band_margin_k`, by `forecast_margin_std` standard deviations of '
-            'the zone temperature the errors cause along the plan (the AR(1) errors and the '
+            '`mshoot_core.forecast_margin.allowance`) and narrows the comfort band on each '
+            'side, after `band_margin_k`, by `forecast_margin_std` standard deviations of the '
+            'zone temperature the errors cause along the plan (the AR(1) errors and the '
             "states' deviation propagated together through the model's derivatives: "
-            '`mshoot_core.forecast_margin`). The baseline and the rule read no weather '
-            'forecast (the rule\'s lead is a forecast of the band, exact): their KPIs hold '
+            '`mshoot_core.forecast_margin`): more sun than forecast on a floor heated ahead '
+            'overheats the zone, less leaves it cold. The baseline and the rule read no weather '
+            "forecast (the rule's lead is a forecast of the band, exact): their KPIs hold "
             'at every level.', '',
             *uncertainty_table(records),
             f'![Forecast bands and KPIs per uncertainty level](boptest/{figure.name})', '',
             'Top: the forecast a request at the start of the test period of '
-            f'`{period}` gets, the 5-95 % band of 30 seeds per level against the test case\'s '
+            f"`{period}` gets, the 5-95 % band of 30 seeds per level against the test case's "
             "data. Bottom: mshoot's discomfort and its cost relative to its perfect-forecast "
             'run per level, mean over seeds, one line per run.', '']
 
