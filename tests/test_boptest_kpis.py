@@ -2,7 +2,7 @@
 import json
 import pathlib
 
-from mshoot_core.boptest.kpis import compute_kpis, KPI_NAMES, kpi_records, peak_power
+from mshoot_core.boptest.kpi_calculator import compute_kpis, KPI_NAMES, kpi_records, peak_power
 from mshoot_core.boptest.plant import BoptestPlant
 from mshoot_core.boptest.testcase import TestCase
 import numpy as np

@@ -141,7 +141,7 @@ def test_short_closed_loop_beats_the_baseline(boptest_case) -> None:
     The economic MPC: the Controller of the settings ``boptest_house`` on the card
     ``boptest_modulation`` (:func:`~mshoot_core.boptest.supervision.supervised_plant`).
     """
-    from mshoot_core.boptest.kpis import compute_kpis
+    from mshoot_core.boptest.kpi_calculator import compute_kpis
     from mshoot_core.boptest.plant import BoptestPlant, run_period
     from mshoot_core.boptest.supervision import supervised_plant
     from mshoot_core.models.card import builtin_card

@@ -1,8 +1,8 @@
 """BOPTEST over ROS: shortened baseline, rule and mshoot runs equal the core runs; cards."""
 import pathlib
 
-from mshoot_core.boptest.emulation import boptest_scenario
-from mshoot_core.boptest.kpis import compute_kpis
+from mshoot_core.boptest.kpi_calculator import compute_kpis
+from mshoot_core.boptest.period_scenario import period_scenario
 from mshoot_core.boptest.plant import run_period
 from mshoot_core.boptest.testcase import TestCase
 from mshoot_core.models.card import build_model, builtin_card, CardError, load_card
@@ -195,11 +195,11 @@ def test_forecaster_serves_the_test_case_data(boptest_case: TestCase, context) -
 
 
 def test_scenario_rows_and_clock(boptest_case: TestCase) -> None:
-    scenario = boptest_scenario(boptest_case, 'typical_heat_day', hours=3, price='dynamic')
+    scenario = period_scenario(boptest_case, 'typical_heat_day', hours=3, price='dynamic')
     assert scenario.index.tolist() == [0.0, 3600.0, 7200.0, 10800.0]
     assert scenario.attrs['start'] == '2023-04-19T00:00:00'  # 108 d after 1 January
     assert scenario['fmu_time_s'].iloc[0] == 108 * 86400.0
-    assert len(boptest_scenario(boptest_case, 'peak_heat_day')) == 14 * 24 + 1
+    assert len(period_scenario(boptest_case, 'peak_heat_day')) == 14 * 24 + 1
 
 
 def test_boptest_cards(tmp_path: pathlib.Path, boptest_case: TestCase) -> None:
@@ -207,7 +207,7 @@ def test_boptest_cards(tmp_path: pathlib.Path, boptest_case: TestCase) -> None:
     assert card.source == 'boptest' and card.controls['TSet'].activate == 'oveTSet_activate'
     assert card.boptest == {'test_case_dir': str(boptest_case.directory), 'warmup_days': 7.0,
                             'history_step_s': 0.0, 'setpoint_zones': {},
-                            'excitation': None}
+                            'excitation': None, 'control': None}
     assert load_card(builtin_card('boptest_baseline')).controls['TSet'].activate is None
     with pytest.raises(ValueError, match='emulator'):
         build_model(card, role='control')

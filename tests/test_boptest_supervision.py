@@ -120,7 +120,7 @@ def test_short_core_run_of_the_house(boptest_case) -> None:
 def test_mshoot_boptest_runs_the_mpc_by_configuration(boptest_case, tmp_path,
                                                       capsys: pytest.CaptureFixture) -> None:
     """
-    ``mshoot boptest --controllers baseline,rule,mshoot``: the MPC from its cards and settings.
+    ``mshoot boptest --controllers baseline,rule,mshoot``: the MPC its test case card names.
 
     A shortened run (1 day of warm-up, 1 day); the MPC beats the building's own control on
     cost and discomfort, ran the heat pump's modulation in bursts (the rule its setpoint).
@@ -131,8 +131,7 @@ def test_mshoot_boptest_runs_the_mpc_by_configuration(boptest_case, tmp_path,
         'bestest_hydronic_heat_pump.yaml'
     out = tmp_path / 'hp'
     code = cli.main(['boptest', '--testcase', str(boptest_case.directory), '--card', str(card),
-                     '--controllers', 'baseline,rule,mshoot', '--control-card', 'boptest_house',
-                     '--mpc-settings', 'boptest_house', '--periods', 'peak_heat_day',
+                     '--controllers', 'baseline,rule,mshoot', '--periods', 'peak_heat_day',
                      '--prices', 'dynamic', '--warmup-days', '1', '--days', '1', '--lead', '3',
                      '--margin', '0.5', '--workers', '2', '--out', str(out)])
     assert code == 0

@@ -5,7 +5,7 @@ import pathlib
 
 from mshoot_core import fmu_cache
 from mshoot_core.boptest import weather
-from mshoot_core.boptest.kpis import compute_kpis
+from mshoot_core.boptest.kpi_calculator import compute_kpis
 from mshoot_core.boptest.plant import BoptestPlant
 from mshoot_core.boptest.testcase import DIR_ENV, TestCase
 import numpy as np
@@ -233,8 +233,24 @@ def test_mshoot_boptest_refuses_bad_input_in_one_line(boptest_case: TestCase,
     from mshoot_studies import cli
     card = CARDS / 'bestest_hydronic_heat_pump.yaml'
     base = ['boptest', '--testcase', str(boptest_case.directory), '--out', str(tmp_path)]
+    named = '  control: {card: boptest_house, settings: boptest_house}\n'
+    assert named in card.read_text()
+    unnamed, misnamed, missing = (tmp_path / f'{n}.yaml' for n in ('unnamed', 'misnamed',
+                                                                   'missing'))
+    unnamed.write_text(card.read_text().replace(named, ''))
+    misnamed.write_text(card.read_text().replace(named, named.replace('card:', 'cards:')))
+    missing.write_text(card.read_text().replace(named, named.replace('card: boptest_house',
+                                                                     'card: absent.yaml')))
     cases = [
-        (['--card', str(card), '--controllers', 'mshoot'], 'needs --control-card'),
+        (['--card', str(unnamed), '--controllers', 'mshoot'], 'names no boptest.control card'),
+        (['--card', str(unnamed), '--controllers', 'mshoot', '--control-card', 'boptest_house'],
+         'names no boptest.control settings (or give --mpc-settings)'),
+        (['--card', str(card), '--controllers', 'mshoot', '--mpc-settings', 'no_such'],
+         "no settings file 'no_such'"),
+        (['--card', str(misnamed), '--controllers', 'mshoot'],
+         "boptest.control: unknown key 'cards'; allowed: card, settings"),
+        (['--card', str(missing), '--controllers', 'mshoot'],
+         "boptest.control.card: 'absent.yaml' is neither a file"),
         (['--card', str(card), '--controllers', 'mshoot', '--control-card', 'r1c1',
           '--mpc-settings', 'boptest_house'], 'cost_output must be one of'),
         (['--card', str(card), '--controllers', 'baseline,fancy'], 'expected some of'),
@@ -291,3 +307,35 @@ def test_office_weather_derived_once_and_found_by_lookup(office, tmp_path, monke
     day_wh = float(np.sum((irradiance[1:] + irradiance[:-1]) / 2.0) * 900.0 / 3600.0)
     assert day_wh == pytest.approx(mos[1:25, 8].sum(), rel=0.05)
     assert day_wh > 100.0  # a winter day in Brussels, not a dark one
+
+
+def test_a_test_case_card_names_its_mpc(boptest_case: TestCase, tmp_path: pathlib.Path) -> None:
+    """``boptest.control``: files relative to the card's folder, else packaged names."""
+    from mshoot_core.models.card import builtin_card, CardError, load_card
+    from mshoot_core.settings import SETTINGS_DIR
+    from mshoot_studies.boptest import prepare_card
+    card = CARDS / 'bestest_hydronic_heat_pump.yaml'
+    text = card.read_text()
+    folder = tmp_path / 'mine'
+    folder.mkdir()
+    (folder / 'model.yaml').write_text(builtin_card('boptest_house').read_text())
+    (folder / 'mpc.yaml').write_text((SETTINGS_DIR / 'boptest_house.yaml').read_text())
+    named = '  control: {card: boptest_house, settings: boptest_house}\n'
+    mine = folder / 'house.yaml'
+    mine.write_text(text.replace(named, '  control: {card: model.yaml, settings: mpc.yaml}\n'))
+    loaded = load_card(mine)
+    assert loaded.boptest['control'] == {'card': str(folder / 'model.yaml'),
+                                         'settings': str(folder / 'mpc.yaml')}
+    assert load_card(card).boptest['control'] == {
+        'card': str(builtin_card('boptest_house')),
+        'settings': str(SETTINGS_DIR / 'boptest_house.yaml')}
+    # the copy mshoot boptest runs from (another folder) keeps naming the same files
+    copy = load_card(prepare_card(mine, boptest_case.directory, tmp_path / 'out'))
+    assert copy.boptest['control'] == loaded.boptest['control']
+    # a packaged name is not taken for a path, nor a path for a packaged name
+    for entry, message in (('{card: model}', "'model' is neither a file"),
+                           ('{settings: ../mpc.yaml}', "'../mpc.yaml' is neither a file"),
+                           ('{}', 'control'), ('{card: 3}', 'control')):
+        mine.write_text(text.replace(named, f'  control: {entry}\n'))
+        with pytest.raises(CardError, match=message):
+            load_card(mine)

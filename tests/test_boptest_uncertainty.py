@@ -131,7 +131,7 @@ def test_benchmark_under_uncertainty_over_ros_equals_the_core_run(
 
     Shortened: peak_heat_day, 1 day of warm-up, 1 day of test, the dynamic price.
     """
-    from mshoot_core.boptest.kpis import compute_kpis
+    from mshoot_core.boptest.kpi_calculator import compute_kpis
     from mshoot_core.boptest.plant import run_period
     from mshoot_core.boptest.supervision import supervised_plant
     from mshoot_nodes.boptest_run import main, MSHOOT_CARD, MSHOOT_PLANT, MSHOOT_SETTINGS

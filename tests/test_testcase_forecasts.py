@@ -141,10 +141,10 @@ def test_errors_touch_temperature_and_solar_only(boptest_case) -> None:
 
 def test_scenario_forecasts_with_a_card_serve_its_source(boptest_case) -> None:
     """The forecaster's core: a BOPTEST period's step forecast is the card's frame."""
-    from mshoot_core.boptest.emulation import boptest_scenario
+    from mshoot_core.boptest.period_scenario import period_scenario
     from mshoot_core.scenario_forecasts import ScenarioForecasts
     from mshoot_core.models.card import builtin_card
-    scenario = boptest_scenario(boptest_case, 'typical_heat_day', hours=48, price='constant')
+    scenario = period_scenario(boptest_case, 'typical_heat_day', hours=48, price='constant')
     errors = ForecastErrorSettings(temperature_uncertainty='low', seed=2)
     forecasts = ScenarioForecasts(scenario, errors, builtin_card(CARD))
     assert forecasts.series == ('Tout', 'solar', 'gains')
@@ -160,3 +160,44 @@ def test_scenario_forecasts_with_a_card_serve_its_source(boptest_case) -> None:
     plain = ScenarioForecasts(scenario, None, builtin_card('r1c1'))
     assert plain.testcase is None and plain.series is None
     pd.testing.assert_frame_equal(plain.window(3, 5), ScenarioForecasts(scenario).window(3, 5))
+
+
+def test_a_period_scenario_has_the_forecasts_band(tmp_path: pathlib.Path) -> None:
+    """One band over an interval: the scenario's rows and the forecast agree, mid-hour too."""
+    import json
+    from mshoot_core.boptest.forecasts import BandSource, interval_band
+    from mshoot_core.boptest.period_scenario import period_scenario
+    day = 86400.0
+    (tmp_path / 'Resources').mkdir()
+    (tmp_path / 'wrapped.fmu').write_bytes(b'')  # never loaded here
+    (tmp_path / 'config.json').write_text(json.dumps({'name': 'blip', 'area': 10.0}))
+    (tmp_path / 'days.json').write_text(json.dumps({'p': 16}))  # test period from day 9
+    (tmp_path / 'kpis.json').write_text(json.dumps({'OperativeZoneTemperature[1]': ['T'],
+                                                   'ElectricPower': ['P']}))
+    times = np.arange(0.0, 30 * day, 1800.0)
+    blip = np.isclose(np.mod(times, day), 12.5 * 3600.0)  # raised for half an hour at 12:30
+    pd.DataFrame({'time': times, 'LowerSetp[1]': np.where(blip, 295.15, 293.15),
+                  'UpperSetp[1]': np.where(blip, 296.15, 297.15),
+                  'PriceElectricPowerConstant': 0.2, 'TDryBul': 275.0, 'HGloHor': 100.0}
+                 ).to_csv(tmp_path / 'Resources' / 'weather.csv', index=False)
+    case = TestCase.load(tmp_path)
+    scenario = period_scenario(case, 'p', hours=48, price='constant')
+    start = 9 * day
+    assert scenario['fmu_time_s'].iloc[0] == start
+    # the rows at 13:00 hold the half hour before: the tightest band, not the band at 13:00
+    at_one = np.isclose(np.mod(scenario['fmu_time_s'], day), 13 * 3600.0)
+    assert at_one.sum() == 2
+    np.testing.assert_allclose(scenario.loc[at_one, ['comfort_min', 'comfort_max']],
+                               [[22.0, 23.0]] * 2, atol=1e-9)
+    np.testing.assert_allclose(scenario.loc[~at_one, 'comfort_min'], 20.0, atol=1e-9)
+    np.testing.assert_allclose(scenario.loc[~at_one, 'comfort_max'], 24.0, atol=1e-9)
+    # the forecast of a card with the same band: the same rows
+    spec = ForecastSpec.from_section({'series': {'Tout': {'columns': ['TDryBul']}},
+                                      'bands': {'1': {'lower': 'LowerSetp[1]',
+                                                      'upper': 'UpperSetp[1]'}}})
+    frame = TestCaseForecasts(case, spec).frame(start, 48, 3600.0)
+    np.testing.assert_array_equal(frame['comfort_min'].to_numpy(), scenario['comfort_min'])
+    np.testing.assert_array_equal(frame['comfort_max'].to_numpy(), scenario['comfort_max'])
+    lo, hi = interval_band(case, BandSource('LowerSetp[1]', 'UpperSetp[1]'),
+                           scenario['fmu_time_s'].to_numpy(), 3600.0)
+    np.testing.assert_array_equal(lo, scenario['comfort_min'])

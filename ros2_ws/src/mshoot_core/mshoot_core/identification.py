@@ -423,31 +423,25 @@ def excite_test_case(case: Any, card: Any, experiment: TestCaseExperiment) -> pd
         If the days overlap a test period or its warm-up, or the levels are outside the limits.
 
     """
-    from mshoot_core.boptest.plant import BoptestPlant
+    from mshoot_core.boptest.plant import run_span
     check_outside_test_periods(case, card, experiment)
     names = card.control_names
     ranges = _level_ranges(names, control_limits(card), experiment.excitation)
     levels = excitation_levels(experiment.steps, ranges, experiment.excitation)
     specs = [card.controls[n] for n in names]
-    conversions = [v.conversion() for v in specs]
     recorded = list(dict.fromkeys(v.variable for v in (*card.states.values(),
                                                        *card.outputs.values())))
-    started = last = time.perf_counter()
-    with BoptestPlant(case, record=recorded) as plant:
-        plant.start(experiment.start_s - experiment.lead_days * DAY_S)
-        plant.advance(experiment.start_s, sample_s=experiment.sample_s)
-        for k in range(experiment.steps):
-            overwrites = {v.variable: scale * float(level) + offset
-                          for v, (scale, offset), level in zip(specs, conversions, levels[k])}
-            plant.advance(experiment.start_s + (k + 1) * experiment.step_s, overwrites,
-                          sample_s=experiment.sample_s)
-            if time.perf_counter() - last > PROGRESS_S:
-                last = time.perf_counter()
-                logger.info('excitation: step %d of %d, %.0f s', k + 1, experiment.steps,
-                            last - started)
-        logger.info('excitation of %s: %d steps of %g s in %.1f s', case.name,
-                    experiment.steps, experiment.step_s, time.perf_counter() - started)
-        return plant.records(experiment.start_s, experiment.end_s)
+    start, end = experiment.start_s, experiment.end_s
+
+    def excitation(t_s: float, outputs: Any) -> dict[str, float]:
+        level = levels[int(round((t_s - start) / experiment.step_s))]
+        return {v.variable: v.to_model(value) for v, value in zip(specs, level)}
+
+    run = run_span(case, start - experiment.lead_days * DAY_S, start, end, excitation,
+                   experiment.step_s, experiment.sample_s, recorded, label='excitation')
+    times = run.records['time'].to_numpy()
+    keep = (times >= start - 1e-6) & (times <= end + 1e-6)
+    return run.records[keep].reset_index(drop=True)
 
 
 def step_table(records: pd.DataFrame, case: Any, card: Any, model_card: Any,

@@ -9,12 +9,53 @@ import pandas as pd
 JOULES_PER_KWH = 3.6e6
 
 
+def band_distances(temperature: np.ndarray, lower: np.ndarray,
+                   upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Return how far each temperature is below and above its band [K] (0 inside).
+
+    The one definition of a band violation: the discomfort of a closed-loop run
+    (:func:`discomfort_kh`) and BOPTEST's ``tdis``
+    (:func:`mshoot_core.boptest.kpi_calculator.zone_discomfort`).
+
+    Parameters
+    ----------
+    temperature : ndarray
+        Temperatures [degC or K, as the band].
+    lower, upper : ndarray
+        The band's edges (broadcast against ``temperature``).
+
+    """
+    t = np.asarray(temperature, dtype=float)
+    return (np.maximum(np.asarray(lower, dtype=float) - t, 0.0),
+            np.maximum(t - np.asarray(upper, dtype=float), 0.0))
+
+
 def comfort_violation(temperature_c: np.ndarray, comfort_min: np.ndarray,
                       comfort_max: np.ndarray) -> np.ndarray:
     """Distance [K] of each temperature outside its band [comfort_min, comfort_max] (0 inside)."""
-    t = np.asarray(temperature_c, dtype=float)
-    return np.maximum(np.asarray(comfort_min) - t, 0.0) + np.maximum(t - np.asarray(comfort_max),
-                                                                     0.0)
+    below, above = band_distances(temperature_c, comfort_min, comfort_max)
+    return below + above
+
+
+def hours_integral(times_s: np.ndarray, values: np.ndarray) -> float:
+    """
+    Return the trapezoidal integral of samples over time in hours (a violation [K] -> K h).
+
+    The one integral of every discomfort KPI (:func:`discomfort_kh`, BOPTEST's ``tdis`` and
+    ``idis``).
+
+    Parameters
+    ----------
+    times_s : ndarray
+        Sample times [s], increasing.
+    values : ndarray
+        The samples (e.g. [K] or [ppm]).
+
+    """
+    t = np.asarray(times_s, dtype=float)
+    v = np.asarray(values, dtype=float)
+    return float(np.sum(0.5 * (v[1:] + v[:-1]) * np.diff(t)) / 3600.0)
 
 
 def energy_kwh(heat_rate_w: np.ndarray, step_s: float) -> dict[str, float]:
@@ -65,7 +106,7 @@ def discomfort_kh(fine: pd.DataFrame, temperature_column: str = 'y_T',
     t = np.asarray(fine.index, dtype=float)
     dist = comfort_violation(fine[temperature_column].to_numpy(), fine['comfort_min'].to_numpy(),
                              fine['comfort_max'].to_numpy())
-    integral = float(np.sum(0.5 * (dist[1:] + dist[:-1]) * np.diff(t)) / 3600.0)
+    integral = hours_integral(t, dist)
     on_grid = np.isclose(np.mod(t - t[0], sample_every_s), 0.0, atol=1e-6)
     hourly = float(np.sum(dist[on_grid]) * sample_every_s / 3600.0)
     return {'discomfort_kh': integral, 'discomfort_kh_hourly': hourly}

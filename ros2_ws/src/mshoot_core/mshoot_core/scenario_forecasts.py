@@ -32,8 +32,8 @@ class ScenarioForecasts:
     ``horizon_steps`` x the row spacing, interval the row spacing):
 
     - a BOPTEST test period (``attrs['boptest']`` of
-      :func:`mshoot_core.boptest.emulation.boptest_scenario`): the test case folder's series at
-      the FMU time of the step (seconds from 1 January, BOPTEST's clock and seed), each
+      :func:`mshoot_core.boptest.period_scenario.period_scenario`): the test case folder's
+      series at the FMU time of the step (seconds from 1 January, BOPTEST's clock and seed), each
       scenario column from the test case column and offset in ``attrs['boptest']['weather']``;
     - any other scenario: its own ``Tout`` [degC] and ``solrad`` [W/m2] columns (linear
       between rows) at the scenario's time [s since its start].

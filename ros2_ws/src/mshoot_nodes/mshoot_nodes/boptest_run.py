@@ -58,7 +58,7 @@ import sys
 import time
 from typing import Any, Callable, Sequence
 
-from mshoot_core.boptest.kpis import kpi_records, zone_discomfort
+from mshoot_core.boptest.kpi_calculator import kpi_records, zone_discomfort
 from mshoot_core.boptest.testcase import PRICE_SCENARIOS, TestCase
 from mshoot_core.forecast import (BENCHMARK_UNCERTAINTY, scenario_fields, scenario_suffix,
                                   uncertainty_runs)
@@ -682,7 +682,7 @@ def write_docs(args: argparse.Namespace, records: list[dict], runs: list[dict],
              '(emulator with one persistent FMU instance and a `boptest` model card, '
              'forecaster, controller node) in lockstep, in one process (runs on '
              f'{args.workers} worker processes at once); KPIs from the '
-             "emulator's outputs sampled every 60 s (`mshoot_core.boptest.kpis`).", '',
+             "emulator's outputs sampled every 60 s (`mshoot_core.boptest.kpi_calculator`).", '',
              "Checked by the tests: the KPIs computed by mshoot equal the README's definitions "
              'written out independently (raw CSVs, pandas, explicit sums) on the same stored '
              'outputs of a real baseline run, to 1e-9 '

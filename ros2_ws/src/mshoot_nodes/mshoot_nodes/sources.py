@@ -26,7 +26,7 @@ logger = logging.getLogger(__name__)
 
 #: Scenario names understood besides a CSV path (and ``boptest:<period>[:<price>]``).
 SCENARIOS = ('synthetic', 'ou44')
-#: Prefix of a BOPTEST test period scenario (see mshoot_core.boptest.emulation).
+#: Prefix of a BOPTEST test period scenario (see mshoot_core.boptest.period_scenario).
 BOPTEST_PREFIX = 'boptest:'
 
 
@@ -123,10 +123,10 @@ def load_scenario(name: str, data: str = '', hours: int = 72) -> pd.DataFrame:
 
     """
     if name.startswith(BOPTEST_PREFIX):
-        from mshoot_core.boptest.emulation import boptest_scenario
+        from mshoot_core.boptest.period_scenario import period_scenario
         from mshoot_core.boptest.testcase import TestCase
         period, price = parse_boptest(name)
-        return boptest_scenario(TestCase.load(data or None), period, hours, price)
+        return period_scenario(TestCase.load(data or None), period, hours, price)
     return reference_scenario(name, data or None, hours)
 
 

@@ -30,11 +30,13 @@ instance per process). Controllers:
   :func:`mshoot_core.boptest.supervision.supervised_plant`) of a control model card
   (``--control-card``: a file or a built-in card, with its ``testcase_forecast`` section: the
   forecast from the test case's data) and its settings (``--mpc-settings``: a YAML file of flat
-  settings, or a packaged one, e.g. ``boptest_house``); the card's controls are the overwrites
-  it sends (settings ``plant_controls``). One run per period, price and forecast scenario of
-  ``--uncertainty`` (``LEVEL`` or ``LEVEL=SEED,...``: BOPTEST's forecast errors on the outdoor
-  temperature and the irradiance at that level, :func:`mshoot_core.forecast.uncertainty_runs`;
-  default ``none``, perfect forecasts); the settings are told the level
+  settings, or a packaged one, e.g. ``boptest_house``); without these options, those the card
+  names in ``boptest.control`` (``card``, ``settings``: files relative to the card's folder or
+  packaged names); the card's controls are the overwrites it sends (settings
+  ``plant_controls``). One run per period, price and forecast scenario of ``--uncertainty``
+  (``LEVEL`` or ``LEVEL=SEED,...``: BOPTEST's forecast errors on the outdoor temperature and
+  the irradiance at that level, :func:`mshoot_core.forecast.uncertainty_runs`; default
+  ``none``, perfect forecasts); the settings are told the level
   (:func:`mshoot_core.forecast_margin.allowance`: the plan's forecast margin).
 
 The baseline and the rule never read the price nor a weather forecast: one run serves every
@@ -87,10 +89,11 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                         help='baseline, rule, mshoot; separated by spaces or commas')
     parser.add_argument('--control-card', default=None,
                         help='mshoot: the control model card (a file or a built-in card name, '
-                             'e.g. boptest_house)')
+                             "e.g. boptest_house; default the card's boptest.control.card)")
     parser.add_argument('--mpc-settings', default=None,
                         help='mshoot: the MPC settings (a YAML file of flat settings or a '
-                             'packaged name, e.g. boptest_house)')
+                             "packaged name, e.g. boptest_house; default the card's "
+                             'boptest.control.settings)')
     parser.add_argument('--uncertainty', nargs='+', default=['none'], metavar='LEVEL[=SEEDS]',
                         help="mshoot: forecast scenarios, e.g. none high=1,2,3 low (BOPTEST's "
                              'forecast errors of the outdoor temperature and the irradiance at '
@@ -160,6 +163,12 @@ def prepare_card(card_path: pathlib.Path, testcase: pathlib.Path,
     if isinstance(document.get('preload'), list):  # paths relative to the card's folder
         document['preload'] = [str((folder / e).resolve()) if isinstance(e, str) and '/' in e
                                else e for e in document['preload']]
+    control = document['boptest'].get('control')
+    if isinstance(control, dict):  # files relative to the card's folder; packaged names stay
+        document['boptest'] = {**document['boptest'], 'control': {
+            key: str((folder / value).resolve())
+            if isinstance(value, str) and value and (folder / value).is_file() else value
+            for key, value in control.items()}}
     document['boptest'] = {**document['boptest'], 'test_case': str(testcase.resolve())}
     out.mkdir(parents=True, exist_ok=True)
     path = out / f'card_{card_path.stem}.yaml'
@@ -177,8 +186,8 @@ def _run_one(directory: str, card_path: str, controller: str, period: str, lead:
     ``mpc`` is (control card, settings) of the controller ``mshoot`` (one price), ``errors``
     its forecast's (:class:`~mshoot_core.settings.ForecastErrorSettings`, None: perfect).
     """
+    from mshoot_core.boptest.kpi_calculator import kpi_records
     from mshoot_core.forecast import scenario_fields
-    from mshoot_core.boptest.kpis import kpi_records
     from mshoot_core.boptest.plant import run_period
     from mshoot_core.boptest.testcase import TestCase
     from mshoot_core.models.card import load_card
@@ -216,25 +225,32 @@ def _run_one(directory: str, card_path: str, controller: str, period: str, lead:
     return records
 
 
-def _mpc_configuration(args: argparse.Namespace, case: Any,
+def _mpc_configuration(args: argparse.Namespace, case: Any, card: Any,
                        card_path: pathlib.Path) -> tuple[str, str]:
     """
     Return (control card, settings) of ``mshoot``, checked before any run.
 
+    Each from its option, else from the card's ``boptest.control`` (``card``, ``settings``).
+
     Raises
     ------
     ValueError
-        Without ``--control-card`` or ``--mpc-settings``, for bad settings, or a control card
-        the test case cannot forecast or the plant's card cannot actuate.
+        When neither names one, for bad settings, or a control card the test case cannot
+        forecast or the plant's card cannot actuate.
 
     """
     from mshoot_core.boptest.supervision import supervised_plant
     from mshoot_core.settings import MpcSettings
-    if args.control_card is None or args.mpc_settings is None:
-        raise ValueError('--controllers mshoot needs --control-card (the control model card) '
-                         'and --mpc-settings (its settings file)')
-    control = control_card_path(args.control_card)
-    settings = args.mpc_settings
+    named = card.boptest.get('control') or {}
+    chosen = {'card': args.control_card or named.get('card'),
+              'settings': args.mpc_settings or named.get('settings')}
+    missing = [key for key, value in chosen.items() if value is None]
+    if missing:
+        raise ValueError(f'--controllers mshoot needs the control model card and its settings: '
+                         f'{card.path} names no boptest.control {missing[0]} (or give '
+                         f'--{"control-card" if missing[0] == "card" else "mpc-settings"})')
+    control = control_card_path(chosen['card'])
+    settings = chosen['settings']
     supervised_plant(case, card_path, control, MpcSettings.from_file(settings), args.prices[0])
     return str(control), str(settings)
 
@@ -275,7 +291,7 @@ def _run(args: argparse.Namespace) -> int:
                                                    if args.starts_output else [])])
     plant = BoptestPlant(case, record=record)  # checks the names; no instance
     targets = rule_targets(card, case) if 'rule' in controllers else {}
-    mpc = _mpc_configuration(args, case, card_path) if 'mshoot' in controllers else None
+    mpc = _mpc_configuration(args, case, card, card_path) if 'mshoot' in controllers else None
     _say(began, f'{case.name} ({plant.interface}, zones {case.zones}, energy '
                 f'{list(case.energy_outputs)}): {controllers} on {periods}')
     jobs: list[tuple[str, str, float, float, list[str], Any]] = []

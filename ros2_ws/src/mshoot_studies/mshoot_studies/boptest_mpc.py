@@ -58,7 +58,7 @@ def install(parameters: dict[str, float], target: pathlib.Path) -> pathlib.Path:
 
 def evaluate_command(args: argparse.Namespace) -> int:
     import numpy as np
-    from mshoot_core.boptest.kpis import compute_kpis, kpi_records
+    from mshoot_core.boptest.kpi_calculator import compute_kpis, kpi_records
     from mshoot_core.boptest.plant import BoptestPlant, run_period
     from mshoot_core.boptest.supervision import supervised_plant
     from mshoot_core.boptest.testcase import TestCase

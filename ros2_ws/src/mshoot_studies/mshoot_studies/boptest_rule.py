@@ -16,7 +16,7 @@ import dataclasses
 import logging
 from typing import Callable, Mapping, Sequence
 
-from mshoot_core.boptest.kpis import kpi_records
+from mshoot_core.boptest.kpi_calculator import kpi_records
 from mshoot_core.boptest.plant import run_period
 from mshoot_core.boptest.rule import (  # noqa: F401 (the rule, a decision in core)
     PreheatRule, rule_targets, RuleTarget, setpoint_targets)
@@ -43,7 +43,7 @@ class RuleTuning:
         The test period.
     grid : pd.DataFrame
         One row per grid point and price scenario: ``lead_h``, ``margin_k``, ``price``, the
-        KPIs (:func:`~mshoot_core.boptest.kpis.compute_kpis`), ``score`` and ``wall_s``.
+        KPIs (:func:`~mshoot_core.boptest.kpi_calculator.compute_kpis`), ``score`` and ``wall_s``.
     best : dict of str to dict
         Price scenario -> the chosen row (as a dict).
     weight : float

@@ -31,7 +31,8 @@ Row k of :meth:`TestCaseForecasts.frame` (time ``t_s + k step_s``, k = 0..steps)
   names for the price scenario;
 - the comfort band of each zone [degC with the default offset] over the interval ending at the
   row, (t_{k-1}, t_k] on the data's grid (row 0: t_0 alone): the highest lower edge and the
-  lowest upper edge (the tightest band), the upper edge never below the lower one. The first zone
+  lowest upper edge (the tightest band), the upper edge never below the lower one
+  (:func:`interval_band`, also the band of a test period's scenario). The first zone
   of ``bands`` is ``comfort_min``/``comfort_max`` (the MPC's band); with several zones every zone
   is also ``comfort_min_<zone>``/``comfort_max_<zone>``.
 
@@ -305,21 +306,53 @@ class TestCaseForecasts:
                 total = total + self.interval_means(column, times, step_s, float(t_s), horizon)
             offset = self.spec.series[name].offset
             frame[name] = total + offset if offset else total
-        n_sub = self._sub_steps(step_s)
-        ends = (times[:, None] - np.arange(n_sub)[None, :] * step_s / n_sub).reshape(-1)
-        ends = np.maximum(ends, times[0])  # (t_k-1, t_k] on the data's grid, end included
         several = len(self.spec.bands) > 1
         for i, (zone, band) in enumerate(self.spec.bands.items()):
-            lower = self.case.lookup(band.lower, ends).reshape(-1, n_sub)
-            upper = self.case.lookup(band.upper, ends).reshape(-1, n_sub)
-            lo = lower.max(axis=1) + band.offset
-            hi = np.maximum(upper.min(axis=1) + band.offset, lo)
+            lo, hi = interval_band(self.case, band, times, step_s, self.data_step_s)
             if i == 0:
                 frame[COMFORT_SERIES[0]], frame[COMFORT_SERIES[1]] = lo, hi
             if several:
                 frame[f'{COMFORT_SERIES[0]}_{zone}'] = lo
                 frame[f'{COMFORT_SERIES[1]}_{zone}'] = hi
         return frame
+
+
+def interval_band(case: TestCase, band: BandSource, times_s: np.ndarray, step_s: float,
+                  data_step_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Return the comfort band of each row over the interval ending there: (lower, upper).
+
+    The one definition of a test case's band over a control interval (the forecast's and the
+    scenario's, :func:`~mshoot_core.boptest.period_scenario.period_scenario`): at row time
+    t_k, the highest lower edge and the lowest upper edge (the tightest band) over
+    (t_k - step_s, t_k] sampled on the data's grid (row 0: t_0 alone), the upper edge never
+    below the lower one, each plus the band's offset.
+
+    Parameters
+    ----------
+    case : TestCase
+        The test case.
+    band : BandSource
+        The band's columns and offset.
+    times_s : np.ndarray
+        Row times [s from 1 January], increasing.
+    step_s : float
+        Interval length [s].
+    data_step_s : float, optional
+        Sampling step [s] (default: the smaller row spacing of the two columns).
+
+    """
+    times = np.asarray(times_s, dtype=float).reshape(-1)
+    if data_step_s is None:
+        data_step_s = min(float(np.min(np.diff(case.row_times(c))))
+                          for c in (band.lower, band.upper))
+    n_sub = max(1, int(round(step_s / data_step_s)))
+    ends = (times[:, None] - np.arange(n_sub)[None, :] * step_s / n_sub).reshape(-1)
+    ends = np.maximum(ends, times[0])  # (t_k-1, t_k] on the data's grid, end included
+    lower = case.lookup(band.lower, ends).reshape(-1, n_sub)
+    upper = case.lookup(band.upper, ends).reshape(-1, n_sub)
+    lo = lower.max(axis=1) + band.offset
+    return lo, np.maximum(upper.min(axis=1) + band.offset, lo)
 
 
 def card_forecasts(case: TestCase, card: Any, price: str = 'constant',

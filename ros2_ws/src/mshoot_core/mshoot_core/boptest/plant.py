@@ -3,7 +3,7 @@ A BOPTEST test case's FMU as a plant: one persistent instance stepped for a whol
 
 Stable API (other modules build on it)::
 
-    from mshoot_core.boptest.plant import BoptestPlant, run_period
+    from mshoot_core.boptest.plant import BoptestPlant, run_period, run_span
     with BoptestPlant(case) as plant:             # case: TestCase
         plant.start(warmup_start_s)               # instantiate + initialise at FMU time [s]
         plant.advance(start_s)                    # baseline control (no overwrite)
@@ -12,6 +12,7 @@ Stable API (other modules build on it)::
         table = plant.records()                   # DataFrame: 'time' [s] + recorded + overwrites
     run = run_period(case, 'peak_heat_day', controller=None)   # baseline; PeriodRun
     run = run_period(case, 'peak_heat_day', lambda t_s, outputs: {'<X>_u': value})
+    run = run_span(case, warmup_start_s, start_s, end_s, policy)  # any span of the year
 
 The FMU is Co-Simulation or Model Exchange (Co-Simulation when it has both), run by one
 :class:`~mshoot_core.models.fmi.FmiModel` as its plant (:mod:`mshoot_core.models.fmi_plant`:
@@ -59,6 +60,8 @@ MAX_SAMPLE_S = 60.0
 ME_TOLERANCE = 1e-6
 #: Time tolerance [s].
 _EPS_S = 1e-6
+#: Wall time between two progress lines of a run [s].
+PROGRESS_S = 10.0
 
 _instance_lock = threading.Lock()
 _instance_owner: list[BoptestPlant] = []
@@ -447,11 +450,7 @@ def run_period(case: TestCase, period: str, controller: StepPolicy | None = None
     """
     Run a test period in this process: warm-up under the building's own control, then the test.
 
-    The one period loop of every controller: the baseline (None), a rule, the MPC
-    (:class:`~mshoot_core.boptest.supervision.SupervisedPlant`). A controller with an
-    ``observe(plant)`` method observes the plant at the start and at the end of every control
-    step, the warm-up's included (then the warm-up runs in control steps from its start); every
-    control step of the test period it is called for the step's overwrites.
+    :func:`run_span` over the period's times (:meth:`TestCase.test_period`).
 
     Parameters
     ----------
@@ -459,18 +458,54 @@ def run_period(case: TestCase, period: str, controller: StepPolicy | None = None
         The test case.
     period : str
         A test period (:meth:`TestCase.test_period`).
-    controller : callable, optional
-        ``controller(t_s, outputs)`` called at every control step of the test period: the
-        overwrites held over the step, or the step's pieces (see :data:`StepPolicy`); None:
-        the baseline (no overwrite).
+    controller, control_step_s, sample_s, record
+        As :func:`run_span`.
     warmup_days, length_days : float
         Warm-up and test period lengths [days] (BOPTEST: 7 and 14).
+
+    Returns
+    -------
+    PeriodRun
+
+    """
+    warmup_start, start, end = case.test_period(period, warmup_days, length_days)
+    return run_span(case, warmup_start, start, end, controller, control_step_s, sample_s,
+                    record, label=period)
+
+
+def run_span(case: TestCase, warmup_start_s: float, start_s: float, end_s: float,
+             controller: StepPolicy | None = None, control_step_s: float | None = None,
+             sample_s: float = MAX_SAMPLE_S, record: Sequence[str] | None = None,
+             label: str = '') -> PeriodRun:
+    """
+    Run the plant from ``warmup_start_s``: its own control up to ``start_s``, then controlled.
+
+    The one period loop of every controller on a test case's FMU: the baseline (None), a
+    rule, the MPC (:class:`~mshoot_core.boptest.supervision.SupervisedPlant`), the
+    identification's excitation (:func:`mshoot_core.identification.excite_test_case`). A
+    controller with an ``observe(plant)`` method observes the plant at the start and at the end
+    of every control step, the warm-up's included (then the warm-up runs in control steps from
+    its start); every control step from ``start_s`` to ``end_s`` it is called for the step's
+    overwrites. A progress line is logged every :data:`PROGRESS_S` of wall time.
+
+    Parameters
+    ----------
+    case : TestCase
+        The test case.
+    warmup_start_s, start_s, end_s : float
+        Plant start, first controlled step, end [s from 1 January], in this order.
+    controller : callable, optional
+        ``controller(t_s, outputs)`` called at every control step from ``start_s``: the
+        overwrites held over the step, or the step's pieces (see :data:`StepPolicy`); None:
+        the baseline (no overwrite).
     control_step_s : float, optional
         Control step [s]; default the test case's (3600 s).
     sample_s : float
         Record step [s], <= 60.
     record : sequence of str, optional
         The outputs recorded (:class:`BoptestPlant`; default every output).
+    label : str
+        Names the run in the progress lines.
 
     Returns
     -------
@@ -479,16 +514,21 @@ def run_period(case: TestCase, period: str, controller: StepPolicy | None = None
     Raises
     ------
     ValueError
-        For a bad control step, or pieces that do not end at the step's end in order.
+        For a bad control step or times, or pieces that do not end at the step's end in order.
 
     """
-    warmup_start, start, end = case.test_period(period, warmup_days, length_days)
+    warmup_start, start, end = float(warmup_start_s), float(start_s), float(end_s)
     step = case.control_step_s if control_step_s is None else float(control_step_s)
     if not step > 0:
         raise ValueError(f'expected a positive control step, got {control_step_s!r}')
+    if not 0.0 <= warmup_start <= start < end:
+        raise ValueError(f'expected 0 <= warm-up start <= start < end, got {warmup_start:g}, '
+                         f'{start:g}, {end:g} s')
     observe = getattr(controller, 'observe', None)
     walls: list[float] = []
-    began = time.perf_counter()
+    began = last = time.perf_counter()
+    steps = math.ceil((end - start) / step - 1e-9)
+    name = label or case.name
     with BoptestPlant(case, record=record) as plant:
         plant.start(warmup_start)
         if observe is None:
@@ -511,8 +551,13 @@ def run_period(case: TestCase, period: str, controller: StepPolicy | None = None
             if observe is not None:
                 observe(plant)
             k += 1
+            if time.perf_counter() - last > PROGRESS_S:
+                last = time.perf_counter()
+                logger.info('%s: step %d of %d, %.0f s', name, k, steps, last - began)
         records = plant.records()
-    return PeriodRun(records, warmup_start, start, end, walls, time.perf_counter() - began)
+    wall = time.perf_counter() - began
+    logger.info('%s on %s: %d steps of %g s in %.1f s', name, case.name, k, step, wall)
+    return PeriodRun(records, warmup_start, start, end, walls, wall)
 
 
 def _pieces(decided: Any, t_s: float, t_next: float) -> list[tuple[float, Any]]:

@@ -39,6 +39,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import pandas as pd
 
+from mshoot_core.boptest.card_plant import record_means
 from mshoot_core.boptest.plant import BoptestPlant, recorded_outputs
 from mshoot_core.boptest.testcase import TestCase
 from mshoot_core.controller import Controller, MEAN_PREFIX, StepOutcome
@@ -108,13 +109,11 @@ class SupervisedPlant:
         """
         t = float(plant.time_s)
         now = plant.read([v.variable for v in self.card.states.values()])
-        states = {name: _canonical(v, now[v.variable]) for name, v in self.card.states.items()}
+        states = {name: v.from_model(now[v.variable]) for name, v in self.card.states.items()}
         outputs: dict[str, float] = {}
         if self._last_s is not None:
-            table = plant.records(self._last_s, t)
-            window = table[table['time'] > self._last_s]
-            outputs = {MEAN_PREFIX + name: _canonical(v, float(window[v.variable].mean()))
-                       for name, v in self.card.outputs.items()}
+            means = record_means(plant, list(self.card.outputs.values()), self._last_s, t)
+            outputs = {MEAN_PREFIX + name: value for name, value in zip(self.card.outputs, means)}
         return states, outputs
 
     def observe(self, plant: BoptestPlant) -> None:
@@ -171,17 +170,10 @@ class SupervisedPlant:
         out = []
         for end, row in zip(ends, values):
             overwrites: dict[str, float | None] = {}
-            for (control, spec), value, free in zip(self._sent.items(), row, released):
-                scale, offset = spec.conversion()
-                overwrites[spec.variable] = None if free else scale * float(value) + offset
+            for spec, value, free in zip(self._sent.values(), row, released):
+                overwrites[spec.variable] = None if free else spec.to_model(value)
             out.append((float(end), overwrites))
         return out
-
-
-def _canonical(variable: Any, value: float) -> float:
-    """Return a card variable's value in its canonical unit (from the FMU's)."""
-    scale, offset = variable.conversion()
-    return (float(value) - offset) / scale
 
 
 def supervised_plant(case: TestCase, plant_card: Any, control_card: Any, settings: Any,

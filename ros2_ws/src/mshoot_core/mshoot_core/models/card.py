@@ -217,6 +217,16 @@ class CardVariable:
         """``(scale, offset)`` with model value = scale * canonical value + offset."""
         return conversion(self.canonical_unit, self.unit)
 
+    def to_model(self, value: float) -> float:
+        """Return a canonical value in the model's (FMU's) unit."""
+        scale, offset = self.conversion()
+        return scale * float(value) + offset
+
+    def from_model(self, value: float) -> float:
+        """Return a model's (FMU's) value in the canonical unit."""
+        scale, offset = self.conversion()
+        return (float(value) - offset) / scale
+
 
 @dataclasses.dataclass(frozen=True)
 class ModelCard:
@@ -251,8 +261,9 @@ class ModelCard:
         Free text.
     boptest : dict or None
         For a card of kind ``boptest``: ``test_case_dir`` (absolute), ``warmup_days``,
-        ``history_step_s``, ``setpoint_zones`` (setpoint control -> zone) and ``excitation``
-        (the identification's experiment as the card writes it, or None).
+        ``history_step_s``, ``setpoint_zones`` (setpoint control -> zone), ``excitation``
+        (the identification's experiment as the card writes it, or None) and ``control``
+        (the MPC's ``card`` and ``settings`` as absolute paths, or None).
     network : NetworkSpec or None
         For a thermal network (a card's ``network`` section, or ``builtin: r1c1`` /
         ``r2c2``: the built-in card's): the parsed network
@@ -795,7 +806,38 @@ def _boptest_spec(path: pathlib.Path, spec: dict,
             'setpoint_zones': {str(k): str(v) for k, v in zones.items()}
             if isinstance(zones, dict) else {},
             'excitation': dict(spec['excitation']) if isinstance(spec.get('excitation'), dict)
-            else None}, str(fmu)
+            else None,
+            'control': _boptest_control(path, spec.get('control'), problems)}, str(fmu)
+
+
+def _boptest_control(path: pathlib.Path, entry: Any,
+                     problems: list[str]) -> dict[str, str] | None:
+    """
+    Resolve ``boptest.control``: its ``card`` and ``settings`` as absolute file paths.
+
+    Each is a file relative to the card's folder, or else the name of a packaged one (a
+    built-in card, :func:`builtin_card`; packaged settings,
+    :data:`mshoot_core.settings.SETTINGS_DIR`). Problems are appended; None without the entry.
+    """
+    from mshoot_core.settings import SETTINGS_DIR
+    if not isinstance(entry, dict):
+        return None  # none, or the schema reported it
+    packaged = {'card': CARDS_DIR, 'settings': SETTINGS_DIR}
+    out = {}
+    for key, value in entry.items():
+        if key not in packaged or not isinstance(value, str) or not value:
+            continue  # the schema reported it
+        local = (path.parent / pathlib.Path(value).expanduser()).resolve()
+        named = packaged[key] / f'{value}.yaml'
+        if local.is_file():
+            out[key] = str(local)
+        elif '/' not in value and named.is_file():
+            out[key] = str(named)
+        else:
+            names = sorted(p.stem for p in packaged[key].glob('*.yaml'))
+            problems.append(f'boptest.control.{key}: {value!r} is neither a file relative to '
+                            f"the card's folder ({local}) nor a packaged {key} {names}")
+    return out
 
 
 def _time_origin_problem(value: str) -> str | None:
@@ -1159,11 +1201,11 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
     if isinstance(tol, bool) or not 0.0 < float(tol) < 1.0:
         raise ValueError(f'tolerance must be in (0, 1), got {tol!r}')
     if card.boptest is not None:
-        from mshoot_core.boptest.emulation import BoptestPlantModel
+        from mshoot_core.boptest.card_plant import CardPlant
         if role != 'emulator':
             raise ValueError(f'model card {card.path}: a BOPTEST test case is an emulator '
                              f'(a plant), not a {role} model')
-        model = BoptestPlantModel(card, instance_name=f'mshoot-{role}')
+        model = CardPlant(card, instance_name=f'mshoot-{role}')
         model.time_origin_s = float(time_origin_s)
         model.control_specs = card.control_specs()
         return model

@@ -3,7 +3,7 @@ BOPTEST's key performance indicators from a record table of a run.
 
 Stable API::
 
-    from mshoot_core.boptest.kpis import compute_kpis, kpi_records, KPI_NAMES
+    from mshoot_core.boptest.kpi_calculator import compute_kpis, kpi_records, KPI_NAMES
     kpis = compute_kpis(table, case, start_s, end_s, price='dynamic', step_wall_s=walls)
     # {'tdis_tot': K h, 'idis_tot': ppm h, 'ener_tot': kWh/m2, 'cost_tot': EUR/m2,
     #  'emis_tot': kgCO2/m2, 'pele_tot': kW/m2, 'pgas_tot': kW/m2, 'pdih_tot': kW/m2,
@@ -44,14 +44,13 @@ import numpy as np
 import pandas as pd
 
 from mshoot_core.boptest.testcase import PEAK_KPIS, PRICE_SCENARIOS, TestCase
+from mshoot_core.kpis import band_distances, hours_integral, JOULES_PER_KWH
 
 logger = logging.getLogger(__name__)
 
 #: BOPTEST's KPIs, in the order of its reports.
 KPI_NAMES = ('tdis_tot', 'idis_tot', 'ener_tot', 'cost_tot', 'emis_tot', 'pele_tot',
              'pgas_tot', 'pdih_tot', 'time_rat')
-#: Joules per kWh.
-J_PER_KWH = 3.6e6
 #: Bin of the peak power KPI [s].
 PEAK_BIN_S = 900.0
 
@@ -88,11 +87,6 @@ def vector_power(table: pd.DataFrame, case: TestCase, vector: str) -> np.ndarray
     return _columns(table, case.energy_outputs.get(vector, [])).sum(axis=1)
 
 
-def electric_power(table: pd.DataFrame, case: TestCase) -> np.ndarray:
-    """Return the electric power P [W]: the sum of the ``ElectricPower`` outputs, per row."""
-    return vector_power(table, case, 'ElectricPower')
-
-
 def zone_discomfort(table: pd.DataFrame, case: TestCase) -> dict[str, tuple[np.ndarray, ...]]:
     """
     Return zone -> (below, above) the band [K] per row (the ``tdis`` integrands).
@@ -109,17 +103,11 @@ def zone_discomfort(table: pd.DataFrame, case: TestCase) -> dict[str, tuple[np.n
         lower_column, upper_column = case.band_columns(zone)
         lower, upper = case.lookup(lower_column, times), case.lookup(upper_column, times)
         temperatures = _columns(table, outputs)
-        out[zone] = (np.maximum(0.0, lower[:, None] - temperatures).sum(axis=1),
-                     np.maximum(0.0, temperatures - upper[:, None]).sum(axis=1))
+        below, above = band_distances(temperatures, lower[:, None], upper[:, None])
+        out[zone] = (below.sum(axis=1), above.sum(axis=1))
     if not out:
         raise ValueError(f'{case.name}: kpis.json names no OperativeZoneTemperature[z]')
     return out
-
-
-def thermal_discomfort(table: pd.DataFrame, case: TestCase) -> np.ndarray:
-    """Return the band violation [K] per row, averaged over the zones (``tdis_tot`` integrand)."""
-    return np.mean([below + above for below, above in zone_discomfort(table, case).values()],
-                   axis=0)
 
 
 def co2_discomfort(table: pd.DataFrame, case: TestCase) -> np.ndarray:
@@ -194,7 +182,7 @@ def compute_kpis(table: pd.DataFrame, case: TestCase, start_s: float, end_s: flo
     if not vectors:
         raise ValueError(f'{case.name}: kpis.json names no energy vector (expected one of '
                          'ElectricPower, GasPower, DistrictHeatingPower, ...)')
-    scale = J_PER_KWH * case.area_m2
+    scale = JOULES_PER_KWH * case.area_m2
     power = {vector: vector_power(period, case, vector) for vector in vectors}
     energy = cost = emissions = 0.0
     for vector, watts in power.items():
@@ -204,12 +192,12 @@ def compute_kpis(table: pd.DataFrame, case: TestCase, start_s: float, end_s: flo
         emissions += np.trapezoid(watts * case.lookup(case.emission_column(vector), times),
                                   times)
     per_zone = zone_discomfort(period, case)
-    zones = {zone: float((np.trapezoid(below, times) + np.trapezoid(above, times)) / 3600.0)
+    zones = {zone: hours_integral(times, below) + hours_integral(times, above)
              for zone, (below, above) in per_zone.items()}
     mean_excess = np.mean([below + above for below, above in per_zone.values()], axis=0)
     kpis: dict = {
-        'tdis_tot': float(np.trapezoid(mean_excess, times) / 3600.0),
-        'idis_tot': float(np.trapezoid(co2_discomfort(period, case), times) / 3600.0),
+        'tdis_tot': hours_integral(times, mean_excess),
+        'idis_tot': hours_integral(times, co2_discomfort(period, case)),
         'ener_tot': float(energy / scale),
         'cost_tot': float(cost / scale),
         'emis_tot': float(emissions / scale),

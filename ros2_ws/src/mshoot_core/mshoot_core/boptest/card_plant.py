@@ -1,113 +1,59 @@
 """
-The BOPTEST test case as mshoot's emulated building: its scenario and a plant model for a card.
+A card of kind ``boptest`` as the emulator's plant: the test case's FMU in the card's terms.
 
-- :func:`boptest_scenario`: the scenario of a test period, hourly rows from its start (index:
-  seconds since the start, the scenario convention; ``attrs['start']`` the ISO date-time of the
-  start in :data:`YEAR`): ``Tout`` [degC] and ``solrad`` [W/m2] from ``weather.csv`` (what the
-  building sees), ``occ`` [persons], ``dpos`` 0, the band ``comfort_min``/``comfort_max``
-  [degC] from ``LowerSetp[z]``/``UpperSetp[z]`` of one zone (the first of ``kpis.json`` unless
-  named; each row: the band at its time), the
-  electricity price ``price`` [EUR/kWh] of the chosen scenario, and ``fmu_time_s`` (the FMU
-  clock, seconds from 1 January).
-- :class:`BoptestPlantModel`: what :func:`mshoot_core.models.card.build_model` makes of a card
-  of kind ``boptest``: the test case's FMU (Co-Simulation or Model Exchange, at the card's
-  ``tolerance``) as one persistent :class:`~mshoot_core.boptest.plant.BoptestPlant` with the
-  plant interface the emulator drives
-  (``plant_start``, ``plant_step``). ``plant_start`` runs the warm-up under the building's own
-  control (``warmup_days`` of the card) up to the scenario's first time; every ``plant_step``
-  applies the controls as overwrites (the card's canonical units converted to the FMU's; a
-  control with ``activate`` overwrites, one without leaves the building's own controller in
-  charge: the baseline) and advances in steps of <= 60 s, recording BOPTEST's outputs
-  (:meth:`BoptestPlantModel.boptest_records`) for the KPIs.
+:class:`CardPlant` is what :func:`mshoot_core.models.card.build_model` makes of a card of kind
+``boptest``: the test case's FMU (Co-Simulation or Model Exchange, at the card's ``tolerance``)
+as one persistent :class:`~mshoot_core.boptest.plant.BoptestPlant` with the plant interface the
+emulator drives (``plant_start``, ``plant_step``). ``plant_start`` runs the warm-up under the
+building's own control (``warmup_days`` of the card) up to the scenario's first time; every
+``plant_step`` applies the controls as overwrites (the card's canonical units converted to the
+FMU's; a control with ``activate`` overwrites, one without leaves the building's own controller
+in charge: the baseline) and advances in steps of <= 60 s, recording BOPTEST's outputs
+(:meth:`CardPlant.boptest_records`) for the KPIs.
 
 FMU time = scenario time - ``time_origin_s`` (the card's ``time_origin``, e.g. 1 January of
-:data:`YEAR`, against the scenario's start; see
+:data:`~mshoot_core.boptest.period_scenario.YEAR`, against the scenario's start; see
 :func:`~mshoot_core.models.card.time_origin_seconds`).
 """
 from __future__ import annotations
 
 import logging
-from typing import Any, Mapping, Sequence
+from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
 
 from mshoot_core.boptest.plant import BoptestPlant, MAX_SAMPLE_S, ME_TOLERANCE
 from mshoot_core.boptest.testcase import TestCase
-from mshoot_core.units import KELVIN
 
 logger = logging.getLogger(__name__)
 
-#: The calendar year the scenario dates are placed in (a non-leap year; the data are a
-#: typical year without a date).
-YEAR = 2023
-#: The scenario's weather columns from the test case's: column -> (test case column, offset
-#: added): the outdoor temperature [degC] and the global horizontal irradiance [W/m2].
-SCENARIO_WEATHER = {'Tout': ('TDryBul', -KELVIN), 'solrad': ('HGloHor', 0.0)}
 
-
-def year_start() -> pd.Timestamp:
-    """Return 1 January of :data:`YEAR` (FMU time 0), naive."""
-    return pd.Timestamp(year=YEAR, month=1, day=1)
-
-
-def boptest_scenario(case: TestCase, period: str, hours: int | None = None,
-                     price: str = 'constant', step_s: float | None = None,
-                     zone: str | None = None) -> pd.DataFrame:
+def record_means(plant: BoptestPlant, variables: Sequence[Any], t0_s: float,
+                 t1_s: float) -> Iterator[float]:
     """
-    Return the scenario of a test period (module docstring): ``hours`` steps, ``hours + 1`` rows.
+    Yield the mean of each card variable over a plant's records in (t0, t1] [canonical unit].
+
+    The step means of a card's outputs, as the emulator publishes them (``mean_<output>``) and
+    the supervisory controller measures them.
 
     Parameters
     ----------
-    case : TestCase
-        The test case.
-    period : str
-        A test period (its start is the first row).
-    hours : int, optional
-        Control steps (default: the whole 14-day period).
-    price : str
-        Price scenario of the ``price`` column.
-    step_s : float, optional
-        Row spacing [s] (default the test case's control step).
-    zone : str, optional
-        The zone of the band and the occupancy (default the first of ``kpis.json``).
-
-    Raises
-    ------
-    ValueError
-        For an unknown period or price scenario, or a bad length.
+    plant : BoptestPlant
+        The plant (recording the variables' FMU outputs).
+    variables : sequence of CardVariable
+        The card's variables.
+    t0_s, t1_s : float
+        The interval [s, FMU time].
 
     """
-    _, start, end = case.test_period(period)
-    step = case.control_step_s if step_s is None else float(step_s)
-    steps = int(round((end - start) / step)) if hours is None else int(hours)
-    if steps < 1:
-        raise ValueError(f'hours must be >= 1, got {hours!r}')
-    fmu_times = start + np.arange(steps + 1) * step
-    zone = case.zones[0] if zone is None else str(zone)
-    lower, upper = case.band_columns(zone)
-    occupancy = f'Occupancy[{zone}]'
-    data = case.lookup_frame([*(c for c, _ in SCENARIO_WEATHER.values()), lower, upper,
-                              case.price_column(price)], fmu_times)
-    occupants = (case.lookup(occupancy, fmu_times) if occupancy in case.columns
-                 else np.zeros(fmu_times.size))
-    weather = {name: data[column].to_numpy() + offset
-               for name, (column, offset) in SCENARIO_WEATHER.items()}
-    scenario = pd.DataFrame({
-        'solrad': weather['solrad'], 'Tout': weather['Tout'],
-        'occ': occupants, 'dpos': np.zeros(fmu_times.size),
-        'comfort_min': data[lower].to_numpy() - KELVIN,
-        'comfort_max': data[upper].to_numpy() - KELVIN,
-        'price': data[case.price_column(price)].to_numpy(), 'fmu_time_s': fmu_times,
-    }, index=pd.Index(fmu_times - start, name='time_s'))
-    scenario.attrs['start'] = (year_start() + pd.Timedelta(seconds=start)).isoformat()
-    scenario.attrs['boptest'] = {'test_case': str(case.directory), 'period': period,
-                                 'price': price, 'start_s': start, 'zone': zone,
-                                 'weather': {k: list(v) for k, v in SCENARIO_WEATHER.items()}}
-    return scenario
+    table = plant.records(t0_s, t1_s)
+    window = table[(table['time'] > t0_s) & (table['time'] <= t1_s + 1e-6)]
+    for v in variables:
+        yield v.from_model(float(window[v.variable].mean()))
 
 
-class BoptestPlantModel:
+class CardPlant:
     """
     A card's BOPTEST test case as a persistent plant (module docstring).
 
@@ -176,8 +122,7 @@ class BoptestPlantModel:
         for variable, value in zip(self._controls, values):
             if variable.activate is None or not self._switches.get(variable.activate, 1):
                 continue  # the building's own control (no switch, or released)
-            scale, offset = variable.conversion()
-            out[variable.variable] = scale * float(value) + offset
+            out[variable.variable] = variable.to_model(value)
         return out
 
     def plant_switches(self, values: Mapping[str, bool]) -> None:
@@ -197,11 +142,8 @@ class BoptestPlantModel:
 
     def _read(self) -> tuple[np.ndarray, np.ndarray]:
         now = self.plant.read([v.variable for v in (*self._states, *self._outputs)])
-        x = np.array([(now[v.variable] - v.conversion()[1]) / v.conversion()[0]
-                      for v in self._states])
-        y = np.array([(now[v.variable] - v.conversion()[1]) / v.conversion()[0]
-                      for v in self._outputs])
-        return x, y
+        return (np.array([v.from_model(now[v.variable]) for v in self._states]),
+                np.array([v.from_model(now[v.variable]) for v in self._outputs]))
 
     # -- the plant -----------------------------------------------------------------------------
     @property
@@ -259,10 +201,7 @@ class BoptestPlantModel:
 
     def _step_means(self, t0_s: float, t1_s: float) -> np.ndarray:
         """Means of the outputs over the records in (t0, t1] (FMU time) [canonical units]."""
-        table = self.plant.records(t0_s, t1_s)
-        window = table[(table['time'] > t0_s) & (table['time'] <= t1_s + 1e-6)]
-        return np.array([(float(window[v.variable].mean()) - v.conversion()[1])
-                         / v.conversion()[0] for v in self._outputs])
+        return np.array(list(record_means(self.plant, self._outputs, t0_s, t1_s)))
 
     def step_means(self, t0_s: float, t1_s: float) -> dict[str, float]:
         """Return the means of the outputs over (t0, t1] (scenario time) by output name."""
@@ -287,5 +226,5 @@ class BoptestPlantModel:
 
     def __repr__(self) -> str:
         """Return a short description."""
-        return (f'BoptestPlantModel({self.case.name}, controls {list(self.control_names)}, '
+        return (f'CardPlant({self.case.name}, controls {list(self.control_names)}, '
                 f'warm-up {self.warmup_s / 86400:g} d)')
