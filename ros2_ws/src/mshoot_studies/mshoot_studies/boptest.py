@@ -43,8 +43,8 @@ The baseline and the rule never read the price nor a weather forecast: one run s
 price scenario (only ``cost_tot`` differs). Writes ``OUT/kpis.json`` (one record per controller,
 period, price and forecast scenario: BOPTEST's KPIs with ``tdis_zones``, the run's wall time,
 ``uncertainty`` and ``seed``: ``none`` and null for perfect or no forecasts), ``OUT/kpis.md``
-(the table, also printed), ``OUT/runs/<controller>_<period>[...]/records.csv`` and, with ``--figures``,
-``OUT/<run>.png``. Bad options or a bad folder or card: one line on stderr, exit 2.
+(the table, also printed), ``OUT/runs/<controller>_<period>[...]/records.csv`` and, with
+``--figures``, ``OUT/<run>.png``. Bad options or a bad folder or card: one line on stderr, exit 2.
 """
 from __future__ import annotations
 
