@@ -227,6 +227,7 @@ class Controller:
         self._configure_inputs()
         self.actuator = self._build_actuator()
         self.measured_inputs = self._check_measured_inputs()
+        self._error_processes  # noqa: B018 - bad forecast_error_inputs fail here
 
     # -- configuration --------------------------------------------------------------------
     @property
@@ -877,14 +878,21 @@ class Controller:
         self._last_step_ns = step
         estimate = self._estimates.get(state_stamp)  # None: the states are not estimated
         std = None if estimate is None else estimate.std
-        self._dispatch(step, state, self._with_margin(step, window, estimate), steady_ns, std)
+        self._dispatch(step, state, self._with_margin(step, window, estimate, state),
+                       steady_ns, std)
         self._collect(outcomes, time.monotonic_ns())
         return outcomes
 
-    def _with_margin(self, step_ns: int, window: pd.DataFrame,
-                     estimate: Estimate | None) -> pd.DataFrame:
+    def _with_margin(self, step_ns: int, window: pd.DataFrame, estimate: Estimate | None,
+                     state: np.ndarray | None = None) -> pd.DataFrame:
         """
         Return the forecast window with the comfort band narrowed for an uncertain state.
+
+        The lower edge raised by ``band_margin_k``; then, with a ``forecast_uncertainty``,
+        both edges moved in by ``forecast_margin_std`` standard deviations of the largest
+        bounded state that the forecast errors cause along the plan from ``state``
+        (:func:`mshoot_core.forecast_margin.forecast_error_std`, controls held as below), at
+        most to the band's middle: an error can leave the zone too cold or too warm.
 
         Back-off by ``comfort_margin_std`` standard deviations of the predicted zone
         temperatures (the largest bounded state's) at each row: the estimate's covariance
@@ -899,8 +907,11 @@ class Controller:
             window = window.copy()
             window['comfort_min'] = window['comfort_min'] + raise_k
             window['comfort_max'] = np.maximum(window['comfort_max'], window['comfort_min'])
-        z = self.settings.estimation.comfort_margin_std
         bounded = [self.model.state_names.index(s) for s in self.mpc.state_bounds]
+        if self._error_processes and state is not None and bounded \
+                and set(COMFORT_SERIES) <= set(window):
+            window = self._with_forecast_margin(step_ns, window, state, bounded)
+        z = self.settings.estimation.comfort_margin_std
         if estimate is None or z <= 0 or not bounded or not set(COMFORT_SERIES) <= set(window):
             return window
         try:
@@ -911,6 +922,34 @@ class Controller:
                            'prediction failed (%s)', step_ns / NS_PER_S, exc)
             std = estimate.std[None, :]
         margin = z * std[:, bounded].max(axis=1)
+        out = window.copy()
+        half = 0.5 * (out['comfort_max'] - out['comfort_min']).to_numpy()
+        out['comfort_min'] = out['comfort_min'] + np.minimum(margin, half)
+        out['comfort_max'] = out['comfort_max'] - np.minimum(margin, half)
+        return out
+
+    @property
+    def _error_processes(self) -> list:
+        """Return the forecast errors the plan allows for (settings; empty: none)."""
+        from mshoot_core.forecast_margin import error_processes
+        c = self.settings.comfort
+        if c.forecast_uncertainty == 'none' or c.forecast_margin_std <= 0:
+            return []
+        return error_processes(c.error_kinds, c.forecast_uncertainty, self.model.input_names)
+
+    def _with_forecast_margin(self, step_ns: int, window: pd.DataFrame, state: np.ndarray,
+                              bounded: list[int]) -> pd.DataFrame:
+        """Return the window with the band narrowed for the forecast errors."""
+        from mshoot_core.forecast_margin import forecast_error_std
+        try:
+            std = forecast_error_std(self.model, state, self._held_inputs(step_ns, window),
+                                     self.settings.problem.step_s, self._error_processes,
+                                     step_ns / NS_PER_S)
+        except ModelValueError as exc:
+            logger.warning('no forecast margin at %.0f s: the prediction failed (%s)',
+                           step_ns / NS_PER_S, exc)
+            return window
+        margin = self.settings.comfort.forecast_margin_std * std[:, bounded].max(axis=1)
         out = window.copy()
         half = 0.5 * (out['comfort_max'] - out['comfort_min']).to_numpy()
         out['comfort_min'] = out['comfort_min'] + np.minimum(margin, half)

@@ -101,6 +101,26 @@ def ar1(points: int, first: Callable[[], float],
     return error
 
 
+def ar1_shocks(shocks: np.ndarray, first_loc: float, first_scale: float, coefficient: float,
+               loc: float, scale: float) -> np.ndarray:
+    """
+    Return the AR(1) sequence of standard shocks drawn at once, as :func:`ar1` of scalar draws.
+
+    ``e[0] = first_loc + first_scale z[0]``, ``e[i] = (e[i-1] coefficient + loc) + scale z[i]``:
+    NumPy's legacy ``normal(m, s)`` and ``laplace(m, s)`` are ``m + s z`` of the same standard
+    draw, one after the other from the generator, so this equals the scalar draws bit for bit
+    (``z`` from ``normal(0, 1, size)`` or ``laplace(0, 1, size)``) at a fraction of the calls.
+    """
+    error = np.empty(len(shocks))
+    z = shocks.tolist()
+    last = first_loc + first_scale * z[0]
+    error[0] = last
+    for i in range(1, len(z)):
+        last = (last * coefficient + loc) + scale * z[i]
+        error[i] = last
+    return error
+
+
 @dataclasses.dataclass(frozen=True)
 class TemperatureError:
     """
@@ -127,8 +147,8 @@ class TemperatureError:
 
     def draw(self, random: np.random.RandomState, points: int) -> np.ndarray:
         """Return ``points`` errors [K], drawn in order from ``random`` (BOPTEST's order)."""
-        return ar1(points, lambda: random.normal(self.F0, self.K0),
-                   lambda last: random.normal(last * self.F + self.mu, self.K))
+        return ar1_shocks(random.normal(0.0, 1.0, size=points), self.F0, self.K0, self.F,
+                          self.mu, self.K)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -155,8 +175,8 @@ class SolarError:
 
     def draw(self, random: np.random.RandomState, points: int) -> np.ndarray:
         """Return ``points`` errors [W/m2], drawn in order from ``random`` (BOPTEST's order)."""
-        return ar1(points, lambda: random.laplace(self.ag0, self.bg0),
-                   lambda last: random.laplace(last * self.phi + self.ag, self.bg))
+        return ar1_shocks(random.laplace(0.0, 1.0, size=points), self.ag0, self.bg0, self.phi,
+                          self.ag, self.bg)
 
 
 #: BOPTEST's temperature error levels (``none``: no error).
@@ -241,9 +261,14 @@ def solar_on_grid(truth: np.ndarray, level: str, seed: int) -> np.ndarray:
     model = SOLAR_ERRORS[level]
     low, high = SOLAR_BOUNDS[0] * truth, SOLAR_BOUNDS[1] * truth
     checked = truth > SOLAR_CHECK_W_M2
+    truth_checked, low_checked, high_checked = truth[checked], low[checked], high[checked]
+    random = np.random.RandomState()  # re-seeded: the generator RandomState(s) is, cheaper
     for i in range(SOLAR_TRIES):
-        candidate = truth - model.draw(np.random.RandomState(seed + i * i), truth.size)
-        if not np.any((candidate[checked] > high[checked]) | (candidate[checked] < low[checked])):
+        random.seed(seed + i * i)
+        error = model.draw(random, truth.size)
+        candidate = truth - error
+        inside = truth_checked - error[checked]
+        if not ((inside > high_checked).any() or (inside < low_checked).any()):
             break
     else:
         logger.debug('no solar candidate of %d within bounds (seed %d): the last one kept',
@@ -504,3 +529,67 @@ def truth_of_frame(frame: pd.DataFrame, clock: np.ndarray | None = None) -> Trut
         return np.interp(np.asarray(at_s, dtype=float), times,
                          frame[series].to_numpy(dtype=float))
     return truth
+
+
+#: The forecast scenarios of a benchmark's MPC runs by default: perfect forecasts, BOPTEST's
+#: ``high`` level (temperature and solar) with three seeds, ``low`` and ``medium`` with one
+#: (:func:`uncertainty_runs`).
+BENCHMARK_UNCERTAINTY = ('none', 'high=1,2,3', 'low=1', 'medium=1')
+
+
+def uncertainty_runs(specs: Sequence[str]) -> list[ForecastErrorSettings]:
+    """
+    Return the forecast scenarios of ``specs``: ``LEVEL`` or ``LEVEL=SEED,SEED,...`` each.
+
+    The level applies to both points (temperature and solar), as in the benchmark's scenarios;
+    ``LEVEL`` alone is seed 1 (``none``: perfect, seed 0). Duplicates are dropped.
+
+    Raises
+    ------
+    ValueError
+        For an unknown level, a seed that is not a whole number in range, or no scenario.
+
+    """
+    runs: list[ForecastErrorSettings] = []
+    for spec in specs:
+        level, _, seeds = str(spec).partition('=')
+        level = _level(level.strip(), 'forecast')
+        if level == 'none':
+            values = [0]
+        else:
+            try:
+                values = [int(s) for s in seeds.split(',')] if seeds.strip() else [1]
+            except ValueError as exc:
+                raise ValueError(f'expected LEVEL or LEVEL=SEED,SEED,... (whole seeds), got '
+                                 f'{spec!r}') from exc
+        for seed in values:
+            errors = ForecastErrorSettings(temperature_uncertainty=level,
+                                           solar_uncertainty=level, seed=seed)
+            if errors not in runs:
+                runs.append(errors)
+    if not runs:
+        raise ValueError('expected at least one forecast scenario (e.g. none, high=1,2,3)')
+    return runs
+
+
+def scenario_fields(errors: ForecastErrorSettings | None) -> dict[str, object]:
+    """
+    Return a run record's forecast fields: ``uncertainty`` (the level) and ``seed``.
+
+    None (a controller that reads no weather forecast): level ``none``, seed None; perfect
+    forecasts: seed None too (no draw).
+    """
+    if errors is None or (errors.temperature_uncertainty == errors.solar_uncertainty == 'none'):
+        return {'uncertainty': 'none', 'seed': None}
+    levels = {errors.temperature_uncertainty, errors.solar_uncertainty}
+    level = levels.pop() if len(levels) == 1 else (
+        f'temperature {errors.temperature_uncertainty}, solar {errors.solar_uncertainty}')
+    return {'uncertainty': level, 'seed': int(errors.seed)}
+
+
+def scenario_suffix(errors: ForecastErrorSettings | None) -> str:
+    """Return a run name's suffix of its forecast scenario: '' (perfect) or ``_high_s1``."""
+    fields = scenario_fields(errors)
+    if fields['seed'] is None:
+        return ''
+    return f'_{str(fields["uncertainty"]).replace(", ", "_").replace(" ", "-")}_s{fields["seed"]}'

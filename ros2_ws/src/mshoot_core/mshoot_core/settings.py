@@ -38,14 +38,19 @@ APPLY = ('inputs', 'supervisor', 'solver', 'comfort', 'rebuild', 'fixed')
 SETTINGS_DIR = pathlib.Path(__file__).resolve().parent / 'mpc_settings'
 #: Names of the NLP solvers (see :mod:`mshoot_core.solvers`).
 SOLVER_NAMES = ('ipopt', 'slsqp', 'trust-constr')
+#: BOPTEST's forecast uncertainty levels (:mod:`mshoot_core.forecast`).
+UNCERTAINTY_LEVELS = ('none', 'low', 'medium', 'high')
 
 
 class SettingsError(ValueError):
     """Invalid settings; ``problems`` holds one sentence per problem."""
 
     def __init__(self, problems: Iterable[str]) -> None:
-        self.problems = list(problems)
+        self.problems = [problems] if isinstance(problems, str) else list(problems)
         super().__init__('; '.join(self.problems))
+
+    def __reduce__(self) -> tuple:
+        return type(self), (self.problems,)  # from a worker process: the problems, not letters
 
 
 def setting(default: Any, description: str, *, low: float | None = None,
@@ -252,10 +257,45 @@ class ComfortSettings(SettingsGroup):
                                    'discomfort is counted in between too; the upper edge is '
                                    'kept, at least at the raised lower one) [K]', low=0.0,
                                    high=20.0, apply='inputs')
+    forecast_error_inputs: str = setting(
+        '', "model inputs whose forecasts carry BOPTEST's errors, 'input=temperature' or "
+        "'input=solar' items separated by commas (the AR(1) error models of "
+        'mshoot_core.forecast)', apply='inputs')
+    forecast_uncertainty: str = setting(
+        'none', "the error level of those inputs' forecasts the plan allows for (BOPTEST's "
+        "parameters of the level); 'none': no forecast margin", choices=UNCERTAINTY_LEVELS,
+        apply='inputs')
+    forecast_margin_std: float = setting(
+        1.0, 'the comfort band narrowed on each side (after band_margin_k, at most to its '
+        'middle) by this many standard deviations of the zone temperature that the forecast '
+        'errors cause along the plan (the errors propagated through the model: '
+        'mshoot_core.forecast_margin) [-]',
+        low=0.0, high=10.0, apply='inputs')
 
     @property
     def soft(self) -> bool:
         return self.comfort == 'soft'
+
+    @property
+    def error_kinds(self) -> dict[str, str]:
+        """Return ``forecast_error_inputs`` as model input -> error kind."""
+        return {name.strip(): kind.strip() for name, _, kind in (
+            item.partition('=') for item in self.forecast_error_inputs.split(',')
+            if item.strip())}
+
+    def rules(self) -> list[str]:
+        items = [i for i in self.forecast_error_inputs.split(',') if i.strip()]
+        kinds = self.error_kinds
+        if len(kinds) != len(items) or not all(
+                name.isidentifier() and kind in ('temperature', 'solar')
+                for name, kind in kinds.items()):
+            return ["forecast_error_inputs must be distinct 'input=temperature' or "
+                    f"'input=solar' items separated by commas, got "
+                    f'{self.forecast_error_inputs!r}']
+        if self.forecast_uncertainty != 'none' and not kinds:
+            return [f'forecast_uncertainty {self.forecast_uncertainty!r} needs '
+                    'forecast_error_inputs (which inputs carry the errors)']
+        return []
 
 
 @dataclasses.dataclass(frozen=True)
@@ -474,10 +514,6 @@ class EstimationSettings(SettingsGroup):
                     "'control=output/model_output' items separated by commas, got "
                     f'{self.measured_inputs!r}']
         return []
-
-
-#: BOPTEST's forecast uncertainty levels (:mod:`mshoot_core.forecast`).
-UNCERTAINTY_LEVELS = ('none', 'low', 'medium', 'high')
 
 
 @dataclasses.dataclass(frozen=True)

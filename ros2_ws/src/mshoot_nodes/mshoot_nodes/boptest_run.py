@@ -3,12 +3,14 @@ BOPTEST over ROS 2: the baseline, the tuned rule and mshoot on the test periods 
 
     boptest --out out/boptest --docs docs                      # make boptest: the benchmark
     boptest --periods peak_heat_day --controllers baseline rule --warmup-days 1 --days 2
+    boptest --controllers mshoot --uncertainty none high=1,2,3 --out out/boptest_high
 
 Every run goes over the ROS nodes in one process (one executor, a private context, discovery
-off): the emulator runs the test case from a ``boptest`` model card (one persistent FMU
-instance, FMU time = seconds of the year, the warm-up under the building's own control, outputs
-recorded every 60 s), the forecaster serves the test case's data (weather, band, occupancy, the
-price scenario) and the controller answers each step:
+off; ``--workers`` runs at once, each in a worker process of its own): the emulator runs the
+test case from a ``boptest`` model card (one persistent FMU instance, FMU time = seconds of the
+year, the warm-up under the building's own control, outputs recorded every 60 s), the
+forecaster serves the test case's data (weather, band, occupancy, the price scenario) and the
+controller answers each step:
 
 - ``baseline``: the card ``boptest_baseline.yaml`` maps the setpoint without its overwrite
   switch, so the building's own controller is in charge; the rule node (mode ``baseline``) only
@@ -26,13 +28,22 @@ price scenario) and the controller answers each step:
   setpoint's schedule within the step. A ROS run equals the core run of
   :func:`mshoot_core.boptest.supervision.supervised_plant`.
 
+mshoot runs once per forecast scenario of ``--uncertainty`` (``LEVEL`` or ``LEVEL=SEED,...``,
+:func:`mshoot_core.forecast.uncertainty_runs`; default
+:data:`~mshoot_core.forecast.BENCHMARK_UNCERTAINTY`: perfect, ``high`` with seeds 1, 2, 3, ``low``
+and ``medium`` with seed 1): the forecaster's ``temperature_uncertainty``,
+``solar_uncertainty`` and ``seed`` (BOPTEST's forecast errors on the outdoor temperature and
+the irradiance), the controller told the level (:func:`mshoot_core.forecast_margin.allowance`).
+The baseline and the rule read no weather forecast (the rule's lead is a forecast of the band,
+which stays exact): their records are ``uncertainty`` ``none``, ``seed`` null.
+
 The baseline's and the rule's trajectories do not depend on the price scenario (they never
 read it): each is simulated once per period (the rule once per distinct tuned lead/margin) and
 its KPIs are computed for every price scenario it stands for; only ``cost_tot`` differs.
 
-Writes ``<out>/kpis.json`` (records: controller, period, price, BOPTEST's KPIs,
-starts_per_day, wall_s), ``<out>/runs/<controller>_<period>[_<price>]/`` (the emulator's files
-with ``boptest_records.csv``) and, with ``--docs``, ``<docs>/boptest.md`` and
+Writes ``<out>/kpis.json`` (records: controller, period, price, uncertainty, seed, BOPTEST's
+KPIs, starts_per_day, wall_s), ``<out>/runs/<controller>_<period>[_<price>[_<level>_s<seed>]]/``
+(the emulator's files with ``boptest_records.csv``) and, with ``--docs``, ``<docs>/boptest.md`` and
 ``<docs>/boptest/*.png``.
 """
 from __future__ import annotations
@@ -49,7 +60,11 @@ from typing import Any, Callable, Sequence
 
 from mshoot_core.boptest.kpi_calculator import kpi_records, zone_discomfort
 from mshoot_core.boptest.testcase import PRICE_SCENARIOS, TestCase
+from mshoot_core.forecast import (BENCHMARK_UNCERTAINTY, scenario_fields, scenario_suffix,
+                                  uncertainty_runs)
+from mshoot_core.forecast_margin import allowance
 from mshoot_core.models.card import builtin_card, load_card
+from mshoot_core.settings import ForecastErrorSettings
 from mshoot_core.units import json_ready
 from mshoot_studies.boptest_report import count_starts
 from mshoot_studies.boptest_rule import (LEADS_H, MARGINS_K, RuleTarget, RuleTuning,
@@ -173,7 +188,8 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
             cards: pathlib.Path | None = None, timeout_s: float = 3600.0,
             progress: Callable[[str], None] | None = None,
             mpc_settings: dict[str, Any] | None = None,
-            on_step: Callable[[int, dict[str, Any]], None] | None = None) -> BoptestRun:
+            on_step: Callable[[int, dict[str, Any]], None] | None = None,
+            errors: ForecastErrorSettings | None = None) -> BoptestRun:
     """
     Run one controller on one test period over ROS, in this process (module docstring).
 
@@ -206,6 +222,10 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
     on_step : callable, optional
         ``on_step(steps_done, nodes)`` after each step the emulator ran (and once before the
         first), nodes by name ('emulator', 'forecaster', 'controller'): e.g. to inject faults.
+    errors : ForecastErrorSettings, optional
+        For ``controller='mshoot'``: the forecaster's errors (default none: perfect); the
+        controller's settings told their level (:func:`~mshoot_core.forecast_margin.allowance`,
+        under ``mpc_settings``).
 
     Raises
     ------
@@ -240,8 +260,11 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
     controller_cls: type = RuleNode
     if controller == 'mshoot':
         mshoot = mshoot_params(warmup_days)
-        params['controller'] = {**mshoot['controller'], **(mpc_settings or {})}
+        params['controller'] = {**mshoot['controller'], **allowance(errors),
+                                **(mpc_settings or {})}
         params['forecaster'].update(mshoot['forecaster'])
+        if errors is not None:
+            params['forecaster'].update(dataclasses.asdict(errors))
         controller_cls = MpcNode
     # The one writer of /mpc/setpoint the emulator expects (another one is an intruder).
     params['emulator']['setpoint_writer'] = 'mpc' if controller == 'mshoot' else 'rule'
@@ -343,6 +366,12 @@ def build_parser() -> argparse.ArgumentParser:
                         choices=list(PRICE_SCENARIOS))
     parser.add_argument('--controllers', nargs='+', default=list(CONTROLLERS),
                         choices=list(CONTROLLERS))
+    parser.add_argument('--uncertainty', nargs='+', default=list(BENCHMARK_UNCERTAINTY),
+                        metavar='LEVEL[=SEEDS]',
+                        help="mshoot's forecast scenarios (BOPTEST's forecast errors of the "
+                             'outdoor temperature and the irradiance at that level, one run per '
+                             'seed; LEVEL alone: seed 1; default: '
+                             + ' '.join(BENCHMARK_UNCERTAINTY) + ')')
     parser.add_argument('--warmup-days', type=float, default=7.0)
     parser.add_argument('--days', type=float, default=14.0, help='test period length [days]')
     parser.add_argument('--leads', type=float, nargs='+', default=list(LEADS_H),
@@ -351,8 +380,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help='rule tuning grid: margins [K]')
     parser.add_argument('--retune', action='store_true', help='tune the rule again')
     parser.add_argument('--workers', type=int, default=2, choices=range(1, 9),
-                        metavar='N', help='rule tuning: grid points run at once, one process '
-                        'and FMU instance each (default 2)')
+                        metavar='N', help="runs and the rule tuning's grid points at once, "
+                        'one process and FMU instance each (default 2; 1: the runs in this '
+                        'process)')
     parser.add_argument('--out', type=pathlib.Path, default=pathlib.Path('out/boptest'))
     parser.add_argument('--docs', type=pathlib.Path, default=None,
                         help='write <docs>/boptest.md and <docs>/boptest/*.png')
@@ -367,6 +397,7 @@ def run_benchmark(args: argparse.Namespace, context: Context,
                   say: Callable[[str], None]) -> tuple[list[dict], list[dict]]:
     """Run every requested run; return the KPI records and the run descriptions."""
     case = TestCase.load(args.test_case or None)
+    scenarios = uncertainty_runs(args.uncertainty)  # bad levels and seeds fail here
     for period in args.periods:
         case.test_period(period, args.warmup_days, args.days)  # bad names fail here
     tunings = {}
@@ -375,52 +406,126 @@ def run_benchmark(args: argparse.Namespace, context: Context,
                                warmup_days=args.warmup_days, length_days=args.days,
                                leads_h=args.leads, margins_k=args.margins, retune=args.retune,
                                progress=say, workers=args.workers)
-    records: list[dict] = []
-    runs: list[dict] = []
+    jobs: list[RunJob] = []
     for period in args.periods:
         for controller in args.controllers:
             if controller == 'baseline':
-                groups = {(0.0, 0.0): list(args.prices)}
+                jobs.append(RunJob(controller, period, tuple(args.prices)))
             elif controller == 'rule':
                 groups: dict[tuple[float, float], list[str]] = {}
                 for price in args.prices:
                     best = tunings[period]['best'][price]
                     groups.setdefault((best['lead_h'], best['margin_k']), []).append(price)
-            else:  # mshoot: one run per price scenario (keys only tell the runs apart)
-                groups = {(float(k), 0.0): [p] for k, p in enumerate(args.prices)}
-            for (lead, margin), prices in groups.items():
-                suffix = {'mshoot': f'_{prices[0]}', 'baseline': '',
-                          'rule': f'_lead{lead:g}_margin{margin:g}'}[controller]
-                name = f'{controller}_{period}{suffix}'
-                say(f'{name}: starting ({", ".join(prices)})')
-                run = run_ros(context, controller, period, case, price=prices[0],
-                              warmup_days=args.warmup_days, length_days=args.days,
-                              lead_h=lead if controller == 'rule' else 0.0,
-                              margin_k=margin if controller == 'rule' else 0.0,
-                              out=args.out / 'runs' / name, cards=args.out / 'cards',
-                              timeout_s=args.timeout, progress=say)
-                if run.failed:
-                    raise RuntimeError(f'{name}: the run failed: {run.failed}')
-                # time_rat: the controller's wall time between two advances over the step;
-                # the baseline has no controller (its node only clocks the lockstep)
-                waits = run.setpoint_waits_s if controller != 'baseline' else None
-                new = kpi_records(run.records, case, run.start_s, run.end_s, prices, waits,
-                                  controller=controller, period=period)
-                starts = count_starts(run.records, STARTS_OUTPUT, run.start_s, run.end_s)[1]
-                for record in new:
-                    record['wall_s'] = run.wall_s
-                    record['starts_per_day'] = starts
-                    if controller == 'rule':
-                        record.update(lead_h=lead, margin_k=margin)
-                records += new
-                runs.append({'name': name, 'controller': controller, 'period': period,
-                             'prices': prices, 'start_s': run.start_s, 'end_s': run.end_s,
-                             'wall_s': run.wall_s, 'steps': run.steps})
-                first = new[0]
-                say(f'{name}: {run.steps} steps in {run.wall_s:.1f} s: tdis '
-                    f'{first["tdis_tot"]:.2f} K h, ener {first["ener_tot"]:.3f} kWh/m2, cost '
-                    + ', '.join(f'{r["price"]} {r["cost_tot"]:.4f}' for r in new) + ' EUR/m2')
-    return records, runs
+                jobs += [RunJob(controller, period, tuple(prices), lead, margin)
+                         for (lead, margin), prices in groups.items()]
+            else:  # mshoot: one run per price and forecast scenario
+                jobs += [RunJob(controller, period, (price,), errors=errors)
+                         for errors in scenarios for price in args.prices]
+    settings = {'test_case': str(case.directory), 'warmup_days': args.warmup_days,
+                'length_days': args.days, 'out': str(args.out), 'timeout_s': args.timeout}
+    results: list[tuple[list[dict], dict]] = []
+    if args.workers == 1 or len(jobs) == 1:
+        results = [run_job(job, settings, context, say) for job in jobs]
+    else:  # one process per run at once: its own rclpy context and FMU instance
+        import concurrent.futures
+        import multiprocessing
+        with concurrent.futures.ProcessPoolExecutor(
+                min(args.workers, len(jobs)), mp_context=multiprocessing.get_context('spawn')
+        ) as pool:
+            futures = [pool.submit(run_job, job, settings) for job in jobs]
+            for future in concurrent.futures.as_completed(futures):
+                new, run = future.result()
+                say(_done_line(run, new))
+            results = [future.result() for future in futures]  # the jobs' order
+    records = [record for new, _ in results for record in new]
+    return records, [run for _, run in results]
+
+
+@dataclasses.dataclass(frozen=True)
+class RunJob:
+    """One ROS run of the benchmark: controller, period, the prices it stands for, its inputs."""
+
+    controller: str
+    period: str
+    prices: tuple[str, ...]
+    lead_h: float = 0.0
+    margin_k: float = 0.0
+    errors: ForecastErrorSettings | None = None
+
+    @property
+    def name(self) -> str:
+        """Return the run's name: ``<controller>_<period>[_<price>[_<level>_s<seed>]]``."""
+        suffix = {'mshoot': f'_{self.prices[0]}{scenario_suffix(self.errors)}', 'baseline': '',
+                  'rule': f'_lead{self.lead_h:g}_margin{self.margin_k:g}'}[self.controller]
+        return f'{self.controller}_{self.period}{suffix}'
+
+
+def _say(line: str) -> None:
+    print(f'[boptest worker] {line}', flush=True)
+
+
+def _done_line(run: dict, new: list[dict]) -> str:
+    first = new[0]
+    return (f'{run["name"]}: {run["steps"]} steps in {run["wall_s"]:.1f} s: tdis '
+            f'{first["tdis_tot"]:.2f} K h, ener {first["ener_tot"]:.3f} kWh/m2, cost '
+            + ', '.join(f'{r["price"]} {r["cost_tot"]:.4f}' for r in new) + ' EUR/m2')
+
+
+def run_job(job: RunJob, settings: dict[str, Any], context: Context | None = None,
+            say: Callable[[str], None] | None = None) -> tuple[list[dict], dict]:
+    """
+    Run one job over ROS and return its KPI records and its description.
+
+    Without ``context`` (a worker process): in a context of its own, discovery off (the
+    process's nodes find only each other).
+
+    Raises
+    ------
+    RuntimeError
+        If the run failed.
+
+    """
+    own = context is None
+    if own:
+        os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'OFF'
+        context = Context()
+        rclpy.init(args=['--ros-args', '--log-level', 'warn'], context=context,
+                   domain_id=1 + os.getpid() % 100)
+    say = say or _say
+    case = TestCase.load(settings['test_case'])
+    out = pathlib.Path(settings['out'])
+    name, controller = job.name, job.controller
+    try:
+        say(f'{name}: starting ({", ".join(job.prices)})')
+        run = run_ros(context, controller, job.period, case, price=job.prices[0],
+                      warmup_days=settings['warmup_days'], length_days=settings['length_days'],
+                      lead_h=job.lead_h, margin_k=job.margin_k, out=out / 'runs' / name,
+                      cards=out / 'cards', timeout_s=settings['timeout_s'], progress=say,
+                      errors=job.errors)
+    finally:
+        if own:
+            context.try_shutdown()
+    if run.failed:
+        raise RuntimeError(f'{name}: the run failed: {run.failed}')
+    # time_rat: the controller's wall time between two advances over the step;
+    # the baseline has no controller (its node only clocks the lockstep)
+    waits = run.setpoint_waits_s if controller != 'baseline' else None
+    new = kpi_records(run.records, case, run.start_s, run.end_s, list(job.prices), waits,
+                      controller=controller, period=job.period)
+    starts = count_starts(run.records, STARTS_OUTPUT, run.start_s, run.end_s)[1]
+    for record in new:
+        record.update(scenario_fields(job.errors))
+        record['wall_s'] = run.wall_s
+        record['starts_per_day'] = starts
+        if controller == 'rule':
+            record.update(lead_h=job.lead_h, margin_k=job.margin_k)
+    described = {'name': name, 'controller': controller, 'period': job.period,
+                 'prices': list(job.prices), **scenario_fields(job.errors),
+                 'start_s': run.start_s, 'end_s': run.end_s, 'wall_s': run.wall_s,
+                 'steps': run.steps}
+    if not own:
+        say(_done_line(described, new))
+    return new, described
 
 
 #: BOPTEST's published baseline of this test case on the peak heat period (issue 15).
@@ -516,11 +621,51 @@ def _closing_lines(records: list[dict], periods: Sequence[str], prices: Sequence
             'published 3.6 K h on the typical heat period.', '']
 
 
+def _uncertainty_lines(args: argparse.Namespace, case: TestCase, records: list[dict],
+                       figures: pathlib.Path) -> list[str]:
+    """Return the section of mshoot under forecast uncertainty: its table and figure."""
+    from mshoot_core.forecast import SOLAR_ERRORS, TEMPERATURE_ERRORS
+    from mshoot_studies.boptest_report import plot_uncertainty, uncertainty_table
+    if not any(r['controller'] == 'mshoot' and r.get('seed') is not None for r in records):
+        return []
+    period = 'typical_heat_day' if 'typical_heat_day' in args.periods else args.periods[0]
+    start = case.test_period(period, args.warmup_days, args.days)[1]
+    figure = plot_uncertainty(case, records, start, figures / 'uncertainty.png')
+    levels = ', '.join(f'`{lv}` (temperature: AR(1) F {TEMPERATURE_ERRORS[lv].F:g}, '
+                       f'innovation std {TEMPERATURE_ERRORS[lv].K:g} K, first std '
+                       f'{TEMPERATURE_ERRORS[lv].K0:g} K; solar: phi {SOLAR_ERRORS[lv].phi:g}, '
+                       f'Laplace scale {SOLAR_ERRORS[lv].bg:g} W/m2)' for lv in TEMPERATURE_ERRORS)
+    return ['## Under forecast uncertainty', '',
+            "mshoot's forecasts carry BOPTEST's forecast errors (v0.8.0 scenarios "
+            '`temperature_uncertainty` = `solar_uncertainty` = the level, `seed`; '
+            "`mshoot_core.forecast`, reproducing BOPTEST's reference forecasts): AR(1) errors "
+            'on the outdoor temperature and the irradiance, redrawn every hour for the '
+            f'forecast of the next 37 h; levels {levels}. The forecaster node serves them on '
+            '`/forecast`; the MPC re-plans every hour from the newest forecast and its state '
+            'estimate. It is told the level (setting `forecast_uncertainty`, '
+            '`mshoot_core.forecast_margin.allowance`) and narrows the comfort band on each '
+            'side, after `band_margin_k`, by `forecast_margin_std` standard deviations of the '
+            'zone temperature the errors cause along the plan (the AR(1) errors and the '
+            "states' deviation propagated together through the model's derivatives: "
+            '`mshoot_core.forecast_margin`): more sun than forecast on a floor heated ahead '
+            'overheats the zone, less leaves it cold. The baseline and the rule read no weather '
+            "forecast (the rule's lead is a forecast of the band, exact): their KPIs hold "
+            'at every level.', '',
+            *uncertainty_table(records),
+            f'![Forecast bands and KPIs per uncertainty level](boptest/{figure.name})', '',
+            'Top: the forecast a request at the start of the test period of '
+            f"`{period}` gets, the 5-95 % band of 30 seeds per level against the test case's "
+            "data. Bottom: mshoot's discomfort and its cost relative to its perfect-forecast "
+            'run per level, mean over seeds, one line per run.', '']
+
+
 def write_docs(args: argparse.Namespace, records: list[dict], runs: list[dict],
                wall_s: float | None) -> pathlib.Path:
     """Write ``<docs>/boptest.md`` and its figures from the benchmark's records and runs."""
     from mshoot_studies.boptest_report import kpi_table, plot_kpi_bars, plot_run
     case = TestCase.load(args.test_case or None)
+    every, records = records, [r for r in records if r.get('seed') is None]  # perfect: below
+    runs = [r for r in runs if r.get('seed') is None]
     docs = args.docs
     figures = docs / 'boptest'
     figures.mkdir(parents=True, exist_ok=True)
@@ -535,7 +680,8 @@ def write_docs(args: argparse.Namespace, records: list[dict], runs: list[dict],
              + (" (SHORTENED: not BOPTEST's periods)" if shortened else '') + '; price '
              f'scenarios: {", ".join(args.prices)}. Every run goes over the ROS 2 nodes '
              '(emulator with one persistent FMU instance and a `boptest` model card, '
-             'forecaster, controller node) in lockstep, in one process; KPIs from the '
+             'forecaster, controller node) in lockstep, in one process (runs on '
+             f'{args.workers} worker processes at once); KPIs from the '
              "emulator's outputs sampled every 60 s (`mshoot_core.boptest.kpi_calculator`).", '',
              "Checked by the tests: the KPIs computed by mshoot equal the README's definitions "
              'written out independently (raw CSVs, pandas, explicit sums) on the same stored '
@@ -601,6 +747,7 @@ def write_docs(args: argparse.Namespace, records: list[dict], runs: list[dict],
             splits[(run['period'], run['prices'][0])] = discomfort_split(
                 pd.read_csv(path), case, run['start_s'], run['end_s'])
     lines += _closing_lines(records, args.periods, args.prices, splits)
+    lines += _uncertainty_lines(args, case, every, figures)
     tuning_file = args.out / 'rule_tuning.json'
     if tuning_file.is_file() and any(r['controller'] == 'rule' for r in records):
         lines += _tuning_lines(json.loads(tuning_file.read_text()), args.periods)

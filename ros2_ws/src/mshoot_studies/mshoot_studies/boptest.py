@@ -6,6 +6,7 @@ Any BOPTEST test case folder and a card: the baseline and the pre-heating rule, 
         [--controllers baseline,rule,mshoot] [--warmup-days 7] [--days 14]
         [--lead 4 --margin 0.5 | --leads 0 2 4 --margins 0 0.5] [--workers 2]
         [--control-card CARD.yaml --mpc-settings SETTINGS.yaml]
+        [--uncertainty none high=1,2,3 low medium]
 
 The folder is in BOPTEST's layout (``wrapped.fmu`` or ``models/wrapped.fmu``, Model Exchange or
 Co-Simulation; ``config.json``, ``days.json``, ``kpis.json``, ``Resources/*.csv``: see
@@ -32,13 +33,18 @@ instance per process). Controllers:
   settings, or a packaged one, e.g. ``boptest_house``); without these options, those the card
   names in ``boptest.control`` (``card``, ``settings``: files relative to the card's folder or
   packaged names); the card's controls are the overwrites it sends (settings
-  ``plant_controls``). One run per period and price.
+  ``plant_controls``). One run per period, price and forecast scenario of ``--uncertainty``
+  (``LEVEL`` or ``LEVEL=SEED,...``: BOPTEST's forecast errors on the outdoor temperature and
+  the irradiance at that level, :func:`mshoot_core.forecast.uncertainty_runs`; default
+  ``none``, perfect forecasts); the settings are told the level
+  (:func:`mshoot_core.forecast_margin.allowance`: the plan's forecast margin).
 
-The baseline and the rule never read the price: one run serves every price scenario (only
-``cost_tot`` differs). Writes ``OUT/kpis.json`` (one record per controller, period and price:
-BOPTEST's KPIs with ``tdis_zones``, the run's wall time), ``OUT/kpis.md`` (the table, also
-printed), ``OUT/runs/<controller>_<period>[...]/records.csv`` and, with ``--figures``,
-``OUT/<run>.png``. Bad options or a bad folder or card: one line on stderr, exit 2.
+The baseline and the rule never read the price nor a weather forecast: one run serves every
+price scenario (only ``cost_tot`` differs). Writes ``OUT/kpis.json`` (one record per controller,
+period, price and forecast scenario: BOPTEST's KPIs with ``tdis_zones``, the run's wall time,
+``uncertainty`` and ``seed``: ``none`` and null for perfect or no forecasts), ``OUT/kpis.md``
+(the table, also printed), ``OUT/runs/<controller>_<period>[...]/records.csv`` and, with
+``--figures``, ``OUT/<run>.png``. Bad options or a bad folder or card: one line on stderr, exit 2.
 """
 from __future__ import annotations
 
@@ -88,6 +94,10 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                         help='mshoot: the MPC settings (a YAML file of flat settings or a '
                              "packaged name, e.g. boptest_house; default the card's "
                              'boptest.control.settings)')
+    parser.add_argument('--uncertainty', nargs='+', default=['none'], metavar='LEVEL[=SEEDS]',
+                        help="mshoot: forecast scenarios, e.g. none high=1,2,3 low (BOPTEST's "
+                             'forecast errors of the outdoor temperature and the irradiance at '
+                             'that level, one run per seed; LEVEL alone: seed 1; default none)')
     parser.add_argument('--warmup-days', type=float, default=None,
                         help="warm-up [days] (default the card's boptest.warmup_days)")
     parser.add_argument('--days', type=float, default=14.0,
@@ -169,13 +179,15 @@ def prepare_card(card_path: pathlib.Path, testcase: pathlib.Path,
 def _run_one(directory: str, card_path: str, controller: str, period: str, lead: float,
              margin: float, warmup_days: float, length_days: float, prices: list[str],
              record: list[str], records_csv: str, starts_output: str,
-             mpc: tuple[str, str] | None = None) -> list[dict]:
+             mpc: tuple[str, str] | None = None, errors: Any = None) -> list[dict]:
     """
     Run one controller on one period (in a worker): its KPI records, the table written.
 
-    ``mpc`` is (control card, settings) of the controller ``mshoot`` (one price).
+    ``mpc`` is (control card, settings) of the controller ``mshoot`` (one price), ``errors``
+    its forecast's (:class:`~mshoot_core.settings.ForecastErrorSettings`, None: perfect).
     """
     from mshoot_core.boptest.kpi_calculator import kpi_records
+    from mshoot_core.forecast import scenario_fields
     from mshoot_core.boptest.plant import run_period
     from mshoot_core.boptest.testcase import TestCase
     from mshoot_core.models.card import load_card
@@ -190,8 +202,10 @@ def _run_one(directory: str, card_path: str, controller: str, period: str, lead:
     elif controller == 'mshoot':
         from mshoot_core.boptest.supervision import supervised_plant
         from mshoot_core.settings import MpcSettings
-        policy = supervised_plant(case, card_path, mpc[0], MpcSettings.from_file(mpc[1]),
-                                  prices[0])
+        from mshoot_core.forecast_margin import allowance
+        policy = supervised_plant(case, card_path, mpc[0],
+                                  MpcSettings.from_file(mpc[1], **allowance(errors)), prices[0],
+                                  errors)
     began = time.perf_counter()
     run = run_period(case, period, policy, warmup_days, length_days, record=record)
     wall = time.perf_counter() - began
@@ -203,7 +217,8 @@ def _run_one(directory: str, card_path: str, controller: str, period: str, lead:
     records = kpi_records(run.records, case, run.start_s, run.end_s, prices, walls,
                           controller=controller, period=period)
     for entry in records:
-        entry.update(extra, wall_s=wall, start_s=run.start_s, end_s=run.end_s)
+        entry.update(extra, wall_s=wall, start_s=run.start_s, end_s=run.end_s,
+                     **scenario_fields(errors))
         if starts_output:
             entry['starts_per_day'] = count_starts(run.records, starts_output, run.start_s,
                                                    run.end_s)[1]
@@ -257,11 +272,13 @@ def _say(began: float, line: str) -> None:
 def _run(args: argparse.Namespace) -> int:
     from mshoot_core.boptest.plant import BoptestPlant, recorded_outputs
     from mshoot_core.boptest.testcase import TestCase
+    from mshoot_core.forecast import scenario_suffix, uncertainty_runs
     from mshoot_core.models.card import load_card
     from mshoot_studies.boptest_report import kpi_table, plot_run
     from mshoot_studies.boptest_rule import rule_targets, tune_rule
     began = time.perf_counter()
     controllers = _controllers(args.controllers)
+    scenarios = uncertainty_runs(args.uncertainty)
     case = TestCase.load(args.testcase)
     card_path = prepare_card(args.card, args.testcase, args.out)
     card = load_card(card_path)
@@ -277,14 +294,15 @@ def _run(args: argparse.Namespace) -> int:
     mpc = _mpc_configuration(args, case, card, card_path) if 'mshoot' in controllers else None
     _say(began, f'{case.name} ({plant.interface}, zones {case.zones}, energy '
                 f'{list(case.energy_outputs)}): {controllers} on {periods}')
-    jobs: list[tuple[str, str, float, float, list[str]]] = []
+    jobs: list[tuple[str, str, float, float, list[str], Any]] = []
     for period in periods:
         for controller in controllers:
             if controller == 'baseline':
-                jobs.append((controller, period, 0.0, 0.0, list(args.prices)))
+                jobs.append((controller, period, 0.0, 0.0, list(args.prices), None))
                 continue
             if controller == 'mshoot':
-                jobs.extend((controller, period, 0.0, 0.0, [price]) for price in args.prices)
+                jobs.extend((controller, period, 0.0, 0.0, [price], errors)
+                            for errors in scenarios for price in args.prices)
                 continue
             if args.lead is not None or args.margin is not None:
                 groups = {(args.lead or 0.0, args.margin or 0.0): list(args.prices)}
@@ -297,14 +315,14 @@ def _run(args: argparse.Namespace) -> int:
                 for price in args.prices:
                     groups.setdefault(tuning.parameters(price), []).append(price)
             for (lead, margin), prices in groups.items():
-                jobs.append((controller, period, lead, margin, prices))
+                jobs.append((controller, period, lead, margin, prices, None))
     names = [f'{c}_{p}' + (f'_lead{lead:g}_margin{margin:g}' if c == 'rule' else
-                           f'_{prices[0]}' if c == 'mshoot' else '')
-             for c, p, lead, margin, prices in jobs]
+                           f'_{prices[0]}{scenario_suffix(errors)}' if c == 'mshoot' else '')
+             for c, p, lead, margin, prices, errors in jobs]
     arguments = [(str(case.directory), str(card_path), c, p, lead, margin, warmup, args.days,
                   prices, record, str(args.out / 'runs' / name / 'records.csv'),
-                  args.starts_output, mpc if c == 'mshoot' else None)
-                 for (c, p, lead, margin, prices), name in zip(jobs, names)]
+                  args.starts_output, mpc if c == 'mshoot' else None, errors)
+                 for (c, p, lead, margin, prices, errors), name in zip(jobs, names)]
     results: list[list[dict]] = [[] for _ in jobs]
     with concurrent.futures.ProcessPoolExecutor(
             min(args.workers, len(jobs)), mp_context=multiprocessing.get_context('spawn')

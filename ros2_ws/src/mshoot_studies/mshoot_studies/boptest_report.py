@@ -22,7 +22,8 @@ logger = logging.getLogger(__name__)
 
 #: Columns of the KPI table: key, header, format.
 TABLE_COLUMNS = (('controller', 'controller', '{}'), ('period', 'period', '{}'),
-                 ('price', 'price', '{}'), ('tdis_tot', 'tdis [K h]', '{:.2f}'),
+                 ('price', 'price', '{}'), ('uncertainty', 'forecast', '{}'),
+                 ('seed', 'seed', '{}'), ('tdis_tot', 'tdis [K h]', '{:.2f}'),
                  ('idis_tot', 'idis [ppm h]', '{:.1f}'), ('ener_tot', 'ener [kWh/m2]', '{:.3f}'),
                  ('cost_tot', 'cost [EUR/m2]', '{:.4f}'),
                  ('emis_tot', 'emis [kgCO2/m2]', '{:.3f}'),
@@ -195,6 +196,161 @@ def plot_kpi_bars(records: Sequence[Mapping[str, object]], path: pathlib.Path,
                           for p, q in groups], fontsize=7)
         ax.set_title(label, fontsize=10)
     axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def _level_stats(records: Sequence[Mapping[str, object]], key: str) -> dict[tuple, dict]:
+    """Return per (period, price, level) the mean, min, max and count of ``key``."""
+    frame = pd.DataFrame(list(records))
+    out = {}
+    for group, rows in frame.groupby(['period', 'price', 'uncertainty'], sort=False):
+        values = rows[key].to_numpy(dtype=float)
+        out[group] = {'mean': float(values.mean()), 'min': float(values.min()),
+                      'max': float(values.max()), 'n': int(values.size)}
+    return out
+
+
+def uncertainty_table(records: Sequence[Mapping[str, object]],
+                      levels: Sequence[str] = ('none', 'low', 'medium', 'high'),
+                      against: Sequence[str] = ('baseline', 'rule')) -> list[str]:
+    """
+    Return mshoot's KPIs per forecast uncertainty level beside the forecast-free controllers.
+
+    One row per period and price: the ``against`` controllers' ``tdis_tot`` / ``cost_tot``,
+    mshoot's at each level present (the mean over the level's seeds, with the range when there
+    are several), whether mshoot's mean at the highest level is lower on both than every
+    ``against`` controller, and its loss against its own perfect-forecast run (cost [%],
+    discomfort [K h]).
+
+    Parameters
+    ----------
+    records : sequence of dict
+        KPI records with ``controller``, ``period``, ``price``, ``uncertainty``, ``tdis_tot``,
+        ``cost_tot``.
+    levels : sequence of str
+        The levels, in column order (those without a record are left out).
+    against : sequence of str
+        The controllers mshoot is compared with.
+
+    """
+    mshoot = [r for r in records if r['controller'] == 'mshoot']
+    present = [lv for lv in levels if any(r.get('uncertainty') == lv for r in mshoot)]
+    if not mshoot or not present:
+        return []
+    tdis, cost = _level_stats(mshoot, 'tdis_tot'), _level_stats(mshoot, 'cost_tot')
+    others = {(r['controller'], r['period'], r['price']): r for r in records
+              if r['controller'] in against}
+    top = present[-1]
+
+    def cell(key: tuple) -> str:
+        if key not in tdis:
+            return '-'
+        t, c = tdis[key], cost[key]
+        if t['n'] == 1:
+            return f'{t["mean"]:.2f} / {c["mean"]:.4f}'
+        return (f'{t["mean"]:.2f} [{t["min"]:.2f}-{t["max"]:.2f}] / {c["mean"]:.4f} '
+                f'[{c["min"]:.4f}-{c["max"]:.4f}]')
+
+    seeds = {lv: max(v['n'] for k, v in tdis.items() if k[2] == lv) for lv in present}
+    lines = ['| period | price | ' + ' | '.join(f'{c} tdis / cost' for c in against) + ' | '
+             + ' | '.join(f'mshoot {lv}' + (f' (mean [range] of {seeds[lv]} seeds)'
+                                            if seeds[lv] > 1 else '') for lv in present)
+             + f' | {top}: better on both | {top} - none: cost [%] / tdis [K h] |',
+             '|---|---|' + '---|' * (len(against) + len(present) + 2)]
+    wins = total = 0
+    for period, price in dict.fromkeys((r['period'], r['price']) for r in mshoot):
+        row = [others.get((c, period, price)) for c in against]
+        cells = [f'{o["tdis_tot"]:.2f} / {o["cost_tot"]:.4f}' if o else '-' for o in row]
+        cells += [cell((period, price, lv)) for lv in present]
+        key = (period, price, top)
+        better = key in tdis and all(o is not None and tdis[key]['mean'] < o['tdis_tot']
+                                     and cost[key]['mean'] < o['cost_tot'] for o in row)
+        wins += better
+        total += key in tdis
+        base = (period, price, 'none')
+        loss = (f'{100 * (cost[key]["mean"] / cost[base]["mean"] - 1):+.1f} / '
+                f'{tdis[key]["mean"] - tdis[base]["mean"]:+.2f}'
+                if key in tdis and base in tdis and top != 'none' else '-')
+        cells += ['yes' if better else '**no**', loss]
+        lines.append(f'| {period} | {price} | ' + ' | '.join(cells) + ' |')
+    return [*lines, '', f'mshoot under `{top}` (mean over its seeds) is lower on both '
+            f'`tdis_tot` and `cost_tot` than {" and ".join(against)} in {wins} of {total} '
+            'runs.', '']
+
+
+def plot_uncertainty(case: TestCase, records: Sequence[Mapping[str, object]], now_s: float,
+                     path: pathlib.Path, horizon_s: float = 36 * 3600.0, draws: int = 30,
+                     levels: Sequence[str] = ('low', 'medium', 'high')) -> pathlib.Path:
+    """
+    Draw the forecast bands against the truth, and mshoot's KPIs per uncertainty level.
+
+    Top: the outdoor temperature and the irradiance a forecast request at ``now_s`` gets
+    (:class:`mshoot_core.forecast.ForecastSource`, horizon ``horizon_s``), the 5-95 % band of
+    ``draws`` seeds per level, against the test case's data. Bottom: mshoot's ``tdis_tot`` and
+    ``cost_tot`` relative to its perfect-forecast run per level (mean over seeds; one line
+    per period and price), the baseline's and the rule's as horizontal marks per run.
+
+    Parameters
+    ----------
+    case : TestCase
+        The test case.
+    records : sequence of dict
+        KPI records (``controller``, ``period``, ``price``, ``uncertainty``, KPIs).
+    now_s : float
+        Time of the forecast request [s from 1 January].
+    path : pathlib.Path
+        The PNG file.
+    horizon_s : float
+        The forecast's horizon [s].
+    draws : int
+        Seeds drawn per level (1..draws).
+    levels : sequence of str
+        The levels whose bands are drawn.
+
+    """
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    from mshoot_core.forecast import ForecastSource, SOLAR_POINT, TEMPERATURE_POINT
+    from mshoot_core.settings import ForecastErrorSettings
+    fig, axes = plt.subplots(2, 2, figsize=(12, 7))
+    times = np.arange(now_s, now_s + horizon_s + 1.0, 900.0)
+    hours = (times - now_s) / 3600.0
+    for ax, point, offset, unit in ((axes[0, 0], TEMPERATURE_POINT, -KELVIN, 'degC'),
+                                    (axes[0, 1], SOLAR_POINT, 0.0, 'W/m2')):
+        for level, alpha in reversed(list(zip(levels, (0.55, 0.35, 0.2)))):  # narrow on top
+            values = np.array([ForecastSource.from_test_case(case, ForecastErrorSettings(
+                temperature_uncertainty=level, solar_uncertainty=level, seed=seed)).forecast(
+                now_s, horizon_s, 900.0, [point])[point].to_numpy() for seed in
+                range(1, draws + 1)])
+            ax.fill_between(hours, np.percentile(values, 5, axis=0) + offset,
+                            np.percentile(values, 95, axis=0) + offset, alpha=alpha,
+                            label=f'{level}: 5-95 % of {draws} seeds')
+        ax.plot(hours, case.forecast_values(point, times) + offset, 'k', lw=1.2, label='truth')
+        ax.set_ylabel(f'{point} [{unit}]')
+        ax.set_xlabel(f'hours from the request at day {now_s / 86400:.0f} of the year')
+        ax.legend(fontsize=7, loc='upper right')
+    frame = pd.DataFrame([r for r in records if r['controller'] == 'mshoot'])
+    order = ['none', *levels]
+    if not frame.empty:
+        for ax, key, label in ((axes[1, 0], 'tdis_tot', 'mshoot tdis [K h]'),
+                               (axes[1, 1], 'cost_tot', 'mshoot cost / perfect-forecast cost')):
+            for (period, price), rows in frame.groupby(['period', 'price'], sort=False):
+                means = rows.groupby('uncertainty')[key].mean()
+                present = [lv for lv in order if lv in means.index]
+                y = means[present].to_numpy()
+                if key == 'cost_tot' and 'none' in means.index:
+                    y = y / float(means['none'])
+                ax.plot([order.index(lv) for lv in present], y, 'o-', ms=3, lw=0.8,
+                        label=f'{period.replace("_heat_day", "")} {price.replace("_", " ")}')
+            ax.set_xticks(range(len(order)), order)
+            ax.set_xlabel('forecast uncertainty (temperature and solar)')
+            ax.set_ylabel(label)
+        axes[1, 0].legend(fontsize=7)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=90)
