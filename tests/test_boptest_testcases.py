@@ -291,3 +291,20 @@ def test_office_weather_derived_once_and_found_by_lookup(office, tmp_path, monke
     day_wh = float(np.sum((irradiance[1:] + irradiance[:-1]) / 2.0) * 900.0 / 3600.0)
     assert day_wh == pytest.approx(mos[1:25, 8].sum(), rel=0.05)
     assert day_wh > 100.0  # a winter day in Brussels, not a dark one
+    # a later window is derived from where the rows end (contiguous) and merged in; a window
+    # the rows cover is not run again
+    held = case.lookup('TDryBul', rows)
+    weather.ensure_weather(case, days=0.25, first_day=1.0)
+    assert path.stat().st_mtime_ns != stamp
+    stamp = path.stat().st_mtime_ns
+    assert weather.ensure_weather(case, days=0.5, first_day=0.5) == path
+    assert path.stat().st_mtime_ns == stamp
+    case = TestCase.load(office.directory)
+    assert np.diff(case.row_times('TDryBul')).tolist() == [900.0] * 120
+    np.testing.assert_array_equal(case.lookup('TDryBul', rows), held)
+    hours = np.arange(25, 31) * 3600.0
+    np.testing.assert_allclose(case.lookup('TDryBul', hours), mos[25:31, 1] + 273.15, atol=1e-6)
+    with pytest.raises(ValueError, match='times outside the data'):
+        case.lookup('TDryBul', [1.5 * 86400.0])
+    with pytest.raises(ValueError, match='first_day >= 0 and days > 0'):
+        weather.ensure_weather(case, days=0.0)
