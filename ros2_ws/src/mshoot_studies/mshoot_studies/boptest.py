@@ -224,6 +224,22 @@ def _mpc_configuration(args: argparse.Namespace, case: Any,
     return str(control), str(settings)
 
 
+def _ensure_forecast_weather(case: Any, periods: Sequence[str], warmup: float, days: float,
+                             settings: str, began: float) -> None:
+    """Derive, once, the weather the MPC's forecasts read over the runs (a folder without it)."""
+    from mshoot_core.boptest.weather import ensure_window
+    from mshoot_core.settings import MpcSettings
+    if not case.weather_derived:
+        return
+    problem = MpcSettings.from_file(settings).problem
+    windows = [case.test_period(period, warmup, days) for period in periods]
+    start = min(w[0] for w in windows)
+    end = max(w[2] for w in windows) + (problem.horizon_steps + 1) * problem.step_s
+    _say(began, f'the weather of {case.name} from its FMU over days {start / 86400:g} to '
+                f'{end / 86400:g} (once, into the cache)')
+    ensure_window(case, start, end)
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the command (module docstring): 0, or 2 with one line on stderr."""
     logging.basicConfig(level=logging.WARNING, format='%(levelname)s %(name)s: %(message)s')
@@ -259,6 +275,8 @@ def _run(args: argparse.Namespace) -> int:
     plant = BoptestPlant(case, record=record)  # checks the names; no instance
     targets = rule_targets(card, case) if 'rule' in controllers else {}
     mpc = _mpc_configuration(args, case, card_path) if 'mshoot' in controllers else None
+    if mpc is not None:
+        _ensure_forecast_weather(case, periods, warmup, args.days, mpc[1], began)
     _say(began, f'{case.name} ({plant.interface}, zones {case.zones}, energy '
                 f'{list(case.energy_outputs)}): {controllers} on {periods}')
     jobs: list[tuple[str, str, float, float, list[str]]] = []

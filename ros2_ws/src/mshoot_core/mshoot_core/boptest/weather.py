@@ -7,6 +7,7 @@ Stable API::
     frame = weather.derive_weather(case, start_s, end_s)     # BOPTEST columns, rows 900 s apart
     path = weather.ensure_weather(case)                      # the year, once, into the cache
     path = weather.ensure_weather(case, days=16, first_day=57)   # or a window (merged in)
+    weather.ensure_window(case, start_s, end_s)              # the days around a run, if needed
     case.derived_weather_path                                # where TestCase.lookup reads it
 
     python -m mshoot_core.boptest.weather DIR [57 73]       # derive the year (or days) once
@@ -189,6 +190,20 @@ def ensure_weather(case: Any, days: float = 365.0, first_day: float = 0.0) -> pa
     frame.to_csv(staging, index_label='time')
     staging.replace(path)
     return path
+
+
+def ensure_window(case: Any, start_s: float, end_s: float) -> pathlib.Path | None:
+    """
+    Make the weather of a folder without its own cover [start_s, end_s] [s from 1 January].
+
+    Returns the derived file (:func:`ensure_weather` over the whole days around the window),
+    or None for a folder with its own weather (nothing to derive).
+    """
+    if not case.weather_derived:
+        return None
+    first = float(np.floor(max(0.0, start_s) / SECONDS_PER_DAY))
+    last = float(np.ceil(end_s / SECONDS_PER_DAY))
+    return ensure_weather(case, days=max(1.0, last - first), first_day=first)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
