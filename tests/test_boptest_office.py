@@ -38,15 +38,17 @@ def office() -> TestCase:
 @pytest.fixture(scope='module')
 def runs(office: TestCase, tmp_path_factory: pytest.TempPathFactory) -> dict:
     """Run the baseline and the MPC on the shortened period (the weather derived for it)."""
+    from mshoot_studies.boptest import prepare_card
     monkeypatch = pytest.MonkeyPatch()
     monkeypatch.setenv(fmu_cache.CACHE_ENV, str(tmp_path_factory.mktemp('fmu')))
+    plant = prepare_card(PLANT, office.directory, tmp_path_factory.mktemp('card'))
     try:
         warmup_start, start, end = office.test_period('typical_heat_day', WARMUP_DAYS,
                                                       LENGTH_DAYS)
         weather.ensure_window(office, warmup_start, end + (HORIZON + 1) * 3600.0)
         case = TestCase.load(office.directory)
         settings = MpcSettings.from_file(SETTINGS).replace(horizon_steps=HORIZON)
-        policy = supervised_plant(case, PLANT, CONTROL, settings)
+        policy = supervised_plant(case, plant, CONTROL, settings)
         record = policy.recorded(case)
         mpc = run_period(case, 'typical_heat_day', policy, WARMUP_DAYS, LENGTH_DAYS,
                          record=record)
@@ -54,14 +56,14 @@ def runs(office: TestCase, tmp_path_factory: pytest.TempPathFactory) -> dict:
                               record=record)
     finally:
         monkeypatch.undo()
-    return {'case': case, 'policy': policy, 'mpc': mpc, 'baseline': baseline, 'start': start,
+    return {'case': case, 'plant': plant, 'policy': policy, 'mpc': mpc, 'baseline': baseline, 'start': start,
             'end': end}
 
 
 def test_office_mpc_sends_its_decisions_as_the_bms_overwrites(runs: dict) -> None:
     """Every step of the period is planned and held as the card's overwrites, none before."""
     policy, table, start = runs['policy'], runs['mpc'].records, runs['start']
-    card = load_card(PLANT)
+    card = load_card(runs['plant'])
     period = [o for o in policy.outcomes if o.t_s >= start - 1e-6]
     assert len(period) == round(LENGTH_DAYS * 24)
     assert not any(o.decision.fallback for o in period)
@@ -74,7 +76,8 @@ def test_office_mpc_sends_its_decisions_as_the_bms_overwrites(runs: dict) -> Non
             spec = card.controls[name]
             sent = rows[spec.variable].to_numpy()
             np.testing.assert_allclose(sent, value + 273.15, atol=1e-9)  # degC -> K
-            assert spec.min - 1e-9 <= sent.min() and sent.max() <= spec.max + 1e-9
+            assert spec.min - 1e-9 <= sent.min() - 273.15 <= sent.max() - 273.15 <= \
+                spec.max + 1e-9  # (the card's limits in its canonical unit, degC)
     warmup = table[table['time'] < start - 1e-6]
     assert warmup[[card.controls[n].variable for n in names]].isna().all().all()
     # the boiler's supply temperature costs gas and nothing else in the model: its lower limit

@@ -33,7 +33,8 @@ instance per process). Controllers:
   it sends (settings ``plant_controls``). One run per period and price.
 
 The baseline and the rule never read the price: one run serves every price scenario (only
-``cost_tot`` differs). Writes ``OUT/kpis.json`` (one record per controller, period and price:
+``cost_tot`` differs); so does ``mshoot`` when its control card's forecast has no price series
+(e.g. the two-zone office's, which plans gas at its one price). Writes ``OUT/kpis.json`` (one record per controller, period and price:
 BOPTEST's KPIs with ``tdis_zones``, the run's wall time), ``OUT/kpis.md`` (the table, also
 printed), ``OUT/runs/<controller>_<period>[...]/records.csv`` and, with ``--figures``,
 ``OUT/<run>.png``. Bad options or a bad folder or card: one line on stderr, exit 2.
@@ -224,6 +225,12 @@ def _mpc_configuration(args: argparse.Namespace, case: Any,
     return str(control), str(settings)
 
 
+def _reads_price(control_card: str) -> bool:
+    """Return True when the control card's forecast carries a price series (one per scenario)."""
+    from mshoot_core.boptest.forecasts import ForecastSpec
+    return any(source.prices for source in ForecastSpec.from_card(control_card).series.values())
+
+
 def _ensure_forecast_weather(case: Any, periods: Sequence[str], warmup: float, days: float,
                              settings: str, began: float) -> None:
     """Derive, once, the weather the MPC's forecasts read over the runs (a folder without it)."""
@@ -286,7 +293,10 @@ def _run(args: argparse.Namespace) -> int:
                 jobs.append((controller, period, 0.0, 0.0, list(args.prices)))
                 continue
             if controller == 'mshoot':
-                jobs.extend((controller, period, 0.0, 0.0, [price]) for price in args.prices)
+                if _reads_price(mpc[0]):
+                    jobs.extend((controller, period, 0.0, 0.0, [price]) for price in args.prices)
+                else:  # its forecast has no price series: one run serves every scenario
+                    jobs.append((controller, period, 0.0, 0.0, list(args.prices)))
                 continue
             if args.lead is not None or args.margin is not None:
                 groups = {(args.lead or 0.0, args.margin or 0.0): list(args.prices)}
