@@ -56,8 +56,8 @@ def runs(office: TestCase, tmp_path_factory: pytest.TempPathFactory) -> dict:
                               record=record)
     finally:
         monkeypatch.undo()
-    return {'case': case, 'plant': plant, 'policy': policy, 'mpc': mpc, 'baseline': baseline, 'start': start,
-            'end': end}
+    return {'case': case, 'plant': plant, 'policy': policy, 'mpc': mpc, 'baseline': baseline,
+            'start': start, 'end': end}
 
 
 def test_office_mpc_sends_its_decisions_as_the_bms_overwrites(runs: dict) -> None:

@@ -182,10 +182,14 @@ def test_office_baseline_through_mshoot_boptest(office: TestCase, tmp_path: path
     code = cli.main(['boptest', '--testcase', str(office.directory), '--card',
                      str(CARDS / 'multizone_office_simple_hydronic.yaml'), '--controllers',
                      'baseline', '--periods', 'peak_heat_day', '--warmup-days', '1', '--days',
-                     '1', '--workers', '1', '--out', str(out)])
+                     '1', '--workers', '1', '--out', str(out), '--report',
+                     str(tmp_path / 'page.md')])
     assert code == 0
     printed = capsys.readouterr().out
     assert '| baseline | peak_heat_day | constant |' in printed and 'tdis [nZ]' in printed
+    page = (tmp_path / 'page.md').read_text()
+    assert page.startswith('# BOPTEST `multizone_office_simple_hydronic`: baseline\n')
+    assert page.endswith((out / 'kpis.md').read_text()) and '`peak_heat_day` (1 days each' in page
     records = json.loads((out / 'kpis.json').read_text())
     assert [r['price'] for r in records] == ['constant', 'dynamic', 'highly_dynamic']
     table = pd.read_csv(out / 'runs' / 'baseline_peak_heat_day' / 'records.csv')

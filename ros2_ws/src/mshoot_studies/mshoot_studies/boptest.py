@@ -34,10 +34,11 @@ instance per process). Controllers:
 
 The baseline and the rule never read the price: one run serves every price scenario (only
 ``cost_tot`` differs); so does ``mshoot`` when its control card's forecast has no price series
-(e.g. the two-zone office's, which plans gas at its one price). Writes ``OUT/kpis.json`` (one record per controller, period and price:
-BOPTEST's KPIs with ``tdis_zones``, the run's wall time), ``OUT/kpis.md`` (the table, also
-printed), ``OUT/runs/<controller>_<period>[...]/records.csv`` and, with ``--figures``,
-``OUT/<run>.png``. Bad options or a bad folder or card: one line on stderr, exit 2.
+(e.g. the two-zone office's, which plans gas at its one price). Writes ``OUT/kpis.json`` (one
+record per controller, period and price: BOPTEST's KPIs with ``tdis_zones``, the run's wall
+time), ``OUT/kpis.md`` (the table, also printed, and with ``--report`` as a Markdown page),
+``OUT/runs/<controller>_<period>[...]/records.csv`` and, with ``--figures``, ``OUT/<run>.png``.
+Bad options or a bad folder or card: one line on stderr, exit 2.
 """
 from __future__ import annotations
 
@@ -102,6 +103,8 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                         help='an FMU output whose off -> on transitions are counted '
                              '(starts_per_day, e.g. a heat pump modulation)')
     parser.add_argument('--figures', action='store_true', help='draw OUT/<run>.png')
+    parser.add_argument('--report', type=pathlib.Path, default=None,
+                        help='also write the tables as a Markdown page (e.g. a docs page)')
     return parser
 
 
@@ -225,6 +228,35 @@ def _mpc_configuration(args: argparse.Namespace, case: Any,
     return str(control), str(settings)
 
 
+def report_page(case: Any, args: argparse.Namespace, warmup: float, tables: str) -> str:
+    """
+    Return the Markdown page of ``--report``: what ran, the KPI tables.
+
+    Parameters
+    ----------
+    case : TestCase
+        The test case.
+    args : argparse.Namespace
+        The command's options.
+    warmup : float
+        The warm-up [days].
+    tables : str
+        The KPI tables (``OUT/kpis.md``).
+
+    """
+    cards = [f'`{pathlib.Path(p).name}`' for p in (args.card, args.control_card, args.mpc_settings)
+             if p is not None]
+    return '\n'.join([
+        f'# BOPTEST `{case.name}`: {", ".join(_controllers(args.controllers))}', '',
+        f'Written by `mshoot boptest` (`--report`) from the runs in `{args.out}`: the test '
+        f'periods {", ".join(f"`{p}`" for p in (args.periods or case.days))} ({args.days:g} '
+        f"days each after {warmup:g} days of warm-up under the building's own control), the "
+        f'prices {", ".join(f"`{p}`" for p in args.prices)}; cards and settings '
+        f'{", ".join(cards)} (`docs/boptest_cards/`). KPIs as BOPTEST defines them '
+        '([bringing a BOPTEST test case](boptest_testcases.md)); the second table is each '
+        "zone's own discomfort.", '', tables])
+
+
 def _reads_price(control_card: str) -> bool:
     """Return True when the control card's forecast carries a price series (one per scenario)."""
     from mshoot_core.boptest.forecasts import ForecastSpec
@@ -342,6 +374,8 @@ def _run(args: argparse.Namespace) -> int:
     text = table + '\n'.join(zones) + '\n'
     (args.out / 'kpis.md').write_text(text)
     print(text, end='')
+    if args.report is not None:
+        args.report.write_text(report_page(case, args, warmup, text))
     if args.figures:
         import pandas as pd
         for name, result in zip(names, results):
