@@ -1,5 +1,4 @@
 """The two-zone office under mshoot's supervisory MPC, by configuration only (cards, settings)."""
-import os
 import pathlib
 
 from mshoot_core import fmu_cache
@@ -7,7 +6,7 @@ from mshoot_core.boptest import weather
 from mshoot_core.boptest.kpis import kpi_records
 from mshoot_core.boptest.plant import run_period
 from mshoot_core.boptest.supervision import supervised_plant
-from mshoot_core.boptest.testcase import DIR_ENV, TestCase
+from mshoot_core.boptest.testcase import TestCase
 from mshoot_core.models.card import load_card
 from mshoot_core.settings import MpcSettings
 import numpy as np
@@ -21,18 +20,6 @@ DAY = 86400.0
 #: The shortened run: 6 h of warm-up, 12 h of test from typical_heat_day's start (midnight to
 #: noon: the night, the BMS's pumps on at 6 h, the band's 21 degC from 7 h), a 6 h horizon.
 WARMUP_DAYS, LENGTH_DAYS, HORIZON = 0.25, 0.5, 6
-
-
-@pytest.fixture(scope='module')
-def office() -> TestCase:
-    """Return the two-zone office beside the repository; skip (fail under CI) when absent."""
-    folder = (pathlib.Path(os.environ.get(DIR_ENV, '/nonexistent')).parent
-              / 'multizone_office_simple_hydronic')
-    if not (folder / 'wrapped.fmu').is_file():
-        if os.environ.get('CI') == 'true':
-            pytest.fail(f'BOPTEST test case missing at {folder} (required under CI)')
-        pytest.skip(f'BOPTEST test case not found at {folder}')
-    return TestCase.load(folder)
 
 
 @pytest.fixture(scope='module')
@@ -100,3 +87,17 @@ def test_office_mpc_costs_less_gas_than_the_bms_and_keeps_the_band(runs: dict) -
     assert mpc['cost_tot'] < baseline['cost_tot']
     for zone in case.zones:
         assert mpc['tdis_zones'][zone] <= baseline['tdis_zones'][zone] + 0.05
+
+
+def test_office_settings_plan_on_the_card_and_release_to_the_bms() -> None:
+    """The settings file fits the control card; its last fallback releases every overwrite."""
+    from mshoot_core.controller import controller_for
+    from mshoot_core.models.card import build_model
+    controller = controller_for(build_model(load_card(CONTROL)), MpcSettings.from_file(SETTINGS))
+    settings = controller.settings
+    assert settings.released == (True, True, True)
+    assert settings.actuation.plant_names == {name: name for name in
+                                              settings.problem.control_names}
+    import yaml
+    plant = yaml.safe_load(PLANT.read_text())['controls']  # (its FMU: the test case's)
+    assert all(plant[name]['activate'] for name in settings.problem.control_names)

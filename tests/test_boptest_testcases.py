@@ -1,13 +1,12 @@
 """Any BOPTEST folder and a card: several zones and energy vectors by hand, the real office."""
 import json
-import os
 import pathlib
 
 from mshoot_core import fmu_cache
 from mshoot_core.boptest import weather
 from mshoot_core.boptest.kpis import compute_kpis
 from mshoot_core.boptest.plant import BoptestPlant
-from mshoot_core.boptest.testcase import DIR_ENV, TestCase
+from mshoot_core.boptest.testcase import TestCase
 import numpy as np
 import pandas as pd
 import pytest
@@ -126,18 +125,6 @@ def test_a_missing_price_column_is_named(two_zone_case: TestCase) -> None:
 
 
 # -- the real office: Model Exchange, two zones, gas ---------------------------------------------
-@pytest.fixture(scope='module')
-def office() -> TestCase:
-    """Return the two-zone office beside the repository; skip (fail under CI) when absent."""
-    folder = (pathlib.Path(os.environ.get(DIR_ENV, '/nonexistent')).parent
-              / 'multizone_office_simple_hydronic')
-    if not (folder / 'wrapped.fmu').is_file():
-        if os.environ.get('CI') == 'true':
-            pytest.fail(f'BOPTEST test case missing at {folder} (required under CI)')
-        pytest.skip(f'BOPTEST test case not found at {folder}')
-    return TestCase.load(folder)
-
-
 def test_office_folder(office: TestCase) -> None:
     assert office.zones == ['sZ', 'nZ'] and office.area_m2 == 5000.0
     assert list(office.energy_outputs) == ['ElectricPower', 'GasPower']
