@@ -58,6 +58,19 @@ STUDY_ARGS ?=
 study: setup  ## regenerate every table and figure of the OU44 reference study -> docs/study.md (~6 min on 2 cores)
 	@$(RUN) cd $(ROOT) && mshoot study --data $(OU44_CSV) --out $(STUDY_OUT) $(STUDY_ARGS)
 
+# -- BOPTEST's two-zone office (issue 24): the BMS and mshoot by configuration only ----------
+OFFICE_DIR ?= $(dir $(ROOT))shared/boptest/multizone_office_simple_hydronic
+OFFICE_CARDS := $(ROOT)/docs/boptest_cards/multizone_office_simple_hydronic
+OFFICE_ARGS ?=
+
+.PHONY: boptest-office
+boptest-office: setup  ## the two-zone office: BMS baseline and mshoot, 3 periods x 2 prices, runs on 2 workers -> out/boptest_office/kpis.json, docs/boptest_office.md
+	@$(RUN) cd $(ROOT) && mshoot boptest --testcase $(OFFICE_DIR) --card $(OFFICE_CARDS).yaml \
+		--control-card $(OFFICE_CARDS)_control.yaml --mpc-settings $(OFFICE_CARDS)_mpc.yaml \
+		--controllers baseline mshoot --periods typical_heat_day peak_heat_day typical_cool_day \
+		--prices constant highly_dynamic --workers 2 --out out/boptest_office \
+		--report docs/boptest_office.md $(OFFICE_ARGS)
+
 # -- the soak benchmark (issue 6): many simulated days over ROS 2 with faults injected ---------
 SOAK_DAYS ?= 30
 SOAK_SEED ?= 1

@@ -121,13 +121,25 @@ def timed_fmus(tmp_path_factory: pytest.TempPathFactory) -> dict[str, pathlib.Pa
     return {'state': build_timed_fmu(out, True), 'nostate': build_timed_fmu(out, False)}
 
 
-@pytest.fixture(scope='session')
-def boptest_case() -> Any:
-    """Return the BOPTEST test case beside the repo; skip (fail under CI=true) when absent."""
+def _test_case(name: str = '') -> Any:
+    """Return the BOPTEST test case (or its sibling ``name``); skip (fail under CI) if absent."""
     from mshoot_core.boptest.testcase import DIR_ENV, TestCase
     folder = pathlib.Path(os.environ.get(DIR_ENV, '/nonexistent'))
+    folder = folder.parent / name if name else folder
     if not (folder / 'wrapped.fmu').is_file():
         if os.environ.get('CI') == 'true':
             pytest.fail(f'BOPTEST test case missing at {folder} (required under CI)')
         pytest.skip(f'BOPTEST test case not found at {folder}')
     return TestCase.load(folder)
+
+
+@pytest.fixture(scope='session')
+def boptest_case() -> Any:
+    """Return the BOPTEST test case beside the repo; skip (fail under CI=true) when absent."""
+    return _test_case()
+
+
+@pytest.fixture(scope='session')
+def office() -> Any:
+    """Return BOPTEST's two-zone office beside the repo; skip (fail under CI) when absent."""
+    return _test_case('multizone_office_simple_hydronic')

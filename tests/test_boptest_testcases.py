@@ -1,13 +1,12 @@
 """Any BOPTEST folder and a card: several zones and energy vectors by hand, the real office."""
 import json
-import os
 import pathlib
 
 from mshoot_core import fmu_cache
 from mshoot_core.boptest import weather
 from mshoot_core.boptest.kpi_calculator import compute_kpis
 from mshoot_core.boptest.plant import BoptestPlant
-from mshoot_core.boptest.testcase import DIR_ENV, TestCase
+from mshoot_core.boptest.testcase import TestCase
 import numpy as np
 import pandas as pd
 import pytest
@@ -126,18 +125,6 @@ def test_a_missing_price_column_is_named(two_zone_case: TestCase) -> None:
 
 
 # -- the real office: Model Exchange, two zones, gas ---------------------------------------------
-@pytest.fixture(scope='module')
-def office() -> TestCase:
-    """Return the two-zone office beside the repository; skip (fail under CI) when absent."""
-    folder = (pathlib.Path(os.environ.get(DIR_ENV, '/nonexistent')).parent
-              / 'multizone_office_simple_hydronic')
-    if not (folder / 'wrapped.fmu').is_file():
-        if os.environ.get('CI') == 'true':
-            pytest.fail(f'BOPTEST test case missing at {folder} (required under CI)')
-        pytest.skip(f'BOPTEST test case not found at {folder}')
-    return TestCase.load(folder)
-
-
 def test_office_folder(office: TestCase) -> None:
     assert office.zones == ['sZ', 'nZ'] and office.area_m2 == 5000.0
     assert list(office.energy_outputs) == ['ElectricPower', 'GasPower']
@@ -182,10 +169,14 @@ def test_office_baseline_through_mshoot_boptest(office: TestCase, tmp_path: path
     code = cli.main(['boptest', '--testcase', str(office.directory), '--card',
                      str(CARDS / 'multizone_office_simple_hydronic.yaml'), '--controllers',
                      'baseline', '--periods', 'peak_heat_day', '--warmup-days', '1', '--days',
-                     '1', '--workers', '1', '--out', str(out)])
+                     '1', '--workers', '1', '--out', str(out), '--report',
+                     str(tmp_path / 'page.md')])
     assert code == 0
     printed = capsys.readouterr().out
     assert '| baseline | peak_heat_day | constant |' in printed and 'tdis [nZ]' in printed
+    page = (tmp_path / 'page.md').read_text()
+    assert page.startswith('# BOPTEST `multizone_office_simple_hydronic`: baseline\n')
+    assert page.endswith((out / 'kpis.md').read_text()) and '`peak_heat_day` (1 days each' in page
     records = json.loads((out / 'kpis.json').read_text())
     assert [r['price'] for r in records] == ['constant', 'dynamic', 'highly_dynamic']
     table = pd.read_csv(out / 'runs' / 'baseline_peak_heat_day' / 'records.csv')
@@ -307,6 +298,23 @@ def test_office_weather_derived_once_and_found_by_lookup(office, tmp_path, monke
     day_wh = float(np.sum((irradiance[1:] + irradiance[:-1]) / 2.0) * 900.0 / 3600.0)
     assert day_wh == pytest.approx(mos[1:25, 8].sum(), rel=0.05)
     assert day_wh > 100.0  # a winter day in Brussels, not a dark one
+    # a later window is derived from where the rows end (contiguous) and merged in; a window
+    # the rows cover is not run again
+    held = case.lookup('TDryBul', rows)
+    weather.ensure_weather(case, days=0.25, first_day=1.0)
+    assert path.stat().st_mtime_ns != stamp
+    stamp = path.stat().st_mtime_ns
+    assert weather.ensure_weather(case, days=0.5, first_day=0.5) == path
+    assert path.stat().st_mtime_ns == stamp
+    case = TestCase.load(office.directory)
+    assert np.diff(case.row_times('TDryBul')).tolist() == [900.0] * 120
+    np.testing.assert_array_equal(case.lookup('TDryBul', rows), held)
+    hours = np.arange(25, 31) * 3600.0
+    np.testing.assert_allclose(case.lookup('TDryBul', hours), mos[25:31, 1] + 273.15, atol=1e-6)
+    with pytest.raises(ValueError, match='times outside the data'):
+        case.lookup('TDryBul', [1.5 * 86400.0])
+    with pytest.raises(ValueError, match='first_day >= 0 and days > 0'):
+        weather.ensure_weather(case, days=0.0)
 
 
 def test_a_test_case_card_names_its_mpc(boptest_case: TestCase, tmp_path: pathlib.Path) -> None:

@@ -76,8 +76,20 @@ def test_the_band_is_the_tightest_over_the_interval(boptest_case) -> None:
             'comfort_min'].iloc[k]
 
 
-def test_a_missing_column_names_the_folder_and_the_files(boptest_case, monkeypatch,
-                                                         tmp_path) -> None:
+def test_a_series_with_a_lead_runs_ahead_of_its_column(boptest_case) -> None:
+    """lead_s: row k holds the column's means an interval later (a schedule ahead of a band)."""
+    spec = ForecastSpec.from_section({'series': {
+        'now': {'columns': ['LowerSetp[1]'], 'offset': -KELVIN},
+        'ahead': {'columns': ['LowerSetp[1]'], 'offset': -KELVIN, 'lead_s': 3600.0}}})
+    frame = TestCaseForecasts(boptest_case, spec).frame(16 * 86400.0, 24, 3600.0)
+    np.testing.assert_array_equal(frame['ahead'].to_numpy()[:-1], frame['now'].to_numpy()[1:])
+    assert frame['ahead'].to_numpy()[:-1].tolist() != frame['now'].to_numpy()[:-1].tolist()
+
+
+def test_a_missing_column_names_the_folder_and_the_files(boptest_case, tmp_path,
+                                                        monkeypatch) -> None:
+    # an empty cache: a weather of the office derived by another run would supply TDryBul
+    monkeypatch.setenv(fmu_cache.CACHE_ENV, str(tmp_path))
     spec = ForecastSpec.from_section({'series': {'Tout': {'columns': ['TDryBul'],
                                                           'offset': -KELVIN},
                                                  'x': {'columns': ['Nope[1]']}}}, 'card.yaml')
@@ -85,8 +97,6 @@ def test_a_missing_column_names_the_folder_and_the_files(boptest_case, monkeypat
                                          r'searched .*weather\.csv'):
         TestCaseForecasts(boptest_case, spec)
     if OFFICE.is_dir():  # no weather.csv there: the temperature is missing, said so
-        # (in an empty cache: a weather derived by another run would supply it)
-        monkeypatch.setenv(fmu_cache.CACHE_ENV, str(tmp_path / 'fmu'))
         with pytest.raises(ValueError, match=r"lacks the columns \['TDryBul', 'Nope\[1\]'\]"):
             TestCaseForecasts(TestCase.load(OFFICE), spec)
 

@@ -40,10 +40,12 @@ instance per process). Controllers:
   (:func:`mshoot_core.forecast_margin.allowance`: the plan's forecast margin).
 
 The baseline and the rule never read the price nor a weather forecast: one run serves every
-price scenario (only ``cost_tot`` differs). Writes ``OUT/kpis.json`` (one record per controller,
-period, price and forecast scenario: BOPTEST's KPIs with ``tdis_zones``, the run's wall time,
-``uncertainty`` and ``seed``: ``none`` and null for perfect or no forecasts), ``OUT/kpis.md``
-(the table, also printed), ``OUT/runs/<controller>_<period>[...]/records.csv`` and, with
+price scenario (only ``cost_tot`` differs); so does ``mshoot`` when its control card's forecast
+has no price series (e.g. the two-zone office's, which plans gas at its one price). Writes
+``OUT/kpis.json`` (one record per controller, period, price and forecast scenario: BOPTEST's
+KPIs with ``tdis_zones``, the run's wall time, ``uncertainty`` and ``seed``: ``none`` and null
+for perfect or no forecasts), ``OUT/kpis.md`` (the table, also printed, and with ``--report``
+as a Markdown page), ``OUT/runs/<controller>_<period>[...]/records.csv`` and, with
 ``--figures``, ``OUT/<run>.png``. Bad options or a bad folder or card: one line on stderr, exit 2.
 """
 from __future__ import annotations
@@ -114,6 +116,8 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                         help='an FMU output whose off -> on transitions are counted '
                              '(starts_per_day, e.g. a heat pump modulation)')
     parser.add_argument('--figures', action='store_true', help='draw OUT/<run>.png')
+    parser.add_argument('--report', type=pathlib.Path, default=None,
+                        help='also write the tables as a Markdown page (e.g. a docs page)')
     return parser
 
 
@@ -255,6 +259,57 @@ def _mpc_configuration(args: argparse.Namespace, case: Any, card: Any,
     return str(control), str(settings)
 
 
+def report_page(case: Any, args: argparse.Namespace, warmup: float, tables: str) -> str:
+    """
+    Return the Markdown page of ``--report``: what ran, the KPI tables.
+
+    Parameters
+    ----------
+    case : TestCase
+        The test case.
+    args : argparse.Namespace
+        The command's options.
+    warmup : float
+        The warm-up [days].
+    tables : str
+        The KPI tables (``OUT/kpis.md``).
+
+    """
+    cards = [f'`{pathlib.Path(p).name}`' for p in (args.card, args.control_card, args.mpc_settings)
+             if p is not None]
+    return '\n'.join([
+        f'# BOPTEST `{case.name}`: {", ".join(_controllers(args.controllers))}', '',
+        f'Written by `mshoot boptest` (`--report`) from the runs in `{args.out}`: the test '
+        f'periods {", ".join(f"`{p}`" for p in (args.periods or case.days))} ({args.days:g} '
+        f"days each after {warmup:g} days of warm-up under the building's own control), the "
+        f'prices {", ".join(f"`{p}`" for p in args.prices)}; cards and settings '
+        f'{", ".join(cards)} (`docs/boptest_cards/`). KPIs as BOPTEST defines them '
+        '([bringing a BOPTEST test case](boptest_testcases.md)); the second table is each '
+        "zone's own discomfort.", '', tables])
+
+
+def _reads_price(control_card: str) -> bool:
+    """Return True when the control card's forecast carries a price series (one per scenario)."""
+    from mshoot_core.boptest.forecasts import ForecastSpec
+    return any(source.prices for source in ForecastSpec.from_card(control_card).series.values())
+
+
+def _ensure_forecast_weather(case: Any, periods: Sequence[str], warmup: float, days: float,
+                             settings: str, began: float) -> None:
+    """Derive, once, the weather the MPC's forecasts read over the runs (a folder without it)."""
+    from mshoot_core.boptest.weather import ensure_window
+    from mshoot_core.settings import MpcSettings
+    if not case.weather_derived:
+        return
+    problem = MpcSettings.from_file(settings).problem
+    windows = [case.test_period(period, warmup, days) for period in periods]
+    start = min(w[0] for w in windows)
+    end = max(w[2] for w in windows) + (problem.horizon_steps + 1) * problem.step_s
+    _say(began, f'the weather of {case.name} from its FMU over days {start / 86400:g} to '
+                f'{end / 86400:g} (once, into the cache)')
+    ensure_window(case, start, end)
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the command (module docstring): 0, or 2 with one line on stderr."""
     logging.basicConfig(level=logging.WARNING, format='%(levelname)s %(name)s: %(message)s')
@@ -292,6 +347,8 @@ def _run(args: argparse.Namespace) -> int:
     plant = BoptestPlant(case, record=record)  # checks the names; no instance
     targets = rule_targets(card, case) if 'rule' in controllers else {}
     mpc = _mpc_configuration(args, case, card, card_path) if 'mshoot' in controllers else None
+    if mpc is not None:
+        _ensure_forecast_weather(case, periods, warmup, args.days, mpc[1], began)
     _say(began, f'{case.name} ({plant.interface}, zones {case.zones}, energy '
                 f'{list(case.energy_outputs)}): {controllers} on {periods}')
     jobs: list[tuple[str, str, float, float, list[str], Any]] = []
@@ -301,8 +358,11 @@ def _run(args: argparse.Namespace) -> int:
                 jobs.append((controller, period, 0.0, 0.0, list(args.prices), None))
                 continue
             if controller == 'mshoot':
-                jobs.extend((controller, period, 0.0, 0.0, [price], errors)
-                            for errors in scenarios for price in args.prices)
+                # one run per price when its forecast has a price series, else one for all
+                groups = ([[price] for price in args.prices] if _reads_price(mpc[0])
+                          else [list(args.prices)])
+                jobs.extend((controller, period, 0.0, 0.0, prices, errors)
+                            for errors in scenarios for prices in groups)
                 continue
             if args.lead is not None or args.margin is not None:
                 groups = {(args.lead or 0.0, args.margin or 0.0): list(args.prices)}
@@ -348,6 +408,8 @@ def _run(args: argparse.Namespace) -> int:
     text = table + '\n'.join(zones) + '\n'
     (args.out / 'kpis.md').write_text(text)
     print(text, end='')
+    if args.report is not None:
+        args.report.write_text(report_page(case, args, warmup, text))
     if args.figures:
         import pandas as pd
         for name, result in zip(names, results):

@@ -16,6 +16,7 @@ where each comes from in a test case folder)::
     testcase_forecast:
       series:
         Tout: {columns: [TDryBul], offset: -273.15}            # sum of columns + offset
+        occupied: {columns: ['LowerSetp[1]'], lead_s: 3600}    # an hour ahead of the column
         gains: {columns: ['InternalGainsCon[1]', 'InternalGainsRad[1]']}
         price: {price: {constant: PriceElectricPowerConstant, dynamic: ...}}  # per scenario
       bands:
@@ -79,12 +80,17 @@ class SeriesSource:
         Added to the sum (e.g. -273.15 for K to degC).
     prices : dict of str -> str
         For a price series: price scenario -> its column [EUR/kWh] (else empty).
+    lead_s : float
+        The series runs this much ahead of its columns [s]: row k holds the columns' means
+        over [t_k + lead_s, t_k + step + lead_s) (e.g. a building's schedule that starts an
+        hour before the band it is derived from: 3600).
 
     """
 
     columns: tuple[str, ...] = ()
     offset: float = 0.0
     prices: Mapping[str, str] = dataclasses.field(default_factory=dict)
+    lead_s: float = 0.0
 
     def columns_for(self, price: str, name: str, where: str) -> tuple[str, ...]:
         """Return the columns of the series under a price scenario (ValueError if none)."""
@@ -150,7 +156,8 @@ class ForecastSpec:
                                                          in entry['price'].items()})
             elif isinstance(entry, Mapping) and entry.get('columns'):
                 series[str(name)] = SeriesSource(tuple(str(c) for c in entry['columns']),
-                                                 float(entry.get('offset', 0.0)))
+                                                 float(entry.get('offset', 0.0)),
+                                                 lead_s=float(entry.get('lead_s', 0.0)))
             else:
                 raise ValueError(f'{where}: series {name!r} must be {{columns: [...], '
                                  f'offset: x}} or {{price: {{scenario: column}}}}, got {entry!r}')
@@ -301,9 +308,10 @@ class TestCaseForecasts:
         frame = pd.DataFrame(index=pd.Index(times, name='time_s'))
         horizon = (steps + 1) * step_s
         for name, columns in self._columns.items():
-            total = self.interval_means(columns[0], times, step_s, float(t_s), horizon)
+            at = times + self.spec.series[name].lead_s
+            total = self.interval_means(columns[0], at, step_s, float(t_s), horizon)
             for column in columns[1:]:
-                total = total + self.interval_means(column, times, step_s, float(t_s), horizon)
+                total = total + self.interval_means(column, at, step_s, float(t_s), horizon)
             offset = self.spec.series[name].offset
             frame[name] = total + offset if offset else total
         several = len(self.spec.bands) > 1

@@ -284,6 +284,12 @@ class TestCase:
         return {**frames, DERIVED_WEATHER: derived}
 
     @property
+    def weather_derived(self) -> bool:
+        """Return True when the folder has no weather of its own (it is derived, see below)."""
+        return not any('TDryBul' in frame.columns
+                       for frame in _read_resources(str(self.directory)).values())
+
+    @property
     def derived_weather_path(self) -> pathlib.Path:
         """
         Return where the weather derived from this FMU file's outputs lives (in the cache).

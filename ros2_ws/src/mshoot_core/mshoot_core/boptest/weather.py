@@ -6,9 +6,11 @@ Stable API::
     from mshoot_core.boptest import weather
     frame = weather.derive_weather(case, start_s, end_s)     # BOPTEST columns, rows 900 s apart
     path = weather.ensure_weather(case)                      # the year, once, into the cache
+    path = weather.ensure_weather(case, days=16, first_day=57)   # or a window (merged in)
+    weather.ensure_window(case, start_s, end_s)              # the days around a run, if needed
     case.derived_weather_path                                # where TestCase.lookup reads it
 
-    python -m mshoot_core.boptest.weather DIR               # derive the year of a folder once
+    python -m mshoot_core.boptest.weather DIR [57 73]       # derive the year (or days) once
 
 BOPTEST's forecasts read a test case's ``Resources/weather.csv`` (``TDryBul`` [K], ``HGloHor``
 [W/m2], ... the points of :data:`~mshoot_core.boptest.testcase.WEATHER_POINTS`, rows every
@@ -141,19 +143,48 @@ def _at(records: pd.DataFrame, times: np.ndarray, outputs: dict[str, str]) -> pd
                          for point, name in outputs.items()}, index=times)
 
 
-def ensure_weather(case: Any, days: float = 365.0) -> pathlib.Path:
+def ensure_weather(case: Any, days: float = 365.0, first_day: float = 0.0) -> pathlib.Path:
     """
-    Derive the test case's weather once (from 1 January over ``days``); return the file.
+    Derive the test case's weather once over ``days`` from ``first_day``; return the file.
 
-    Written to a temporary file beside the target and renamed into place, so an interrupted
-    run leaves nothing half-written.
+    The cache file holds one contiguous window of rows: a window it already covers is not run
+    again; one it does not is derived from the end (or to the start) of what it holds, so the
+    rows stay contiguous, and merged in. A lookup outside the rows fails
+    (:meth:`~mshoot_core.boptest.testcase.TestCase.lookup`). Written to a temporary file beside
+    the target and renamed into place, so an interrupted run leaves nothing half-written.
+
+    Parameters
+    ----------
+    case : TestCase
+        The test case.
+    days : float
+        Length of the window [days].
+    first_day : float
+        Its start [days from 1 January], >= 0.
+
     """
+    if not (first_day >= 0.0 and days > 0.0):
+        raise ValueError(f'expected first_day >= 0 and days > 0, got {first_day:g}, {days:g}')
     path = case.derived_weather_path
-    if path.is_file():
-        return path
-    logger.info('deriving the weather of %s over %g days from its FMU (once) into %s',
-                case.name, days, path)
-    frame = derive_weather(case, 0.0, days * SECONDS_PER_DAY)
+    start_s, end_s = first_day * SECONDS_PER_DAY, (first_day + days) * SECONDS_PER_DAY
+    held = pd.read_csv(path, index_col=0) if path.is_file() else None
+    pieces = []
+    if held is None:
+        pieces.append(derive_weather(case, start_s, end_s))
+    else:
+        first, last = float(held.index[0]), float(held.index[-1])
+        if start_s < first - 1e-6:
+            pieces.append(derive_weather(case, start_s, first))
+        if end_s > last + 1e-6:
+            pieces.append(derive_weather(case, last, end_s))
+        if not pieces:
+            return path
+        pieces.append(held)
+    logger.info('derived the weather of %s over days %g to %g from its FMU into %s', case.name,
+                first_day, first_day + days, path)
+    frame = pd.concat(pieces)
+    frame.index = frame.index.to_numpy(dtype=float)
+    frame = frame[~frame.index.duplicated(keep='last')].sort_index()
     path.parent.mkdir(parents=True, exist_ok=True)
     staging = path.with_suffix(f'.{time.time_ns()}.tmp')
     frame.to_csv(staging, index_label='time')
@@ -161,16 +192,32 @@ def ensure_weather(case: Any, days: float = 365.0) -> pathlib.Path:
     return path
 
 
+def ensure_window(case: Any, start_s: float, end_s: float) -> pathlib.Path | None:
+    """
+    Make the weather of a folder without its own cover [start_s, end_s] [s from 1 January].
+
+    Returns the derived file (:func:`ensure_weather` over the whole days around the window),
+    or None for a folder with its own weather (nothing to derive).
+    """
+    if not case.weather_derived:
+        return None
+    first = float(np.floor(max(0.0, start_s) / SECONDS_PER_DAY))
+    last = float(np.ceil(end_s / SECONDS_PER_DAY))
+    return ensure_weather(case, days=max(1.0, last - first), first_day=first)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Derive the weather of the test case folder ``argv[0]``: 0, or 2 with one line."""
+    """Derive the weather of the folder ``argv[0]`` (days ``argv[1]`` to ``argv[2]``): 0, or 2."""
     from mshoot_core.boptest.testcase import TestCase
     logging.basicConfig(level=logging.INFO, format='%(asctime)s %(levelname)s %(message)s')
     args = list(sys.argv[1:] if argv is None else argv)
-    if len(args) != 1 or args[0].startswith('-'):
-        sys.stderr.write('usage: python -m mshoot_core.boptest.weather TEST_CASE_DIR\n')
+    if len(args) not in (1, 3) or args[0].startswith('-'):
+        sys.stderr.write('usage: python -m mshoot_core.boptest.weather TEST_CASE_DIR '
+                         '[FIRST_DAY LAST_DAY]\n')
         return 2
     try:
-        logger.info('wrote %s', ensure_weather(TestCase.load(args[0])))
+        first, last = (float(args[1]), float(args[2])) if len(args) == 3 else (0.0, 365.0)
+        logger.info('wrote %s', ensure_weather(TestCase.load(args[0]), last - first, first))
     except (FileNotFoundError, ValueError) as exc:
         sys.stderr.write(f'{exc}\n')
         return 2
