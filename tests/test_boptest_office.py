@@ -3,7 +3,7 @@ import pathlib
 
 from mshoot_core import fmu_cache
 from mshoot_core.boptest import weather
-from mshoot_core.boptest.kpis import kpi_records
+from mshoot_core.boptest.kpi_calculator import kpi_records
 from mshoot_core.boptest.plant import run_period
 from mshoot_core.boptest.supervision import supervised_plant
 from mshoot_core.boptest.testcase import TestCase
