@@ -27,7 +27,7 @@ def runs(office: TestCase, tmp_path_factory: pytest.TempPathFactory) -> dict:
     """Run the baseline and the MPC on the shortened period (the weather derived for it)."""
     from mshoot_studies.boptest import prepare_card
     monkeypatch = pytest.MonkeyPatch()
-    monkeypatch.setenv(fmu_cache.CACHE_ENV, str(tmp_path_factory.mktemp('fmu')))
+    monkeypatch.setenv(fmu_cache.CACHE_ENV, str(tmp_path_factory.mktemp('office_cache') / 'fmu'))
     plant = prepare_card(PLANT, office.directory, tmp_path_factory.mktemp('card'))
     try:
         warmup_start, start, end = office.test_period('typical_heat_day', WARMUP_DAYS,

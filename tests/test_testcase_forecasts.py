@@ -87,9 +87,10 @@ def test_a_series_with_a_lead_runs_ahead_of_its_column(boptest_case) -> None:
 
 
 def test_a_missing_column_names_the_folder_and_the_files(boptest_case, tmp_path,
-                                                        monkeypatch) -> None:
-    # an empty cache: a weather of the office derived by another run would supply TDryBul
-    monkeypatch.setenv(fmu_cache.CACHE_ENV, str(tmp_path))
+                                                         monkeypatch) -> None:
+    # an empty cache (the derived weather lives beside the cache's folder, so a folder of its
+    # own): a weather of the office derived by another run would supply TDryBul
+    monkeypatch.setenv(fmu_cache.CACHE_ENV, str(tmp_path / 'empty' / 'fmu'))
     spec = ForecastSpec.from_section({'series': {'Tout': {'columns': ['TDryBul'],
                                                           'offset': -KELVIN},
                                                  'x': {'columns': ['Nope[1]']}}}, 'card.yaml')
