@@ -921,12 +921,7 @@ class Controller:
             logger.warning("comfort back-off at %.0f s from the estimate's std only: the "
                            'prediction failed (%s)', step_ns / NS_PER_S, exc)
             std = estimate.std[None, :]
-        margin = z * std[:, bounded].max(axis=1)
-        out = window.copy()
-        half = 0.5 * (out['comfort_max'] - out['comfort_min']).to_numpy()
-        out['comfort_min'] = out['comfort_min'] + np.minimum(margin, half)
-        out['comfort_max'] = out['comfort_max'] - np.minimum(margin, half)
-        return out
+        return _narrowed(window, z * std[:, bounded].max(axis=1))
 
     @property
     def _error_processes(self) -> list:
@@ -949,12 +944,8 @@ class Controller:
             logger.warning('no forecast margin at %.0f s: the prediction failed (%s)',
                            step_ns / NS_PER_S, exc)
             return window
-        margin = self.settings.comfort.forecast_margin_std * std[:, bounded].max(axis=1)
-        out = window.copy()
-        half = 0.5 * (out['comfort_max'] - out['comfort_min']).to_numpy()
-        out['comfort_min'] = out['comfort_min'] + np.minimum(margin, half)
-        out['comfort_max'] = out['comfort_max'] - np.minimum(margin, half)
-        return out
+        return _narrowed(window, self.settings.comfort.forecast_margin_std
+                         * std[:, bounded].max(axis=1))
 
     def _held_inputs(self, step_ns: int, window: pd.DataFrame) -> np.ndarray:
         """
@@ -1144,6 +1135,19 @@ def state_scaling(settings: MpcSettings | None, states: int) -> Scaling | None:
 
 def _ns(seconds: float) -> int:
     return int(round(float(seconds) * NS_PER_S))
+
+
+def _narrowed(window: pd.DataFrame, margin: np.ndarray) -> pd.DataFrame:
+    """
+    Return a copy of the window with both comfort edges moved in by ``margin`` [K] per row.
+
+    At most to the band's middle.
+    """
+    out = window.copy()
+    half = 0.5 * (out['comfort_max'] - out['comfort_min']).to_numpy()
+    out['comfort_min'] = out['comfort_min'] + np.minimum(margin, half)
+    out['comfort_max'] = out['comfort_max'] - np.minimum(margin, half)
+    return out
 
 
 class _Measurement(NamedTuple):
