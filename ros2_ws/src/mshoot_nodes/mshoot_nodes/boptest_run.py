@@ -428,10 +428,8 @@ def run_benchmark(args: argparse.Namespace, context: Context,
         results = [run_job(job, settings, context, say) for job in jobs]
     else:  # one process per run at once: its own rclpy context and FMU instance
         import concurrent.futures
-        import multiprocessing
-        with concurrent.futures.ProcessPoolExecutor(
-                min(args.workers, len(jobs)), mp_context=multiprocessing.get_context('spawn')
-        ) as pool:
+        from mshoot_studies.worker_pool import process_pool
+        with process_pool(min(args.workers, len(jobs))) as pool:
             futures = [pool.submit(run_job, job, settings) for job in jobs]
             for future in concurrent.futures.as_completed(futures):
                 new, run = future.result()

@@ -54,13 +54,13 @@ import argparse
 import concurrent.futures
 import json
 import logging
-import multiprocessing
 import pathlib
 import sys
 import time
 from typing import Any, Sequence
 
 from mshoot_core.boptest.testcase import PRICE_SCENARIOS
+from mshoot_studies.worker_pool import process_pool
 
 logger = logging.getLogger(__name__)
 
@@ -384,9 +384,7 @@ def _run(args: argparse.Namespace) -> int:
                   args.starts_output, mpc if c == 'mshoot' else None, errors)
                  for (c, p, lead, margin, prices, errors), name in zip(jobs, names)]
     results: list[list[dict]] = [[] for _ in jobs]
-    with concurrent.futures.ProcessPoolExecutor(
-            min(args.workers, len(jobs)), mp_context=multiprocessing.get_context('spawn')
-    ) as pool:
+    with process_pool(min(args.workers, len(jobs))) as pool:
         futures = {pool.submit(_run_one, *a): k for k, a in enumerate(arguments)}
         for future in concurrent.futures.as_completed(futures):
             k = futures[future]

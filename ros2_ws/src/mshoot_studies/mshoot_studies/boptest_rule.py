@@ -171,10 +171,8 @@ def tune_rule(case: TestCase, targets: Mapping[str, RuleTarget], period: str,
             report(k + 1, k)
     else:
         import concurrent.futures
-        import multiprocessing
-        with concurrent.futures.ProcessPoolExecutor(
-                min(workers, len(points)), mp_context=multiprocessing.get_context('spawn')
-        ) as pool:
+        from mshoot_studies.worker_pool import process_pool
+        with process_pool(min(workers, len(points))) as pool:
             futures = {pool.submit(_grid_point, *point_args): k
                        for k, point_args in enumerate(args)}
             for n, future in enumerate(concurrent.futures.as_completed(futures), 1):

@@ -31,7 +31,6 @@ import dataclasses
 import functools
 import logging
 import math
-import multiprocessing
 import pathlib
 import time
 from typing import Any, Iterable, Sequence
@@ -44,6 +43,7 @@ from mshoot_core.scenario import reference_scenario
 import pandas as pd
 
 from mshoot_studies.case import DATA_DRIVEN, run_case
+from mshoot_studies.worker_pool import process_pool
 
 logger = logging.getLogger(__name__)
 
@@ -537,15 +537,13 @@ class SweepRunner:
             return self._executor
         root_level, levels = _logging_setup()
         if self.dask is None:
-            context = multiprocessing.get_context('forkserver')
-            context.set_forkserver_preload(list(WORKER_PRELOAD))
             # One fresh process per run (max_tasks_per_child=1), as isolated as the forked
             # processes of old: no run inherits the memory, caches or FMU instances of the
             # last. The runner never queues more runs than workers, so the pool never holds
             # the backlog that CPython 3.11's worker replacement can stall on (gh-115634).
-            self._executor = concurrent.futures.ProcessPoolExecutor(
-                max_workers=self.jobs, mp_context=context, max_tasks_per_child=1,
-                initializer=_configure_logging, initargs=(root_level, levels))
+            self._executor = process_pool(
+                self.jobs, 'forkserver', _configure_logging, (root_level, levels),
+                preload=WORKER_PRELOAD, max_tasks_per_child=1)
             return self._executor
         try:
             from distributed import Client, LocalCluster
