@@ -51,6 +51,7 @@ import pandas as pd
 
 from mshoot_core import fmu_cache
 from mshoot_core.boptest.testcase import shim_libraries, TestCase
+from mshoot_core.models.fmu_variables import fmu_variables
 from mshoot_core.period_loop import LoopRun, run_steps, step_count
 
 logger = logging.getLogger(__name__)
@@ -143,19 +144,20 @@ class BoptestPlant:
             self._unzipped, self.case.fmu_path.name, validate=False)
         md = self.model_description
         self.interface = 'CoSimulation' if md.coSimulation is not None else 'ModelExchange'
-        variables = {v.name: v for v in md.modelVariables}
-        self.outputs_available = [v.name for v in md.modelVariables if v.causality == 'output']
+        variables = fmu_variables(md)
+        names = {v.name for v in variables}
+        descriptions = {v.name: v.description or '' for v in md.modelVariables}
+        self.outputs_available = [v.name for v in variables if v.causality == 'output']
         self.inputs: dict[str, OverwriteInput] = {}
-        for v in md.modelVariables:
+        for v in variables:
             if v.causality != 'input' or not v.name.endswith('_u'):
                 continue
             activate = v.name[:-2] + '_activate'
-            if activate not in variables:
+            if activate not in names:
                 continue
             self.inputs[v.name] = OverwriteInput(
-                v.name, activate, v.unit or '',
-                float(v.min) if v.min is not None else -math.inf,
-                float(v.max) if v.max is not None else math.inf, v.description or '')
+                v.name, activate, v.unit, -math.inf if v.min is None else v.min,
+                math.inf if v.max is None else v.max, descriptions[v.name])
         self.recorded = (tuple(record) if record is not None
                          else tuple(self.outputs_available))
         unknown = [n for n in self.recorded if n not in self.outputs_available]
