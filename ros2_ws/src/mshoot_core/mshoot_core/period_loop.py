@@ -10,10 +10,11 @@ the baseline, a rule, the supervised controller, the identification's excitation
 callers, and so are the open-loop runs: a plant card's excitation
 (:func:`mshoot_core.identification.excite`), the recorded warm-up of a card's BOPTEST plant
 (:class:`~mshoot_core.boptest.card_plant.CardPlant` with ``history_step_s``) and the weather
-read from a test case's FMU (:func:`mshoot_core.boptest.weather.derive_weather`). The loop owns the step schedule (steps of ``step_s`` from ``start_s``, the last one
-ending at ``end_s``), the order of a step (observe the plant, decide, apply the decision up to
-the step's end), the wall time of every decision, a wall-time budget, and the progress lines;
-the callers own what is observed, decided and recorded.
+read from a test case's FMU (:func:`mshoot_core.boptest.weather.derive_weather`). The loop
+owns the step schedule (steps of ``step_s`` from ``start_s``, the last one ending at
+``end_s``), the order of a step (observe the plant, decide, apply the decision up to the step's
+end), the wall time of every decision, a wall-time budget, and the progress lines; the callers
+own what is observed, decided and recorded.
 
 Stable API::
 
@@ -21,15 +22,25 @@ Stable API::
     loop = run_steps(start_s, end_s, step_s, apply, decide=decide, observe=observe)
     loop.step_wall_s, loop.wall_s
 
-What stays apart, and why: the two plants differ in what a step is made of, not in how the
-loop goes. The emulator's plant takes its disturbances from the scenario, one row per step,
-and records states and outputs on a fine grid in the model's canonical units, with the
-controller's per-step record (:func:`~mshoot_core.closed_loop.step_row`) and plan; a BOPTEST
-plant reads its own weather, records the FMU's outputs and the overwrites every <= 60 s in the
-FMU's units (what BOPTEST's KPIs are computed from) and may be warmed up under the building's
-own control. Their results (:class:`~mshoot_core.closed_loop.ClosedLoopResult`,
-:class:`~mshoot_core.boptest.plant.PeriodRun`) are both a :class:`LoopRun` with their own
-tables.
+What stays apart, and why (each difference is one of the plant or of the decider, not of the
+loop, so a common plant protocol would only rename it):
+
+- The step: an :class:`~mshoot_core.emulation.Emulator` steps one scenario row at a time, the
+  model's inputs being the controls (clipped to the card's limits, with release flags) and the
+  row's disturbances; a :class:`~mshoot_core.boptest.plant.BoptestPlant` goes to an end time
+  under overwrites of FMU inputs (checked against the FMU's declared ranges), piece by piece
+  within a step, and reads its own weather.
+- The records: the emulator records states and outputs on a fine grid in the card's canonical
+  units, and the closed loop adds the controller's per-step record
+  (:func:`~mshoot_core.closed_loop.step_row`) and plan; a BOPTEST plant records the FMU's
+  outputs and the overwrites every <= 60 s in the FMU's units, what BOPTEST's KPIs are
+  computed from. Their results (:class:`~mshoot_core.closed_loop.ClosedLoopResult`,
+  :class:`~mshoot_core.boptest.plant.PeriodRun`) are both a :class:`LoopRun` with those tables.
+- The decider: the closed loop's is a :class:`~mshoot_core.controller.Controller` (offered the
+  state and the scenario's forecast by nanosecond stamps, polled once per step; a
+  non-finite plant value ends the run with its records); a test case's is any step policy
+  (``policy(t_s, outputs)``: none, a rule, an excitation, or the supervised controller, the only
+  one that observes), and the BOPTEST plant alone has a warm-up under its own control.
 """
 from __future__ import annotations
 
