@@ -347,3 +347,34 @@ def test_a_test_case_card_names_its_mpc(boptest_case: TestCase, tmp_path: pathli
         mine.write_text(text.replace(named, f'  control: {entry}\n'))
         with pytest.raises(CardError, match=message):
             load_card(mine)
+
+
+def test_benchmark_runs_planned_once_for_both_runners():
+    """
+    ``plan_runs`` (``mshoot boptest`` and ``make boptest``): the runs and their names.
+
+    The baseline once for every price, the rule once per distinct (lead, margin), mshoot per
+    forecast scenario and price (or once for every price when its forecast reads none).
+    """
+    from mshoot_core.forecast import uncertainty_runs
+    from mshoot_studies.boptest import plan_runs
+    prices = ['constant', 'dynamic', 'highly_dynamic']
+    scenarios = uncertainty_runs(['none', 'high=2'])
+    parameters = {'constant': (3.0, 0.5), 'dynamic': (2.0, 0.5), 'highly_dynamic': (2.0, 0.5)}
+    jobs = plan_runs(['peak_heat_day'], ['baseline', 'rule', 'mshoot'], prices, scenarios,
+                     lambda period, price: parameters[price])
+    assert [(job.name, job.prices) for job in jobs] == [
+        ('baseline_peak_heat_day', tuple(prices)),
+        ('rule_peak_heat_day_lead3_margin0.5', ('constant',)),
+        ('rule_peak_heat_day_lead2_margin0.5', ('dynamic', 'highly_dynamic')),
+        ('mshoot_peak_heat_day_constant', ('constant',)),
+        ('mshoot_peak_heat_day_dynamic', ('dynamic',)),
+        ('mshoot_peak_heat_day_highly_dynamic', ('highly_dynamic',)),
+        ('mshoot_peak_heat_day_constant_high_s2', ('constant',)),
+        ('mshoot_peak_heat_day_dynamic_high_s2', ('dynamic',)),
+        ('mshoot_peak_heat_day_highly_dynamic_high_s2', ('highly_dynamic',))]
+    together = plan_runs(['a', 'b'], ['mshoot'], prices, scenarios[:1], mshoot_per_price=False)
+    assert [(job.period, job.prices) for job in together] == [('a', tuple(prices)),
+                                                              ('b', tuple(prices))]
+    with pytest.raises(ValueError, match='rule_parameters'):
+        plan_runs(['a'], ['rule'], prices, scenarios)

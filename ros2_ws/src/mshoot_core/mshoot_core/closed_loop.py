@@ -14,6 +14,7 @@ from mshoot_core.emulation import Emulator, StepRecord
 from mshoot_core.estimation import Sensors
 from mshoot_core.models.base import ModelValueError
 from mshoot_core.mpc import MPC
+from mshoot_core.period_loop import LoopRun, run_steps
 from mshoot_core.scenario import forecast_rows
 from mshoot_core.units import NS_PER_S
 
@@ -21,9 +22,9 @@ logger = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass
-class ClosedLoopResult:
+class ClosedLoopResult(LoopRun):
     """
-    Records of a closed-loop run.
+    Records of a closed-loop run: a :class:`~mshoot_core.period_loop.LoopRun` with its tables.
 
     Attributes
     ----------
@@ -35,15 +36,17 @@ class ClosedLoopResult:
         Emulated states, outputs, controls and comfort band on the fine grid.
     plans : list of DataFrame
         The plan of every step.
+    step_wall_s : list of float
+        Wall time of each step's decision [s] (:meth:`Controller.poll`, the solve's and the
+        fallback's; keyword).
     wall_s : float
-        Wall time of the whole loop [s].
+        Wall time of the whole loop [s] (keyword).
 
     """
 
     steps: pd.DataFrame
     fine: pd.DataFrame
     plans: list[pd.DataFrame]
-    wall_s: float
 
 
 class EmulationStopped(RuntimeError):
@@ -177,7 +180,8 @@ def run_closed_loop(controller: Controller | MPC, emulator: Emulator, steps: int
     Every step the controller gets the emulated state and a perfect forecast
     and decides (:meth:`Controller.poll`): its optimum, or a fallback (the last
     good plan, the safe setpoint) when the solve fails, raises or overruns its
-    time budget; the emulator applies the decision.
+    time budget; the emulator applies the decision. The steps go through the one period loop
+    (:func:`mshoot_core.period_loop.run_steps`: observe, decide, apply; its wall times).
 
     Parameters
     ----------
@@ -222,27 +226,36 @@ def run_closed_loop(controller: Controller | MPC, emulator: Emulator, steps: int
     total = emulator.steps_left if steps is None else int(steps)
     if not 0 < total <= emulator.steps_left:
         raise ValueError(f'steps must be in [1, {emulator.steps_left}], got {steps}')
-    rows, fines, plans = [], [], []
+    rows: list[dict] = []
+    fines: list[pd.DataFrame] = []
+    plans: list[pd.DataFrame] = []
     started = time.perf_counter()
     inputs = _ScenarioInputs(controller, emulator)
-    for k in range(total):
-        if k and budget_s is not None and time.perf_counter() - started > budget_s:
-            logger.info('budget of %.0f s spent after %d/%d steps', budget_s, k, total)
-            break
-        now_ns = int(round(emulator.t_s * NS_PER_S))
+
+    def stamp() -> int:
+        return int(round(emulator.t_s * NS_PER_S))  # the scenario row's time, as the nodes'
+
+    def observe(t_s: float) -> None:
         applied = (np.array([rows[-1][n] for n in emulator.control_names]) if rows else None)
-        inputs.offer(now_ns, sensors, applied)
+        inputs.offer(stamp(), sensors, applied)
+
+    def decide(t_s: float) -> StepOutcome:
+        now_ns = stamp()
         outcomes = controller.poll(now_ns)
         if len(outcomes) != 1 or outcomes[0].step_ns != now_ns:
             raise RuntimeError(f'the controller decided {[o.step_ns for o in outcomes]} at '
                                f'{now_ns} ns: expected exactly that step')
-        outcome = outcomes[0]
+        return outcomes[0]
+
+    def apply(t_s: float, end_s: float, outcome: StepOutcome) -> None:
+        k = len(rows)
         try:
             record = emulator.advance(outcome.decision.controls,
                                       released=outcome.decision.released)
         except ModelValueError as error:
             done = (ClosedLoopResult(pd.DataFrame(rows).set_index('time_s'), pd.concat(fines),
-                                     plans, time.perf_counter() - started) if rows else None)
+                                     plans, step_wall_s=[], wall_s=time.perf_counter() - started)
+                    if rows else None)
             raise EmulationStopped(f'emulation stopped at step {k + 1}/{total} (t = '
                                    f'{emulator.t_s:.0f} s, {len(rows)} steps done): {error}',
                                    done, k, emulator.t_s) from error
@@ -252,18 +265,25 @@ def run_closed_loop(controller: Controller | MPC, emulator: Emulator, steps: int
         plans.append(_plan_frame(outcome, mpc))
         if progress is not None:
             progress(rows, fines)
-        if log_every and ((k + 1) % log_every == 0 or k + 1 == total):
-            logger.info('step %d/%d (t = %.0f h): solve %.3f s, %s', k + 1, total,
-                        row['time_s'] / 3600.0, row['solve_time_s'],
-                        'ok' if row['success'] else f"{row['source']} ({row['fallback_code']})"
-                        if row['fallback'] else 'not converged')
-        elif outcome.decision.fallback:
-            logger.info('step %d/%d (t = %.0f h): fallback %s: %s', k + 1, total,
-                        row['time_s'] / 3600.0, outcome.decision.source,
-                        outcome.decision.reason)
-    steps_df = pd.DataFrame(rows).set_index('time_s')
-    fine = pd.concat(fines)
-    return ClosedLoopResult(steps_df, fine, plans, time.perf_counter() - started)
+        _log_step(k, total, row, outcome, log_every)
+
+    start = emulator.t_s
+    loop = run_steps(start, start + total * emulator.step_s, emulator.step_s, apply,
+                     decide=decide, observe=observe, budget_s=budget_s, label='closed loop')
+    return ClosedLoopResult(pd.DataFrame(rows).set_index('time_s'), pd.concat(fines), plans,
+                            step_wall_s=loop.step_wall_s, wall_s=loop.wall_s)
+
+
+def _log_step(k: int, total: int, row: dict, outcome: StepOutcome, log_every: int) -> None:
+    """Log step ``k``'s line every ``log_every`` steps (0: never), and every fallback."""
+    if log_every and ((k + 1) % log_every == 0 or k + 1 == total):
+        logger.info('step %d/%d (t = %.0f h): solve %.3f s, %s', k + 1, total,
+                    row['time_s'] / 3600.0, row['solve_time_s'],
+                    'ok' if row['success'] else f"{row['source']} ({row['fallback_code']})"
+                    if row['fallback'] else 'not converged')
+    elif outcome.decision.fallback:
+        logger.info('step %d/%d (t = %.0f h): fallback %s: %s', k + 1, total,
+                    row['time_s'] / 3600.0, outcome.decision.source, outcome.decision.reason)
 
 
 def _plan_frame(outcome: StepOutcome, mpc: MPC) -> pd.DataFrame:

@@ -41,7 +41,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 import pathlib
-import time
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -51,6 +50,7 @@ from mshoot_core import calibration
 from mshoot_core.emulation import Emulator, initial_state
 from mshoot_core.models.base import Model
 from mshoot_core.models.r1c1 import KELVIN
+from mshoot_core.period_loop import run_steps
 
 __all__ = ['check_outside_test_periods', 'control_limits', 'excite', 'excite_test_case',
            'Excitation', 'excitation_levels', 'identify', 'Identification',
@@ -59,8 +59,6 @@ __all__ = ['check_outside_test_periods', 'control_limits', 'excite', 'excite_tes
 
 logger = logging.getLogger(__name__)
 
-#: Seconds between two progress messages of an excitation.
-PROGRESS_S = 10.0
 #: Seconds per day.
 DAY_S = 86400.0
 
@@ -211,16 +209,14 @@ def excite(plant: Model, scenario: pd.DataFrame, excitation: Excitation = Excita
                         step_s=step_s)
     emulator.start_plant(controls[0])  # a plant: its own start state (as far as it sets it)
     states = [emulator.x.copy()]
-    started = last = time.perf_counter()
-    for k in range(steps):
-        record = emulator.advance(controls[k])
-        states.append(record.x_end)
-        if time.perf_counter() - last > PROGRESS_S:
-            last = time.perf_counter()
-            logger.info('excitation: step %d of %d (%.1f of %.1f days), %.0f s', k + 1, steps,
-                        (k + 1) * step_s / 86400.0, steps * step_s / 86400.0, last - started)
-    logger.info('excitation: %d steps of %g s in %.1f s', steps, step_s,
-                time.perf_counter() - started)
+
+    def apply(t_s: float, end_s: float, level: np.ndarray) -> None:
+        states.append(emulator.advance(level).x_end)
+
+    start = emulator.t_s
+    loop = run_steps(start, start + steps * step_s, step_s, apply,
+                     decide=lambda t_s: controls[len(states) - 1], label='excitation')
+    logger.info('excitation: %d steps of %g s in %.1f s', steps, step_s, loop.wall_s)
     disturbances = [c for c in scenario.columns if c in plant.input_names and c not in names]
     table = scenario[disturbances].copy()
     applied = np.vstack([controls, controls[-1:]])
@@ -423,6 +419,7 @@ def excite_test_case(case: Any, card: Any, experiment: TestCaseExperiment) -> pd
         If the days overlap a test period or its warm-up, or the levels are outside the limits.
 
     """
+    from mshoot_core.boptest.card_plant import card_overwrites
     from mshoot_core.boptest.plant import run_span
     check_outside_test_periods(case, card, experiment)
     names = card.control_names
@@ -433,9 +430,8 @@ def excite_test_case(case: Any, card: Any, experiment: TestCaseExperiment) -> pd
                                                        *card.outputs.values())))
     start, end = experiment.start_s, experiment.end_s
 
-    def excitation(t_s: float, outputs: Any) -> dict[str, float]:
-        level = levels[int(round((t_s - start) / experiment.step_s))]
-        return {v.variable: v.to_model(value) for v, value in zip(specs, level)}
+    def excitation(t_s: float, outputs: Any) -> dict[str, float | None]:
+        return card_overwrites(specs, levels[int(round((t_s - start) / experiment.step_s))])
 
     run = run_span(case, start - experiment.lead_days * DAY_S, start, end, excitation,
                    experiment.step_s, experiment.sample_s, recorded, label='excitation')

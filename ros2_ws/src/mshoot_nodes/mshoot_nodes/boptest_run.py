@@ -60,12 +60,12 @@ from typing import Any, Callable, Sequence
 
 from mshoot_core.boptest.kpi_calculator import kpi_records, zone_discomfort
 from mshoot_core.boptest.testcase import PRICE_SCENARIOS, TestCase
-from mshoot_core.forecast import (BENCHMARK_UNCERTAINTY, scenario_fields, scenario_suffix,
-                                  uncertainty_runs)
+from mshoot_core.forecast import BENCHMARK_UNCERTAINTY, scenario_fields, uncertainty_runs
 from mshoot_core.forecast_margin import allowance
 from mshoot_core.models.card import builtin_card, load_card
 from mshoot_core.settings import ForecastErrorSettings
 from mshoot_core.units import json_ready
+from mshoot_studies.boptest import plan_runs, RunJob
 from mshoot_studies.boptest_report import count_starts
 from mshoot_studies.boptest_rule import (LEADS_H, MARGINS_K, RuleTarget, RuleTuning,
                                          setpoint_targets, tune_rule)
@@ -406,21 +406,9 @@ def run_benchmark(args: argparse.Namespace, context: Context,
                                warmup_days=args.warmup_days, length_days=args.days,
                                leads_h=args.leads, margins_k=args.margins, retune=args.retune,
                                progress=say, workers=args.workers)
-    jobs: list[RunJob] = []
-    for period in args.periods:
-        for controller in args.controllers:
-            if controller == 'baseline':
-                jobs.append(RunJob(controller, period, tuple(args.prices)))
-            elif controller == 'rule':
-                groups: dict[tuple[float, float], list[str]] = {}
-                for price in args.prices:
-                    best = tunings[period]['best'][price]
-                    groups.setdefault((best['lead_h'], best['margin_k']), []).append(price)
-                jobs += [RunJob(controller, period, tuple(prices), lead, margin)
-                         for (lead, margin), prices in groups.items()]
-            else:  # mshoot: one run per price and forecast scenario
-                jobs += [RunJob(controller, period, (price,), errors=errors)
-                         for errors in scenarios for price in args.prices]
+    jobs = plan_runs(args.periods, args.controllers, args.prices, scenarios,
+                     lambda period, price: (tunings[period]['best'][price]['lead_h'],
+                                            tunings[period]['best'][price]['margin_k']))
     settings = {'test_case': str(case.directory), 'warmup_days': args.warmup_days,
                 'length_days': args.days, 'out': str(args.out), 'timeout_s': args.timeout}
     results: list[tuple[list[dict], dict]] = []
@@ -437,25 +425,6 @@ def run_benchmark(args: argparse.Namespace, context: Context,
             results = [future.result() for future in futures]  # the jobs' order
     records = [record for new, _ in results for record in new]
     return records, [run for _, run in results]
-
-
-@dataclasses.dataclass(frozen=True)
-class RunJob:
-    """One ROS run of the benchmark: controller, period, the prices it stands for, its inputs."""
-
-    controller: str
-    period: str
-    prices: tuple[str, ...]
-    lead_h: float = 0.0
-    margin_k: float = 0.0
-    errors: ForecastErrorSettings | None = None
-
-    @property
-    def name(self) -> str:
-        """Return the run's name: ``<controller>_<period>[_<price>[_<level>_s<seed>]]``."""
-        suffix = {'mshoot': f'_{self.prices[0]}{scenario_suffix(self.errors)}', 'baseline': '',
-                  'rule': f'_lead{self.lead_h:g}_margin{self.margin_k:g}'}[self.controller]
-        return f'{self.controller}_{self.period}{suffix}'
 
 
 def _say(line: str) -> None:

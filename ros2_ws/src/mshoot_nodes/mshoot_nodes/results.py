@@ -124,7 +124,8 @@ def run_outputs(out: pathlib.Path, applied: pd.DataFrame, fine: pd.DataFrame,
     steps = steps_frame(applied, mpc_records)
     columns = zone_temperature_columns(fine, zones)
     kpis = run_kpis(steps, fine, step_s, wall_s, controls, columns, **extra)
-    write_outputs(pathlib.Path(out), ClosedLoopResult(steps, fine, [], wall_s), kpis, title,
+    result = ClosedLoopResult(steps, fine, [], step_wall_s=[], wall_s=wall_s)
+    write_outputs(pathlib.Path(out), result, kpis, title,
                   control=controls[0], temperature_column=columns[0])
     return kpis
 

@@ -52,12 +52,13 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures
+import dataclasses
 import json
 import logging
 import pathlib
 import sys
 import time
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 from mshoot_core.boptest.testcase import PRICE_SCENARIOS
 from mshoot_studies.worker_pool import process_pool
@@ -66,6 +67,95 @@ logger = logging.getLogger(__name__)
 
 #: The controllers of ``--controllers``.
 CONTROLLERS = ('baseline', 'rule', 'mshoot')
+
+
+@dataclasses.dataclass(frozen=True)
+class RunJob:
+    """
+    One run of a benchmark: controller, period, the price scenarios it stands for, its inputs.
+
+    Attributes
+    ----------
+    controller : {'baseline', 'rule', 'mshoot'}
+        The controller.
+    period : str
+        The test period.
+    prices : tuple of str
+        The price scenarios whose KPIs the run gives (the first is the one it runs with).
+    lead_h, margin_k : float
+        The rule's lead [h] and margin [K].
+    errors : ForecastErrorSettings or None
+        The forecast scenario of an mshoot run (None: perfect).
+
+    """
+
+    controller: str
+    period: str
+    prices: tuple[str, ...]
+    lead_h: float = 0.0
+    margin_k: float = 0.0
+    errors: Any = None
+
+    @property
+    def name(self) -> str:
+        """Return the run's name: ``<controller>_<period>[_<price>[_<level>_s<seed>]]``."""
+        from mshoot_core.forecast import scenario_suffix
+        suffix = {'mshoot': f'_{self.prices[0]}{scenario_suffix(self.errors)}', 'baseline': '',
+                  'rule': f'_lead{self.lead_h:g}_margin{self.margin_k:g}'}[self.controller]
+        return f'{self.controller}_{self.period}{suffix}'
+
+
+def plan_runs(periods: Sequence[str], controllers: Sequence[str], prices: Sequence[str],
+              scenarios: Sequence[Any],
+              rule_parameters: Callable[[str, str], tuple[float, float]] | None = None,
+              mshoot_per_price: bool = True) -> list[RunJob]:
+    """
+    Return a benchmark's runs (this runner's and the ROS benchmark's, ``make boptest``).
+
+    The baseline and the rule never read the price: one baseline run per period for every
+    price scenario, one rule run per distinct (lead, margin) of the prices; mshoot one run per
+    forecast scenario and price (or for every price at once, ``mshoot_per_price`` false: its
+    forecast has no price series).
+
+    Parameters
+    ----------
+    periods, controllers, prices : sequence of str
+        The test periods, the controllers (:data:`CONTROLLERS`) and the price scenarios.
+    scenarios : sequence of ForecastErrorSettings or None
+        mshoot's forecast scenarios (:func:`mshoot_core.forecast.uncertainty_runs`).
+    rule_parameters : callable, optional
+        ``rule_parameters(period, price) -> (lead [h], margin [K])``; needed for the rule.
+    mshoot_per_price : bool
+        One mshoot run per price scenario.
+
+    Returns
+    -------
+    list of RunJob
+        By period, then controller in the order given.
+
+    """
+    jobs: list[RunJob] = []
+    for period in periods:
+        for controller in controllers:
+            if controller == 'baseline':
+                jobs.append(RunJob(controller, period, tuple(prices)))
+            elif controller == 'mshoot':
+                groups = [(price,) for price in prices] if mshoot_per_price else [tuple(prices)]
+                jobs += [RunJob(controller, period, group, errors=errors)
+                         for errors in scenarios for group in groups]
+            elif controller == 'rule':
+                if rule_parameters is None:
+                    raise ValueError('the rule runs need rule_parameters (lead and margin)')
+                by_parameters: dict[tuple[float, float], list[str]] = {}
+                for price in prices:
+                    by_parameters.setdefault(tuple(rule_parameters(period, price)),
+                                             []).append(price)
+                jobs += [RunJob(controller, period, tuple(group), lead, margin)
+                         for (lead, margin), group in by_parameters.items()]
+            else:
+                raise ValueError(f'unknown controller {controller!r}: expected one of '
+                                 f'{list(CONTROLLERS)}')
+    return jobs
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
@@ -327,7 +417,7 @@ def _say(began: float, line: str) -> None:
 def _run(args: argparse.Namespace) -> int:
     from mshoot_core.boptest.plant import BoptestPlant, recorded_outputs
     from mshoot_core.boptest.testcase import TestCase
-    from mshoot_core.forecast import scenario_suffix, uncertainty_runs
+    from mshoot_core.forecast import uncertainty_runs
     from mshoot_core.models.card import load_card
     from mshoot_studies.boptest_report import kpi_table, plot_run
     from mshoot_studies.boptest_rule import rule_targets, tune_rule
@@ -351,38 +441,28 @@ def _run(args: argparse.Namespace) -> int:
         _ensure_forecast_weather(case, periods, warmup, args.days, mpc[1], began)
     _say(began, f'{case.name} ({plant.interface}, zones {case.zones}, energy '
                 f'{list(case.energy_outputs)}): {controllers} on {periods}')
-    jobs: list[tuple[str, str, float, float, list[str], Any]] = []
-    for period in periods:
-        for controller in controllers:
-            if controller == 'baseline':
-                jobs.append((controller, period, 0.0, 0.0, list(args.prices), None))
-                continue
-            if controller == 'mshoot':
-                # one run per price when its forecast has a price series, else one for all
-                groups = ([[price] for price in args.prices] if _reads_price(mpc[0])
-                          else [list(args.prices)])
-                jobs.extend((controller, period, 0.0, 0.0, prices, errors)
-                            for errors in scenarios for prices in groups)
-                continue
-            if args.lead is not None or args.margin is not None:
-                groups = {(args.lead or 0.0, args.margin or 0.0): list(args.prices)}
-            else:
-                tuning = tune_rule(case, targets, period, args.leads, args.margins,
-                                   prices=args.prices, warmup_days=warmup,
-                                   length_days=args.days, workers=args.workers,
-                                   record=record, progress=lambda line: _say(began, line))
-                groups = {}
-                for price in args.prices:
-                    groups.setdefault(tuning.parameters(price), []).append(price)
-            for (lead, margin), prices in groups.items():
-                jobs.append((controller, period, lead, margin, prices, None))
-    names = [f'{c}_{p}' + (f'_lead{lead:g}_margin{margin:g}' if c == 'rule' else
-                           f'_{prices[0]}{scenario_suffix(errors)}' if c == 'mshoot' else '')
-             for c, p, lead, margin, prices, errors in jobs]
-    arguments = [(str(case.directory), str(card_path), c, p, lead, margin, warmup, args.days,
-                  prices, record, str(args.out / 'runs' / name / 'records.csv'),
-                  args.starts_output, mpc if c == 'mshoot' else None, errors)
-                 for (c, p, lead, margin, prices, errors), name in zip(jobs, names)]
+    tunings: dict[str, Any] = {}
+
+    def rule_parameters(period: str, price: str) -> tuple[float, float]:
+        if args.lead is not None or args.margin is not None:
+            return args.lead or 0.0, args.margin or 0.0
+        if period not in tunings:
+            tunings[period] = tune_rule(case, targets, period, args.leads, args.margins,
+                                        prices=args.prices, warmup_days=warmup,
+                                        length_days=args.days, workers=args.workers,
+                                        record=record,
+                                        progress=lambda line: _say(began, line))
+        return tunings[period].parameters(price)
+
+    # mshoot: one run per price when its forecast has a price series, else one for all
+    jobs = plan_runs(periods, controllers, args.prices, scenarios, rule_parameters,
+                     mshoot_per_price=mpc is not None and _reads_price(mpc[0]))
+    names = [job.name for job in jobs]
+    arguments = [(str(case.directory), str(card_path), job.controller, job.period, job.lead_h,
+                  job.margin_k, warmup, args.days, list(job.prices), record,
+                  str(args.out / 'runs' / name / 'records.csv'), args.starts_output,
+                  mpc if job.controller == 'mshoot' else None, job.errors)
+                 for job, name in zip(jobs, names)]
     results: list[list[dict]] = [[] for _ in jobs]
     with process_pool(min(args.workers, len(jobs))) as pool:
         futures = {pool.submit(_run_one, *a): k for k, a in enumerate(arguments)}

@@ -24,6 +24,7 @@ import sys
 from typing import Sequence, TextIO
 
 from mshoot_core.models import card as cards
+from mshoot_core.models.fmu_variables import fmu_variables
 from mshoot_core.models.registry import CONTROL_TOLERANCE, EMULATOR_TOLERANCE
 
 from mshoot_studies.cli import verb_parser
@@ -140,7 +141,7 @@ def list_variables(path: pathlib.Path, causality: str | None, out: TextIO,
     interfaces = [name for name, kind in (('Model Exchange', md.modelExchange),
                                           ('Co-Simulation', md.coSimulation)) if kind]
     out.write(f'{path}: FMI {md.fmiVersion}, {md.modelName}, {" and ".join(interfaces)}\n')
-    rows = [v for v in cards.fmu_variables(md)
+    rows = [v for v in fmu_variables(md)
             if causality is None or v.causality.split(',')[0] == causality]
     header = ('name', 'causality', 'variability', 'type', 'unit', 'start')
     table = [(v.name, v.causality, v.variability, v.type, v.unit,

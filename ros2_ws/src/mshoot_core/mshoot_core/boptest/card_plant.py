@@ -25,8 +25,60 @@ import pandas as pd
 
 from mshoot_core.boptest.plant import BoptestPlant, MAX_SAMPLE_S, ME_TOLERANCE
 from mshoot_core.boptest.testcase import TestCase
+from mshoot_core.period_loop import run_steps
 
 logger = logging.getLogger(__name__)
+
+
+def card_overwrites(controls: Sequence[Any], values: Sequence[float],
+                    released: Sequence[bool] = ()) -> dict[str, float | None]:
+    """
+    Return a plant's overwrites of card controls: FMU input -> value in the FMU's unit.
+
+    The one conversion of controls to overwrites (:class:`CardPlant`, the supervised
+    controller's pieces, the identification's excitation).
+
+    Parameters
+    ----------
+    controls : sequence of CardVariable
+        The card's controls (their ``variable`` is the overwrite input ``X_u``).
+    values : sequence of float
+        One value per control [canonical unit].
+    released : sequence of bool
+        Per control (or empty: none), whether its overwrite is released: its value is None,
+        the building's own controller acts (:meth:`BoptestPlant.advance`).
+
+    Raises
+    ------
+    ValueError
+        For a number of values or flags other than the controls', or a non-finite value.
+
+    """
+    numbers = np.asarray(values, dtype=float).reshape(-1)
+    flags = tuple(bool(r) for r in released) or (False,) * len(controls)
+    if numbers.size != len(controls) or len(flags) != len(controls) \
+            or not np.all(np.isfinite(numbers)):
+        raise ValueError(f'expected {len(controls)} finite values and release flags of the '
+                         f'controls {[v.variable for v in controls]}, got {list(values)} and '
+                         f'{list(released)}')
+    return {v.variable: None if free else v.to_model(value)
+            for v, value, free in zip(controls, numbers, flags)}
+
+
+def card_values(plant: BoptestPlant, variables: Sequence[Any]) -> list[float]:
+    """
+    Return card variables read from a plant now [canonical unit] (states, outputs).
+
+    Parameters
+    ----------
+    plant : BoptestPlant
+        A running plant.
+    variables : sequence of CardVariable
+        The card's variables.
+
+    """
+    now = plant.read([v.variable for v in variables])
+    return [v.from_model(now[v.variable]) for v in variables]
 
 
 def record_means(plant: BoptestPlant, variables: Sequence[Any], t0_s: float,
@@ -108,22 +160,16 @@ class CardPlant:
         self._outputs = list(card.outputs.values())
 
     # -- conversions ---------------------------------------------------------------------------
-    def overwrites(self, u: Sequence[float]) -> dict[str, float]:
+    def overwrites(self, u: Sequence[float]) -> dict[str, float | None]:
         """
-        Return the FMU overwrites of controls ``u`` [canonical units].
+        Return the FMU overwrites of controls ``u`` [canonical units] (:func:`card_overwrites`).
 
-        Controls without ``activate`` in the card are not sent: the building's own control.
+        Controls without ``activate`` in the card, or released, are not overwritten (None): the
+        building's own control.
         """
-        values = np.asarray(u, dtype=float).reshape(-1)
-        if values.size != len(self._controls) or not np.all(np.isfinite(values)):
-            raise ValueError(f'expected {len(self._controls)} finite controls '
-                             f'{list(self.control_names)}, got {u}')
-        out = {}
-        for variable, value in zip(self._controls, values):
-            if variable.activate is None or not self._switches.get(variable.activate, 1):
-                continue  # the building's own control (no switch, or released)
-            out[variable.variable] = variable.to_model(value)
-        return out
+        released = [v.activate is None or not self._switches.get(v.activate, 1)
+                    for v in self._controls]
+        return card_overwrites(self._controls, u, released)
 
     def plant_switches(self, values: Mapping[str, bool]) -> None:
         """Set overwrite switches (the card's ``activate``): 0 releases the overwrite."""
@@ -141,9 +187,8 @@ class CardPlant:
                 if v.activate is not None}
 
     def _read(self) -> tuple[np.ndarray, np.ndarray]:
-        now = self.plant.read([v.variable for v in (*self._states, *self._outputs)])
-        return (np.array([v.from_model(now[v.variable]) for v in self._states]),
-                np.array([v.from_model(now[v.variable]) for v in self._outputs]))
+        values = card_values(self.plant, [*self._states, *self._outputs])
+        return np.array(values[:len(self._states)]), np.array(values[len(self._states):])
 
     # -- the plant -----------------------------------------------------------------------------
     @property
@@ -189,14 +234,16 @@ class CardPlant:
         if n < 0 or abs(t0_s + n * step - t1_s) > 1e-6:
             raise ValueError(f'the warm-up ({(t1_s - t0_s) / 86400:g} d) must be a whole '
                              f'number of history steps ({step:g} s)')
-        names = [v.variable for v in self._outputs]
-        times, states, means = [t0_s], [self._read()[0]], [np.full(len(names), np.nan)]
-        for k in range(n):
-            a, b = t0_s + k * step, t0_s + (k + 1) * step
+        times, states = [t0_s], [self._read()[0]]
+        means = [np.full(len(self._outputs), np.nan)]
+
+        def own_control(a: float, b: float, decided: None) -> None:
             self.plant.advance(b)
             means.append(self._step_means(a, b))
             states.append(self._read()[0])
             times.append(b)
+
+        run_steps(t0_s, t0_s + n * step, step, own_control, label=f'{self.case.name} warm-up')
         return (np.asarray(times) + self.time_origin_s, np.array(states), np.array(means))
 
     def _step_means(self, t0_s: float, t1_s: float) -> np.ndarray:

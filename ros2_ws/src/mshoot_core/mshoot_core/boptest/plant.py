@@ -51,6 +51,8 @@ import pandas as pd
 
 from mshoot_core import fmu_cache
 from mshoot_core.boptest.testcase import shim_libraries, TestCase
+from mshoot_core.models.fmu_variables import fmu_variables
+from mshoot_core.period_loop import LoopRun, run_steps, step_count
 
 logger = logging.getLogger(__name__)
 
@@ -60,8 +62,6 @@ MAX_SAMPLE_S = 60.0
 ME_TOLERANCE = 1e-6
 #: Time tolerance [s].
 _EPS_S = 1e-6
-#: Wall time between two progress lines of a run [s].
-PROGRESS_S = 10.0
 
 _instance_lock = threading.Lock()
 _instance_owner: list[BoptestPlant] = []
@@ -144,19 +144,20 @@ class BoptestPlant:
             self._unzipped, self.case.fmu_path.name, validate=False)
         md = self.model_description
         self.interface = 'CoSimulation' if md.coSimulation is not None else 'ModelExchange'
-        variables = {v.name: v for v in md.modelVariables}
-        self.outputs_available = [v.name for v in md.modelVariables if v.causality == 'output']
+        variables = fmu_variables(md)
+        names = {v.name for v in variables}
+        descriptions = {v.name: v.description or '' for v in md.modelVariables}
+        self.outputs_available = [v.name for v in variables if v.causality == 'output']
         self.inputs: dict[str, OverwriteInput] = {}
-        for v in md.modelVariables:
+        for v in variables:
             if v.causality != 'input' or not v.name.endswith('_u'):
                 continue
             activate = v.name[:-2] + '_activate'
-            if activate not in variables:
+            if activate not in names:
                 continue
             self.inputs[v.name] = OverwriteInput(
-                v.name, activate, v.unit or '',
-                float(v.min) if v.min is not None else -math.inf,
-                float(v.max) if v.max is not None else math.inf, v.description or '')
+                v.name, activate, v.unit, -math.inf if v.min is None else v.min,
+                math.inf if v.max is None else v.max, descriptions[v.name])
         self.recorded = (tuple(record) if record is not None
                          else tuple(self.outputs_available))
         unknown = [n for n in self.recorded if n not in self.outputs_available]
@@ -417,9 +418,9 @@ StepPolicy = Callable[[float, Mapping[str, float]], Any]
 
 
 @dataclasses.dataclass
-class PeriodRun:
+class PeriodRun(LoopRun):
     """
-    One run of :func:`run_period`.
+    One run of :func:`run_span` (or :func:`run_period`): a :class:`LoopRun` with the records.
 
     Attributes
     ----------
@@ -428,9 +429,9 @@ class PeriodRun:
     warmup_start_s, start_s, end_s : float
         The period [s from 1 January].
     step_wall_s : list of float
-        The controller's wall time at each control step of the test period [s].
+        The controller's wall time at each control step of the test period [s] (keyword).
     wall_s : float
-        Wall time of the whole run [s].
+        Wall time of the whole run, warm-up included [s] (keyword).
 
     """
 
@@ -438,8 +439,6 @@ class PeriodRun:
     warmup_start_s: float
     start_s: float
     end_s: float
-    step_wall_s: list[float]
-    wall_s: float
 
 
 def run_period(case: TestCase, period: str, controller: StepPolicy | None = None,
@@ -486,7 +485,8 @@ def run_span(case: TestCase, warmup_start_s: float, start_s: float, end_s: float
     controller with an ``observe(plant)`` method observes the plant at the start and at the end
     of every control step, the warm-up's included (then the warm-up runs in control steps from
     its start); every control step from ``start_s`` to ``end_s`` it is called for the step's
-    overwrites. A progress line is logged every :data:`PROGRESS_S` of wall time.
+    overwrites. The steps go through the one period loop
+    (:func:`mshoot_core.period_loop.run_steps`: its progress lines and wall times).
 
     Parameters
     ----------
@@ -525,39 +525,37 @@ def run_span(case: TestCase, warmup_start_s: float, start_s: float, end_s: float
         raise ValueError(f'expected 0 <= warm-up start <= start < end, got {warmup_start:g}, '
                          f'{start:g}, {end:g} s')
     observe = getattr(controller, 'observe', None)
-    walls: list[float] = []
-    began = last = time.perf_counter()
-    steps = math.ceil((end - start) / step - 1e-9)
     name = label or case.name
+    began = time.perf_counter()
     with BoptestPlant(case, record=record) as plant:
-        plant.start(warmup_start)
-        if observe is None:
-            plant.advance(start, sample_s=sample_s)
-        else:
+
+        def look(t_s: float) -> None:
             observe(plant)
-            k = 0
-            while plant.time_s < start - _EPS_S:  # the warm-up, observed step by step
-                plant.advance(min(warmup_start + (k + 1) * step, start), sample_s=sample_s)
-                observe(plant)
-                k += 1
-        k = 0
-        while plant.time_s < end - _EPS_S:
-            t_next = min(start + (k + 1) * step, end)
-            tic = time.perf_counter()
-            decided = controller(plant.time_s, plant.outputs) if controller else None
-            walls.append(time.perf_counter() - tic)
-            for piece_end, overwrites in _pieces(decided, plant.time_s, t_next):
+
+        def own_control(t_s: float, t_next: float, decided: None) -> None:
+            plant.advance(t_next, sample_s=sample_s)
+
+        def overwrite(t_s: float, t_next: float, decided: Any) -> None:
+            for piece_end, overwrites in _pieces(decided, t_s, t_next):
                 plant.advance(piece_end, overwrites, sample_s=sample_s)
-            if observe is not None:
-                observe(plant)
-            k += 1
-            if time.perf_counter() - last > PROGRESS_S:
-                last = time.perf_counter()
-                logger.info('%s: step %d of %d, %.0f s', name, k, steps, last - began)
+
+        plant.start(warmup_start)
+        if observe is None:  # the warm-up in one go
+            plant.advance(start, sample_s=sample_s)
+        else:  # the warm-up observed step by step
+            run_steps(warmup_start, start, step, own_control, observe=look,
+                      label=f'{name} warm-up')
+        loop = run_steps(start, end, step, overwrite, observe=look if observe else None,
+                         decide=lambda t_s: controller(t_s, plant.outputs) if controller
+                         else None, label=name)
+        if observe is not None:  # the plant at the end of the last step
+            observe(plant)
         records = plant.records()
     wall = time.perf_counter() - began
-    logger.info('%s on %s: %d steps of %g s in %.1f s', name, case.name, k, step, wall)
-    return PeriodRun(records, warmup_start, start, end, walls, wall)
+    logger.info('%s on %s: %d steps of %g s in %.1f s', name, case.name,
+                step_count(start, end, step), step, wall)
+    return PeriodRun(records, warmup_start, start, end, step_wall_s=loop.step_wall_s,
+                     wall_s=wall)
 
 
 def _pieces(decided: Any, t_s: float, t_next: float) -> list[tuple[float, Any]]:

@@ -39,7 +39,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import pandas as pd
 
-from mshoot_core.boptest.card_plant import record_means
+from mshoot_core.boptest.card_plant import card_overwrites, card_values, record_means
 from mshoot_core.boptest.plant import BoptestPlant, recorded_outputs
 from mshoot_core.boptest.testcase import TestCase
 from mshoot_core.controller import Controller, MEAN_PREFIX, StepOutcome
@@ -108,8 +108,7 @@ class SupervisedPlant:
         the first observation).
         """
         t = float(plant.time_s)
-        now = plant.read([v.variable for v in self.card.states.values()])
-        states = {name: v.from_model(now[v.variable]) for name, v in self.card.states.items()}
+        states = dict(zip(self.card.states, card_values(plant, list(self.card.states.values()))))
         outputs: dict[str, float] = {}
         if self._last_s is not None:
             means = record_means(plant, list(self.card.outputs.values()), self._last_s, t)
@@ -167,13 +166,9 @@ class SupervisedPlant:
         else:
             offsets, values = schedule.offsets_s, schedule.values
         ends = [*(outcome.t_s + offsets[1:]), outcome.t_s + self.step_s]
-        out = []
-        for end, row in zip(ends, values):
-            overwrites: dict[str, float | None] = {}
-            for spec, value, free in zip(self._sent.values(), row, released):
-                overwrites[spec.variable] = None if free else spec.to_model(value)
-            out.append((float(end), overwrites))
-        return out
+        sent = list(self._sent.values())
+        return [(float(end), card_overwrites(sent, row, released))
+                for end, row in zip(ends, values)]
 
 
 def supervised_plant(case: TestCase, plant_card: Any, control_card: Any, settings: Any,

@@ -38,6 +38,7 @@ import numpy as np
 import pandas as pd
 
 from mshoot_core.boptest.testcase import SECONDS_PER_DAY, WEATHER_POINTS
+from mshoot_core.period_loop import run_steps
 
 logger = logging.getLogger(__name__)
 
@@ -47,8 +48,6 @@ ROW_S = 900.0
 PIECE_DAYS = 5.0
 #: An FMU output of the weather station: ``<prefix>reaWea<point>_y``.
 _OUTPUT = re.compile(r'^(?:.*_)?reaWea(?P<point>[A-Za-z]+)_y$')
-#: Seconds between two progress messages.
-_PROGRESS_S = 10.0
 
 
 def weather_outputs(outputs: Sequence[str]) -> dict[str, str]:
@@ -107,25 +106,21 @@ def derive_weather(case: Any, start_s: float, end_s: float, row_s: float = ROW_S
     outputs = weather_outputs(plant.outputs_available)
     plant = BoptestPlant(case, record=list(outputs.values()))
     pieces = []
-    started = last = time.perf_counter()
+
+    def piece(t_s: float, to_s: float, decided: None) -> None:
+        plant.advance(to_s)
+        pieces.append(_at(plant.records(), rows[(rows > t_s + 1e-6) & (rows <= to_s + 1e-6)],
+                          outputs))
+        plant.drop_records()
+
     with plant:
         plant.start(start_s - lead_s)
         if lead_s > 0:
             plant.advance(start_s)
         pieces.append(_at(plant.records(start_s - 1e-3), rows[:1], outputs))
         plant.drop_records()
-        t = start_s
-        while t < rows[-1] - 1e-6:
-            to = min(rows[-1], t + PIECE_DAYS * SECONDS_PER_DAY)
-            plant.advance(to)
-            pieces.append(_at(plant.records(), rows[(rows > t + 1e-6) & (rows <= to + 1e-6)],
-                              outputs))
-            plant.drop_records()
-            t = to
-            if time.perf_counter() - last > _PROGRESS_S:
-                last = time.perf_counter()
-                logger.info('weather of %s: day %.1f of %.1f, %.0f s', case.name,
-                            t / SECONDS_PER_DAY, rows[-1] / SECONDS_PER_DAY, last - started)
+        run_steps(start_s, rows[-1], PIECE_DAYS * SECONDS_PER_DAY, piece,
+                  label=f'weather of {case.name}')
     frame = pd.concat(pieces)
     frame.index.name = 'time'
     return frame

@@ -91,11 +91,12 @@ from mshoot_core.models.base import IntervalJacobians, Model
 from mshoot_core.models.defaults import (CONTROL_TOLERANCE, EMULATOR_TOLERANCE,
                                          FINITE_DIFFERENCE_TOLERANCE, is_card_path)
 from mshoot_core.models.fmi import FmiModel, read_cached_description, read_fmu_description
+from mshoot_core.models.fmu_variables import fmu_variables, ModelVariable
 
 __all__ = ['builtin_card', 'build_model', 'CardError', 'CardFmiModel', 'CardVariable',
-           'CARDS_DIR', 'conversion', 'describe', 'fmu_variables', 'is_card_path', 'load_card',
-           'ModelCard', 'ModelVariable', 'SCHEMA_PATH', 'schema', 'schema_problems',
-           'time_origin_seconds', 'UNITS', 'write_parameters']
+           'CARDS_DIR', 'conversion', 'describe', 'is_card_path', 'load_card', 'ModelCard',
+           'SCHEMA_PATH', 'schema', 'schema_problems', 'time_origin_seconds', 'UNITS',
+           'write_parameters']
 
 logger = logging.getLogger(__name__)
 
@@ -429,25 +430,6 @@ def _known_units() -> str:
 
 
 # -- the model's variables --------------------------------------------------------------------
-@dataclasses.dataclass(frozen=True)
-class ModelVariable:
-    """What a card may map to: one variable of the model, as the card check lists it."""
-
-    name: str
-    causality: str
-    type: str = 'Real'  # noqa: A003 (the FMI attribute)
-    unit: str = ''
-    start: float | None = None
-    variability: str = ''
-    initial: str = ''
-    min: float | None = None  # noqa: A003 (the FMI attribute)
-    max: float | None = None  # noqa: A003 (the FMI attribute)
-
-    def label(self) -> str:
-        """``name (causality, unit)``."""
-        return f"{self.name} ({self.causality}{', ' + self.unit if self.unit else ''})"
-
-
 @dataclasses.dataclass
 class _Catalogue:
     """The variables of a model by what a card can map them to."""
@@ -460,33 +442,6 @@ class _Catalogue:
     parameters: list[ModelVariable]
     state_kind: str
     python: bool = False
-
-
-def _float(value: Any) -> float | None:
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        return None
-    return out if math.isfinite(out) else None
-
-
-def fmu_variables(md: Any) -> list[ModelVariable]:
-    """Every scalar variable of an fmpy model description, as :class:`ModelVariable`."""
-    out = []
-    continuous = {d.variable.derivative.name for d in getattr(md, 'derivatives', [])
-                  if d.variable.derivative is not None}
-    for v in md.modelVariables:
-        declared = v.declaredType
-        unit = v.unit or (declared.unit if declared is not None else None) or ''
-        causality = v.causality or 'local'
-        low = v.min if v.min is not None else getattr(declared, 'min', None)
-        high = v.max if v.max is not None else getattr(declared, 'max', None)
-        out.append(ModelVariable(v.name, causality, v.type, unit, _float(v.start),
-                                 v.variability or '', v.initial or '', _float(low),
-                                 _float(high)))
-        if v.name in continuous:
-            out[-1] = dataclasses.replace(out[-1], causality=f'{causality}, state')
-    return out
 
 
 def _fmu_catalogue(label: str, md: Any, interface: str) -> _Catalogue:
