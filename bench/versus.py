@@ -9,7 +9,9 @@ In one run (issue 16, part 1):
 1. the reference case (OU44, 1 zone, H = 10 h, 72 h, FMU control model at its
    default tolerance) as a whole command, ours (``mshoot case``, the console
    script as a user runs it; SLSQP by default, and with ``--solver ipopt``) and
-   ``bench/casadi_ref.py`` (RK4, exact derivatives, IPOPT), each run
+   ``bench/casadi_ref.py`` (RK4, exact derivatives, IPOPT) with ``--plot``: the
+   same outputs as ours (KPIs, steps, the same figure, which the script draws
+   in its process after the loop and ours in its plot worker meanwhile), each run
    ``--repeats`` times as a subprocess, interleaved, medians of wall and CPU
    time (CPU: the process and those it waited for, e.g. our plot worker); the
    CasADi script also with our IPOPT options
@@ -105,10 +107,14 @@ def ours_command(out: pathlib.Path, *extra: str, python_flags: Sequence[str] = (
 
 
 def casadi_command(out: pathlib.Path, python_flags: Sequence[str] = (),
-                   ipopt_options: dict | None = None) -> list[str]:
-    """Return the CasADi script of the same case (IPOPT's defaults, or ``ipopt_options``)."""
+                   ipopt_options: dict | None = None, plot: bool = False) -> list[str]:
+    """
+    Return the CasADi script of the same case (IPOPT's defaults, or ``ipopt_options``).
+
+    ``plot``: it draws our command's figure too (``--plot``: the same outputs as ours).
+    """
     return [sys.executable, *python_flags, str(CASADI_SCRIPT), '--data', str(data_file()),
-            '--horizon', str(HORIZON), '--out', str(out),
+            '--horizon', str(HORIZON), '--out', str(out), *(['--plot'] if plot else []),
             *(f'--ipopt-option={key}={value}' for key, value in (ipopt_options or {}).items())]
 
 
@@ -325,9 +331,10 @@ def whole_commands(repeats: int, tmp: pathlib.Path) -> dict:
         for name, command in (('ours', ours_command(tmp / 'ours')),
                               ('ours_ipopt', ours_command(tmp / 'ours_ipopt', '--solver',
                                                           'ipopt')),
-                              ('casadi', casadi_command(tmp / 'casadi')),
+                              ('casadi', casadi_command(tmp / 'casadi', plot=True)),
                               ('casadi_same', casadi_command(
-                                  tmp / 'casadi_same', ipopt_options=case_ipopt_options()))):
+                                  tmp / 'casadi_same', ipopt_options=case_ipopt_options(),
+                                  plot=True))):
             wall, _, _, _, cpu = run_timed(command)
             kpis = json.loads((tmp / name / 'kpis.json').read_text())
             with open(tmp / name / 'steps.csv', newline='') as steps:
@@ -722,7 +729,9 @@ def report(whole: dict, zones: list[dict], growth: list[dict], parts: dict) -> N
     logger.info('\n== 1 zone, H = %d h, 72 h (OU44): whole command and control loop, medians '
                 'of %d runs ==', HORIZON, len(ours['walls_s']))
     logger.info("casadi: IPOPT's defaults; casadi same: with our IPOPT options (%s); ratio: "
-                'ours (slsqp) / casadi; ratio ipopt: ours (ipopt) / casadi same',
+                'ours (slsqp) / casadi; ratio ipopt: ours (ipopt) / casadi same; every command '
+                'writes the KPIs, the steps and the same figure (casadi: --plot, drawn after '
+                'its loop; ours: in its plot worker meanwhile)',
                 ', '.join(f'{k}={v}' for k, v in case_ipopt_options().items()))
     width = 24
     logger.info('%s %14s %14s %14s %14s %10s %11s', 'what'.ljust(width), 'ours (slsqp)',
