@@ -351,7 +351,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help='an IPOPT option beyond its defaults (repeatable), e.g. '
                         'mu_strategy=adaptive')
     parser.add_argument('--plot', action='store_true',
-                        help="draw plot.png, the figure of mshoot case (after the loop)")
+                        help='draw plot.png, the figure of mshoot case (after the loop)')
     parser.add_argument('--out', type=pathlib.Path,
                         default=pathlib.Path('out/bench/casadi_case'))
     args = parser.parse_args(argv)
@@ -363,8 +363,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:
         parser.error(str(exc))
     try:
-        kpis, steps, timing, fine = run_case(args.data, args.horizon, args.hours, args.substeps,
-                                       ipopt_options=options)
+        kpis, steps, timing, fine = run_case(args.data, args.horizon, args.hours,
+                                             args.substeps, ipopt_options=options)
     except (FileNotFoundError, ValueError) as exc:
         logger.error('%s', exc)
         return 2

@@ -338,7 +338,11 @@ def whole_commands(repeats: int, tmp: pathlib.Path) -> dict:
             wall, _, _, _, cpu = run_timed(command)
             kpis = json.loads((tmp / name / 'kpis.json').read_text())
             with open(tmp / name / 'steps.csv', newline='') as steps:
-                kpis['iterations'] = sum(int(row['iterations']) for row in csv.DictReader(steps))
+                rows = list(csv.DictReader(steps))
+            kpis['step_iterations'] = [int(row['iterations']) for row in rows]
+            kpis['iterations'] = sum(kpis['step_iterations'])
+            if 'relaxed' in rows[0]:  # ours: the steps whose band was out of reach
+                kpis['step_relaxed'] = [row['relaxed'] == 'True' for row in rows]
             runs[name].append({'wall_s': wall, 'cpu_s': cpu, 'loop_s': kpis['wall_s'],
                                'solve_s_median': kpis['solve_s_median'],
                                'solve_s_total': kpis['solve_s_total'], 'kpis': kpis})
@@ -354,6 +358,8 @@ def whole_commands(repeats: int, tmp: pathlib.Path) -> dict:
             'solve_s_median': statistics.median(r['solve_s_median'] for r in items),
             'solve_s_total': statistics.median(r['solve_s_total'] for r in items),
             'iterations': kpis.get('iterations'),
+            'step_iterations': kpis['step_iterations'],
+            'step_relaxed': kpis.get('step_relaxed'),
             **{k: kpis[k] for k in ('energy_kwh', 'heating_kwh', 'cooling_kwh', 'discomfort_kh',
                                     'discomfort_kh_hourly', 'solver_failures')}}
     return summary
@@ -753,6 +759,14 @@ def report(whole: dict, zones: list[dict], growth: list[dict], parts: dict) -> N
         ratios = [f'{run[key] / peer[key]:.2f}' if ratio else ''
                   for run, peer in ((ours, theirs), (ipopt, same))]
         logger.info('%s %14s %14s %14s %14s %10s %11s', label.ljust(width), *cells, *ratios)
+    relaxed = ipopt.get('step_relaxed')
+    if relaxed and len(relaxed) == len(same['step_iterations']):
+        for label, chosen in (('band out of reach (ours relaxed)', True), ('band kept', False)):
+            picked = [k for k, r in enumerate(relaxed) if r == chosen]
+            logger.info('IPOPT iterations in the %d steps with the %s: ours (ipopt) %d, casadi '
+                        'same %d', len(picked), label,
+                        sum(ipopt['step_iterations'][k] for k in picked),
+                        sum(same['step_iterations'][k] for k in picked))
     for key, what in (('walls_s', 'wall'), ('cpus_s', 'CPU')):
         logger.info('whole command, ratio of each run (%s; runs interleaved): slsqp/casadi %s, '
                     'ipopt/casadi same %s', what,

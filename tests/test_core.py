@@ -203,7 +203,7 @@ def test_unreachable_band_success_is_honest_when_solver_stops_early():
 
 def test_converged_least_violation_plan_is_the_least_cost_plan_within_its_violation():
     """
-    IPOPT's converged least-violation plan is kept: the second phase would return it again.
+    A converged least-violation plan of IPOPT is kept: the second phase would return it again.
 
     The band is out of reach at hour 3 only (below the full-cooling envelope), free after: the
     plan cools fully until then and spends nothing after. A cold hard solve of least cost
