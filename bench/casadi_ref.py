@@ -2,7 +2,7 @@
 CasADi/IPOPT multiple-shooting reference of mshoot's benchmark cases (a benchmark only).
 
     python bench/casadi_ref.py [--data PATH] [--horizon 10] [--hours 72] [--substeps 4] \
-        [--ipopt-option NAME=VALUE ...] [--out out/bench/casadi_case]
+        [--ipopt-option NAME=VALUE ...] [--plot] [--out out/bench/casadi_case]
 
 runs the OU44 reference case (SPEC section 3) as a straightforward CasADi user
 would write it, in a closed loop over ``--hours`` hourly steps: the R1C1 zone
@@ -24,8 +24,11 @@ script does what a CasADi user would do: slack variables s >= 0 on the band
 1e3 * sum(s) + 10 * sum(s^2) [s in K] added to the cost, in every solve.
 
 Writes ``kpis.json`` (the KPIs and the time of every phase) and ``steps.csv``
-to ``--out``; no figure. :class:`CasadiMpc` is also the per-step reference of
-the Z-zone scale problem in ``bench/versus.py``.
+to ``--out``; with ``--plot`` also ``plot.png``, the figure ``mshoot case`` draws
+(:func:`mshoot_core.plotting.plot_closed_loop`, in this process after the loop, as a
+script would: the same output as ours, for ``bench/versus.py``'s whole commands).
+:class:`CasadiMpc` is also the per-step reference of the Z-zone scale problem in
+``bench/versus.py``.
 """
 from __future__ import annotations
 
@@ -273,9 +276,12 @@ def ipopt_option(text: str) -> tuple[str, Any]:
 
 def run_case(data: pathlib.Path | None, horizon: int, hours: int, substeps: int,
              initial_c: float = 20.0,
-             ipopt_options: dict | None = None) -> tuple[dict, pd.DataFrame, dict]:
+             ipopt_options: dict | None = None
+             ) -> tuple[dict, pd.DataFrame, dict, pd.DataFrame]:
     """
-    Run the closed loop of the reference case; return (kpis, steps, phase times [s]).
+    Run the closed loop of the reference case; return (kpis, steps, phase times [s], fine).
+
+    ``fine``: the plant's trajectory on its fine grid (with the band), for the figure.
 
     ``ipopt_options``: IPOPT options beyond IPOPT's defaults, in CasADi's spelling.
     """
@@ -319,13 +325,14 @@ def run_case(data: pathlib.Path | None, horizon: int, hours: int, substeps: int,
     timing['loop_cpu_s'] = time.process_time() - loop_cpu
     started, cpu = time.perf_counter(), time.process_time()
     steps = pd.DataFrame(rows).set_index('time_s')
-    kpis = closed_loop_kpis(steps, pd.concat(fines), 3600.0, loop_s)
+    fine = pd.concat(fines)
+    kpis = closed_loop_kpis(steps, fine, 3600.0, loop_s)
     kpis.update(iterations=int(steps['iterations'].sum()))
     timing.update(loop_s=loop_s, solves_s=solves, function_evaluations_s=evaluations,
                   plant_s=plant, kpis_s=time.perf_counter() - started,
                   solves_cpu_s=solves_cpu, plant_cpu_s=plant_cpu,
                   kpis_cpu_s=time.process_time() - cpu)
-    return kpis, steps, timing
+    return kpis, steps, timing, fine
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -343,6 +350,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--ipopt-option', action='append', default=[], metavar='NAME=VALUE',
                         help='an IPOPT option beyond its defaults (repeatable), e.g. '
                         'mu_strategy=adaptive')
+    parser.add_argument('--plot', action='store_true',
+                        help='draw plot.png, the figure of mshoot case (after the loop)')
     parser.add_argument('--out', type=pathlib.Path,
                         default=pathlib.Path('out/bench/casadi_case'))
     args = parser.parse_args(argv)
@@ -354,14 +363,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:
         parser.error(str(exc))
     try:
-        kpis, steps, timing = run_case(args.data, args.horizon, args.hours, args.substeps,
-                                       ipopt_options=options)
+        kpis, steps, timing, fine = run_case(args.data, args.horizon, args.hours,
+                                             args.substeps, ipopt_options=options)
     except (FileNotFoundError, ValueError) as exc:
         logger.error('%s', exc)
         return 2
     output_started, output_cpu = time.perf_counter(), time.process_time()
     args.out.mkdir(parents=True, exist_ok=True)
     steps.to_csv(args.out / 'steps.csv')
+    if args.plot:  # (matplotlib imported here, as mshoot's own fallback draws it)
+        from mshoot_core.plotting import plot_closed_loop
+        plot_closed_loop(fine, steps, args.out / 'plot.png',
+                         f"CasADi/IPOPT: energy {kpis['energy_kwh']:.2f} kWh, discomfort "
+                         f"{kpis['discomfort_kh']:.2f} Kh")
     timing['output_s'] = time.perf_counter() - output_started
     timing['output_cpu_s'] = time.process_time() - output_cpu
     timing['main_s'] = time.perf_counter() - started

@@ -9,7 +9,9 @@ In one run (issue 16, part 1):
 1. the reference case (OU44, 1 zone, H = 10 h, 72 h, FMU control model at its
    default tolerance) as a whole command, ours (``mshoot case``, the console
    script as a user runs it; SLSQP by default, and with ``--solver ipopt``) and
-   ``bench/casadi_ref.py`` (RK4, exact derivatives, IPOPT), each run
+   ``bench/casadi_ref.py`` (RK4, exact derivatives, IPOPT) with ``--plot``: the
+   same outputs as ours (KPIs, steps, the same figure, which the script draws
+   in its process after the loop and ours in its plot worker meanwhile), each run
    ``--repeats`` times as a subprocess, interleaved, medians of wall and CPU
    time (CPU: the process and those it waited for, e.g. our plot worker); the
    CasADi script also with our IPOPT options
@@ -105,10 +107,14 @@ def ours_command(out: pathlib.Path, *extra: str, python_flags: Sequence[str] = (
 
 
 def casadi_command(out: pathlib.Path, python_flags: Sequence[str] = (),
-                   ipopt_options: dict | None = None) -> list[str]:
-    """Return the CasADi script of the same case (IPOPT's defaults, or ``ipopt_options``)."""
+                   ipopt_options: dict | None = None, plot: bool = False) -> list[str]:
+    """
+    Return the CasADi script of the same case (IPOPT's defaults, or ``ipopt_options``).
+
+    ``plot``: it draws our command's figure too (``--plot``: the same outputs as ours).
+    """
     return [sys.executable, *python_flags, str(CASADI_SCRIPT), '--data', str(data_file()),
-            '--horizon', str(HORIZON), '--out', str(out),
+            '--horizon', str(HORIZON), '--out', str(out), *(['--plot'] if plot else []),
             *(f'--ipopt-option={key}={value}' for key, value in (ipopt_options or {}).items())]
 
 
@@ -325,13 +331,18 @@ def whole_commands(repeats: int, tmp: pathlib.Path) -> dict:
         for name, command in (('ours', ours_command(tmp / 'ours')),
                               ('ours_ipopt', ours_command(tmp / 'ours_ipopt', '--solver',
                                                           'ipopt')),
-                              ('casadi', casadi_command(tmp / 'casadi')),
+                              ('casadi', casadi_command(tmp / 'casadi', plot=True)),
                               ('casadi_same', casadi_command(
-                                  tmp / 'casadi_same', ipopt_options=case_ipopt_options()))):
+                                  tmp / 'casadi_same', ipopt_options=case_ipopt_options(),
+                                  plot=True))):
             wall, _, _, _, cpu = run_timed(command)
             kpis = json.loads((tmp / name / 'kpis.json').read_text())
             with open(tmp / name / 'steps.csv', newline='') as steps:
-                kpis['iterations'] = sum(int(row['iterations']) for row in csv.DictReader(steps))
+                rows = list(csv.DictReader(steps))
+            kpis['step_iterations'] = [int(row['iterations']) for row in rows]
+            kpis['iterations'] = sum(kpis['step_iterations'])
+            if 'relaxed' in rows[0]:  # ours: the steps whose band was out of reach
+                kpis['step_relaxed'] = [row['relaxed'] == 'True' for row in rows]
             runs[name].append({'wall_s': wall, 'cpu_s': cpu, 'loop_s': kpis['wall_s'],
                                'solve_s_median': kpis['solve_s_median'],
                                'solve_s_total': kpis['solve_s_total'], 'kpis': kpis})
@@ -347,6 +358,8 @@ def whole_commands(repeats: int, tmp: pathlib.Path) -> dict:
             'solve_s_median': statistics.median(r['solve_s_median'] for r in items),
             'solve_s_total': statistics.median(r['solve_s_total'] for r in items),
             'iterations': kpis.get('iterations'),
+            'step_iterations': kpis['step_iterations'],
+            'step_relaxed': kpis.get('step_relaxed'),
             **{k: kpis[k] for k in ('energy_kwh', 'heating_kwh', 'cooling_kwh', 'discomfort_kh',
                                     'discomfort_kh_hourly', 'solver_failures')}}
     return summary
@@ -722,7 +735,9 @@ def report(whole: dict, zones: list[dict], growth: list[dict], parts: dict) -> N
     logger.info('\n== 1 zone, H = %d h, 72 h (OU44): whole command and control loop, medians '
                 'of %d runs ==', HORIZON, len(ours['walls_s']))
     logger.info("casadi: IPOPT's defaults; casadi same: with our IPOPT options (%s); ratio: "
-                'ours (slsqp) / casadi; ratio ipopt: ours (ipopt) / casadi same',
+                'ours (slsqp) / casadi; ratio ipopt: ours (ipopt) / casadi same; every command '
+                'writes the KPIs, the steps and the same figure (casadi: --plot, drawn after '
+                'its loop; ours: in its plot worker meanwhile)',
                 ', '.join(f'{k}={v}' for k, v in case_ipopt_options().items()))
     width = 24
     logger.info('%s %14s %14s %14s %14s %10s %11s', 'what'.ljust(width), 'ours (slsqp)',
@@ -744,6 +759,14 @@ def report(whole: dict, zones: list[dict], growth: list[dict], parts: dict) -> N
         ratios = [f'{run[key] / peer[key]:.2f}' if ratio else ''
                   for run, peer in ((ours, theirs), (ipopt, same))]
         logger.info('%s %14s %14s %14s %14s %10s %11s', label.ljust(width), *cells, *ratios)
+    relaxed = ipopt.get('step_relaxed')
+    if relaxed and len(relaxed) == len(same['step_iterations']):
+        for label, chosen in (('band out of reach (ours relaxed)', True), ('band kept', False)):
+            picked = [k for k, r in enumerate(relaxed) if r == chosen]
+            logger.info('IPOPT iterations in the %d steps with the %s: ours (ipopt) %d, casadi '
+                        'same %d', len(picked), label,
+                        sum(ipopt['step_iterations'][k] for k in picked),
+                        sum(same['step_iterations'][k] for k in picked))
     for key, what in (('walls_s', 'wall'), ('cpus_s', 'CPU')):
         logger.info('whole command, ratio of each run (%s; runs interleaved): slsqp/casadi %s, '
                     'ipopt/casadi same %s', what,

@@ -201,6 +201,37 @@ def test_unreachable_band_success_is_honest_when_solver_stops_early():
     assert np.all(np.abs(res.controls) <= 2000.0)
 
 
+def test_converged_least_violation_plan_is_the_least_cost_plan_within_its_violation():
+    """
+    A converged least-violation plan of IPOPT is kept: the second phase would return it again.
+
+    The band is out of reach at hour 3 only (below the full-cooling envelope), free after: the
+    plan cools fully until then and spends nothing after. A cold hard solve of least cost
+    within the bounds relaxed to that plan's trajectory (the skipped second phase, from
+    nothing of the first) gives the same heat rates to 1e-6 of the nominal and the same cost;
+    SLSQP, which certifies no KKT point, still runs the second phase.
+    """
+    pytest.importorskip('cyipopt', reason='needs cyipopt-wheels')
+    problem, dist, lower, upper = _ou_like_problem(n=8)
+    x0 = np.array([296.0])
+    low, _ = problem.reachable_envelope(x0, dist)
+    upper[2] = low[2] - 0.3  # [K] below what full cooling reaches at the end of hour 3
+    ipopt = make_solver('ipopt')
+    assert ipopt.certifies_kkt and not SlsqpSolver().certifies_kkt
+    kept = problem.solve(x0, dist, lower, upper, ipopt)
+    assert kept.success and kept.relaxed
+    assert kept.slacks[2, 0] == pytest.approx(0.3, abs=1e-6)  # the least violation [K]
+    assert np.all(np.delete(kept.slacks[:, 0], 2) <= 1e-6)
+    reached = kept.simulated_states[1:]
+    cold = problem.solve(x0, dist, np.minimum(lower, reached), np.maximum(upper, reached),
+                         ipopt, relax=False)
+    assert cold.success
+    np.testing.assert_allclose(kept.controls, cold.controls, rtol=0.0, atol=2e-3)  # [W]
+    assert kept.fun == pytest.approx(cold.fun, rel=1e-6)
+    np.testing.assert_allclose(kept.controls[:3, 0], -2000.0, atol=2e-3)
+    assert np.abs(kept.controls[3:, 0]).max() < 10.0  # nothing to cool once it is out of reach
+
+
 def test_soft_bounds_trade_energy_for_comfort():
     problem, dist, lower, upper = _ou_like_problem(n=8, soft=True)
     results = {}

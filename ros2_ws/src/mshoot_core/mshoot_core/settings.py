@@ -180,8 +180,10 @@ class ProblemSettings(SettingsGroup):
     control_max: float = setting(math.nan, 'upper limit of every control, narrowing the '
                                  "model card's max (NaN: the card's) [the control's unit]",
                                  also=('supervisor',), optional=True)
-    relaxation: str = setting('two-phase', "unreachable hard bounds: 'two-phase' (least "
-                              "violation, then least cost) or 'exact-penalty' (one solve)",
+    relaxation: str = setting('two-phase', "unreachable hard bounds: 'two-phase' (the hard "
+                              'problem where the band is reachable, else the least violation, '
+                              'then the least cost unless the solver certified the first) or '
+                              "'exact-penalty' (one soft solve every time)",
                               choices=('two-phase', 'exact-penalty'))
     mode: str = setting('fast', "'fast': batched structured sensitivities; 'naive': the "
                         'original MShoot algorithm (slow, for comparison)',

@@ -165,7 +165,9 @@ class ShootingProblem:
         with the model's own output sensitivities (its Hessian taken as zero:
         exact for outputs affine in states and controls). Relaxation
         'two-phase' minimises the violation, relaxes the bounds to it and solves
-        the hard problem again; 'exact-penalty' always solves once with slack
+        the hard problem again (not where a solver that certifies the KKT
+        conditions converged on the first: the same plan, see
+        :meth:`_solve_least_violation`); 'exact-penalty' always solves once with slack
         and a large linear penalty on the violation (the same plan up to the
         solver tolerance, in one solve; suits IPOPT on large
         problems, where a failing hard solve costs as much as a solve). Mode
@@ -547,17 +549,27 @@ class ShootingProblem:
                                lower: np.ndarray, upper: np.ndarray, solver: Solver,
                                z0: np.ndarray) -> ShootingResult:
         """
-        Solve for the least violation of the bounds, then (two-phase) the least cost within them.
+        Solve for the least violation of the bounds: one soft solve, a second only if it fails.
 
-        Phase 1: least violation (soft bounds, exact linear penalty); phase 2 (two-phase
-        relaxation): least cost within the relaxed bounds.
+        Phase 1: the least violation (soft bounds, an exact linear penalty) at the least cost.
+        Its plan is kept with the 'exact-penalty' relaxation, and with 'two-phase' where it
+        converged with a solver that certifies the KKT conditions (``solver.certifies_kkt``,
+        IPOPT): with the bounds relaxed to its trajectory, the hard problem of least cost
+        (phase 2) has it as a KKT point, with phase 1's multipliers of the band (w1 + 2 w2 s
+        >= 0 where it is missed by s, the same where it is kept), and the second-order
+        conditions of phase 1 hold on phase 2's smaller critical cone: phase 2 returns the
+        same plan to the solver's tolerance (but for its margin: it lets the states miss the
+        band by 1e-6 more, scaled), for as many iterations again (issue 26). Phase 2 runs
+        otherwise: the hard problem within the bounds relaxed to phase 1's trajectory, from it
+        (SLSQP's convergence test is on the objective's change: phase 2 moves its plans).
         """
         soft = NlpIndex(self.n_intervals, self.index.n_controls, self.index.n_states, True)
         phase1 = self._solve_nlp(x0, disturbances, lower, upper, solver,
                                  soft.pack(self.index.u(z0), self.index.x(z0)), soft,
                                  LEAST_VIOLATION_QUADRATIC, LEAST_VIOLATION_LINEAR)
-        if self.relaxation == 'exact-penalty' or phase1.budget_exceeded:
-            # the large linear penalty already made phase 1 lexicographic: keep its plan
+        if (self.relaxation == 'exact-penalty' or phase1.budget_exceeded
+                or (phase1.success and solver.certifies_kkt)):
+            # the large linear penalty made phase 1 lexicographic: keep its plan
             phase1.x = self.index.pack(soft.u(phase1.x), soft.x(phase1.x))
             phase1.fun = float(self._cost_functions(lambda z: None, self.index)[0](phase1.x))
             phase1.relaxed = bool(np.any(phase1.slacks > 1e-6 * self._x_scaling.scale))

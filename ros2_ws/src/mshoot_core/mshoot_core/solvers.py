@@ -87,6 +87,12 @@ class Solver(abc.ABC):
 
     #: Short name used in configuration ('slsqp', 'ipopt', ...).
     name: str = ''
+    #: Whether ``success`` certifies the KKT conditions to ``tol`` (primal and dual
+    #: infeasibility, complementarity): then a converged least-violation solve is the plan
+    #: (:meth:`mshoot_core.shooting.ShootingProblem.solve` skips its least-cost phase).
+    #: SLSQP's test is on the change of the objective: its least-violation plans move by
+    #: watts in the least-cost phase.
+    certifies_kkt: bool = False
 
     def __init__(self, max_iter: int = 200, tol: float = 1e-10) -> None:
         if max_iter < 1:
@@ -372,6 +378,7 @@ class IpoptSolver(Solver):
     """
 
     name = 'ipopt'
+    certifies_kkt = True
 
     def __init__(self, max_iter: int = 200, tol: float = 1e-8,
                  options: dict | None = None) -> None:
