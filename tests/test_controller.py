@@ -192,6 +192,15 @@ def test_each_zone_is_kept_in_its_own_band(tmp_path):
     # (the plan's states at the intervals' ends; one band would let zone 1 cool 0.5 K in 6 h)
     np.testing.assert_allclose(plan['T_0_end'].to_numpy() - KELVIN, 20.5, atol=0.02)
     np.testing.assert_allclose(plan['T_1_end'].to_numpy() - KELVIN, 22.5, atol=0.02)
+    # the forecast margin (outdoor temperature errors) narrows each zone's own band
+    uncertain = controller_for(model, controller.settings.replace(
+        forecast_uncertainty='high', forecast_margin_std=1.0,
+        forecast_error_inputs='Tout=temperature'), assumed_inputs={'dpos': 0.0})
+    uncertain.offer_named_state(0, ['T_0', 'T_1'], [20.5 + KELVIN, 22.5 + KELVIN], 0)
+    uncertain.offer_forecast(0, 3600.0, series, 0)
+    [outcome] = uncertain.poll(0)
+    ends = outcome.result.plan[['T_0_end', 'T_1_end']].to_numpy() - KELVIN
+    assert (ends[-1] - [20.5, 22.5] > 0.03).all() and (ends >= [20.5, 22.5]).all()
     with pytest.raises(CardError, match=r"\['T_1'\] have no band of their own"):
         load_card(_two_band_card(tmp_path, zones=('0', '2')))
 
