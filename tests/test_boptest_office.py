@@ -100,6 +100,10 @@ def test_office_settings_plan_on_the_card_and_release_to_the_bms() -> None:
     controller = controller_for(build_model(load_card(CONTROL)), MpcSettings.from_file(SETTINGS))
     settings = controller.settings
     assert settings.released == (True, True, True)
+    # each zone kept in its own band (the card names both zones' bands)
+    assert controller.mpc.state_bounds == {
+        'T_nZ': ('comfort_min_nZ', 'comfort_max_nZ', 273.15),
+        'T_sZ': ('comfort_min_sZ', 'comfort_max_sZ', 273.15)}
     assert settings.actuation.plant_names == {name: name for name in
                                               settings.problem.control_names}
     import yaml

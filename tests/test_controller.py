@@ -146,6 +146,65 @@ def test_named_inputs_are_checked_against_the_model():
     assert outcome.decision.controls.shape == (2,)
 
 
+def _two_band_card(folder, zones=('0', '1')):
+    """Write the card r1c1x2 with a test case forecast naming a band per zone of ``zones``."""
+    import yaml
+    from mshoot_core.models.card import builtin_card
+    document = yaml.safe_load(builtin_card('r1c1x2').read_text())
+    document['testcase_forecast'] = {
+        'series': {'Tout': {'columns': ['TDryBul'], 'offset': -273.15}},
+        'bands': {z: {'lower': f'LowerSetp[{z}]', 'upper': f'UpperSetp[{z}]'} for z in zones}}
+    path = folder / 'two_bands.yaml'
+    path.write_text(yaml.safe_dump(document))
+    return path
+
+
+def test_each_zone_is_kept_in_its_own_band(tmp_path):
+    """
+    A card with a band per zone: each zone temperature is bounded by its own, both narrowed.
+
+    Zone 1's band (22-26 degC) lies above zone 0's (20-24 degC): the plan (energy cost, band
+    raised 0.5 K) holds each zone at its own raised lower edge from there, and the forecast
+    must carry
+    both bands. A card naming bands of several zones but not of every zone is refused.
+    """
+    from mshoot_core.models.card import build_model, CardError, load_card
+    model = build_model(load_card(_two_band_card(tmp_path)))
+    controller = controller_for(model, MpcSettings.from_flat(horizon_steps=6, cost='energy',
+                                                             band_margin_k=0.5),
+                                assumed_inputs={'dpos': 0.0})
+    assert controller.mpc.state_bounds == {
+        'T_0': ('comfort_min_0', 'comfort_max_0', KELVIN),
+        'T_1': ('comfort_min_1', 'comfort_max_1', KELVIN)}
+    assert sorted(controller.forecast_required) == ['Tout', 'comfort_max_0', 'comfort_max_1',
+                                                    'comfort_min_0', 'comfort_min_1', 'occ',
+                                                    'solrad']
+    rows = 7
+    series = {'solrad': np.zeros(rows), 'Tout': np.full(rows, 5.0), 'occ': np.zeros(rows),
+              'comfort_min_0': np.full(rows, 20.0), 'comfort_max_0': np.full(rows, 24.0),
+              'comfort_min_1': np.full(rows, 22.0), 'comfort_max_1': np.full(rows, 26.0)}
+    assert controller.offer_named_state(0, ['T_0', 'T_1'], [20.5 + KELVIN, 22.5 + KELVIN],
+                                        0) is None
+    assert controller.offer_forecast(0, 3600.0, series, 0) is None
+    [outcome] = controller.poll(0)
+    assert outcome.decision.source == 'optimum'
+    plan = outcome.result.plan
+    # (the plan's states at the intervals' ends; one band would let zone 1 cool 0.5 K in 6 h)
+    np.testing.assert_allclose(plan['T_0_end'].to_numpy() - KELVIN, 20.5, atol=0.02)
+    np.testing.assert_allclose(plan['T_1_end'].to_numpy() - KELVIN, 22.5, atol=0.02)
+    # the forecast margin (outdoor temperature errors) narrows each zone's own band
+    uncertain = controller_for(model, controller.settings.replace(
+        forecast_uncertainty='high', forecast_margin_std=1.0,
+        forecast_error_inputs='Tout=temperature'), assumed_inputs={'dpos': 0.0})
+    uncertain.offer_named_state(0, ['T_0', 'T_1'], [20.5 + KELVIN, 22.5 + KELVIN], 0)
+    uncertain.offer_forecast(0, 3600.0, series, 0)
+    [outcome] = uncertain.poll(0)
+    ends = outcome.result.plan[['T_0_end', 'T_1_end']].to_numpy() - KELVIN
+    assert (ends[-1] - [20.5, 22.5] > 0.03).all() and (ends >= [20.5, 22.5]).all()
+    with pytest.raises(CardError, match=r"\['T_1'\] have no band of their own"):
+        load_card(_two_band_card(tmp_path, zones=('0', '2')))
+
+
 def test_stale_state_falls_back_on_the_last_good_plan():
     scenario = synthetic_scenario(hours=6)
     controller = Controller(R1C1Model(), MpcSettings.from_flat(horizon_steps=4,

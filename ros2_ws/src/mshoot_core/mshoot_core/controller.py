@@ -888,7 +888,9 @@ class Controller:
         """
         Return the forecast window with the comfort band narrowed for an uncertain state.
 
-        The lower edge raised by ``band_margin_k``; then, with a ``forecast_uncertainty``,
+        Every band the plan keeps (:meth:`_bands`: the one band, or each zone's own) is
+        narrowed alike, by the margins of the states it bounds (the largest of them). The
+        lower edge raised by ``band_margin_k``; then, with a ``forecast_uncertainty``,
         both edges moved in by ``forecast_margin_std`` standard deviations of the largest
         bounded state that the forecast errors cause along the plan from ``state``
         (:func:`mshoot_core.forecast_margin.forecast_error_std`, controls held as below), at
@@ -902,17 +904,19 @@ class Controller:
         zone temperature from row 1 on. If the model's prediction fails (non-finite), the
         estimate's own std at every row, with a logged warning.
         """
+        bands = self._bands(window)
+        if not bands:
+            return window
         raise_k = self.settings.comfort.band_margin_k
-        if raise_k > 0 and set(COMFORT_SERIES) <= set(window):  # the lower edge raised
+        if raise_k > 0:  # the lower edges raised
             window = window.copy()
-            window['comfort_min'] = window['comfort_min'] + raise_k
-            window['comfort_max'] = np.maximum(window['comfort_max'], window['comfort_min'])
-        bounded = [self.model.state_names.index(s) for s in self.mpc.state_bounds]
-        if self._error_processes and state is not None and bounded \
-                and set(COMFORT_SERIES) <= set(window):
-            window = self._with_forecast_margin(step_ns, window, state, bounded)
+            for lower, upper in bands:
+                window[lower] = window[lower] + raise_k
+                window[upper] = np.maximum(window[upper], window[lower])
+        if self._error_processes and state is not None:
+            window = self._with_forecast_margin(step_ns, window, state, bands)
         z = self.settings.estimation.comfort_margin_std
-        if estimate is None or z <= 0 or not bounded or not set(COMFORT_SERIES) <= set(window):
+        if estimate is None or z <= 0:
             return window
         try:
             std = self.estimator.predicted_std(self._held_inputs(step_ns, window),
@@ -921,7 +925,21 @@ class Controller:
             logger.warning("comfort back-off at %.0f s from the estimate's std only: the "
                            'prediction failed (%s)', step_ns / NS_PER_S, exc)
             std = estimate.std[None, :]
-        return _narrowed(window, z * std[:, bounded].max(axis=1))
+        return _narrowed(window, bands, z * std)
+
+    def _bands(self, window: pd.DataFrame) -> dict[tuple[str, str], list[int]]:
+        """
+        Return the comfort bands the plan keeps: (lower, upper) series -> the states they bound.
+
+        One band for every zone temperature, or a zone's own (the MPC's ``state_bounds``);
+        those the window carries.
+        """
+        names = self.model.state_names
+        bands: dict[tuple[str, str], list[int]] = {}
+        for state, (lower, upper, _) in self.mpc.state_bounds.items():
+            if lower in window and upper in window:
+                bands.setdefault((lower, upper), []).append(names.index(state))
+        return bands
 
     @property
     def _error_processes(self) -> list:
@@ -933,7 +951,7 @@ class Controller:
         return error_processes(c.error_kinds, c.forecast_uncertainty, self.model.input_names)
 
     def _with_forecast_margin(self, step_ns: int, window: pd.DataFrame, state: np.ndarray,
-                              bounded: list[int]) -> pd.DataFrame:
+                              bands: dict[tuple[str, str], list[int]]) -> pd.DataFrame:
         """Return the window with the band narrowed for the forecast errors."""
         from mshoot_core.forecast_margin import forecast_error_std
         try:
@@ -944,8 +962,7 @@ class Controller:
             logger.warning('no forecast margin at %.0f s: the prediction failed (%s)',
                            step_ns / NS_PER_S, exc)
             return window
-        return _narrowed(window, self.settings.comfort.forecast_margin_std
-                         * std[:, bounded].max(axis=1))
+        return _narrowed(window, bands, self.settings.comfort.forecast_margin_std * std)
 
     def _held_inputs(self, step_ns: int, window: pd.DataFrame) -> np.ndarray:
         """
@@ -1137,16 +1154,21 @@ def _ns(seconds: float) -> int:
     return int(round(float(seconds) * NS_PER_S))
 
 
-def _narrowed(window: pd.DataFrame, margin: np.ndarray) -> pd.DataFrame:
+def _narrowed(window: pd.DataFrame, bands: Mapping[tuple[str, str], Sequence[int]],
+              std: np.ndarray) -> pd.DataFrame:
     """
-    Return a copy of the window with both comfort edges moved in by ``margin`` [K] per row.
+    Return a copy of the window with each band's edges moved in by a margin [K] per row.
 
-    At most to the band's middle.
+    ``std`` holds a margin per row and state, shape (rows or 1, states): a band's margin is the
+    largest of the states it bounds. At most to the band's middle.
     """
     out = window.copy()
-    half = 0.5 * (out['comfort_max'] - out['comfort_min']).to_numpy()
-    out['comfort_min'] = out['comfort_min'] + np.minimum(margin, half)
-    out['comfort_max'] = out['comfort_max'] - np.minimum(margin, half)
+    std = np.asarray(std, dtype=float)
+    for (lower, upper), states in bands.items():
+        margin = std[:, list(states)].max(axis=1)
+        half = 0.5 * (out[upper] - out[lower]).to_numpy()
+        out[lower] = out[lower] + np.minimum(margin, half)
+        out[upper] = out[upper] - np.minimum(margin, half)
     return out
 
 

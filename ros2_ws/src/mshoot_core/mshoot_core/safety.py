@@ -57,6 +57,17 @@ COMFORT_SERIES = ('comfort_min', 'comfort_max')
 PRICE_SERIES = 'price'
 
 
+def zone_band_series(zone: str) -> tuple[str, str]:
+    """
+    Return the series of one zone's own comfort band [degC]: (lower, upper).
+
+    ``comfort_min_<zone>`` and ``comfort_max_<zone>``: a forecast of several zones' bands
+    carries them beside :data:`COMFORT_SERIES` (the first zone's band).
+    """
+    lower, upper = COMFORT_SERIES
+    return f'{lower}_{zone}', f'{upper}_{zone}'
+
+
 @dataclasses.dataclass(frozen=True)
 class Rejection:
     """

@@ -57,7 +57,7 @@ import pandas as pd
 
 from mshoot_core.boptest.testcase import TestCase
 from mshoot_core.forecast import ForecastSource
-from mshoot_core.safety import COMFORT_SERIES
+from mshoot_core.safety import COMFORT_SERIES, zone_band_series
 from mshoot_core.settings import ForecastErrorSettings
 from mshoot_core.units import KELVIN
 
@@ -199,7 +199,7 @@ class ForecastSpec:
         """Return the band columns of the frame: the first zone's, then per zone if several."""
         if not self.bands:
             return ()
-        per_zone = [f'{edge}_{zone}' for zone in self.bands for edge in COMFORT_SERIES] \
+        per_zone = [c for zone in self.bands for c in zone_band_series(zone)] \
             if len(self.bands) > 1 else []
         return (*COMFORT_SERIES, *per_zone)
 
@@ -320,8 +320,7 @@ class TestCaseForecasts:
             if i == 0:
                 frame[COMFORT_SERIES[0]], frame[COMFORT_SERIES[1]] = lo, hi
             if several:
-                frame[f'{COMFORT_SERIES[0]}_{zone}'] = lo
-                frame[f'{COMFORT_SERIES[1]}_{zone}'] = hi
+                frame[zone_band_series(zone)[0]], frame[zone_band_series(zone)[1]] = lo, hi
         return frame
 
 

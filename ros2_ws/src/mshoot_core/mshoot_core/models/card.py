@@ -692,13 +692,18 @@ def load_card(path: str | pathlib.Path) -> ModelCard:
         problems += _parameter_problems(catalogue, parameters)
     if problems:
         raise CardError(path, problems)
-    return ModelCard(
+    card = ModelCard(
         path=path, fmu=fmu, builtin=document.get('builtin'), fmi_type=fmi_type,
         interface=interface, tolerance=None if tolerance is None else float(tolerance),
         time_origin=time_origin, parameters=dict(parameters),
         description=document.get('description', ''), boptest=boptest,
         monotone=document.get('monotone'), network=network, validate=validate,
         preload=preload, testcase_forecast=document.get('testcase_forecast'), **variables)
+    try:
+        comfort_bands(card)
+    except ValueError as error:
+        raise CardError(path, [str(error)]) from None
+    return card
 
 
 def _preload(path: pathlib.Path, entries: Any, problems: list[str]) -> tuple[Library, ...]:
@@ -1241,6 +1246,7 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
                              comfort_states=_comfort_states(card),
                              measured_states=card.measured_states)
         model.control_specs = card.control_specs()
+        model.comfort_bands = comfort_bands(card)
         return _claim_monotone(model, card)
     options: dict[str, Any] = {}
     if 'time_origin_s' in inspect.signature(FmiModel).parameters:
@@ -1271,6 +1277,7 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
     model.control_names = tuple(card.control_names)
     model.control_specs = card.control_specs()  # units, limits, safe values, switches
     model.comfort_states = _comfort_states(card)
+    model.comfort_bands = comfort_bands(card)  # a zone's own band, when the card has several
     model.measured_states = card.measured_states  # the others are estimated
     logger.debug('built %r from %s for the %s', model, card.path, role)
     return _claim_monotone(model, card)
@@ -1279,6 +1286,35 @@ def build_model(card: ModelCard | str | pathlib.Path, role: str = 'control',
 def _comfort_states(card: ModelCard) -> tuple[str, ...]:
     """Return the card's zone air temperatures (``T``, ``T_<zone>``): bounded by the band."""
     return tuple(n for n in card.state_names if n == 'T' or n.startswith('T_'))
+
+
+def comfort_bands(card: ModelCard) -> dict[str, tuple[str, str]]:
+    """
+    Return each zone temperature's own comfort band series: ``{T_<zone>: (lower, upper)}``.
+
+    A card whose ``testcase_forecast`` names the bands of several zones bounds each zone air
+    temperature ``T_<zone>`` by its zone's band (``comfort_min_<zone>``, ``comfort_max_<zone>``:
+    :func:`~mshoot_core.safety.zone_band_series`, the series its forecast carries); with one
+    band or none, every zone temperature is bounded by the one band (an empty map).
+
+    Raises
+    ------
+    ValueError
+        With several bands, for a zone temperature whose zone has none (the zones named).
+
+    """
+    from mshoot_core.safety import zone_band_series
+    section = card.testcase_forecast if isinstance(card.testcase_forecast, Mapping) else {}
+    bands = section.get('bands')
+    zones = [str(z) for z in bands] if isinstance(bands, Mapping) else []
+    if len(zones) < 2:
+        return {}
+    states = _comfort_states(card)
+    missing = [s for s in states if s[len('T_'):] not in zones]
+    if missing:
+        raise ValueError(f'testcase_forecast.bands: the zone temperatures {missing} have no '
+                         f'band of their own (T_<zone> for a zone of {zones})')
+    return {s: zone_band_series(s[len('T_'):]) for s in states}
 
 
 def finite_difference_tolerance(model: FmiModel, card: ModelCard) -> str | None:

@@ -32,7 +32,11 @@ decision variables, the setpoint's named values) and its zone temperatures
 (the states bounded by the comfort band, the temperature setpoints of the
 building's local loops). A model declares them with the attributes
 ``control_names`` and ``comfort_states``; without them the R1C1 convention
-applies (control ``q``, zone temperature ``T`` [K]).
+applies (control ``q``, zone temperature ``T`` [K]). Every zone temperature is
+bounded by the forecast's band (``comfort_min``, ``comfort_max`` [degC]) unless
+the model's ``comfort_bands`` gives it a band of its own (``{state: (lower,
+upper)}`` series, e.g. a card with several zones' bands:
+:func:`~mshoot_core.models.card.comfort_bands`).
 """
 from __future__ import annotations
 
@@ -47,6 +51,7 @@ import numpy as np
 from mshoot_core.models.base import Model
 from mshoot_core.models.defaults import (CONTROL_TOLERANCE, EMULATOR_TOLERANCE,  # noqa: F401
                                          is_card_path)
+from mshoot_core.safety import COMFORT_SERIES
 from mshoot_core.settings import fields_of, setting, SettingField, SettingsGroup
 from mshoot_core.units import KELVIN
 
@@ -205,7 +210,8 @@ class ControlInterface:
     state_bounds : dict
         ``{state: ('comfort_min', 'comfort_max', offset)}`` for every zone
         temperature state (in the model's state order): bounded by the comfort
-        band [degC] plus ``offset`` (273.15 for states in K); the form of
+        band [degC] plus ``offset`` (273.15 for states in K), or by its own band's
+        series (the model's ``comfort_bands``); the form of
         :class:`mshoot_core.mpc.MPC`'s ``state_bounds``.
 
     """
@@ -260,8 +266,12 @@ def control_interface(model: Model) -> ControlInterface:
     unknown = [s for s in comfort if s not in states]
     if unknown:
         raise ValueError(f'comfort_states {unknown} are not states of the model {list(states)}')
+    bands = dict(getattr(model, 'comfort_bands', None) or {})
+    unknown = [s for s in bands if s not in comfort]
+    if unknown:
+        raise ValueError(f'comfort_bands {unknown} are not comfort states {list(comfort)}')
     return ControlInterface(tuple(c for c in inputs if c in controls), states,
-                            {s: ('comfort_min', 'comfort_max', KELVIN) for s in states
+                            {s: (*bands.get(s, COMFORT_SERIES), KELVIN) for s in states
                              if s in comfort})
 
 
