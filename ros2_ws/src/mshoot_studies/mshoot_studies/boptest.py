@@ -61,6 +61,7 @@ import time
 from typing import Any, Callable, Sequence
 
 from mshoot_core.boptest.testcase import PRICE_SCENARIOS
+
 from mshoot_studies.worker_pool import process_pool
 
 logger = logging.getLogger(__name__)
