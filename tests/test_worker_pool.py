@@ -11,9 +11,8 @@ import subprocess
 import sys
 import time
 
-import pytest
-
 from mshoot_studies.worker_pool import process_pool
+import pytest
 
 #: Deadlock guard [s] (wall time): far above the milliseconds the kernel's signal takes.
 GUARD_S = 60.0
@@ -43,6 +42,7 @@ def _running(pid: int) -> bool:
 @pytest.mark.skipif(not sys.platform.startswith('linux'), reason='reads /proc (Linux)')
 @pytest.mark.parametrize('method', ['spawn', 'forkserver'])
 def test_a_busy_worker_ends_with_its_killed_owner(method):
+    """A worker busy for 10 min ends once its owner is killed (SIGKILL: no cleanup)."""
     owner = subprocess.Popen([sys.executable, '-c', OWNER.format(method=method)],
                              stdout=subprocess.PIPE, text=True)
     try:
@@ -60,6 +60,7 @@ def test_a_busy_worker_ends_with_its_killed_owner(method):
 
 
 def test_a_worker_of_an_owner_already_gone_ends():
+    """A process watching an owner that does not exist ends with SIGTERM."""
     code = ('import time; from mshoot_studies.worker_pool import watch_owner; '
             'watch_owner(2 ** 22 + 12345); time.sleep(600)')  # a pid above pid_max: no owner
     done = subprocess.run([sys.executable, '-c', code], timeout=GUARD_S)
@@ -67,6 +68,7 @@ def test_a_worker_of_an_owner_already_gone_ends():
 
 
 def test_bad_pools_are_refused():
+    """No workers, or preloads without a fork server, are refused."""
     with pytest.raises(ValueError, match='at least one worker'):
         process_pool(0)
     with pytest.raises(ValueError, match='forkserver'):
