@@ -87,29 +87,16 @@ MAX_SEED = 2 ** 32 - 1
 Truth = Callable[[str, np.ndarray], np.ndarray]
 
 
-def ar1(points: int, first: Callable[[], float],
-        following: Callable[[float], float]) -> np.ndarray:
-    """
-    Return an AR(1) sequence of ``points`` values: ``first()``, then ``following(last)``.
-
-    Drawn in order, one value at a time (the order BOPTEST draws its errors in).
-    """
-    error = np.zeros(points)
-    error[0] = first()
-    for i in range(1, points):
-        error[i] = following(error[i - 1])
-    return error
-
-
 def ar1_shocks(shocks: np.ndarray, first_loc: float, first_scale: float, coefficient: float,
                loc: float, scale: float) -> np.ndarray:
     """
-    Return the AR(1) sequence of standard shocks drawn at once, as :func:`ar1` of scalar draws.
+    Return the AR(1) sequence of standard shocks drawn at once, as BOPTEST's scalar draws.
 
     ``e[0] = first_loc + first_scale z[0]``, ``e[i] = (e[i-1] coefficient + loc) + scale z[i]``:
     NumPy's legacy ``normal(m, s)`` and ``laplace(m, s)`` are ``m + s z`` of the same standard
-    draw, one after the other from the generator, so this equals the scalar draws bit for bit
-    (``z`` from ``normal(0, 1, size)`` or ``laplace(0, 1, size)``) at a fraction of the calls.
+    draw, one after the other from the generator, so this equals BOPTEST's draws of one value
+    at a time, each from the last, bit for bit (``z`` from ``normal(0, 1, size)`` or
+    ``laplace(0, 1, size)``), at a fraction of the calls.
     """
     error = np.empty(len(shocks))
     z = shocks.tolist()
