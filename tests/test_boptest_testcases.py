@@ -176,7 +176,16 @@ def test_office_baseline_through_mshoot_boptest(office: TestCase, tmp_path: path
     assert '| baseline | peak_heat_day | constant |' in printed and 'tdis [nZ]' in printed
     page = (tmp_path / 'page.md').read_text()
     assert page.startswith('# BOPTEST `multizone_office_simple_hydronic`: baseline\n')
-    assert page.endswith((out / 'kpis.md').read_text()) and '`peak_heat_day` (1 days each' in page
+    assert (out / 'kpis.md').read_text() in page and '`peak_heat_day` (1 days each' in page
+    # the per-zone figure of the period beside the page, linked from it
+    assert page.endswith('\n![peak_heat_day: each zone under every controller]'
+                         '(page/peak_heat_day.png)')
+    assert (tmp_path / 'page' / 'peak_heat_day.png').stat().st_size > 10_000
+    from mshoot_studies.boptest_report import plot_zones
+    run = pd.read_csv(out / 'runs' / 'baseline_peak_heat_day' / 'records.csv')
+    with pytest.raises(ValueError, match=r"run 'cut' has no \['structure_reaTZonSz_y'\]"):
+        plot_zones(office, {'cut': run.drop(columns='structure_reaTZonSz_y')}, 0.0, 1.0, '',
+                   tmp_path / 'cut.png')
     records = json.loads((out / 'kpis.json').read_text())
     assert [r['price'] for r in records] == ['constant', 'dynamic', 'highly_dynamic']
     table = pd.read_csv(out / 'runs' / 'baseline_peak_heat_day' / 'records.csv')

@@ -350,9 +350,10 @@ def _mpc_configuration(args: argparse.Namespace, case: Any, card: Any,
     return str(control), str(settings)
 
 
-def report_page(case: Any, args: argparse.Namespace, warmup: float, tables: str) -> str:
+def report_page(case: Any, args: argparse.Namespace, warmup: float, tables: str,
+                figures: Sequence[str] = ()) -> str:
     """
-    Return the Markdown page of ``--report``: what ran, the KPI tables.
+    Return the Markdown page of ``--report``: what ran, the KPI tables, the zone figures.
 
     Parameters
     ----------
@@ -364,6 +365,8 @@ def report_page(case: Any, args: argparse.Namespace, warmup: float, tables: str)
         The warm-up [days].
     tables : str
         The KPI tables (``OUT/kpis.md``).
+    figures : sequence of str
+        The per-period zone figures (:func:`report_figures`), relative to the page.
 
     """
     cards = [f'`{pathlib.Path(p).name}`' for p in (args.card, args.control_card, args.mpc_settings)
@@ -376,7 +379,43 @@ def report_page(case: Any, args: argparse.Namespace, warmup: float, tables: str)
         f'prices {", ".join(f"`{p}`" for p in args.prices)}; cards and settings '
         f'{", ".join(cards)} (`docs/boptest_cards/`). KPIs as BOPTEST defines them '
         '([bringing a BOPTEST test case](boptest_testcases.md)); the second table is each '
-        "zone's own discomfort.", '', tables])
+        "zone's own discomfort.", '', tables,
+        *[line for path in figures
+          for line in ('', f'![{pathlib.Path(path).stem}: each zone under every controller]'
+                           f'({path})')]])
+
+
+def report_figures(case: Any, jobs: Sequence[RunJob], results: Sequence[Sequence[dict]],
+                   out: pathlib.Path, report: pathlib.Path) -> list[str]:
+    """
+    Draw a figure per period beside the report page: each zone under every run of the period.
+
+    One run per controller and period is drawn (the first of its price and forecast
+    scenarios: the baseline and the rule serve every price; the figure shows the
+    temperatures, not the cost), from ``OUT/runs/<name>/records.csv``.
+
+    Returns
+    -------
+    list of str
+        The figures' paths relative to the report's folder
+        (``<report stem>/<period>.png``).
+
+    """
+    import pandas as pd
+    from mshoot_studies.boptest_report import plot_zones
+    folder = report.parent / report.stem
+    paths = []
+    for period in dict.fromkeys(job.period for job in jobs):
+        runs: dict[str, pd.DataFrame] = {}
+        window = None
+        for job, result in zip(jobs, results):
+            if job.period == period and job.controller not in runs:
+                runs[job.controller] = pd.read_csv(out / 'runs' / job.name / 'records.csv')
+                window = (result[0]['start_s'], result[0]['end_s'])
+        path = plot_zones(case, runs, *window, f'{case.name}: {period}',
+                          folder / f'{period}.png')
+        paths.append(str(path.relative_to(report.parent)))
+    return paths
 
 
 def _reads_price(control_card: str) -> bool:
@@ -488,7 +527,8 @@ def _run(args: argparse.Namespace) -> int:
     (args.out / 'kpis.md').write_text(text)
     print(text, end='')
     if args.report is not None:
-        args.report.write_text(report_page(case, args, warmup, text))
+        figures = report_figures(case, jobs, results, args.out, args.report)
+        args.report.write_text(report_page(case, args, warmup, text, figures))
     if args.figures:
         import pandas as pd
         for name, result in zip(names, results):

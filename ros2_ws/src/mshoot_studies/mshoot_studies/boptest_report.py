@@ -5,7 +5,9 @@ The report of BOPTEST runs: KPI table (markdown) and figures (matplotlib, Agg).
 - :func:`count_starts`: off -> on transitions of a signal (e.g. a heat pump's modulation);
 - :func:`plot_run`: one run: every zone's temperature with its band (and setpoints named by the
   caller), the power of every energy vector with the electricity price;
-- :func:`plot_kpi_bars`: thermal discomfort, energy and cost of the controllers side by side.
+- :func:`plot_kpi_bars`: thermal discomfort, energy and cost of the controllers side by side;
+- :func:`plot_zones`: one period, a panel per zone: its band and its temperature under every
+  controller, so that whose discomfort is where shows at a glance.
 """
 from __future__ import annotations
 
@@ -196,6 +198,67 @@ def plot_kpi_bars(records: Sequence[Mapping[str, object]], path: pathlib.Path,
                           for p, q in groups], fontsize=7)
         ax.set_title(label, fontsize=10)
     axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def plot_zones(case: TestCase, runs: Mapping[str, pd.DataFrame], start_s: float, end_s: float,
+               title: str, path: pathlib.Path) -> pathlib.Path:
+    """
+    Draw one period, a panel per zone: the band and the zone's temperature under each run.
+
+    Parameters
+    ----------
+    case : TestCase
+        The test case (zones, bands, the zone temperature outputs).
+    runs : dict of str to pd.DataFrame
+        Legend label (e.g. the controller) -> the run's record table (``time`` [s from
+        1 January] and the zone temperature outputs [K]).
+    start_s, end_s : float
+        The test period [s].
+    title : str
+        Figure title.
+    path : pathlib.Path
+        The PNG file.
+
+    Raises
+    ------
+    ValueError
+        For no run, or a run without a zone's temperature output.
+
+    """
+    if not runs:
+        raise ValueError('plot_zones: no run to draw')
+    outputs = case.zone_temperature_outputs
+    for label, records in runs.items():
+        missing = [name for names in outputs.values() for name in names
+                   if name not in records]
+        if missing:
+            raise ValueError(f'plot_zones: run {label!r} has no {missing}')
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(len(outputs), 1, figsize=(10, 2.4 * len(outputs) + 0.6),
+                             sharex=True, squeeze=False)
+    grid = np.arange(start_s, end_s + 1.0, 900.0)
+    days = (grid - start_s) / 86400.0
+    for ax, (zone, names) in zip(axes[:, 0], outputs.items()):
+        lower, upper = case.band_columns(zone)
+        ax.fill_between(days, case.lookup(lower, grid) - KELVIN,
+                        case.lookup(upper, grid) - KELVIN, step='post', color='0.85',
+                        label='comfort band')
+        for label, records in runs.items():
+            period = records[(records['time'] >= start_s) & (records['time'] <= end_s)]
+            t = (period['time'].to_numpy() - start_s) / 86400.0
+            for name in names:
+                ax.plot(t, period[name].to_numpy() - KELVIN, lw=0.8, label=label)
+        ax.set_ylabel(f'{zone} [degC]')
+        ax.legend(loc='upper right', fontsize=7, ncol=len(runs) + 1)
+    axes[0, 0].set_title(title, fontsize=10)
+    axes[-1, 0].set_xlabel(f'days from the start of the test period ({start_s / 86400:.0f} d)')
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=90)
