@@ -100,6 +100,28 @@ def test_kpi_records_per_price(tiny_case: TestCase) -> None:
     assert len({r['ener_tot'] for r in records}) == 1
 
 
+def test_power_signs_correct_a_reversed_output(tiny_case: TestCase) -> None:
+    """An output written with the wrong sign (the fan here) is counted positive when named."""
+    table = _tiny_records().assign(reaPFan_y=-100.0)
+    start, end = DAY, DAY + 7200.0
+    as_written = compute_kpis(table, tiny_case, start, end, 'dynamic')
+    corrected = compute_kpis(table, tiny_case, start, end, 'dynamic',
+                             power_signs={'reaPFan_y': -1})
+    right = compute_kpis(_tiny_records(), tiny_case, start, end, 'dynamic')
+    for key in ('ener_tot', 'cost_tot', 'emis_tot', 'pele_tot'):
+        assert corrected[key] == pytest.approx(right[key], rel=1e-12)
+        assert corrected['as_defined'][key] == pytest.approx(as_written[key], rel=1e-12)
+    # 200 W of the 1120 W / 3120 W: the fan's 100 W counted as -100 W
+    assert as_written['ener_tot'] == pytest.approx(right['ener_tot'] * (1 - 200 / 2120),
+                                                   rel=0.05)
+    assert corrected['power_signs'] == {'reaPFan_y': -1.0}
+    assert 'as_defined' not in right and corrected['tdis_tot'] == right['tdis_tot']
+    with pytest.raises(ValueError, match=r"\['reaTZon_y'\] are not power outputs of tiny"):
+        compute_kpis(table, tiny_case, start, end, power_signs={'reaTZon_y': -1})
+    with pytest.raises(ValueError, match='expected -1 or 1'):
+        compute_kpis(table, tiny_case, start, end, power_signs={'reaPFan_y': 2})
+
+
 def test_peak_power_bins() -> None:
     # bins [0, 900), [900, 1800), [1800, 2700), [2700, 3600): means 2, 10, 5, 1
     times = np.arange(10) * 300.0

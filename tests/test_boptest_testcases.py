@@ -177,6 +177,7 @@ def test_office_baseline_through_mshoot_boptest(office: TestCase, tmp_path: path
     page = (tmp_path / 'page.md').read_text()
     assert page.startswith('# BOPTEST `multizone_office_simple_hydronic`: baseline\n')
     assert (out / 'kpis.md').read_text() in page and '`peak_heat_day` (1 days each' in page
+    assert "`heating_cooling_reaPProCoo_y` counted as written (below zero; the card's" in page
     # the per-zone figure of the period beside the page, linked from it
     assert page.endswith('\n![peak_heat_day: each zone under every controller]'
                          '(page/peak_heat_day.png)')
@@ -207,7 +208,9 @@ def test_office_baseline_through_mshoot_boptest(office: TestCase, tmp_path: path
         excess = (np.clip(held('setpoints.csv', f'LowerSetp[{zone}]') - temperature, 0, None)
                   + np.clip(temperature - held('setpoints.csv', f'UpperSetp[{zone}]'), 0, None))
         tdis[zone] = float(np.sum((excess[1:] + excess[:-1]) / 2 * np.diff(t)) / 3600)
-    electric = period[office.energy_outputs['ElectricPower']].sum(axis=1).to_numpy()
+    written = period[office.energy_outputs['ElectricPower']].sum(axis=1).to_numpy()
+    chiller = period['heating_cooling_reaPProCoo_y'].to_numpy()
+    assert chiller.max() <= 0.0  # the build's chiller power is below zero (the card's signs)
     gas = period['heating_cooling_reaPProHea_y'].to_numpy()
     area_j = 3.6e6 * 5000.0
     integral = (lambda y: float(np.sum((y[1:] + y[:-1]) / 2 * np.diff(t))))
@@ -215,13 +218,17 @@ def test_office_baseline_through_mshoot_boptest(office: TestCase, tmp_path: path
         assert record['tdis_zones'] == {z: pytest.approx(v, rel=1e-9, abs=1e-12)
                                         for z, v in tdis.items()}
         assert record['tdis_tot'] == pytest.approx((tdis['nZ'] + tdis['sZ']) / 2, rel=1e-9)
-        assert record['ener_tot'] == pytest.approx(integral(electric + gas) / area_j, rel=1e-9)
+        assert record['power_signs'] == {'heating_cooling_reaPProCoo_y': -1.0}
         column = {'constant': 'PriceElectricPowerConstant',
                   'dynamic': 'PriceElectricPowerDynamic',
                   'highly_dynamic': 'PriceElectricPowerHighlyDynamic'}[record['price']]
-        cost = (integral(electric * held('prices.csv', column))
-                + integral(gas * held('prices.csv', 'PriceGasPower')))
-        assert record['cost_tot'] == pytest.approx(cost / area_j, rel=1e-9)
+        # the KPIs count the chiller positive; BOPTEST's sums as written are kept beside them
+        for kpis, electric in ((record, written - 2 * chiller), (record['as_defined'], written)):
+            assert kpis['ener_tot'] == pytest.approx(integral(electric + gas) / area_j,
+                                                     rel=1e-9)
+            cost = (integral(electric * held('prices.csv', column))
+                    + integral(gas * held('prices.csv', 'PriceGasPower')))
+            assert kpis['cost_tot'] == pytest.approx(cost / area_j, rel=1e-9)
         assert record['pgas_tot'] > 0 and record['pele_tot'] > 0 and record['pdih_tot'] is None
     # a March day in Brussels: the boiler heats
     assert gas.max() > 1000.0

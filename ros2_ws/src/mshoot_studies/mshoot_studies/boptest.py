@@ -58,7 +58,7 @@ import logging
 import pathlib
 import sys
 import time
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 from mshoot_core.boptest.testcase import PRICE_SCENARIOS
 
@@ -289,9 +289,9 @@ def _run_one(directory: str, card_path: str, controller: str, period: str, lead:
     from mshoot_studies.boptest_rule import PreheatRule, rule_targets
     from mshoot_studies.boptest_report import count_starts
     case = TestCase.load(directory)
+    card = load_card(card_path)
     policy = None
     if controller == 'rule':
-        card = load_card(card_path)
         targets = rule_targets(card, case)
         policy = PreheatRule(case, targets, lead, margin, case.control_step_s)
     elif controller == 'mshoot':
@@ -310,7 +310,8 @@ def _run_one(directory: str, card_path: str, controller: str, period: str, lead:
     walls = run.step_wall_s if controller != 'baseline' else None
     extra = {'lead_h': lead, 'margin_k': margin} if controller == 'rule' else {}
     records = kpi_records(run.records, case, run.start_s, run.end_s, prices, walls,
-                          controller=controller, period=period)
+                          power_signs=card.boptest['power_signs'], controller=controller,
+                          period=period)
     for entry in records:
         entry.update(extra, wall_s=wall, start_s=run.start_s, end_s=run.end_s,
                      **scenario_fields(errors))
@@ -418,6 +419,28 @@ def report_figures(case: Any, jobs: Sequence[RunJob], results: Sequence[Sequence
     return paths
 
 
+def as_defined_table(records: Sequence[Mapping[str, Any]]) -> str:
+    """
+    Return the Markdown table of BOPTEST's energy sums as the outputs are written.
+
+    Only for records whose KPIs correct a power output's sign (the card's
+    ``boptest.power_signs``; :func:`mshoot_core.boptest.kpi_calculator.compute_kpis`);
+    empty otherwise.
+    """
+    rows = [r for r in records if r.get('as_defined')]
+    if not rows:
+        return ''
+    signs = sorted({name for r in rows for name in r.get('power_signs', {})})
+    lines = ['', f'With {", ".join(f"`{s}`" for s in signs)} counted as written (below zero; '
+                 "the card's `boptest.power_signs`), BOPTEST's sums would be:", '',
+             '| controller | period | price | ener [kWh/m2] | cost [EUR/m2] | '
+             'emis [kgCO2/m2] |', '|---|---|---|---|---|---|']
+    lines += [f'| {r["controller"]} | {r["period"]} | {r["price"]} | '
+              f'{r["as_defined"]["ener_tot"]:.3f} | {r["as_defined"]["cost_tot"]:.4f} | '
+              f'{r["as_defined"]["emis_tot"]:.3f} |' for r in rows]
+    return '\n'.join(lines) + '\n'
+
+
 def _reads_price(control_card: str) -> bool:
     """Return True when the control card's forecast carries a price series (one per scenario)."""
     from mshoot_core.boptest.forecasts import ForecastSpec
@@ -455,6 +478,7 @@ def _say(began: float, line: str) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from mshoot_core.boptest.kpi_calculator import check_power_signs
     from mshoot_core.boptest.plant import BoptestPlant, recorded_outputs
     from mshoot_core.boptest.testcase import TestCase
     from mshoot_core.forecast import uncertainty_runs
@@ -475,6 +499,7 @@ def _run(args: argparse.Namespace) -> int:
     record = recorded_outputs(case, [*variables, *([args.starts_output]
                                                    if args.starts_output else [])])
     plant = BoptestPlant(case, record=record)  # checks the names; no instance
+    check_power_signs(case, card.boptest['power_signs'])
     targets = rule_targets(card, case) if 'rule' in controllers else {}
     mpc = _mpc_configuration(args, case, card, card_path) if 'mshoot' in controllers else None
     if mpc is not None:
@@ -523,7 +548,7 @@ def _run(args: argparse.Namespace) -> int:
     zones += [f'| {name} | {r["price"]} | '
               + ' | '.join(f'{r["tdis_zones"][z]:.3f}' for z in case.zones) + ' |'
               for name, result in zip(names, results) for r in result[:1]]
-    text = table + '\n'.join(zones) + '\n'
+    text = table + '\n'.join(zones) + '\n' + as_defined_table(records)
     (args.out / 'kpis.md').write_text(text)
     print(text, end='')
     if args.report is not None:

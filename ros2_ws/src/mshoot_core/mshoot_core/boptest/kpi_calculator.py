@@ -34,11 +34,17 @@ fill) and integrals by the trapezoid rule over the samples:
   ``resample('15min')`` of BOPTEST), within the period;
 - ``time_rat`` [-]: the mean over control steps of the controller's wall time between two
   emulator advances divided by the control step (None when no wall times are given).
+
+A test case's FMU may report a power output with the wrong sign (the two-zone office's chiller
+power is below zero while it runs, so BOPTEST's sums count cooling as energy earned). Its card
+says so (``boptest.power_signs``: output -> -1); :func:`compute_kpis` then counts the output
+with the sign corrected in ``ener_tot``, ``cost_tot``, ``emis_tot`` and the peaks, and keeps
+BOPTEST's sums as written under ``as_defined``.
 """
 from __future__ import annotations
 
 import logging
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -82,9 +88,37 @@ def _columns(table: pd.DataFrame, names: Sequence[str]) -> np.ndarray:
     return values
 
 
-def vector_power(table: pd.DataFrame, case: TestCase, vector: str) -> np.ndarray:
-    """Return the power of one energy vector [W]: the sum of its ``kpis.json`` outputs, per row."""
-    return _columns(table, case.energy_outputs.get(vector, [])).sum(axis=1)
+def vector_power(table: pd.DataFrame, case: TestCase, vector: str,
+                 power_signs: Mapping[str, float] | None = None) -> np.ndarray:
+    """
+    Return the power of one energy vector [W]: the sum of its ``kpis.json`` outputs, per row.
+
+    ``power_signs`` (output -> -1 or 1, default 1) corrects outputs reported with the wrong
+    sign (module docstring).
+    """
+    names = case.energy_outputs.get(vector, [])
+    signs = np.array([float((power_signs or {}).get(name, 1.0)) for name in names])
+    return (_columns(table, names) * signs).sum(axis=1)
+
+
+def check_power_signs(case: TestCase, power_signs: Mapping[str, float] | None) -> None:
+    """
+    Check sign corrections: each names a power output of ``kpis.json`` and is -1 or 1.
+
+    Raises
+    ------
+    ValueError
+        For an output no energy vector of the test case has, or a sign other than -1 and 1.
+
+    """
+    outputs = [name for names in case.energy_outputs.values() for name in names]
+    unknown = sorted(set(power_signs or {}) - set(outputs))
+    if unknown:
+        raise ValueError(f'power_signs: {unknown} are not power outputs of {case.name}\'s '
+                         f'kpis.json (expected some of {outputs})')
+    bad = {name: sign for name, sign in (power_signs or {}).items() if sign not in (-1, 1)}
+    if bad:
+        raise ValueError(f'power_signs: expected -1 or 1, got {bad}')
 
 
 def zone_discomfort(table: pd.DataFrame, case: TestCase) -> dict[str, tuple[np.ndarray, ...]]:
@@ -143,7 +177,8 @@ def peak_power(times_s: np.ndarray, power_w: np.ndarray) -> float:
 def compute_kpis(table: pd.DataFrame, case: TestCase, start_s: float, end_s: float,
                  price: str = 'constant',
                  step_wall_s: Sequence[float] | None = None,
-                 control_step_s: float | None = None) -> dict[str, float | None]:
+                 control_step_s: float | None = None,
+                 power_signs: Mapping[str, float] | None = None) -> dict[str, float | None]:
     """
     Compute BOPTEST's KPIs of one run over a test period (module docstring).
 
@@ -162,35 +197,32 @@ def compute_kpis(table: pd.DataFrame, case: TestCase, start_s: float, end_s: flo
         The controller's wall time of each control step [s] (for ``time_rat``).
     control_step_s : float, optional
         The control step [s] (default the test case's).
+    power_signs : dict of str to float, optional
+        Power outputs the FMU reports with the wrong sign -> -1 (module docstring).
 
     Returns
     -------
     dict
         :data:`KPI_NAMES` -> value (``time_rat`` None without wall times; a peak None
-        without its energy vector), plus ``tdis_zones``: zone -> its discomfort [K h].
+        without its energy vector), plus ``tdis_zones``: zone -> its discomfort [K h]; with
+        sign corrections, ``power_signs`` and ``as_defined``: the energy, cost, emission and
+        peak KPIs of BOPTEST's sums as the outputs are written.
 
     Raises
     ------
     ValueError
-        For missing columns, a period the records do not cover or an unknown price scenario.
+        For missing columns, a period the records do not cover, an unknown price scenario or
+        a bad sign correction (:func:`check_power_signs`).
 
     """
     case.price_column(price)  # an unknown scenario fails here
+    check_power_signs(case, power_signs)
     period = _window(table, start_s, end_s)
     times = period['time'].to_numpy(dtype=float)
     vectors = case.energy_outputs
     if not vectors:
         raise ValueError(f'{case.name}: kpis.json names no energy vector (expected one of '
                          'ElectricPower, GasPower, DistrictHeatingPower, ...)')
-    scale = JOULES_PER_KWH * case.area_m2
-    power = {vector: vector_power(period, case, vector) for vector in vectors}
-    energy = cost = emissions = 0.0
-    for vector, watts in power.items():
-        energy += np.trapezoid(watts, times)
-        cost += np.trapezoid(watts * case.lookup(case.price_column(price, vector), times),
-                             times)
-        emissions += np.trapezoid(watts * case.lookup(case.emission_column(vector), times),
-                                  times)
     per_zone = zone_discomfort(period, case)
     zones = {zone: hours_integral(times, below) + hours_integral(times, above)
              for zone, (below, above) in per_zone.items()}
@@ -198,11 +230,7 @@ def compute_kpis(table: pd.DataFrame, case: TestCase, start_s: float, end_s: flo
     kpis: dict = {
         'tdis_tot': hours_integral(times, mean_excess),
         'idis_tot': hours_integral(times, co2_discomfort(period, case)),
-        'ener_tot': float(energy / scale),
-        'cost_tot': float(cost / scale),
-        'emis_tot': float(emissions / scale),
-        **{name: (peak_power(times, power[vector]) / case.area_m2 / 1000.0
-                  if vector in power else None) for vector, name in PEAK_KPIS.items()},
+        **_energy_kpis(period, case, price, power_signs),
         'time_rat': None,
     }
     if step_wall_s is not None:
@@ -212,20 +240,44 @@ def compute_kpis(table: pd.DataFrame, case: TestCase, start_s: float, end_s: flo
             raise ValueError('time_rat needs finite wall times and a positive control step')
         kpis['time_rat'] = float(walls.mean() / step)
     kpis['tdis_zones'] = zones
+    if power_signs:
+        kpis['power_signs'] = {name: float(sign) for name, sign in power_signs.items()}
+        kpis['as_defined'] = _energy_kpis(period, case, price, None)
     return kpis
+
+
+def _energy_kpis(period: pd.DataFrame, case: TestCase, price: str,
+                 power_signs: Mapping[str, float] | None) -> dict[str, float | None]:
+    """Return ``ener_tot``, ``cost_tot``, ``emis_tot`` and the peaks of the period's rows."""
+    times = period['time'].to_numpy(dtype=float)
+    scale = JOULES_PER_KWH * case.area_m2
+    power = {vector: vector_power(period, case, vector, power_signs)
+             for vector in case.energy_outputs}
+    energy = cost = emissions = 0.0
+    for vector, watts in power.items():
+        energy += np.trapezoid(watts, times)
+        cost += np.trapezoid(watts * case.lookup(case.price_column(price, vector), times),
+                             times)
+        emissions += np.trapezoid(watts * case.lookup(case.emission_column(vector), times),
+                                  times)
+    return {'ener_tot': float(energy / scale), 'cost_tot': float(cost / scale),
+            'emis_tot': float(emissions / scale),
+            **{name: (peak_power(times, power[vector]) / case.area_m2 / 1000.0
+                      if vector in power else None) for vector, name in PEAK_KPIS.items()}}
 
 
 def kpi_records(table: pd.DataFrame, case: TestCase, start_s: float, end_s: float,
                 prices: Sequence[str] = tuple(PRICE_SCENARIOS),
                 step_wall_s: Sequence[float] | None = None,
                 control_step_s: float | None = None,
+                power_signs: Mapping[str, float] | None = None,
                 **keys: str) -> list[dict[str, float | str | None]]:
     """
     Return one KPI record per price scenario of the same run (only ``cost_tot`` differs).
 
     Parameters
     ----------
-    table, case, start_s, end_s, step_wall_s, control_step_s
+    table, case, start_s, end_s, step_wall_s, control_step_s, power_signs
         As :func:`compute_kpis`.
     prices : sequence of str
         Price scenarios.
@@ -240,6 +292,7 @@ def kpi_records(table: pd.DataFrame, case: TestCase, start_s: float, end_s: floa
     """
     records = []
     for price in prices:
-        kpis = compute_kpis(table, case, start_s, end_s, price, step_wall_s, control_step_s)
+        kpis = compute_kpis(table, case, start_s, end_s, price, step_wall_s, control_step_s,
+                            power_signs)
         records.append({**keys, 'price': price, **kpis})
     return records

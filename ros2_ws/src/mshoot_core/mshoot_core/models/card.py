@@ -262,7 +262,8 @@ class ModelCard:
         Free text.
     boptest : dict or None
         For a card of kind ``boptest``: ``test_case_dir`` (absolute), ``warmup_days``,
-        ``history_step_s``, ``setpoint_zones`` (setpoint control -> zone), ``excitation``
+        ``history_step_s``, ``power_signs`` (a KPI power output -> -1: reported with the wrong
+        sign), ``setpoint_zones`` (setpoint control -> zone), ``excitation``
         (the identification's experiment as the card writes it, or None) and ``control``
         (the MPC's ``card`` and ``settings`` as absolute paths, or None).
     network : NetworkSpec or None
@@ -761,7 +762,10 @@ def _boptest_spec(path: pathlib.Path, spec: dict,
     if isinstance(history, bool) or not isinstance(history, (int, float)) or history < 0:
         return None, None  # the schema reported it
     zones = spec.get('setpoint_zones') or {}
+    signs = spec.get('power_signs') or {}
     return {'test_case_dir': str(directory), 'warmup_days': float(warmup),
+            'power_signs': {str(k): float(v) for k, v in signs.items()}
+            if isinstance(signs, dict) else {},
             'history_step_s': float(history),
             'setpoint_zones': {str(k): str(v) for k, v in zones.items()}
             if isinstance(zones, dict) else {},
