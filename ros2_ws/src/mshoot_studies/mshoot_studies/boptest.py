@@ -320,7 +320,7 @@ def _run_one(directory: str, card_path: str, controller: str, period: str, lead:
     return records
 
 
-def _mpc_configuration(args: argparse.Namespace, case: Any, card: Any,
+def mpc_configuration(args: argparse.Namespace, case: Any, card: Any,
                        card_path: pathlib.Path) -> tuple[str, str]:
     """
     Return (control card, settings) of ``mshoot``, checked before any run.
@@ -350,7 +350,8 @@ def _mpc_configuration(args: argparse.Namespace, case: Any, card: Any,
     return str(control), str(settings)
 
 
-def report_page(case: Any, args: argparse.Namespace, warmup: float, tables: str) -> str:
+def report_page(case: Any, args: argparse.Namespace, warmup: float, tables: str,
+                writer: str = '`mshoot boptest`') -> str:
     """
     Return the Markdown page of ``--report``: what ran, the KPI tables.
 
@@ -364,13 +365,15 @@ def report_page(case: Any, args: argparse.Namespace, warmup: float, tables: str)
         The warm-up [days].
     tables : str
         The KPI tables (``OUT/kpis.md``).
+    writer : str
+        What ran the runs (Markdown), e.g. this command.
 
     """
     cards = [f'`{pathlib.Path(p).name}`' for p in (args.card, args.control_card, args.mpc_settings)
              if p is not None]
     return '\n'.join([
         f'# BOPTEST `{case.name}`: {", ".join(_controllers(args.controllers))}', '',
-        f'Written by `mshoot boptest` (`--report`) from the runs in `{args.out}`: the test '
+        f'Written by {writer} (`--report`) from the runs in `{args.out}`: the test '
         f'periods {", ".join(f"`{p}`" for p in (args.periods or case.days))} ({args.days:g} '
         f"days each after {warmup:g} days of warm-up under the building's own control), the "
         f'prices {", ".join(f"`{p}`" for p in args.prices)}; cards and settings '
@@ -379,15 +382,71 @@ def report_page(case: Any, args: argparse.Namespace, warmup: float, tables: str)
         "zone's own discomfort.", '', tables])
 
 
-def _reads_price(control_card: str) -> bool:
+def write_tables(args: argparse.Namespace, case: Any, warmup: float, names: Sequence[str],
+                 results: Sequence[Sequence[dict]], writer: str = '`mshoot boptest`') -> str:
+    """
+    Write the KPI tables to ``OUT/kpis.md`` (and the ``--report`` page); return them.
+
+    The tables of this command and of the ROS benchmark (``mshoot_nodes.boptest_run``).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The command's options (``out``, ``report`` and those :func:`report_page` reads).
+    case : TestCase
+        The test case.
+    warmup : float
+        The warm-up [days].
+    names : sequence of str
+        The runs' names.
+    results : sequence of list of dict
+        Each run's KPI records (one per price scenario it stands for).
+    writer : str
+        What ran the runs (:func:`report_page`).
+
+    """
+    from mshoot_studies.boptest_report import kpi_table
+    extra = (('lead_h', 'lead [h]', '{:g}'), ('margin_k', 'margin [K]', '{:g}'),
+             ('wall_s', 'run wall [s]', '{:.1f}'))
+    table = kpi_table([entry for result in results for entry in result], extra)
+    zones = ['', '| run | price | ' + ' | '.join(f'tdis [{z}] [K h]' for z in case.zones)
+             + ' |', '|---|---|' + '---|' * len(case.zones)]
+    zones += [f'| {name} | {r["price"]} | '
+              + ' | '.join(f'{r["tdis_zones"][z]:.3f}' for z in case.zones) + ' |'
+              for name, result in zip(names, results) for r in result[:1]]
+    text = table + '\n'.join(zones) + '\n'
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / 'kpis.md').write_text(text)
+    if args.report is not None:
+        args.report.write_text(report_page(case, args, warmup, text, writer))
+    return text
+
+
+def reads_price(control_card: str) -> bool:
     """Return True when the control card's forecast carries a price series (one per scenario)."""
     from mshoot_core.boptest.forecasts import ForecastSpec
     return any(source.prices for source in ForecastSpec.from_card(control_card).series.values())
 
 
-def _ensure_forecast_weather(case: Any, periods: Sequence[str], warmup: float, days: float,
-                             settings: str, began: float) -> None:
-    """Derive, once, the weather the MPC's forecasts read over the runs (a folder without it)."""
+def ensure_forecast_weather(case: Any, periods: Sequence[str], warmup: float, days: float,
+                            settings: str, say: Callable[[str], None]) -> None:
+    """
+    Derive, once, the weather the MPC's forecasts read over the runs (a folder without it).
+
+    Parameters
+    ----------
+    case : TestCase
+        The test case (nothing to do when it has weather of its own).
+    periods : sequence of str
+        The test periods of the runs.
+    warmup, days : float
+        The warm-up and the test period [days].
+    settings : str
+        The MPC settings (their horizon and step: how far past the period it reads).
+    say : callable
+        Told, once, what is derived.
+
+    """
     from mshoot_core.boptest.weather import ensure_window
     from mshoot_core.settings import MpcSettings
     if not case.weather_derived:
@@ -396,8 +455,8 @@ def _ensure_forecast_weather(case: Any, periods: Sequence[str], warmup: float, d
     windows = [case.test_period(period, warmup, days) for period in periods]
     start = min(w[0] for w in windows)
     end = max(w[2] for w in windows) + (problem.horizon_steps + 1) * problem.step_s
-    _say(began, f'the weather of {case.name} from its FMU over days {start / 86400:g} to '
-                f'{end / 86400:g} (once, into the cache)')
+    say(f'the weather of {case.name} from its FMU over days {start / 86400:g} to '
+        f'{end / 86400:g} (once, into the cache)')
     ensure_window(case, start, end)
 
 
@@ -420,7 +479,7 @@ def _run(args: argparse.Namespace) -> int:
     from mshoot_core.boptest.testcase import TestCase
     from mshoot_core.forecast import uncertainty_runs
     from mshoot_core.models.card import load_card
-    from mshoot_studies.boptest_report import kpi_table, plot_run
+    from mshoot_studies.boptest_report import plot_run
     from mshoot_studies.boptest_rule import rule_targets, tune_rule
     began = time.perf_counter()
     controllers = _controllers(args.controllers)
@@ -437,9 +496,10 @@ def _run(args: argparse.Namespace) -> int:
                                                    if args.starts_output else [])])
     plant = BoptestPlant(case, record=record)  # checks the names; no instance
     targets = rule_targets(card, case) if 'rule' in controllers else {}
-    mpc = _mpc_configuration(args, case, card, card_path) if 'mshoot' in controllers else None
+    mpc = mpc_configuration(args, case, card, card_path) if 'mshoot' in controllers else None
     if mpc is not None:
-        _ensure_forecast_weather(case, periods, warmup, args.days, mpc[1], began)
+        ensure_forecast_weather(case, periods, warmup, args.days, mpc[1],
+                                lambda line: _say(began, line))
     _say(began, f'{case.name} ({plant.interface}, zones {case.zones}, energy '
                 f'{list(case.energy_outputs)}): {controllers} on {periods}')
     tunings: dict[str, Any] = {}
@@ -457,7 +517,7 @@ def _run(args: argparse.Namespace) -> int:
 
     # mshoot: one run per price when its forecast has a price series, else one for all
     jobs = plan_runs(periods, controllers, args.prices, scenarios, rule_parameters,
-                     mshoot_per_price=mpc is not None and _reads_price(mpc[0]))
+                     mshoot_per_price=mpc is not None and reads_price(mpc[0]))
     names = [job.name for job in jobs]
     arguments = [(str(case.directory), str(card_path), job.controller, job.period, job.lead_h,
                   job.margin_k, warmup, args.days, list(job.prices), record,
@@ -476,19 +536,7 @@ def _run(args: argparse.Namespace) -> int:
     records = [entry for result in results for entry in result]
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / 'kpis.json').write_text(json.dumps(records, indent=1) + '\n')
-    extra = (('lead_h', 'lead [h]', '{:g}'), ('margin_k', 'margin [K]', '{:g}'),
-             ('wall_s', 'run wall [s]', '{:.1f}'))
-    table = kpi_table(records, extra)
-    zones = ['', '| run | price | ' + ' | '.join(f'tdis [{z}] [K h]' for z in case.zones)
-             + ' |', '|---|---|' + '---|' * len(case.zones)]
-    zones += [f'| {name} | {r["price"]} | '
-              + ' | '.join(f'{r["tdis_zones"][z]:.3f}' for z in case.zones) + ' |'
-              for name, result in zip(names, results) for r in result[:1]]
-    text = table + '\n'.join(zones) + '\n'
-    (args.out / 'kpis.md').write_text(text)
-    print(text, end='')
-    if args.report is not None:
-        args.report.write_text(report_page(case, args, warmup, text))
+    print(write_tables(args, case, warmup, names, results), end='')
     if args.figures:
         import pandas as pd
         for name, result in zip(names, results):
