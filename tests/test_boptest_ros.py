@@ -235,8 +235,8 @@ def test_boptest_cards(tmp_path: pathlib.Path, boptest_case: TestCase) -> None:
 
 def test_runner_refuses_bad_arguments(capsys, tmp_path: pathlib.Path) -> None:
     from mshoot_nodes.boptest_run import main
-    assert main(['--card', str(CARD), '--out', str(tmp_path), '--periods', 'peak_cool_day', '--controllers',
-                 'baseline']) == 2
+    assert main(['--card', str(CARD), '--out', str(tmp_path), '--periods', 'peak_cool_day',
+                 '--controllers', 'baseline']) == 2
     assert 'unknown test period' in capsys.readouterr().err
     with pytest.raises(SystemExit) as exit_info:
         main(['--card', str(CARD), '--prices', 'cheap'])

@@ -321,7 +321,7 @@ def _run_one(directory: str, card_path: str, controller: str, period: str, lead:
 
 
 def mpc_configuration(args: argparse.Namespace, case: Any, card: Any,
-                       card_path: pathlib.Path) -> tuple[str, str]:
+                      card_path: pathlib.Path) -> tuple[str, str]:
     """
     Return (control card, settings) of ``mshoot``, checked before any run.
 
