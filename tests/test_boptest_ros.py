@@ -115,7 +115,7 @@ def test_mshoot_fault_over_ros_plan_tail_release_and_back(boptest_case: TestCase
     The solver fails for 3 steps on the heat pump house over ROS: plan tail, release, back.
 
     The MPC node (settings ``boptest_house``, the fallback after one step of the plan's tail)
-    on the emulator's ``boptest_modulation`` card: the plan's tail, then the overwrite
+    on the emulator's card with the heat pump's modulation: the plan's tail, then the overwrite
     released (``oveHeaPumY_u`` not applied: the building's own controller runs the heat pump),
     then control again; a defined input at every minute.
     """
