@@ -99,8 +99,8 @@ logger = logging.getLogger(__name__)
 
 CONTROLLERS = ('baseline', 'rule', 'mshoot')
 #: What ran the runs, on the ``--report`` page.
-WRITER = ('the ROS runner (`python -m mshoot_nodes.boptest_run`: every run over the ROS 2 '
-          'nodes, in lockstep)')
+WRITER = ('`python -m mshoot_nodes.boptest_run` (every run over the ROS 2 nodes, in '
+          'lockstep)')
 
 
 def mshoot_params(warmup_days: float, card: str, settings: str,

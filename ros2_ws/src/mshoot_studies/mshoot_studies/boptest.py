@@ -373,7 +373,7 @@ def report_page(case: Any, args: argparse.Namespace, warmup: float, tables: str,
              if p is not None]
     return '\n'.join([
         f'# BOPTEST `{case.name}`: {", ".join(_controllers(args.controllers))}', '',
-        f'Written by {writer} (`--report`) from the runs in `{args.out}`: the test '
+        f'Written by {writer} with `--report` from the runs in `{args.out}`: the test '
         f'periods {", ".join(f"`{p}`" for p in (args.periods or case.days))} ({args.days:g} '
         f"days each after {warmup:g} days of warm-up under the building's own control), the "
         f'prices {", ".join(f"`{p}`" for p in args.prices)}; cards and settings '
