@@ -228,3 +228,26 @@ def test_office_over_ros_releases_every_overwrite_on_its_last_fallback(
         minutes = run.records[(run.records['time'] > t0) & (run.records['time'] < t0 + 3600.0)]
         overwritten = minutes[variables].notna().to_numpy()
         assert (~overwritten).all() if source == 'released' else overwritten.all()
+
+
+def test_office_emulator_cards_over_ros(runs: dict, tmp_path: pathlib.Path) -> None:
+    """The emulator's card of each run: the overwrites its controller sends, from the office's."""
+    from mshoot_nodes.boptest_run import emulator_card, rule_setpoint, sent_controls
+    card = load_card(runs['plant'])
+    sent, step = sent_controls(str(CONTROL), MpcSettings.from_file(SETTINGS))
+    assert (sent, step) == (('TSetMin_nZ', 'TSetMin_sZ', 'TSupHea'), 3600.0)
+    mshoot = load_card(emulator_card(card.path, sent, tmp_path / 'mshoot.yaml', warmup_days=1,
+                                     history_step_s=step))
+    assert list(mshoot.controls) == list(sent)
+    assert all(mshoot.controls[n].activate == card.controls[n].activate for n in sent)
+    assert mshoot.boptest['history_step_s'] == 3600.0
+    assert mshoot.boptest['setpoint_zones'] == {'TSetMin_nZ': 'nZ', 'TSetMin_sZ': 'sZ'}
+    # the baseline: one setpoint, its switch removed (the BMS in charge whatever is sent)
+    assert rule_setpoint(card, 'baseline') == ('TSetMin_nZ', 'nZ')
+    baseline = load_card(emulator_card(card.path, ['TSetMin_nZ'], tmp_path / 'baseline.yaml',
+                                       warmup_days=1, switches=False))
+    assert baseline.controls['TSetMin_nZ'].activate is None
+    with pytest.raises(ValueError, match='sends one setpoint'):
+        rule_setpoint(card, 'rule')  # two setpoint zones: the rule node sends one
+    with pytest.raises(ValueError, match=r"no control \['TSet'\]"):
+        emulator_card(card.path, ['TSet'], tmp_path / 'bad.yaml', warmup_days=1)
