@@ -64,12 +64,13 @@ OFFICE_CARDS := $(ROOT)/docs/boptest_cards/multizone_office_simple_hydronic
 OFFICE_ARGS ?=
 
 .PHONY: boptest-office
-boptest-office: setup  ## the two-zone office: BMS baseline and mshoot, 3 periods x 2 prices, runs on 2 workers -> out/boptest_office/kpis.json, docs/boptest_office.md
-	@$(RUN) cd $(ROOT) && mshoot boptest --testcase $(OFFICE_DIR) --card $(OFFICE_CARDS).yaml \
-		--control-card $(OFFICE_CARDS)_control.yaml --mpc-settings $(OFFICE_CARDS)_mpc.yaml \
-		--controllers baseline mshoot --periods typical_heat_day peak_heat_day typical_cool_day \
-		--prices constant highly_dynamic --workers 2 --out out/boptest_office \
-		--report docs/boptest_office.md $(OFFICE_ARGS)
+boptest-office: setup  ## the two-zone office: BMS baseline and mshoot over ROS 2, 3 periods x 2 prices, runs on 2 workers -> out/boptest_office/kpis.json, docs/boptest_office.md
+	@$(RUN) cd $(ROOT) && python -m mshoot_nodes.boptest_run --testcase $(OFFICE_DIR) \
+		--card $(OFFICE_CARDS).yaml --control-card $(OFFICE_CARDS)_control.yaml \
+		--mpc-settings $(OFFICE_CARDS)_mpc.yaml --controllers baseline mshoot \
+		--periods typical_heat_day peak_heat_day typical_cool_day \
+		--prices constant highly_dynamic --uncertainty none --workers 2 \
+		--out out/boptest_office --report docs/boptest_office.md $(OFFICE_ARGS)
 
 # -- the soak benchmark (issue 6): many simulated days over ROS 2 with faults injected ---------
 SOAK_DAYS ?= 30
@@ -87,5 +88,6 @@ BOPTEST_ARGS ?=
 
 .PHONY: boptest
 boptest: setup  ## BOPTEST: baseline, rule (tuned) and mshoot over ROS 2, 2 periods x 3 prices -> out/boptest/kpis.json, docs/boptest.md
-	@$(RUN) cd $(ROOT) && python -m mshoot_nodes.boptest_run --out $(BOPTEST_OUT) --docs docs \
-		$(BOPTEST_ARGS)
+	@$(RUN) cd $(ROOT) && python -m mshoot_nodes.boptest_run \
+		--card docs/boptest_cards/bestest_hydronic_heat_pump.yaml --starts-output reaHeaPumY_y \
+		--out $(BOPTEST_OUT) --docs docs $(BOPTEST_ARGS)

@@ -6,7 +6,7 @@ from mshoot_core.boptest.period_scenario import period_scenario
 from mshoot_core.boptest.plant import run_period
 from mshoot_core.boptest.testcase import TestCase
 from mshoot_core.models.card import build_model, builtin_card, CardError, load_card
-from mshoot_studies.boptest_rule import PreheatRule
+from mshoot_studies.boptest_rule import PreheatRule, rule_targets
 import numpy as np
 import pytest
 import yaml
@@ -16,6 +16,10 @@ from conftest import private_context
 pytestmark = pytest.mark.ros
 
 LEAD_H, MARGIN_K = 3.0, 0.5
+#: The heat pump house's card (its boptest.control: the control card and settings boptest_house).
+CARD = pathlib.Path(__file__).resolve().parents[1] / 'docs' / 'boptest_cards' / \
+    'bestest_hydronic_heat_pump.yaml'
+CONTROL = ('boptest_house', 'boptest_house')
 
 
 @pytest.fixture(scope='module')
@@ -26,13 +30,13 @@ def ros_runs(boptest_case: TestCase, tmp_path_factory: pytest.TempPathFactory) -
     out = tmp_path_factory.mktemp('boptest_ros')
     context = private_context()
     try:
-        runs = {controller: run_ros(context, controller, 'peak_heat_day', boptest_case,
+        runs = {controller: run_ros(context, controller, 'peak_heat_day', boptest_case, CARD,
                                     price='dynamic', warmup_days=1, length_days=2,
                                     lead_h=LEAD_H, margin_k=MARGIN_K, out=out / controller,
                                     timeout_s=900.0)
                 for controller in ('baseline', 'rule')}
-        runs['mshoot'] = run_ros(context, 'mshoot', 'peak_heat_day', boptest_case,
-                                 price='dynamic', warmup_days=1, length_days=1,
+        runs['mshoot'] = run_ros(context, 'mshoot', 'peak_heat_day', boptest_case, CARD,
+                                 control=CONTROL, price='dynamic', warmup_days=1, length_days=1,
                                  out=out / 'mshoot', timeout_s=900.0)
     finally:
         rclpy.try_shutdown(context=context)
@@ -45,8 +49,8 @@ def test_ros_run_equals_the_core_run(boptest_case: TestCase, ros_runs: dict,
     """The emulator node steps the FMU exactly as the core loop does: same outputs, same KPIs."""
     run = ros_runs['runs'][controller]
     assert not run.failed and run.steps == 48
-    from mshoot_nodes.boptest_run import rule_targets
-    rule = (PreheatRule(boptest_case, rule_targets(boptest_case), LEAD_H, MARGIN_K)
+    card = load_card(ros_runs['out'] / controller / f'card_{CARD.stem}.yaml')
+    rule = (PreheatRule(boptest_case, rule_targets(card, boptest_case), LEAD_H, MARGIN_K)
             if controller == 'rule' else None)
     core = run_period(boptest_case, 'peak_heat_day', rule, warmup_days=1, length_days=2)
     assert (run.start_s, run.end_s) == (core.start_s, core.end_s)
@@ -69,7 +73,8 @@ def test_mshoot_over_ros_equals_the_core_run(boptest_case: TestCase, ros_runs: d
     """
     The MPC node plans from /forecast and converts only: the core supervised run, to 1e-9.
 
-    The general Controller (control card and settings ``boptest_house``) over ROS: the warm-up
+    The general Controller (the card's control card and settings ``boptest_house``) over ROS,
+    the emulator's card the building's with the heat pump's modulation only: the warm-up
     observed from the first zone state's history with the inputs of the first forecast's
     history, the model's duty ``d`` sent as the plant's ``Y`` (``plant_controls``); the same
     heat pump overwrites minute by minute and the same KPIs as
@@ -77,12 +82,13 @@ def test_mshoot_over_ros_equals_the_core_run(boptest_case: TestCase, ros_runs: d
     """
     from mshoot_core.boptest.supervision import supervised_plant
     from mshoot_core.settings import MpcSettings
-    from mshoot_nodes.boptest_run import MSHOOT_CARD, MSHOOT_PLANT, MSHOOT_SETTINGS
     run = ros_runs['runs']['mshoot']
     assert not run.failed and run.steps == 24
-    policy = supervised_plant(boptest_case, builtin_card(f'boptest_{MSHOOT_PLANT}'),
-                              builtin_card(MSHOOT_CARD), MpcSettings.from_file(MSHOOT_SETTINGS),
-                              'dynamic')
+    plant = ros_runs['out'] / 'mshoot' / f'card_{CARD.stem}.yaml'
+    assert list(load_card(ros_runs['out'] / 'mshoot' / 'emulator_mshoot_warmup1d.yaml')
+                .controls) == ['Y']
+    policy = supervised_plant(boptest_case, plant, builtin_card(CONTROL[0]),
+                              MpcSettings.from_file(CONTROL[1]), 'dynamic')
     core = run_period(boptest_case, 'peak_heat_day', policy, warmup_days=1, length_days=1,
                       record=policy.recorded(boptest_case))
     assert all(not o.decision.fallback for o in policy.outcomes)
@@ -109,7 +115,7 @@ def test_mshoot_fault_over_ros_plan_tail_release_and_back(boptest_case: TestCase
     The solver fails for 3 steps on the heat pump house over ROS: plan tail, release, back.
 
     The MPC node (settings ``boptest_house``, the fallback after one step of the plan's tail)
-    on the emulator's ``boptest_modulation`` card: the plan's tail, then the overwrite
+    on the emulator's card with the heat pump's modulation: the plan's tail, then the overwrite
     released (``oveHeaPumY_u`` not applied: the building's own controller runs the heat pump),
     then control again; a defined input at every minute.
     """
@@ -132,8 +138,9 @@ def test_mshoot_fault_over_ros_plan_tail_release_and_back(boptest_case: TestCase
 
     context = private_context()
     try:
-        run = run_ros(context, 'mshoot', 'peak_heat_day', boptest_case, price='dynamic',
-                      warmup_days=1, length_days=hours / 24, out=tmp_path, timeout_s=900.0,
+        run = run_ros(context, 'mshoot', 'peak_heat_day', boptest_case, CARD, control=CONTROL,
+                      price='dynamic', warmup_days=1, length_days=hours / 24, out=tmp_path,
+                      timeout_s=900.0,
                       mpc_settings={'on_failure': 'fallback', 'max_plan_age_steps': 1},
                       on_step=inject)
     finally:
@@ -226,10 +233,11 @@ def test_boptest_cards(tmp_path: pathlib.Path, boptest_case: TestCase) -> None:
         load_card(wrong)
 
 
-def test_runner_refuses_bad_arguments(capsys) -> None:
+def test_runner_refuses_bad_arguments(capsys, tmp_path: pathlib.Path) -> None:
     from mshoot_nodes.boptest_run import main
-    assert main(['--periods', 'peak_cool_day', '--controllers', 'baseline']) == 2
+    assert main(['--card', str(CARD), '--out', str(tmp_path), '--periods', 'peak_cool_day',
+                 '--controllers', 'baseline']) == 2
     assert 'unknown test period' in capsys.readouterr().err
     with pytest.raises(SystemExit) as exit_info:
-        main(['--prices', 'cheap'])
+        main(['--card', str(CARD), '--prices', 'cheap'])
     assert exit_info.value.code == 2

@@ -1,32 +1,39 @@
 """
-BOPTEST over ROS 2: the baseline, the tuned rule and mshoot on the test periods and prices.
+BOPTEST over ROS 2: any test case's baseline, tuned rule and mshoot from its card and settings.
 
-    boptest --out out/boptest --docs docs                      # make boptest: the benchmark
-    boptest --periods peak_heat_day --controllers baseline rule --warmup-days 1 --days 2
-    boptest --controllers mshoot --uncertainty none high=1,2,3 --out out/boptest_high
+    boptest --testcase DIR --card CARD.yaml --out OUT [--report PAGE.md]     # as mshoot boptest
+        [--periods P ...] [--prices constant dynamic] [--controllers baseline rule mshoot]
+        [--control-card CARD.yaml --mpc-settings SETTINGS.yaml] [--uncertainty none high=1,2,3]
+        [--warmup-days 1 --days 2] [--starts-output OUTPUT] [--workers 2]
+    boptest ... --docs docs     # make boptest: the heat pump benchmark's page docs/boptest.md
 
-Every run goes over the ROS nodes in one process (one executor, a private context, discovery
-off; ``--workers`` runs at once, each in a worker process of its own): the emulator runs the
-test case from a ``boptest`` model card (one persistent FMU instance, FMU time = seconds of the
-year, the warm-up under the building's own control, outputs recorded every 60 s), the
-forecaster serves the test case's data (weather, band, occupancy, the price scenario) and the
-controller answers each step:
+The same configuration as ``mshoot boptest`` (:mod:`mshoot_studies.boptest`: the test case
+folder, its card of kind ``boptest``, for mshoot the control card and settings of
+``--control-card``/``--mpc-settings`` or the card's ``boptest.control``; the same run planning,
+:func:`mshoot_studies.boptest.plan_runs`), but every run goes over the ROS nodes in one process
+(one executor, a private context, discovery off; ``--workers`` runs at once, each in a worker
+process of its own): the emulator runs the test case from a card derived from the building's
+(:func:`emulator_card`: one persistent FMU instance, FMU time = seconds of the year, the warm-up
+under the building's own control, outputs recorded every 60 s), the forecaster serves the test
+case's data and the controller answers each step:
 
-- ``baseline``: the card ``boptest_baseline.yaml`` maps the setpoint without its overwrite
-  switch, so the building's own controller is in charge; the rule node (mode ``baseline``) only
-  clocks the lockstep emulator;
-- ``rule``: the rule node with the lead and margin tuned offline, in core, beforehand
+- ``baseline``: the emulator's card maps the rule's setpoint without its overwrite switch, so
+  the building's own controller is in charge; the rule node (mode ``baseline``) only clocks
+  the lockstep emulator;
+- ``rule``: the rule node on the card's setpoint (``boptest.setpoint_zones``: the control and
+  the zone whose band it follows) with the lead and margin tuned offline, in core, beforehand
   (:func:`mshoot_studies.boptest_rule.tune_rule` over the full period; cached in
-  ``<out>/rule_tuning.json``), on the card ``boptest_tset.yaml``;
+  ``<out>/rule_tuning.json``), or ``--lead``/``--margin``;
 - ``mshoot``: the MPC node (:mod:`mshoot_nodes.mpc_node`: the core
   :class:`~mshoot_core.controller.Controller`) with the control card and the settings
-  ``boptest_house`` (:data:`MSHOOT_CARD`, :data:`MSHOOT_SETTINGS`), on the card
-  ``boptest_modulation.yaml`` (the heat pump's modulation overwritten; the warm-up and the step
-  means of the outputs published for the state estimator); it plans from ``/forecast``: the
-  forecaster with ``model`` = the control card serves its test case source, the first forecast
-  reaching back over the warm-up (``history_steps``). The bursts within the hour travel as the
-  setpoint's schedule within the step. A ROS run equals the core run of
-  :func:`mshoot_core.boptest.supervision.supervised_plant`.
+  (:func:`mshoot_params`); the emulator's card has the overwrites the settings send
+  (``plant_controls``), the warm-up and the step means of the outputs published every control
+  step for the state estimator; the MPC plans from ``/forecast``: the forecaster with
+  ``model`` = the control card serves its test case source (the weather derived from the FMU
+  first for a folder without its own: :func:`mshoot_studies.boptest.ensure_forecast_weather`),
+  the first forecast reaching back over the warm-up (``history_steps``). A schedule within the
+  step (e.g. bursts) travels as the setpoint's schedule. A ROS run equals the core run of
+  :func:`mshoot_core.boptest.supervision.supervised_plant` (``tests/test_boptest_ros.py``).
 
 mshoot runs once per forecast scenario of ``--uncertainty`` (``LEVEL`` or ``LEVEL=SEED,...``,
 :func:`mshoot_core.forecast.uncertainty_runs`; default
@@ -39,12 +46,15 @@ which stays exact): their records are ``uncertainty`` ``none``, ``seed`` null.
 
 The baseline's and the rule's trajectories do not depend on the price scenario (they never
 read it): each is simulated once per period (the rule once per distinct tuned lead/margin) and
-its KPIs are computed for every price scenario it stands for; only ``cost_tot`` differs.
+its KPIs are computed for every price scenario it stands for; only ``cost_tot`` differs; so
+does mshoot when its control card's forecast has no price series.
 
 Writes ``<out>/kpis.json`` (records: controller, period, price, uncertainty, seed, BOPTEST's
-KPIs, starts_per_day, wall_s), ``<out>/runs/<controller>_<period>[_<price>[_<level>_s<seed>]]/``
-(the emulator's files with ``boptest_records.csv``) and, with ``--docs``, ``<docs>/boptest.md`` and
-``<docs>/boptest/*.png``.
+KPIs with ``tdis_zones``, ``starts_per_day`` with ``--starts-output``, wall_s),
+``<out>/kpis.md`` (the tables of ``mshoot boptest``; with ``--report`` also as a Markdown page),
+``<out>/runs/<controller>_<period>[_<price>[_<level>_s<seed>]]/`` (the emulator's card and
+files with ``boptest_records.csv``) and, with ``--docs``, the heat pump benchmark's page
+``<docs>/boptest.md`` with ``<docs>/boptest/*.png``.
 """
 from __future__ import annotations
 
@@ -58,17 +68,19 @@ import sys
 import time
 from typing import Any, Callable, Sequence
 
-from mshoot_core.boptest.kpi_calculator import kpi_records, zone_discomfort
+from mshoot_core.boptest.kpi_calculator import check_power_signs, kpi_records
 from mshoot_core.boptest.testcase import PRICE_SCENARIOS, TestCase
 from mshoot_core.forecast import BENCHMARK_UNCERTAINTY, scenario_fields, uncertainty_runs
 from mshoot_core.forecast_margin import allowance
-from mshoot_core.models.card import builtin_card, load_card
-from mshoot_core.settings import ForecastErrorSettings
+from mshoot_core.models.card import load_card
+from mshoot_core.settings import ForecastErrorSettings, MpcSettings
 from mshoot_core.units import json_ready
-from mshoot_studies.boptest import plan_runs, RunJob
+from mshoot_studies.boptest import (control_card_path, ensure_forecast_weather,
+                                    mpc_configuration, plan_runs, prepare_card, reads_price,
+                                    RunJob, write_tables)
+from mshoot_studies.boptest_page import write_docs
 from mshoot_studies.boptest_report import count_starts
-from mshoot_studies.boptest_rule import (LEADS_H, MARGINS_K, RuleTarget, RuleTuning,
-                                         setpoint_targets, tune_rule)
+from mshoot_studies.boptest_rule import LEADS_H, MARGINS_K, rule_targets, RuleTuning, tune_rule
 import pandas as pd
 import rclpy
 from rclpy.context import Context
@@ -86,49 +98,44 @@ from mshoot_nodes.startup import EXIT_CONFIG, startup_reason, StartupError
 logger = logging.getLogger(__name__)
 
 CONTROLLERS = ('baseline', 'rule', 'mshoot')
-PERIODS = ('peak_heat_day', 'typical_heat_day')
-#: The heat pump's modulation: its off -> on transitions are the runs' ``starts_per_day``.
-STARTS_OUTPUT = 'reaHeaPumY_y'
-#: The built-in card of the rule's runs and its setpoint control.
-RULE_CARD, RULE_CONTROL = 'tset', 'TSet'
+#: What ran the runs, on the ``--report`` page.
+WRITER = ('`python -m mshoot_nodes.boptest_run` (every run over the ROS 2 nodes, in '
+          'lockstep)')
 
 
-def rule_targets(case: TestCase) -> dict[str, RuleTarget]:
-    """Return the rule's target: the rule card's setpoint input, the first zone's band."""
-    variable = load_card(builtin_card(f'boptest_{RULE_CARD}')).controls[RULE_CONTROL].variable
-    return setpoint_targets(case, {variable: case.zones[0]})
-
-
-#: The mshoot runs: the control model's card and the MPC settings (built-in / packaged names).
-MSHOOT_CARD = MSHOOT_SETTINGS = 'boptest_house'
-#: The emulator's card of the mshoot runs (``boptest_<kind>.yaml``): the heat pump's modulation
-#: overwritten, the warm-up and the step means of the outputs published.
-MSHOOT_PLANT = 'modulation'
-
-
-def mshoot_params(warmup_days: float, step_s: float | None = None,
-                  card: str = MSHOOT_CARD, settings: str = MSHOOT_SETTINGS
-                  ) -> dict[str, dict[str, Any]]:
+def mshoot_params(warmup_days: float, card: str, settings: str,
+                  overrides: dict[str, Any] | None = None) -> dict[str, dict[str, Any]]:
     """
     Return the node parameters of an mshoot run that differ from the rule's.
+
+    Parameters
+    ----------
+    warmup_days : float
+        The warm-up [days] (the first forecast's history).
+    card : str
+        The control card (a file or a built-in card's name).
+    settings : str
+        The MPC settings (a file of flat settings or a packaged name).
+    overrides : dict, optional
+        Flat settings over those of ``settings``.
 
     Returns
     -------
     dict
         ``{'controller': {...}, 'forecaster': {...}}``: the MPC node's (the control card as
         ``model``, the settings that differ from the defaults) and the forecaster's (the
-        control card's test case source, its first forecast reaching back over the warm-up).
+        control card's test case source, its first forecast reaching back over the warm-up,
+        the horizon of the settings).
 
     """
-    from mshoot_core.settings import MpcSettings
-    path = builtin_card(card) if not pathlib.Path(card).is_file() else pathlib.Path(card)
-    chosen = MpcSettings.from_file(settings)
+    path = control_card_path(card)
+    chosen = MpcSettings.from_file(settings, **(overrides or {}))
     defaults = MpcSettings().flat()
     changed = {k: v for k, v in chosen.flat().items() if not _same(v, defaults[k])}
-    step = float(step_s if step_s is not None else chosen.problem.step_s)
+    step = float(chosen.problem.step_s)
     history = int(round(warmup_days * 86400.0 / step))
     return {'controller': {'model': str(path), 'use_sim_time': True, **changed},
-            'forecaster': {'model': str(path), 'history_steps': history,
+            'forecaster': {'model': str(path), 'history_steps': history, 'step_s': step,
                            'horizon_steps': int(chosen.problem.horizon_steps)}}
 
 
@@ -137,30 +144,91 @@ def _same(a: Any, b: Any) -> bool:
     return a == b or (isinstance(a, float) and isinstance(b, float) and a != a and b != b)
 
 
-def write_card(kind: str, folder: pathlib.Path, case: TestCase,
-               warmup_days: float) -> pathlib.Path:
+def sent_controls(card: str, settings: MpcSettings) -> tuple[tuple[str, ...], float]:
     """
-    Write a copy of a built-in BOPTEST card for this test case and warm-up; return its path.
+    Return the plant's controls the MPC of a control card and settings sends, and its step.
+
+    The controller's :attr:`~mshoot_core.controller.Controller.plant_control_names` (its
+    model's controls as the settings' ``plant_controls`` name them) and control step [s].
+    """
+    from mshoot_core.controller import controller_for
+    from mshoot_core.models.card import build_model
+    controller = controller_for(build_model(load_card(control_card_path(card))), settings)
+    return controller.plant_control_names, float(controller.settings.problem.step_s)
+
+
+def emulator_card(card: pathlib.Path, controls: Sequence[str], path: pathlib.Path, *,
+                  warmup_days: float, switches: bool = True,
+                  history_step_s: float = 0.0) -> pathlib.Path:
+    """
+    Write the emulator's card of a run: the building's card with the controls the run sends.
 
     Parameters
     ----------
-    kind : {'baseline', 'tset', 'modulation', 'setpoint'}
-        The built-in card ``boptest_<kind>.yaml``.
-    folder : pathlib.Path
+    card : pathlib.Path
+        The building's card (kind ``boptest``, its ``boptest.test_case`` the test case folder:
+        :func:`mshoot_studies.boptest.prepare_card`).
+    controls : sequence of str
+        The card's controls the run's controller sends (the emulator expects exactly these).
+    path : pathlib.Path
         Where the card is written.
-    case : TestCase
-        The test case (its folder goes into the card).
     warmup_days : float
         The warm-up [days].
+    switches : bool
+        Keep the controls' overwrite switches (false: the building's own controller stays in
+        charge, whatever is sent: the baseline).
+    history_step_s : float
+        Step of the warm-up's history and of the published step means of the outputs [s] (0:
+        none; an MPC observes every control step).
+
+    Raises
+    ------
+    ValueError
+        For a control the card does not have.
 
     """
-    document = yaml.safe_load(builtin_card(f'boptest_{kind}').read_text())
-    document['boptest'] = {**document.get('boptest', {}), 'test_case': str(case.directory),
-                           'warmup_days': float(warmup_days)}
-    path = folder / f'boptest_{kind}_warmup{warmup_days:g}d.yaml'
-    folder.mkdir(parents=True, exist_ok=True)
+    document = yaml.safe_load(pathlib.Path(card).read_text())
+    known = document.get('controls') or {}
+    unknown = [name for name in controls if name not in known]
+    if unknown:
+        raise ValueError(f'{card}: no control {unknown} (the card has {sorted(known)})')
+    chosen = {name: dict(known[name]) for name in controls}
+    if not switches:
+        for spec in chosen.values():
+            spec.pop('activate', None)
+    section = dict(document['boptest'])
+    section['warmup_days'] = float(warmup_days)
+    section['setpoint_zones'] = {k: v for k, v in (section.get('setpoint_zones') or {}).items()
+                                 if k in chosen}
+    if history_step_s:
+        section['history_step_s'] = float(history_step_s)
+    document.update(controls=chosen, boptest=section)
+    path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(yaml.safe_dump(document, sort_keys=False))
     return path
+
+
+def rule_setpoint(card: Any, controller: str) -> tuple[str, str]:
+    """
+    Return the setpoint control the rule node sends and the zone of its band.
+
+    The card's ``boptest.setpoint_zones`` (for the baseline, whose rule node only clocks the
+    emulator: its first entry, else the card's first control and the first zone).
+
+    Raises
+    ------
+    ValueError
+        For the rule on a card without one setpoint zone (the rule node sends one setpoint).
+
+    """
+    zones = dict((card.boptest or {}).get('setpoint_zones') or {})
+    if controller == 'rule' and len(zones) != 1:
+        raise ValueError(f'model card {card.path}: the rule over ROS sends one setpoint: '
+                         f'expected one boptest.setpoint_zones entry, got {zones}')
+    if zones:
+        control, zone = next(iter(zones.items()))
+        return str(control), str(zone)
+    return next(iter(card.controls)), ''
 
 
 @dataclasses.dataclass
@@ -182,7 +250,8 @@ def _overrides(values: dict[str, Any]) -> list[Parameter]:
     return [Parameter(name, value=value) for name, value in values.items() if value is not None]
 
 
-def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
+def run_ros(context: Context, controller: str, period: str, case: TestCase,
+            card: pathlib.Path, *, control: tuple[str, str] | None = None,
             price: str = 'constant', warmup_days: float = 7.0, length_days: float = 14.0,
             lead_h: float = 0.0, margin_k: float = 0.0, out: pathlib.Path | None = None,
             cards: pathlib.Path | None = None, timeout_s: float = 3600.0,
@@ -203,6 +272,11 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
         The test period.
     case : TestCase
         The test case.
+    card : pathlib.Path
+        The building's card (kind ``boptest``; its test case is ``case``).
+    control : (str, str), optional
+        For ``controller='mshoot'``: the control card and the MPC settings (files or packaged
+        names; :func:`mshoot_studies.boptest.mpc_configuration`).
     price : str
         The price scenario the forecaster serves.
     warmup_days, length_days : float
@@ -212,13 +286,13 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
     out : pathlib.Path, optional
         The emulator's output folder.
     cards : pathlib.Path, optional
-        Folder for the cards written (default ``out/cards`` or a temporary one).
+        Folder for the cards written (default ``out`` or ``out/boptest/cards``).
     timeout_s : float
         Wall-clock guard [s].
     progress : callable, optional
         Called with a line every simulated day.
     mpc_settings : dict, optional
-        For ``controller='mshoot'``: flat MPC settings over :data:`MSHOOT_SETTINGS`'s.
+        For ``controller='mshoot'``: flat MPC settings over those of ``control``.
     on_step : callable, optional
         ``on_step(steps_done, nodes)`` after each step the emulator ran (and once before the
         first), nodes by name ('emulator', 'forecaster', 'controller'): e.g. to inject faults.
@@ -229,6 +303,8 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
 
     Raises
     ------
+    ValueError
+        For a bad controller or length, or mshoot without ``control``.
     StartupError
         A node could not start.
     TimeoutError
@@ -241,31 +317,40 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
     if abs(hours - length_days * 24) > 1e-9 or hours < 1:
         raise ValueError(f'length_days must be a positive whole number of hours, got '
                          f'{length_days!r}')
-    cards = cards or ((out / 'cards') if out is not None else pathlib.Path('out/boptest/cards'))
+    if controller == 'mshoot' and control is None:
+        raise ValueError('an mshoot run needs control: (control card, MPC settings)')
+    cards = cards or out or pathlib.Path('out/boptest/cards')
+    building = load_card(prepare_card(pathlib.Path(card), case.directory, cards))
     common = {'scenario': f'boptest:{period}:{price}', 'data': str(case.directory),
               'hours': hours}
+    setpoint, zone = rule_setpoint(building, controller)
     params: dict[str, dict[str, Any]] = {
         'emulator': {**common, 'output_dir': str(out) if out is not None else '',
-                     'model': str(write_card({'baseline': 'baseline', 'rule': RULE_CARD,
-                                              'mshoot': MSHOOT_PLANT}[controller],
-                                             cards, case, warmup_days)),
                      'ready_endpoints': [f'{contract.ZONE_STATE} subscribers>=1',
                                          f'{contract.SETPOINT} publishers>=1',
                                          f'{contract.FORECAST} publishers>=1'],
                      'initial_temperature_c': 21.0, 'lockstep_timeout_s': 600.0},
         'forecaster': {**common, 'use_sim_time': True, 'horizon_steps': 24},
         'controller': {**common, 'mode': 'baseline' if controller == 'baseline' else 'rule',
-                       'lead_h': float(lead_h), 'margin_k': float(margin_k)},
+                       'lead_h': float(lead_h), 'margin_k': float(margin_k),
+                       'control': setpoint, 'band_zone': zone},
     }
     controller_cls: type = RuleNode
+    sent, history_step = [setpoint], 0.0
     if controller == 'mshoot':
-        mshoot = mshoot_params(warmup_days)
-        params['controller'] = {**mshoot['controller'], **allowance(errors),
-                                **(mpc_settings or {})}
+        told = {**allowance(errors), **(mpc_settings or {})}
+        mshoot = mshoot_params(warmup_days, *control, told)
+        params['controller'] = {**mshoot['controller']}
         params['forecaster'].update(mshoot['forecaster'])
+        params['emulator']['step_s'] = mshoot['forecaster']['step_s']
         if errors is not None:
             params['forecaster'].update(dataclasses.asdict(errors))
         controller_cls = MpcNode
+        sent, history_step = sent_controls(control[0], MpcSettings.from_file(control[1], **told))
+    params['emulator']['model'] = str(emulator_card(
+        building.path, sent, cards / f'emulator_{controller}_warmup{warmup_days:g}d.yaml',
+        warmup_days=warmup_days, switches=controller != 'baseline',
+        history_step_s=history_step))
     # The one writer of /mpc/setpoint the emulator expects (another one is an intruder).
     params['emulator']['setpoint_writer'] = 'mpc' if controller == 'mshoot' else 'rule'
     nodes: list[Any] = []
@@ -317,12 +402,15 @@ def run_ros(context: Context, controller: str, period: str, case: TestCase, *,
 
 
 # -- the benchmark ----------------------------------------------------------------------------
-def load_or_tune(case: TestCase, periods: Sequence[str], path: pathlib.Path, *,
+def load_or_tune(case: TestCase, targets: dict, periods: Sequence[str],
+                 path: pathlib.Path, *,
                  warmup_days: float, length_days: float, leads_h: Sequence[float],
                  margins_k: Sequence[float], retune: bool,
                  progress: Callable[[str], None], workers: int = 1) -> dict[str, dict]:
     """
     Return the rule's tuning per period: cached in ``path`` when made with the same grid.
+
+    ``targets``: the rule's (:func:`mshoot_studies.boptest_rule.rule_targets` of the card).
 
     Returns
     -------
@@ -341,7 +429,7 @@ def load_or_tune(case: TestCase, periods: Sequence[str], path: pathlib.Path, *,
             out[period] = entry
             continue
         began = time.perf_counter()
-        tuning: RuleTuning = tune_rule(case, rule_targets(case), period, leads_h, margins_k,
+        tuning: RuleTuning = tune_rule(case, targets, period, leads_h, margins_k,
                                        warmup_days=warmup_days, length_days=length_days,
                                        progress=progress, workers=workers)
         out[period] = {'settings': key, 'weight': tuning.weight,
@@ -359,9 +447,19 @@ def load_or_tune(case: TestCase, periods: Sequence[str], path: pathlib.Path, *,
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='boptest', description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument('--test-case', default='', help='the BOPTEST test case folder '
-                        '(default $MSHOOT_BOPTEST_DIR or ../shared/boptest/...)')
-    parser.add_argument('--periods', nargs='+', default=list(PERIODS))
+    parser.add_argument('--testcase', '--test-case', dest='test_case', default='',
+                        help='the BOPTEST test case folder (default $MSHOOT_BOPTEST_DIR or '
+                             '../shared/boptest/...)')
+    parser.add_argument('--card', required=True, type=pathlib.Path,
+                        help='the model card of the building (kind boptest)')
+    parser.add_argument('--control-card', default=None,
+                        help='mshoot: the control model card (a file or a built-in card name; '
+                             "default the card's boptest.control.card)")
+    parser.add_argument('--mpc-settings', default=None,
+                        help='mshoot: the MPC settings (a YAML file of flat settings or a '
+                             "packaged name; default the card's boptest.control.settings)")
+    parser.add_argument('--periods', nargs='+', default=None,
+                        help='test periods (keys of days.json; default all of them)')
     parser.add_argument('--prices', nargs='+', default=list(PRICE_SCENARIOS),
                         choices=list(PRICE_SCENARIOS))
     parser.add_argument('--controllers', nargs='+', default=list(CONTROLLERS),
@@ -372,8 +470,11 @@ def build_parser() -> argparse.ArgumentParser:
                              'outdoor temperature and the irradiance at that level, one run per '
                              'seed; LEVEL alone: seed 1; default: '
                              + ' '.join(BENCHMARK_UNCERTAINTY) + ')')
-    parser.add_argument('--warmup-days', type=float, default=7.0)
+    parser.add_argument('--warmup-days', type=float, default=None,
+                        help="warm-up [days] (default the card's boptest.warmup_days)")
     parser.add_argument('--days', type=float, default=14.0, help='test period length [days]')
+    parser.add_argument('--lead', type=float, default=None, help='rule: a fixed lead [h]')
+    parser.add_argument('--margin', type=float, default=None, help='rule: a fixed margin [K]')
     parser.add_argument('--leads', type=float, nargs='+', default=list(LEADS_H),
                         help='rule tuning grid: leads [h]')
     parser.add_argument('--margins', type=float, nargs='+', default=list(MARGINS_K),
@@ -383,9 +484,15 @@ def build_parser() -> argparse.ArgumentParser:
                         metavar='N', help="runs and the rule tuning's grid points at once, "
                         'one process and FMU instance each (default 2; 1: the runs in this '
                         'process)')
+    parser.add_argument('--starts-output', default='',
+                        help='an FMU output whose off -> on transitions are counted '
+                             '(starts_per_day, e.g. a heat pump modulation)')
     parser.add_argument('--out', type=pathlib.Path, default=pathlib.Path('out/boptest'))
+    parser.add_argument('--report', type=pathlib.Path, default=None,
+                        help="also write the KPI tables as a Markdown page (mshoot boptest's)")
     parser.add_argument('--docs', type=pathlib.Path, default=None,
-                        help='write <docs>/boptest.md and <docs>/boptest/*.png')
+                        help="write the heat pump benchmark's page <docs>/boptest.md and "
+                             '<docs>/boptest/*.png')
     parser.add_argument('--timeout', type=float, default=3600.0,
                         help='wall-clock limit of one ROS run [s]')
     parser.add_argument('--docs-only', action='store_true',
@@ -393,24 +500,70 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def configure(args: argparse.Namespace) -> tuple[TestCase, Any, tuple[str, str] | None]:
+    """
+    Check the configuration before any run: the test case, its card, mshoot's control.
+
+    Sets ``args.warmup_days`` (the card's by default) and ``args.periods`` (all by default).
+
+    Returns
+    -------
+    (TestCase, ModelCard, (control card, settings) or None)
+        The card with ``boptest.test_case`` the test case (written into ``<out>/cards``).
+
+    Raises
+    ------
+    ValueError, FileNotFoundError
+        For a bad folder, card, period, scenario or control.
+
+    """
+    case = TestCase.load(args.test_case or None)
+    card = load_card(prepare_card(args.card, case.directory, args.out / 'cards'))
+    if args.warmup_days is None:
+        args.warmup_days = float(card.boptest['warmup_days'])
+    args.periods = list(case.days) if args.periods is None else list(args.periods)
+    for period in args.periods:
+        case.test_period(period, args.warmup_days, args.days)  # bad names fail here
+    check_power_signs(case, card.boptest['power_signs'])
+    control = None
+    if 'mshoot' in args.controllers:
+        control = mpc_configuration(args, case, card, card.path)
+    for controller in ('rule', 'baseline'):
+        if controller in args.controllers:
+            rule_setpoint(card, controller)
+    return case, card, control
+
+
 def run_benchmark(args: argparse.Namespace, context: Context,
                   say: Callable[[str], None]) -> tuple[list[dict], list[dict]]:
     """Run every requested run; return the KPI records and the run descriptions."""
-    case = TestCase.load(args.test_case or None)
+    case, card, control = configure(args)
     scenarios = uncertainty_runs(args.uncertainty)  # bad levels and seeds fail here
-    for period in args.periods:
-        case.test_period(period, args.warmup_days, args.days)  # bad names fail here
-    tunings = {}
-    if 'rule' in args.controllers:
-        tunings = load_or_tune(case, args.periods, args.out / 'rule_tuning.json',
-                               warmup_days=args.warmup_days, length_days=args.days,
-                               leads_h=args.leads, margins_k=args.margins, retune=args.retune,
-                               progress=say, workers=args.workers)
-    jobs = plan_runs(args.periods, args.controllers, args.prices, scenarios,
-                     lambda period, price: (tunings[period]['best'][price]['lead_h'],
-                                            tunings[period]['best'][price]['margin_k']))
-    settings = {'test_case': str(case.directory), 'warmup_days': args.warmup_days,
-                'length_days': args.days, 'out': str(args.out), 'timeout_s': args.timeout}
+    tunings: dict[str, Any] = {}
+    fixed = args.lead is not None or args.margin is not None
+    if 'rule' in args.controllers and not fixed:
+        tunings = load_or_tune(case, rule_targets(card, case), args.periods,
+                               args.out / 'rule_tuning.json', warmup_days=args.warmup_days,
+                               length_days=args.days, leads_h=args.leads,
+                               margins_k=args.margins, retune=args.retune, progress=say,
+                               workers=args.workers)
+
+    def rule_parameters(period: str, price: str) -> tuple[float, float]:
+        if fixed:
+            return args.lead or 0.0, args.margin or 0.0
+        best = tunings[period]['best'][price]
+        return best['lead_h'], best['margin_k']
+
+    if control is not None:
+        ensure_forecast_weather(case, args.periods, args.warmup_days, args.days, control[1],
+                                say)
+    jobs = plan_runs(args.periods, args.controllers, args.prices, scenarios, rule_parameters,
+                     mshoot_per_price=control is not None and reads_price(control[0]))
+    settings = {'test_case': str(case.directory), 'card': str(card.path), 'control': control,
+                'warmup_days': args.warmup_days, 'length_days': args.days,
+                'out': str(args.out), 'timeout_s': args.timeout,
+                'starts_output': args.starts_output,
+                'power_signs': card.boptest['power_signs']}
     results: list[tuple[list[dict], dict]] = []
     if args.workers == 1 or len(jobs) == 1:
         results = [run_job(job, settings, context, say) for job in jobs]
@@ -424,6 +577,8 @@ def run_benchmark(args: argparse.Namespace, context: Context,
                 say(_done_line(run, new))
             results = [future.result() for future in futures]  # the jobs' order
     records = [record for new, _ in results for record in new]
+    print(write_tables(args, case, args.warmup_days, [run['name'] for _, run in results],
+                       [new for new, _ in results], writer=WRITER), end='')
     return records, [run for _, run in results]
 
 
@@ -462,13 +617,14 @@ def run_job(job: RunJob, settings: dict[str, Any], context: Context | None = Non
     case = TestCase.load(settings['test_case'])
     out = pathlib.Path(settings['out'])
     name, controller = job.name, job.controller
+    control = settings['control']
     try:
         say(f'{name}: starting ({", ".join(job.prices)})')
-        run = run_ros(context, controller, job.period, case, price=job.prices[0],
+        run = run_ros(context, controller, job.period, case, pathlib.Path(settings['card']),
+                      control=tuple(control) if control else None, price=job.prices[0],
                       warmup_days=settings['warmup_days'], length_days=settings['length_days'],
                       lead_h=job.lead_h, margin_k=job.margin_k, out=out / 'runs' / name,
-                      cards=out / 'cards', timeout_s=settings['timeout_s'], progress=say,
-                      errors=job.errors)
+                      timeout_s=settings['timeout_s'], progress=say, errors=job.errors)
     finally:
         if own:
             context.try_shutdown()
@@ -478,12 +634,15 @@ def run_job(job: RunJob, settings: dict[str, Any], context: Context | None = Non
     # the baseline has no controller (its node only clocks the lockstep)
     waits = run.setpoint_waits_s if controller != 'baseline' else None
     new = kpi_records(run.records, case, run.start_s, run.end_s, list(job.prices), waits,
-                      controller=controller, period=job.period)
-    starts = count_starts(run.records, STARTS_OUTPUT, run.start_s, run.end_s)[1]
+                      power_signs=settings.get('power_signs'), controller=controller,
+                      period=job.period)
+    starts = settings['starts_output']
     for record in new:
         record.update(scenario_fields(job.errors))
         record['wall_s'] = run.wall_s
-        record['starts_per_day'] = starts
+        if starts:
+            record['starts_per_day'] = count_starts(run.records, starts, run.start_s,
+                                                    run.end_s)[1]
         if controller == 'rule':
             record.update(lead_h=job.lead_h, margin_k=job.margin_k)
     described = {'name': name, 'controller': controller, 'period': job.period,
@@ -493,250 +652,6 @@ def run_job(job: RunJob, settings: dict[str, Any], context: Context | None = Non
     if not own:
         say(_done_line(described, new))
     return new, described
-
-
-#: BOPTEST's published baseline of this test case on the peak heat period (issue 15).
-PUBLISHED_BASELINE = {'peak_heat_day': {'tdis_tot': 8.4, 'ener_tot': 3.48}}
-
-
-def _tuning_lines(tunings: dict, periods: Sequence[str]) -> list[str]:
-    """Return the rule's tuning grids (tdis [K h] / cost [EUR/m2], constant price) as tables."""
-    lines = ["## The rule's tuning grids", '',
-             'Each cell: `tdis_tot` [K h] / `cost_tot` [EUR/m2] at the constant price, one full '
-             'run of the period in core; **bold** the chosen point (constant price).', '']
-    for period in periods:
-        entry = tunings.get(period)
-        if entry is None:
-            continue
-        grid = pd.DataFrame(entry['grid'])
-        grid = grid[grid['price'] == 'constant']
-        best = entry['best'].get('constant', {})
-        margins = sorted(grid['margin_k'].unique())
-        lines += [f'{period} (tuning: {entry["wall_s"] / 60:.1f} min wall):', '',
-                  '| lead [h] | ' + ' | '.join(f'margin {m:g} K' for m in margins) + ' |',
-                  '|---|' + '---|' * len(margins)]
-        for lead, rows in grid.groupby('lead_h'):
-            cells = []
-            for margin in margins:
-                row = rows[rows['margin_k'] == margin].iloc[0]
-                text = f'{row["tdis_tot"]:.2f} / {row["cost_tot"]:.3f}'
-                chosen = (lead, margin) == (best.get('lead_h'), best.get('margin_k'))
-                cells.append(f'**{text}**' if chosen else text)
-            lines.append(f'| {lead:g} | ' + ' | '.join(cells) + ' |')
-        lines.append('')
-    return lines
-
-
-def discomfort_split(table: pd.DataFrame, case: TestCase, start_s: float,
-                     end_s: float) -> tuple[float, float]:
-    """Return the discomfort below and above the bands over [start, end] [K h], zone mean."""
-    import numpy as np
-    window = table[(table['time'] >= start_s) & (table['time'] <= end_s)]
-    t = window['time'].to_numpy()
-    zones = zone_discomfort(window, case).values()
-    below = np.mean([b for b, _ in zones], axis=0)
-    above = np.mean([a for _, a in zones], axis=0)
-    area = (lambda y: float(np.sum((y[1:] + y[:-1]) * np.diff(t)) / 2.0 / 3600.0))
-    return area(below), area(above)
-
-
-def _closing_lines(records: list[dict], periods: Sequence[str], prices: Sequence[str],
-                   splits: dict[tuple[str, str], tuple[float, float]]) -> list[str]:
-    """Return the closing note: mshoot against the baseline and the tuned rule, run by run."""
-    by = {(r['controller'], r['period'], r['price']): r for r in records}
-    rows, wins, total = [], 0, 0
-    for period in periods:
-        for price in prices:
-            m = by.get(('mshoot', period, price))
-            if m is None:
-                continue
-            others = [by[(c, period, price)] for c in ('baseline', 'rule')
-                      if (c, period, price) in by]
-            better = all(m['tdis_tot'] < o['tdis_tot'] and m['cost_tot'] < o['cost_tot']
-                         for o in others)
-            wins += better
-            total += 1
-            rows.append(f'| {period} | {price} | {m["tdis_tot"]:.3f} | {m["cost_tot"]:.4f} | '
-                        f'{m["ener_tot"]:.3f} | {m.get("starts_per_day", float("nan")):.1f} | '
-                        + ' | '.join(f'{o["tdis_tot"]:.2f} / {o["cost_tot"]:.4f}'
-                                     for o in others)
-                        + f' | {"yes" if better else "**no**"} |')
-    if not rows:
-        return []
-    return ['## Closing note', '',
-            f'mshoot has lower thermal discomfort and lower operating cost than both the '
-            f'baseline and the tuned rule in {wins} of its {total} runs:', '',
-            '| period | price | mshoot tdis [K h] | cost [EUR/m2] | ener [kWh/m2] | '
-            'starts/day | baseline tdis / cost | rule tdis / cost | better on both |',
-            '|---|---|---|---|---|---|---|---|---|', *rows, '',
-            'Against the published results on this test case (issue 15): on the peak heat '
-            'period RL controllers reach 0.26-0.75 K h at 2.9-3.1 kWh/m2 and an MPC about '
-            '0.02 K h at 2.7 kWh/m2; a straightforward economic MPC with a 3-state RC model and '
-            'direct heat pump control about 0.1 K h at 0.61 EUR/m2 (constant price), and about '
-            '3.6 K h at 0.28 EUR/m2 on the typical heat period. mshoot plans on perfect '
-            "forecasts of the test case's files (from /forecast) and a 3-state RC model "
-            'identified outside the test periods (docs/identify.md), and runs the heat '
-            'pump in full-load bursts (its COP and the fixed fan power favour them; the '
-            'emulator charges nothing for starts: see starts/day; a minimum run time is '
-            'the setting `min_run_s`). Where its discomfort '
-            'lies (below / above the '
-            'band, K h): '
-            + '; '.join(f'{period} {price}: {lo:.2f} / {hi:.2f}'
-                        for (period, price), (lo, hi) in splits.items())
-            + '. Above the band is overheating from the sun and internal gains, which a heat '
-            'pump that cannot cool does not remove; it is where mshoot stays above the '
-            'published 3.6 K h on the typical heat period.', '']
-
-
-def _uncertainty_lines(args: argparse.Namespace, case: TestCase, records: list[dict],
-                       figures: pathlib.Path) -> list[str]:
-    """Return the section of mshoot under forecast uncertainty: its table and figure."""
-    from mshoot_core.forecast import SOLAR_ERRORS, TEMPERATURE_ERRORS
-    from mshoot_studies.boptest_report import plot_uncertainty, uncertainty_table
-    if not any(r['controller'] == 'mshoot' and r.get('seed') is not None for r in records):
-        return []
-    period = 'typical_heat_day' if 'typical_heat_day' in args.periods else args.periods[0]
-    start = case.test_period(period, args.warmup_days, args.days)[1]
-    figure = plot_uncertainty(case, records, start, figures / 'uncertainty.png')
-    levels = ', '.join(f'`{lv}` (temperature: AR(1) F {TEMPERATURE_ERRORS[lv].F:g}, '
-                       f'innovation std {TEMPERATURE_ERRORS[lv].K:g} K, first std '
-                       f'{TEMPERATURE_ERRORS[lv].K0:g} K; solar: phi {SOLAR_ERRORS[lv].phi:g}, '
-                       f'Laplace scale {SOLAR_ERRORS[lv].bg:g} W/m2)' for lv in TEMPERATURE_ERRORS)
-    return ['## Under forecast uncertainty', '',
-            "mshoot's forecasts carry BOPTEST's forecast errors (v0.8.0 scenarios "
-            '`temperature_uncertainty` = `solar_uncertainty` = the level, `seed`; '
-            "`mshoot_core.forecast`, reproducing BOPTEST's reference forecasts): AR(1) errors "
-            'on the outdoor temperature and the irradiance, redrawn every hour for the '
-            f'forecast of the next 37 h; levels {levels}. The forecaster node serves them on '
-            '`/forecast`; the MPC re-plans every hour from the newest forecast and its state '
-            'estimate. It is told the level (setting `forecast_uncertainty`, '
-            '`mshoot_core.forecast_margin.allowance`) and narrows the comfort band on each '
-            'side, after `band_margin_k`, by `forecast_margin_std` standard deviations of the '
-            'zone temperature the errors cause along the plan (the AR(1) errors and the '
-            "states' deviation propagated together through the model's derivatives: "
-            '`mshoot_core.forecast_margin`): more sun than forecast on a floor heated ahead '
-            'overheats the zone, less leaves it cold. The baseline and the rule read no weather '
-            "forecast (the rule's lead is a forecast of the band, exact): their KPIs hold "
-            'at every level.', '',
-            *uncertainty_table(records),
-            f'![Forecast bands and KPIs per uncertainty level](boptest/{figure.name})', '',
-            'Top: the forecast a request at the start of the test period of '
-            f"`{period}` gets, the 5-95 % band of 30 seeds per level against the test case's "
-            "data. Bottom: mshoot's discomfort and its cost relative to its perfect-forecast "
-            'run per level, mean over seeds, one line per run.', '']
-
-
-def write_docs(args: argparse.Namespace, records: list[dict], runs: list[dict],
-               wall_s: float | None) -> pathlib.Path:
-    """Write ``<docs>/boptest.md`` and its figures from the benchmark's records and runs."""
-    from mshoot_studies.boptest_report import kpi_table, plot_kpi_bars, plot_run
-    case = TestCase.load(args.test_case or None)
-    every, records = records, [r for r in records if r.get('seed') is None]  # perfect: below
-    runs = [r for r in runs if r.get('seed') is None]
-    docs = args.docs
-    figures = docs / 'boptest'
-    figures.mkdir(parents=True, exist_ok=True)
-    shortened = args.warmup_days != 7.0 or args.days != 14.0
-    lines = ['# BOPTEST `bestest_hydronic_heat_pump`: baseline, rule and mshoot', '',
-             'Generated by `make boptest` (`python -m mshoot_nodes.boptest_run --out out/boptest '
-             '--docs docs`); the records are in `out/boptest/kpis.json`. The test case, its '
-             'test periods and its KPI definitions: '
-             '`../shared/boptest/bestest_hydronic_heat_pump/README.md`.', '',
-             f'Test periods: {", ".join(args.periods)}, {args.warmup_days:g} days of warm-up '
-             f"under the building's own control, then {args.days:g} days"
-             + (" (SHORTENED: not BOPTEST's periods)" if shortened else '') + '; price '
-             f'scenarios: {", ".join(args.prices)}. Every run goes over the ROS 2 nodes '
-             '(emulator with one persistent FMU instance and a `boptest` model card, '
-             'forecaster, controller node) in lockstep, in one process (runs on '
-             f'{args.workers} worker processes at once); KPIs from the '
-             "emulator's outputs sampled every 60 s (`mshoot_core.boptest.kpi_calculator`).", '',
-             "Checked by the tests: the KPIs computed by mshoot equal the README's definitions "
-             'written out independently (raw CSVs, pandas, explicit sums) on the same stored '
-             'outputs of a real baseline run, to 1e-9 '
-             '(`tests/test_boptest_kpis.py::test_short_baseline_kpis_by_hand`); a shortened '
-             'ROS run (1 day of warm-up, 1 or 2 days of test) of each controller equals the '
-             'core run of the same controller to 1e-9, for mshoot with the very same heat pump '
-             'overwrites minute by minute as the core run of `mshoot boptest --controllers '
-             'mshoot --control-card boptest_house --mpc-settings boptest_house` '
-             '(`tests/test_boptest_ros.py`).', '',
-             (f'Run time of this benchmark: {wall_s / 60:.1f} min wall on this machine '
-              "(2 cores shared with other work), the rule's tuning (grid points on "
-              f'{args.workers} worker processes) included when it was not cached.'
-              if wall_s is not None else
-              "Run time: see the runs' wall times below."), '',
-             '## Controllers', '',
-             "- `baseline`: the building's own controller (no overwrite: the card maps the "
-             'setpoint without its `oveTSet_activate` switch).',
-             '- `rule`: the zone setpoint `oveTSet_u` every hour = the highest lower bound of '
-             'the comfort band over the coming hour and the `lead` after it, plus a `margin` '
-             '(`mshoot_studies.boptest_rule`). Lead and margin tuned per period and price on a '
-             'grid (leads ' + ', '.join(f'{v:g}' for v in args.leads) + ' h; margins '
-             + ', '.join(f'{v:g}' for v in args.margins) + ' K), each a full run of the period '
-             'in core, for the smallest `cost_tot + 0.1 EUR/m2 per K h x tdis_tot`.',
-             '- `mshoot`: the supervisory MPC (`mshoot_core.controller.Controller`, settings '
-             '`boptest_house`) in the MPC node (`mshoot_nodes/mpc_node.py`): every hour '
-             "it plans the heat pump's duty `d` over 36 h on the control model of the card "
-             '`boptest_house` (a thermal network: zone, floor, envelope; its parameters '
-             'identified outside the test periods), from the state estimated by '
-             '`mshoot_core.estimation.StateEstimator` (an extended Kalman filter on the zone '
-             "temperature, through the warm-up too), the comfort band's lower edge raised by "
-             "0.5 K (setting `band_margin_k`), and sends the hour's full-load bursts (settings "
-             "`actuation` 'burst', `actuation_send` 'value', no minimum run time `min_run_s`, "
-             "60 s resolution: `mshoot_core.actuation`) as the setpoint's schedule within the "
-             "step, which the emulator applies to `oveHeaPumY_u` (the model's duty `d` sent as "
-             "the plant's `Y`: setting `plant_controls`). It plans from `/forecast`: the "
-             "forecaster serves the control card's test case source (interval means of the "
-             "test case's files, perfect), its first forecast reaching back over the warm-up "
-             '(`history_steps`).', '',
-             'The baseline and the rule never read the price: each is simulated once per '
-             'period (the rule once per distinct tuned lead/margin) and its KPIs computed for '
-             'each price scenario it stands for; only `cost_tot` differs.', '']
-    extra = (('lead_h', 'lead [h]', '{:g}'), ('margin_k', 'margin [K]', '{:g}'),
-             ('wall_s', 'run wall [s]', '{:.0f}'))
-    lines += ['## KPIs', '', kpi_table(records, extra)]
-    baseline = {r['period']: r for r in records
-                if r['controller'] == 'baseline' and r['price'] == args.prices[0]}
-    rows = [(p, baseline[p], PUBLISHED_BASELINE.get(p)) for p in args.periods if p in baseline]
-    if rows and not shortened:
-        lines += ["Baseline against BOPTEST's published figures:", '',
-                  '| period | tdis [K h] mshoot | published | ener [kWh/m2] mshoot | published |',
-                  '|---|---|---|---|---|']
-        for period, record, published in rows:
-            pub = published or {}
-            lines.append(f'| {period} | {record["tdis_tot"]:.2f} | '
-                         f'{pub.get("tdis_tot", "-")} | {record["ener_tot"]:.3f} | '
-                         f'{pub.get("ener_tot", "-")} |')
-        lines.append('')
-    splits = {}
-    for run in runs:
-        path = args.out / 'runs' / run['name'] / 'boptest_records.csv'
-        if run['controller'] == 'mshoot' and path.is_file():
-            splits[(run['period'], run['prices'][0])] = discomfort_split(
-                pd.read_csv(path), case, run['start_s'], run['end_s'])
-    lines += _closing_lines(records, args.periods, args.prices, splits)
-    lines += _uncertainty_lines(args, case, every, figures)
-    tuning_file = args.out / 'rule_tuning.json'
-    if tuning_file.is_file() and any(r['controller'] == 'rule' for r in records):
-        lines += _tuning_lines(json.loads(tuning_file.read_text()), args.periods)
-    bars = plot_kpi_bars(records, figures / 'kpi_bars.png')
-    lines += ['## Figures', '', f'![KPI bars](boptest/{bars.name})', '']
-    for run in runs:
-        path = args.out / 'runs' / run['name'] / 'boptest_records.csv'
-        if not path.is_file():
-            continue
-        table = pd.read_csv(path)
-        modulated = ('oveHeaPumY_u' in table and bool(table['oveHeaPumY_u'].notna().any()))
-        label = ('local setpoint (not in charge: heat pump modulation overwritten)'
-                 if modulated else 'setpoint followed')
-        figure = plot_run(table, case, run['start_s'], run['end_s'],
-                          f'{run["name"]} (prices: {", ".join(run["prices"])})',
-                          figures / f'{run["name"]}.png',
-                          prices=run['prices'] if run['controller'] == 'mshoot'
-                          else tuple(args.prices), setpoints={label: 'reaTSet_y'})
-        lines += [f'### {run["name"]}', '', f'![{run["name"]}](boptest/{figure.name})', '']
-    path = docs / 'boptest.md'
-    path.write_text('\n'.join(lines))
-    return path
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -753,6 +668,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.docs is None:
             print('boptest: error: --docs-only needs --docs', file=sys.stderr)
             return 2
+        if args.warmup_days is None:
+            args.warmup_days = float(yaml.safe_load(args.card.read_text())['boptest']
+                                     .get('warmup_days', 7.0))
         records = json.loads((args.out / 'kpis.json').read_text())
         runs = json.loads((args.out / 'runs.json').read_text())
         timing = args.out / 'run_time.json'

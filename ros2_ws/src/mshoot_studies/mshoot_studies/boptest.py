@@ -321,8 +321,8 @@ def _run_one(directory: str, card_path: str, controller: str, period: str, lead:
     return records
 
 
-def _mpc_configuration(args: argparse.Namespace, case: Any, card: Any,
-                       card_path: pathlib.Path) -> tuple[str, str]:
+def mpc_configuration(args: argparse.Namespace, case: Any, card: Any,
+                      card_path: pathlib.Path) -> tuple[str, str]:
     """
     Return (control card, settings) of ``mshoot``, checked before any run.
 
@@ -352,7 +352,7 @@ def _mpc_configuration(args: argparse.Namespace, case: Any, card: Any,
 
 
 def report_page(case: Any, args: argparse.Namespace, warmup: float, tables: str,
-                figures: Sequence[str] = ()) -> str:
+                writer: str = '`mshoot boptest`', figures: Sequence[str] = ()) -> str:
     """
     Return the Markdown page of ``--report``: what ran, the KPI tables, the zone figures.
 
@@ -366,6 +366,8 @@ def report_page(case: Any, args: argparse.Namespace, warmup: float, tables: str,
         The warm-up [days].
     tables : str
         The KPI tables (``OUT/kpis.md``).
+    writer : str
+        What ran the runs (Markdown), e.g. this command.
     figures : sequence of str
         The per-period zone figures (:func:`report_figures`), relative to the page.
 
@@ -374,7 +376,7 @@ def report_page(case: Any, args: argparse.Namespace, warmup: float, tables: str,
              if p is not None]
     return '\n'.join([
         f'# BOPTEST `{case.name}`: {", ".join(_controllers(args.controllers))}', '',
-        f'Written by `mshoot boptest` (`--report`) from the runs in `{args.out}`: the test '
+        f'Written by {writer} with `--report` from the runs in `{args.out}`: the test '
         f'periods {", ".join(f"`{p}`" for p in (args.periods or case.days))} ({args.days:g} '
         f"days each after {warmup:g} days of warm-up under the building's own control), the "
         f'prices {", ".join(f"`{p}`" for p in args.prices)}; cards and settings '
@@ -386,14 +388,34 @@ def report_page(case: Any, args: argparse.Namespace, warmup: float, tables: str,
                            f'({path})')]])
 
 
-def report_figures(case: Any, jobs: Sequence[RunJob], results: Sequence[Sequence[dict]],
-                   out: pathlib.Path, report: pathlib.Path) -> list[str]:
+#: The record table of a run in its folder ``OUT/runs/<name>/``: ``mshoot boptest``'s, the
+#: ROS benchmark's (its emulator node's).
+RECORD_FILES = ('records.csv', 'boptest_records.csv')
+
+
+def report_figures(case: Any, names: Sequence[str], results: Sequence[Sequence[dict]],
+                   out: pathlib.Path, report: pathlib.Path, warmup: float,
+                   days: float) -> list[str]:
     """
     Draw a figure per period beside the report page: each zone under every run of the period.
 
     One run per controller and period is drawn (the first of its price and forecast
     scenarios: the baseline and the rule serve every price; the figure shows the
-    temperatures, not the cost), from ``OUT/runs/<name>/records.csv``.
+    temperatures, not the cost), from the run's records in ``OUT/runs/<name>/``
+    (:data:`RECORD_FILES`: this command's or the ROS benchmark's emulator's).
+
+    Parameters
+    ----------
+    case : TestCase
+        The test case.
+    names : sequence of str
+        The runs' names (their folders under ``OUT/runs``).
+    results : sequence of list of dict
+        Each run's KPI records (``controller``, ``period``).
+    out, report : pathlib.Path
+        The output folder and the report page.
+    warmup, days : float
+        The warm-up and the test period's length [days].
 
     Returns
     -------
@@ -405,15 +427,21 @@ def report_figures(case: Any, jobs: Sequence[RunJob], results: Sequence[Sequence
     import pandas as pd
     from mshoot_studies.boptest_report import plot_zones
     folder = report.parent / report.stem
+    periods: dict[str, dict[str, pd.DataFrame]] = {}
+    for name, result in zip(names, results):
+        runs = periods.setdefault(result[0]['period'], {})
+        if result[0]['controller'] not in runs:
+            folder_of_run = out / 'runs' / name
+            tables = [folder_of_run / file for file in RECORD_FILES
+                      if (folder_of_run / file).is_file()]
+            if not tables:
+                raise FileNotFoundError(f'no records of run {name} in {folder_of_run} '
+                                        f'(expected one of {list(RECORD_FILES)})')
+            runs[result[0]['controller']] = pd.read_csv(tables[0])
     paths = []
-    for period in dict.fromkeys(job.period for job in jobs):
-        runs: dict[str, pd.DataFrame] = {}
-        window = None
-        for job, result in zip(jobs, results):
-            if job.period == period and job.controller not in runs:
-                runs[job.controller] = pd.read_csv(out / 'runs' / job.name / 'records.csv')
-                window = (result[0]['start_s'], result[0]['end_s'])
-        path = plot_zones(case, runs, *window, f'{case.name}: {period}',
+    for period, runs in periods.items():
+        _, start, end = case.test_period(period, warmup, days)
+        path = plot_zones(case, runs, start, end, f'{case.name}: {period}',
                           folder / f'{period}.png')
         paths.append(str(path.relative_to(report.parent)))
     return paths
@@ -441,15 +469,74 @@ def as_defined_table(records: Sequence[Mapping[str, Any]]) -> str:
     return '\n'.join(lines) + '\n'
 
 
-def _reads_price(control_card: str) -> bool:
+def write_tables(args: argparse.Namespace, case: Any, warmup: float, names: Sequence[str],
+                 results: Sequence[Sequence[dict]], writer: str = '`mshoot boptest`') -> str:
+    """
+    Write the KPI tables to ``OUT/kpis.md`` (and the ``--report`` page); return them.
+
+    The tables of this command and of the ROS benchmark (``mshoot_nodes.boptest_run``).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The command's options (``out``, ``report`` and those :func:`report_page` reads).
+    case : TestCase
+        The test case.
+    warmup : float
+        The warm-up [days].
+    names : sequence of str
+        The runs' names.
+    results : sequence of list of dict
+        Each run's KPI records (one per price scenario it stands for).
+    writer : str
+        What ran the runs (:func:`report_page`).
+
+    """
+    from mshoot_studies.boptest_report import kpi_table
+    extra = (('lead_h', 'lead [h]', '{:g}'), ('margin_k', 'margin [K]', '{:g}'),
+             ('wall_s', 'run wall [s]', '{:.1f}'))
+    table = kpi_table([entry for result in results for entry in result], extra)
+    zones = ['', '| run | price | ' + ' | '.join(f'tdis [{z}] [K h]' for z in case.zones)
+             + ' |', '|---|---|' + '---|' * len(case.zones)]
+    zones += [f'| {name} | {r["price"]} | '
+              + ' | '.join(f'{r["tdis_zones"][z]:.3f}' for z in case.zones) + ' |'
+              for name, result in zip(names, results) for r in result[:1]]
+    text = (table + '\n'.join(zones) + '\n'
+            + as_defined_table([entry for result in results for entry in result]))
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / 'kpis.md').write_text(text)
+    if args.report is not None:
+        figures = report_figures(case, names, results, args.out, args.report, warmup,
+                                 args.days)
+        args.report.write_text(report_page(case, args, warmup, text, writer, figures))
+    return text
+
+
+def reads_price(control_card: str) -> bool:
     """Return True when the control card's forecast carries a price series (one per scenario)."""
     from mshoot_core.boptest.forecasts import ForecastSpec
     return any(source.prices for source in ForecastSpec.from_card(control_card).series.values())
 
 
-def _ensure_forecast_weather(case: Any, periods: Sequence[str], warmup: float, days: float,
-                             settings: str, began: float) -> None:
-    """Derive, once, the weather the MPC's forecasts read over the runs (a folder without it)."""
+def ensure_forecast_weather(case: Any, periods: Sequence[str], warmup: float, days: float,
+                            settings: str, say: Callable[[str], None]) -> None:
+    """
+    Derive, once, the weather the MPC's forecasts read over the runs (a folder without it).
+
+    Parameters
+    ----------
+    case : TestCase
+        The test case (nothing to do when it has weather of its own).
+    periods : sequence of str
+        The test periods of the runs.
+    warmup, days : float
+        The warm-up and the test period [days].
+    settings : str
+        The MPC settings (their horizon and step: how far past the period it reads).
+    say : callable
+        Told, once, what is derived.
+
+    """
     from mshoot_core.boptest.weather import ensure_window
     from mshoot_core.settings import MpcSettings
     if not case.weather_derived:
@@ -458,8 +545,8 @@ def _ensure_forecast_weather(case: Any, periods: Sequence[str], warmup: float, d
     windows = [case.test_period(period, warmup, days) for period in periods]
     start = min(w[0] for w in windows)
     end = max(w[2] for w in windows) + (problem.horizon_steps + 1) * problem.step_s
-    _say(began, f'the weather of {case.name} from its FMU over days {start / 86400:g} to '
-                f'{end / 86400:g} (once, into the cache)')
+    say(f'the weather of {case.name} from its FMU over days {start / 86400:g} to '
+        f'{end / 86400:g} (once, into the cache)')
     ensure_window(case, start, end)
 
 
@@ -483,7 +570,7 @@ def _run(args: argparse.Namespace) -> int:
     from mshoot_core.boptest.testcase import TestCase
     from mshoot_core.forecast import uncertainty_runs
     from mshoot_core.models.card import load_card
-    from mshoot_studies.boptest_report import kpi_table, plot_run
+    from mshoot_studies.boptest_report import plot_run
     from mshoot_studies.boptest_rule import rule_targets, tune_rule
     began = time.perf_counter()
     controllers = _controllers(args.controllers)
@@ -501,9 +588,10 @@ def _run(args: argparse.Namespace) -> int:
     plant = BoptestPlant(case, record=record)  # checks the names; no instance
     check_power_signs(case, card.boptest['power_signs'])
     targets = rule_targets(card, case) if 'rule' in controllers else {}
-    mpc = _mpc_configuration(args, case, card, card_path) if 'mshoot' in controllers else None
+    mpc = mpc_configuration(args, case, card, card_path) if 'mshoot' in controllers else None
     if mpc is not None:
-        _ensure_forecast_weather(case, periods, warmup, args.days, mpc[1], began)
+        ensure_forecast_weather(case, periods, warmup, args.days, mpc[1],
+                                lambda line: _say(began, line))
     _say(began, f'{case.name} ({plant.interface}, zones {case.zones}, energy '
                 f'{list(case.energy_outputs)}): {controllers} on {periods}')
     tunings: dict[str, Any] = {}
@@ -521,7 +609,7 @@ def _run(args: argparse.Namespace) -> int:
 
     # mshoot: one run per price when its forecast has a price series, else one for all
     jobs = plan_runs(periods, controllers, args.prices, scenarios, rule_parameters,
-                     mshoot_per_price=mpc is not None and _reads_price(mpc[0]))
+                     mshoot_per_price=mpc is not None and reads_price(mpc[0]))
     names = [job.name for job in jobs]
     arguments = [(str(case.directory), str(card_path), job.controller, job.period, job.lead_h,
                   job.margin_k, warmup, args.days, list(job.prices), record,
@@ -540,20 +628,7 @@ def _run(args: argparse.Namespace) -> int:
     records = [entry for result in results for entry in result]
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / 'kpis.json').write_text(json.dumps(records, indent=1) + '\n')
-    extra = (('lead_h', 'lead [h]', '{:g}'), ('margin_k', 'margin [K]', '{:g}'),
-             ('wall_s', 'run wall [s]', '{:.1f}'))
-    table = kpi_table(records, extra)
-    zones = ['', '| run | price | ' + ' | '.join(f'tdis [{z}] [K h]' for z in case.zones)
-             + ' |', '|---|---|' + '---|' * len(case.zones)]
-    zones += [f'| {name} | {r["price"]} | '
-              + ' | '.join(f'{r["tdis_zones"][z]:.3f}' for z in case.zones) + ' |'
-              for name, result in zip(names, results) for r in result[:1]]
-    text = table + '\n'.join(zones) + '\n' + as_defined_table(records)
-    (args.out / 'kpis.md').write_text(text)
-    print(text, end='')
-    if args.report is not None:
-        figures = report_figures(case, jobs, results, args.out, args.report)
-        args.report.write_text(report_page(case, args, warmup, text, figures))
+    print(write_tables(args, case, warmup, names, results), end='')
     if args.figures:
         import pandas as pd
         for name, result in zip(names, results):
