@@ -111,7 +111,7 @@ def test_rule_sends_the_reset_of_the_measured_outdoor_temperature(office: TestCa
 
 
 def _card(boptest: dict) -> types.SimpleNamespace:
-    """A card as rule_targets reads it: the heat pump's setpoint, a supply, an outdoor output."""
+    """Return a card as rule_targets reads it: the heat pump's setpoint, supply, outdoor."""
     def variable(name: str, unit: str = 'K', activate: str | None = None) -> types.SimpleNamespace:
         return types.SimpleNamespace(variable=name, unit=unit, activate=activate)
     return types.SimpleNamespace(
@@ -144,7 +144,7 @@ def test_card_entries_of_the_rule(boptest_case: TestCase) -> None:
     with pytest.raises(ValueError, match='needs boptest.setpoint_zones'):
         rule_targets(good, boptest_case)
     bad = [
-        ({'cooling_zones': {'TSet': '1'}}, "in both boptest.setpoint_zones and"),
+        ({'cooling_zones': {'TSet': '1'}}, 'in both boptest.setpoint_zones and'),
         ({'cooling_zones': {'Free': '1'}}, "cooling_zones names 'Free': expected a control "
                                            'with an overwrite switch'),
         ({'cooling_zones': ['TSet']}, 'cooling_zones: expected a mapping'),

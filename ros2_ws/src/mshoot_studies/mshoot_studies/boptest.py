@@ -461,8 +461,8 @@ def _run(args: argparse.Namespace) -> int:
     from mshoot_core.forecast import uncertainty_runs
     from mshoot_core.models.card import load_card
     from mshoot_studies.boptest_report import kpi_table, plot_run
-    from mshoot_studies.boptest_rule import COOLING_MARGINS_K, rule_axes, rule_targets, \
-        SUPPLY_SHIFTS_K, tune_rule
+    from mshoot_studies.boptest_rule import COOLING_MARGINS_K, PreheatRule, rule_axes, \
+        rule_targets, RuleTarget, SUPPLY_SHIFTS_K, SupplyReset, tune_rule
     began = time.perf_counter()
     controllers = _controllers(args.controllers)
     scenarios = uncertainty_runs(args.uncertainty)
@@ -478,8 +478,8 @@ def _run(args: argparse.Namespace) -> int:
                                                    if args.starts_output else [])])
     plant = BoptestPlant(case, record=record)  # checks the names; no instance
     targets = rule_targets(card, case) if 'rule' in controllers else {}
-    cooled = any(getattr(t, 'edge', '') == 'upper' for t in targets.values())
-    reset = any(not hasattr(t, 'edge') for t in targets.values())
+    cooled = any(isinstance(t, RuleTarget) and t.edge == 'upper' for t in targets.values())
+    reset = any(isinstance(t, SupplyReset) for t in targets.values())
     fixed = (args.cooling_margin or 0.0, args.supply_shift or 0.0)
     grid = (args.cooling_margins if args.cooling_margins is not None or not cooled
             else COOLING_MARGINS_K,
@@ -489,6 +489,8 @@ def _run(args: argparse.Namespace) -> int:
         rule_axes(targets, None if fixed[0] == 0 else [fixed[0]],
                   None if fixed[1] == 0 else [fixed[1]])
         rule_axes(targets, *grid)
+        PreheatRule(case, targets, args.lead or 0.0, args.margin or 0.0, case.control_step_s,
+                    *fixed)  # fixed values out of range are refused here
     mpc = _mpc_configuration(args, case, card, card_path) if 'mshoot' in controllers else None
     if mpc is not None:
         _ensure_forecast_weather(case, periods, warmup, args.days, mpc[1], began)

@@ -52,7 +52,8 @@ class RuleTuning:
         The test period.
     grid : pd.DataFrame
         One row per grid point and price scenario: ``lead_h``, ``margin_k``,
-        ``cooling_margin_k``, ``supply_shift_k``, ``price``, the KPIs (:func:`~mshoot_core.boptest.kpi_calculator.compute_kpis`), ``score`` and ``wall_s``.
+        ``cooling_margin_k``, ``supply_shift_k``, ``price``, the KPIs
+        (:func:`~mshoot_core.boptest.kpi_calculator.compute_kpis`), ``score`` and ``wall_s``.
     best : dict of str to dict
         Price scenario -> the chosen row (as a dict).
     weight : float
@@ -127,8 +128,8 @@ def _grid_point(directory: str, targets: dict[str, RuleTarget | SupplyReset], pe
 
 def rule_axes(targets: Mapping[str, RuleTarget | SupplyReset],
               cooling_margins_k: Sequence[float] | None,
-              supply_shifts_k: Sequence[float] | None) -> tuple[tuple[float, ...],
-                                                                 tuple[float, ...]]:
+              supply_shifts_k: Sequence[float] | None
+              ) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """
     Return the grid's cooling margins and supply shifts for a rule's targets.
 

@@ -361,9 +361,10 @@ class PreheatRule:
         for name, target in self.targets.items():
             if isinstance(target, SupplyReset):
                 if outputs is None or target.outdoor not in outputs:
+                    have = 'none' if outputs is None else f'{len(outputs)} others'
                     raise ValueError(f'the supply reset of {name} reads the outdoor '
-                                     f'temperature {target.outdoor}: not among the plant\'s '
-                                     f'outputs ({"none" if outputs is None else len(outputs)})')
+                                     f'temperature {target.outdoor}: not among the plant '
+                                     f'outputs ({have}; record it)')
                 overwrites[name] = target.value(float(outputs[target.outdoor]),
                                                 self.supply_shift_k)
             else:
