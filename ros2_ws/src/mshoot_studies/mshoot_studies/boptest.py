@@ -53,7 +53,8 @@ has no price series (e.g. the two-zone office's, which plans gas at its one pric
 ``OUT/kpis.json`` (one record per controller, period, price and forecast scenario: BOPTEST's
 KPIs with ``tdis_zones``, the run's wall time, ``uncertainty`` and ``seed``: ``none`` and null
 for perfect or no forecasts), ``OUT/kpis.md`` (the table, also printed, and with ``--report``
-as a Markdown page), ``OUT/runs/<controller>_<period>[...]/records.csv`` and, with
+as a Markdown page), ``OUT/runs/<controller>_<period>[...]/records.csv``, the rule's tuning
+grids ``OUT/rule_tuning_<period>.csv`` (each point's KPIs per price) and, with
 ``--figures``, ``OUT/<run>.png``. Bad options or a bad folder or card: one line on stderr, exit 2.
 """
 from __future__ import annotations
@@ -532,6 +533,8 @@ def _run(args: argparse.Namespace) -> int:
                         f'{first["tdis_tot"]:.3f} K h, ener {first["ener_tot"]:.4f} kWh/m2')
     records = [entry for result in results for entry in result]
     args.out.mkdir(parents=True, exist_ok=True)
+    for period, tuning in tunings.items():  # the rule's grid, every point and price
+        tuning.grid.to_csv(args.out / f'rule_tuning_{period}.csv', index=False)
     (args.out / 'kpis.json').write_text(json.dumps(records, indent=1) + '\n')
     extra = (('lead_h', 'lead [h]', '{:g}'), ('margin_k', 'margin [K]', '{:g}'),
              *((('cooling_margin_k', 'cooling margin [K]', '{:g}'),) if cooled else ()),
