@@ -219,3 +219,44 @@ def test_tuning_on_two_worker_processes_gives_the_same_grid(boptest_case: TestCa
     assert serial.best['constant']['lead_h'] == pooled.best['constant']['lead_h']
     with pytest.raises(ValueError, match='workers'):
         tune_rule(boptest_case, TARGETS, 'peak_heat_day', workers=0, **kwargs)
+
+
+def test_office_rule_overwrites_act_on_the_fmu(office: TestCase, tmp_path: pathlib.Path) -> None:
+    """
+    The card's rule on the office FMU (6 h warm-up, 12 h): every overwrite applied as decided.
+
+    Each step's applied maximum setpoints are the band's upper edge ahead minus the cooling
+    margin, and the boiler's applied supply the heating curve at the outdoor temperature
+    measured at the step's start, shifted, at or above its 40 degC floor.
+    """
+    from mshoot_core.boptest.plant import run_period
+    from mshoot_core.models.card import load_card
+    from mshoot_studies.boptest import prepare_card
+    card = load_card(prepare_card(OFFICE_CARD, office.directory, tmp_path))
+    targets = rule_targets(card, office)
+    reset = targets['bms_oveTProHea_u']
+    rule = PreheatRule(office, targets, lead_h=1.0, cooling_margin_k=2.0, supply_shift_k=-20.0)
+    applied = {'bms_oveTProHea_u': 'bms_oveTProHea_y',
+               'bms_oveTZonSetMaxSz_u': 'bms_oveTZonSetMaxSz_y',
+               'bms_oveTZonSetMinNz_u': 'bms_oveTZonSetMinNz_y'}
+    run = run_period(office, 'typical_heat_day', rule, 0.25, 0.5,
+                     record=[reset.outdoor, *applied.values()])
+    table = run.records
+    times = table['time'].to_numpy()
+    supplies = []
+    for step in range(12):
+        t = run.start_s + step * HOUR
+        outdoor = table[reset.outdoor].to_numpy()[np.flatnonzero(times <= t + 1e-6)[-1]]
+        decided = rule(t, {reset.outdoor: outdoor})
+        inside = (times > t + 1e-6) & (times <= t + HOUR + 1e-6)
+        assert inside.sum() == 60  # a record every 60 s
+        for name, output in applied.items():
+            assert table.loc[inside, output].to_numpy() == pytest.approx(decided[name]), \
+                (step, name)
+        supplies.append(decided['bms_oveTProHea_u'])
+        assert decided['bms_oveTProHea_u'] == pytest.approx(
+            max(float(np.interp(outdoor, reset.outdoor_k, reset.supply_k)) - 20.0, 313.15))
+    # the night at 28 degC (30 - 2), the occupied day from 6 h (an hour's lead) at 23 degC
+    maxima = [rule.setpoint(run.start_s + h * HOUR, 'sZ', edge='upper') for h in (0, 6)]
+    assert maxima == [pytest.approx(301.15), pytest.approx(296.15)]
+    assert min(supplies) >= 313.15 - 1e-9

@@ -30,7 +30,7 @@ logger = logging.getLogger(__name__)
 LEADS_H = (0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0)
 MARGINS_K = (0.0, 0.25, 0.5, 0.75, 1.0)
 #: Default grid axes of a rule with cooling setpoints [K], with a supply reset [K].
-COOLING_MARGINS_K = (0.0, 0.5, 1.0)
+COOLING_MARGINS_K = (0.0, 1.0, 2.0)
 SUPPLY_SHIFTS_K = (0.0, -10.0, -20.0)
 #: The grid's one value of the axes a rule without cooling setpoints (supply reset) has:
 #: cooling margins [K] (supply shifts [K]).
