@@ -267,6 +267,13 @@ def test_mshoot_boptest_refuses_bad_input_in_one_line(boptest_case: TestCase,
     no_zones = tmp_path / 'no_zones.yaml'
     no_zones.write_text(card.read_text().replace("setpoint_zones: {TSet: '1'}", ''))
     cases.append((['--card', str(no_zones), '--controllers', 'rule'], 'setpoint_zones'))
+    # the heat pump's card names no cooling setpoint nor supply reset: no axis of them
+    cases.append((['--card', str(card), '--controllers', 'rule', '--cooling-margin', '0.5'],
+                  'cooling margins [0.5] given, but the rule has no cooling setpoint'))
+    cases.append((['--card', str(card), '--controllers', 'rule', '--supply-shifts', '0', '-10'],
+                  'supply shifts [0.0, -10.0] given, but the rule has no supply reset'))
+    cases.append((['--card', str(card), '--controllers', 'rule', '--margin', '-1'],
+                  'expected margin_k >= 0'))
     for extra, message in cases:
         assert cli.main([*base, *extra]) == 2, extra
         err = capsys.readouterr().err
@@ -369,7 +376,7 @@ def test_benchmark_runs_planned_once_for_both_runners():
     """
     ``plan_runs`` (``mshoot boptest`` and ``make boptest``): the runs and their names.
 
-    The baseline once for every price, the rule once per distinct (lead, margin), mshoot per
+    The baseline once for every price, the rule once per distinct parameters, mshoot per
     forecast scenario and price (or once for every price when its forecast reads none).
     """
     from mshoot_core.forecast import uncertainty_runs
@@ -394,3 +401,12 @@ def test_benchmark_runs_planned_once_for_both_runners():
                                                               ('b', tuple(prices))]
     with pytest.raises(ValueError, match='rule_parameters'):
         plan_runs(['a'], ['rule'], prices, scenarios)
+    # a rule with cooling setpoints and a supply reset: its cooling margin and shift, when not 0
+    office = {'constant': (1.0, 0.0, 0.5, -20.0), 'dynamic': (1.0, 0.0, 0.0, 0.0),
+              'highly_dynamic': (1.0, 0.0)}
+    jobs = plan_runs(['p'], ['rule'], prices, scenarios, lambda period, price: office[price])
+    assert [(job.name, job.prices, job.cooling_margin_k, job.supply_shift_k) for job in jobs] == [
+        ('rule_p_lead1_margin0_cool0.5_shift-20', ('constant',), 0.5, -20.0),
+        ('rule_p_lead1_margin0', ('dynamic', 'highly_dynamic'), 0.0, 0.0)]
+    with pytest.raises(ValueError, match='rule_parameters must give'):
+        plan_runs(['a'], ['rule'], prices, scenarios, lambda period, price: (1.0,))

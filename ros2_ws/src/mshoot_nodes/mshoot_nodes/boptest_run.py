@@ -406,11 +406,13 @@ def load_or_tune(case: TestCase, targets: dict, periods: Sequence[str],
                  path: pathlib.Path, *,
                  warmup_days: float, length_days: float, leads_h: Sequence[float],
                  margins_k: Sequence[float], retune: bool,
-                 progress: Callable[[str], None], workers: int = 1) -> dict[str, dict]:
+                 progress: Callable[[str], None], workers: int = 1,
+                 power_signs: dict | None = None) -> dict[str, dict]:
     """
     Return the rule's tuning per period: cached in ``path`` when made with the same grid.
 
-    ``targets``: the rule's (:func:`mshoot_studies.boptest_rule.rule_targets` of the card).
+    ``targets``: the rule's (:func:`mshoot_studies.boptest_rule.rule_targets` of the card);
+    ``power_signs``: the card's (its KPIs' sign corrections).
 
     Returns
     -------
@@ -431,7 +433,8 @@ def load_or_tune(case: TestCase, targets: dict, periods: Sequence[str],
         began = time.perf_counter()
         tuning: RuleTuning = tune_rule(case, targets, period, leads_h, margins_k,
                                        warmup_days=warmup_days, length_days=length_days,
-                                       progress=progress, workers=workers)
+                                       progress=progress, workers=workers,
+                                       power_signs=power_signs)
         out[period] = {'settings': key, 'weight': tuning.weight,
                        'wall_s': time.perf_counter() - began,
                        'best': {price: {k: json_ready(v) for k, v in row.items()}
@@ -546,7 +549,7 @@ def run_benchmark(args: argparse.Namespace, context: Context,
                                args.out / 'rule_tuning.json', warmup_days=args.warmup_days,
                                length_days=args.days, leads_h=args.leads,
                                margins_k=args.margins, retune=args.retune, progress=say,
-                               workers=args.workers)
+                               workers=args.workers, power_signs=card.boptest['power_signs'])
 
     def rule_parameters(period: str, price: str) -> tuple[float, float]:
         if fixed:

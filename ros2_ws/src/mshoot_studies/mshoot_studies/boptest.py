@@ -4,7 +4,9 @@ Any BOPTEST test case folder and a card: the baseline and the pre-heating rule, 
     mshoot boptest --testcase DIR --card CARD.yaml --out OUT
         [--periods peak_heat_day typical_heat_day] [--prices constant dynamic]
         [--controllers baseline,rule,mshoot] [--warmup-days 7] [--days 14]
-        [--lead 4 --margin 0.5 | --leads 0 2 4 --margins 0 0.5] [--workers 2]
+        [--lead 4 --margin 0.5 [--cooling-margin 0.5 --supply-shift -10]
+         | --leads 0 2 4 --margins 0 0.5 [--cooling-margins 0 0.5 --supply-shifts 0 -10]]
+        [--workers 2]
         [--control-card CARD.yaml --mpc-settings SETTINGS.yaml]
         [--uncertainty none high=1,2,3 low medium]
 
@@ -14,7 +16,8 @@ Co-Simulation; ``config.json``, ``days.json``, ``kpis.json``, ``Resources/*.csv`
 kind ``boptest``) is data about the building: its controls (overwrite inputs with their
 ``activate`` switches, units, limits), the states and outputs it maps, ``boptest.warmup_days``,
 ``tolerance`` (Model Exchange) and, for the rule, ``boptest.setpoint_zones`` (setpoint control
--> zone). ``--testcase`` replaces the card's ``boptest.test_case``.
+-> zone) and optionally ``boptest.cooling_zones`` and ``boptest.supply_reset``. ``--testcase``
+replaces the card's ``boptest.test_case``.
 
 Each run goes through the one period loop in core (:func:`mshoot_core.boptest.plant.run_period`:
 one persistent FMU instance, the warm-up under the building's own control, records every 60 s
@@ -23,9 +26,14 @@ instance per process). Controllers:
 
 - ``baseline``: the building's own control (no overwrite);
 - ``rule``: each setpoint of ``boptest.setpoint_zones`` every control step = the highest lower
-  bound of its zone's band over the step and the lead after it, plus a margin
-  (:mod:`mshoot_studies.boptest_rule`); ``--lead``/``--margin`` fixed, else tuned per period and
-  price on the grid ``--leads`` x ``--margins`` (each a full run);
+  bound of its zone's band over the step and the lead after it, plus a margin; each of
+  ``boptest.cooling_zones`` the lowest upper bound minus a cooling margin; the supply
+  temperature of ``boptest.supply_reset`` its heating curve of the measured outdoor
+  temperature, shifted (:mod:`mshoot_core.boptest.rule`); ``--lead``/``--margin``
+  (``--cooling-margin``, ``--supply-shift``) fixed, else tuned per period and price on the test
+  period itself, on the grid ``--leads`` x ``--margins`` (x ``--cooling-margins`` x
+  ``--supply-shifts`` when the card names cooling setpoints, a supply reset) (each a full run;
+  :mod:`mshoot_studies.boptest_rule`);
 - ``mshoot``: the supervisory MPC (:class:`mshoot_core.controller.Controller`, in the loop by
   :func:`mshoot_core.boptest.supervision.supervised_plant`) of a control model card
   (``--control-card``: a file or a built-in card, with its ``testcase_forecast`` section: the
@@ -45,7 +53,8 @@ has no price series (e.g. the two-zone office's, which plans gas at its one pric
 ``OUT/kpis.json`` (one record per controller, period, price and forecast scenario: BOPTEST's
 KPIs with ``tdis_zones``, the run's wall time, ``uncertainty`` and ``seed``: ``none`` and null
 for perfect or no forecasts), ``OUT/kpis.md`` (the table, also printed, and with ``--report``
-as a Markdown page), ``OUT/runs/<controller>_<period>[...]/records.csv`` and, with
+as a Markdown page), ``OUT/runs/<controller>_<period>[...]/records.csv``, the rule's tuning
+grids ``OUT/rule_tuning_<period>.csv`` (each point's KPIs per price) and, with
 ``--figures``, ``OUT/<run>.png``. Bad options or a bad folder or card: one line on stderr, exit 2.
 """
 from __future__ import annotations
@@ -87,6 +96,8 @@ class RunJob:
         The rule's lead [h] and margin [K].
     errors : ForecastErrorSettings or None
         The forecast scenario of an mshoot run (None: perfect).
+    cooling_margin_k, supply_shift_k : float
+        The rule's cooling margin [K] and supply shift [K].
 
     """
 
@@ -96,25 +107,35 @@ class RunJob:
     lead_h: float = 0.0
     margin_k: float = 0.0
     errors: Any = None
+    cooling_margin_k: float = 0.0
+    supply_shift_k: float = 0.0
 
     @property
     def name(self) -> str:
-        """Return the run's name: ``<controller>_<period>[_<price>[_<level>_s<seed>]]``."""
+        """
+        Return the run's name: ``<controller>_<period>[_<price>[_<level>_s<seed>]]``.
+
+        A rule's: ``rule_<period>_lead<h>_margin<K>[_cool<K>][_shift<K>]`` (the cooling margin
+        and the supply shift when not 0).
+        """
         from mshoot_core.forecast import scenario_suffix
+        rule = (f'_lead{self.lead_h:g}_margin{self.margin_k:g}'
+                + (f'_cool{self.cooling_margin_k:g}' if self.cooling_margin_k else '')
+                + (f'_shift{self.supply_shift_k:g}' if self.supply_shift_k else ''))
         suffix = {'mshoot': f'_{self.prices[0]}{scenario_suffix(self.errors)}', 'baseline': '',
-                  'rule': f'_lead{self.lead_h:g}_margin{self.margin_k:g}'}[self.controller]
+                  'rule': rule}[self.controller]
         return f'{self.controller}_{self.period}{suffix}'
 
 
 def plan_runs(periods: Sequence[str], controllers: Sequence[str], prices: Sequence[str],
               scenarios: Sequence[Any],
-              rule_parameters: Callable[[str, str], tuple[float, float]] | None = None,
+              rule_parameters: Callable[[str, str], tuple[float, ...]] | None = None,
               mshoot_per_price: bool = True) -> list[RunJob]:
     """
     Return a benchmark's runs (this runner's and the ROS benchmark's, ``make boptest``).
 
     The baseline and the rule never read the price: one baseline run per period for every
-    price scenario, one rule run per distinct (lead, margin) of the prices; mshoot one run per
+    price scenario, one rule run per distinct parameters of the prices; mshoot one run per
     forecast scenario and price (or for every price at once, ``mshoot_per_price`` false: its
     forecast has no price series).
 
@@ -125,7 +146,8 @@ def plan_runs(periods: Sequence[str], controllers: Sequence[str], prices: Sequen
     scenarios : sequence of ForecastErrorSettings or None
         mshoot's forecast scenarios (:func:`mshoot_core.forecast.uncertainty_runs`).
     rule_parameters : callable, optional
-        ``rule_parameters(period, price) -> (lead [h], margin [K])``; needed for the rule.
+        ``rule_parameters(period, price) -> (lead [h], margin [K][, cooling margin [K],
+        supply shift [K]])``; needed for the rule.
     mshoot_per_price : bool
         One mshoot run per price scenario.
 
@@ -147,12 +169,17 @@ def plan_runs(periods: Sequence[str], controllers: Sequence[str], prices: Sequen
             elif controller == 'rule':
                 if rule_parameters is None:
                     raise ValueError('the rule runs need rule_parameters (lead and margin)')
-                by_parameters: dict[tuple[float, float], list[str]] = {}
+                by_parameters: dict[tuple[float, ...], list[str]] = {}
                 for price in prices:
-                    by_parameters.setdefault(tuple(rule_parameters(period, price)),
+                    values = tuple(float(v) for v in rule_parameters(period, price))
+                    if len(values) not in (2, 4):
+                        raise ValueError('rule_parameters must give (lead, margin[, cooling '
+                                         f'margin, supply shift]), got {values}')
+                    by_parameters.setdefault(values + (0.0, 0.0)[:4 - len(values)],
                                              []).append(price)
-                jobs += [RunJob(controller, period, tuple(group), lead, margin)
-                         for (lead, margin), group in by_parameters.items()]
+                jobs += [RunJob(controller, period, tuple(group), lead, margin,
+                                cooling_margin_k=cooling, supply_shift_k=shift)
+                         for (lead, margin, cooling, shift), group in by_parameters.items()]
             else:
                 raise ValueError(f'unknown controller {controller!r}: expected one of '
                                  f'{list(CONTROLLERS)}')
@@ -166,7 +193,8 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     Fills ``parser`` (the ``boptest`` verb of ``mshoot``), or a new parser when None. Its errors
     are one line (``<prog>: error: ...``) and exit 2.
     """
-    from mshoot_studies.boptest_rule import LEADS_H, MARGINS_K
+    from mshoot_studies.boptest_rule import COOLING_MARGINS_K, LEADS_H, MARGINS_K, \
+        SUPPLY_SHIFTS_K
     from mshoot_studies.cli import verb_parser
     parser = verb_parser(parser, 'mshoot_studies.boptest', __doc__)
     parser.add_argument('--testcase', required=True, type=pathlib.Path,
@@ -201,6 +229,16 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                         help='rule tuning grid: leads [h]')
     parser.add_argument('--margins', type=float, nargs='+', default=list(MARGINS_K),
                         help='rule tuning grid: margins [K]')
+    parser.add_argument('--cooling-margin', type=float, default=None,
+                        help='rule: a fixed cooling margin [K] (a card with cooling_zones)')
+    parser.add_argument('--supply-shift', type=float, default=None,
+                        help='rule: a fixed supply shift [K] (a card with supply_reset)')
+    parser.add_argument('--cooling-margins', type=float, nargs='+', default=None,
+                        help='rule tuning grid: cooling margins [K] (a card with cooling_zones; '
+                             f'default {" ".join(f"{v:g}" for v in COOLING_MARGINS_K)})')
+    parser.add_argument('--supply-shifts', type=float, nargs='+', default=None,
+                        help='rule tuning grid: supply shifts [K] (a card with supply_reset; '
+                             f'default {" ".join(f"{v:g}" for v in SUPPLY_SHIFTS_K)})')
     parser.add_argument('--workers', type=int, default=2, choices=range(1, 9), metavar='N',
                         help='runs at once, one process and FMU instance each (default 2)')
     parser.add_argument('--starts-output', default='',
@@ -274,12 +312,14 @@ def prepare_card(card_path: pathlib.Path, testcase: pathlib.Path,
 def _run_one(directory: str, card_path: str, controller: str, period: str, lead: float,
              margin: float, warmup_days: float, length_days: float, prices: list[str],
              record: list[str], records_csv: str, starts_output: str,
-             mpc: tuple[str, str] | None = None, errors: Any = None) -> list[dict]:
+             mpc: tuple[str, str] | None = None, errors: Any = None,
+             cooling: float = 0.0, shift: float = 0.0) -> list[dict]:
     """
     Run one controller on one period (in a worker): its KPI records, the table written.
 
     ``mpc`` is (control card, settings) of the controller ``mshoot`` (one price), ``errors``
-    its forecast's (:class:`~mshoot_core.settings.ForecastErrorSettings`, None: perfect).
+    its forecast's (:class:`~mshoot_core.settings.ForecastErrorSettings`, None: perfect);
+    ``lead`` [h], ``margin`` [K], ``cooling`` [K] and ``shift`` [K] the rule's parameters.
     """
     from mshoot_core.boptest.kpi_calculator import kpi_records
     from mshoot_core.forecast import scenario_fields
@@ -293,7 +333,7 @@ def _run_one(directory: str, card_path: str, controller: str, period: str, lead:
     policy = None
     if controller == 'rule':
         targets = rule_targets(card, case)
-        policy = PreheatRule(case, targets, lead, margin, case.control_step_s)
+        policy = PreheatRule(case, targets, lead, margin, case.control_step_s, cooling, shift)
     elif controller == 'mshoot':
         from mshoot_core.boptest.supervision import supervised_plant
         from mshoot_core.settings import MpcSettings
@@ -308,7 +348,8 @@ def _run_one(directory: str, card_path: str, controller: str, period: str, lead:
     path.parent.mkdir(parents=True, exist_ok=True)
     run.records.to_csv(path, index=False)
     walls = run.step_wall_s if controller != 'baseline' else None
-    extra = {'lead_h': lead, 'margin_k': margin} if controller == 'rule' else {}
+    extra = ({'lead_h': lead, 'margin_k': margin, 'cooling_margin_k': cooling,
+              'supply_shift_k': shift} if controller == 'rule' else {})
     records = kpi_records(run.records, case, run.start_s, run.end_s, prices, walls,
                           power_signs=card.boptest['power_signs'], controller=controller,
                           period=period)
@@ -493,16 +534,21 @@ def write_tables(args: argparse.Namespace, case: Any, warmup: float, names: Sequ
 
     """
     from mshoot_studies.boptest_report import kpi_table
+    records = [entry for result in results for entry in result]
+    # the rule's cooling margin and supply shift where its card has them (not 0 somewhere)
     extra = (('lead_h', 'lead [h]', '{:g}'), ('margin_k', 'margin [K]', '{:g}'),
+             *((key, header, '{:g}') for key, header in (
+                 ('cooling_margin_k', 'cooling margin [K]'),
+                 ('supply_shift_k', 'supply shift [K]'))
+               if any(r.get(key) for r in records)),
              ('wall_s', 'run wall [s]', '{:.1f}'))
-    table = kpi_table([entry for result in results for entry in result], extra)
+    table = kpi_table(records, extra)
     zones = ['', '| run | price | ' + ' | '.join(f'tdis [{z}] [K h]' for z in case.zones)
              + ' |', '|---|---|' + '---|' * len(case.zones)]
     zones += [f'| {name} | {r["price"]} | '
               + ' | '.join(f'{r["tdis_zones"][z]:.3f}' for z in case.zones) + ' |'
               for name, result in zip(names, results) for r in result[:1]]
-    text = (table + '\n'.join(zones) + '\n'
-            + as_defined_table([entry for result in results for entry in result]))
+    text = table + '\n'.join(zones) + '\n' + as_defined_table(records)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / 'kpis.md').write_text(text)
     if args.report is not None:
@@ -571,7 +617,8 @@ def _run(args: argparse.Namespace) -> int:
     from mshoot_core.forecast import uncertainty_runs
     from mshoot_core.models.card import load_card
     from mshoot_studies.boptest_report import plot_run
-    from mshoot_studies.boptest_rule import rule_targets, tune_rule
+    from mshoot_studies.boptest_rule import COOLING_MARGINS_K, PreheatRule, rule_axes, \
+        rule_targets, RuleTarget, SUPPLY_SHIFTS_K, SupplyReset, tune_rule
     began = time.perf_counter()
     controllers = _controllers(args.controllers)
     scenarios = uncertainty_runs(args.uncertainty)
@@ -588,6 +635,19 @@ def _run(args: argparse.Namespace) -> int:
     plant = BoptestPlant(case, record=record)  # checks the names; no instance
     check_power_signs(case, card.boptest['power_signs'])
     targets = rule_targets(card, case) if 'rule' in controllers else {}
+    cooled = any(isinstance(t, RuleTarget) and t.edge == 'upper' for t in targets.values())
+    reset = any(isinstance(t, SupplyReset) for t in targets.values())
+    fixed = (args.cooling_margin or 0.0, args.supply_shift or 0.0)
+    grid = (args.cooling_margins if args.cooling_margins is not None or not cooled
+            else COOLING_MARGINS_K,
+            args.supply_shifts if args.supply_shifts is not None or not reset
+            else SUPPLY_SHIFTS_K)
+    if targets:  # the rule's parameters against its card, before any run
+        rule_axes(targets, None if fixed[0] == 0 else [fixed[0]],
+                  None if fixed[1] == 0 else [fixed[1]])
+        rule_axes(targets, *grid)
+        PreheatRule(case, targets, args.lead or 0.0, args.margin or 0.0, case.control_step_s,
+                    *fixed)  # fixed values out of range are refused here
     mpc = mpc_configuration(args, case, card, card_path) if 'mshoot' in controllers else None
     if mpc is not None:
         ensure_forecast_weather(case, periods, warmup, args.days, mpc[1],
@@ -596,15 +656,18 @@ def _run(args: argparse.Namespace) -> int:
                 f'{list(case.energy_outputs)}): {controllers} on {periods}')
     tunings: dict[str, Any] = {}
 
-    def rule_parameters(period: str, price: str) -> tuple[float, float]:
-        if args.lead is not None or args.margin is not None:
-            return args.lead or 0.0, args.margin or 0.0
+    def rule_parameters(period: str, price: str) -> tuple[float, ...]:
+        if any(v is not None for v in (args.lead, args.margin, args.cooling_margin,
+                                       args.supply_shift)):
+            return args.lead or 0.0, args.margin or 0.0, *fixed
         if period not in tunings:
             tunings[period] = tune_rule(case, targets, period, args.leads, args.margins,
                                         prices=args.prices, warmup_days=warmup,
                                         length_days=args.days, workers=args.workers,
                                         record=record,
-                                        progress=lambda line: _say(began, line))
+                                        progress=lambda line: _say(began, line),
+                                        cooling_margins_k=grid[0], supply_shifts_k=grid[1],
+                                        power_signs=card.boptest['power_signs'])
         return tunings[period].parameters(price)
 
     # mshoot: one run per price when its forecast has a price series, else one for all
@@ -614,7 +677,8 @@ def _run(args: argparse.Namespace) -> int:
     arguments = [(str(case.directory), str(card_path), job.controller, job.period, job.lead_h,
                   job.margin_k, warmup, args.days, list(job.prices), record,
                   str(args.out / 'runs' / name / 'records.csv'), args.starts_output,
-                  mpc if job.controller == 'mshoot' else None, job.errors)
+                  mpc if job.controller == 'mshoot' else None, job.errors,
+                  job.cooling_margin_k, job.supply_shift_k)
                  for job, name in zip(jobs, names)]
     results: list[list[dict]] = [[] for _ in jobs]
     with process_pool(min(args.workers, len(jobs))) as pool:
@@ -627,6 +691,8 @@ def _run(args: argparse.Namespace) -> int:
                         f'{first["tdis_tot"]:.3f} K h, ener {first["ener_tot"]:.4f} kWh/m2')
     records = [entry for result in results for entry in result]
     args.out.mkdir(parents=True, exist_ok=True)
+    for period, tuning in tunings.items():  # the rule's grid, every point and price
+        tuning.grid.to_csv(args.out / f'rule_tuning_{period}.csv', index=False)
     (args.out / 'kpis.json').write_text(json.dumps(records, indent=1) + '\n')
     print(write_tables(args, case, warmup, names, results), end='')
     if args.figures:

@@ -263,8 +263,10 @@ class ModelCard:
     boptest : dict or None
         For a card of kind ``boptest``: ``test_case_dir`` (absolute), ``warmup_days``,
         ``history_step_s``, ``power_signs`` (a KPI power output -> -1: reported with the wrong
-        sign), ``setpoint_zones`` (setpoint control -> zone), ``excitation``
-        (the identification's experiment as the card writes it, or None) and ``control``
+        sign), ``setpoint_zones`` (setpoint control -> zone), ``cooling_zones`` (cooling
+        setpoint control -> zone), ``supply_reset`` (as the card writes it, or None),
+        ``excitation`` (the identification's experiment as the card writes it, or None) and
+        ``control``
         (the MPC's ``card`` and ``settings`` as absolute paths, or None).
     network : NetworkSpec or None
         For a thermal network (a card's ``network`` section, or ``builtin: r1c1`` /
@@ -763,12 +765,17 @@ def _boptest_spec(path: pathlib.Path, spec: dict,
         return None, None  # the schema reported it
     zones = spec.get('setpoint_zones') or {}
     signs = spec.get('power_signs') or {}
+    cooling = spec.get('cooling_zones') or {}
     return {'test_case_dir': str(directory), 'warmup_days': float(warmup),
             'power_signs': {str(k): float(v) for k, v in signs.items()}
             if isinstance(signs, dict) else {},
             'history_step_s': float(history),
             'setpoint_zones': {str(k): str(v) for k, v in zones.items()}
             if isinstance(zones, dict) else {},
+            'cooling_zones': {str(k): str(v) for k, v in cooling.items()}
+            if isinstance(cooling, dict) else {},
+            'supply_reset': dict(spec['supply_reset'])
+            if isinstance(spec.get('supply_reset'), dict) else None,
             'excitation': dict(spec['excitation']) if isinstance(spec.get('excitation'), dict)
             else None,
             'control': _boptest_control(path, spec.get('control'), problems)}, str(fmu)
