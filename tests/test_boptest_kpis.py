@@ -116,7 +116,8 @@ def test_power_signs_correct_a_reversed_output(tiny_case: TestCase) -> None:
                                                    rel=0.05)
     assert corrected['power_signs'] == {'reaPFan_y': -1.0}
     assert 'as_defined' not in right and corrected['tdis_tot'] == right['tdis_tot']
-    with pytest.raises(ValueError, match=r"\['reaTZon_y'\] are not power outputs of tiny"):
+    with pytest.raises(ValueError,
+                       match=r"\['reaTZon_y'\] are not power outputs of the kpis.json of tiny"):
         compute_kpis(table, tiny_case, start, end, power_signs={'reaTZon_y': -1})
     with pytest.raises(ValueError, match='expected -1 or 1'):
         compute_kpis(table, tiny_case, start, end, power_signs={'reaPFan_y': 2})

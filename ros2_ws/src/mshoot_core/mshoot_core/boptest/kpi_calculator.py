@@ -114,8 +114,8 @@ def check_power_signs(case: TestCase, power_signs: Mapping[str, float] | None) -
     outputs = [name for names in case.energy_outputs.values() for name in names]
     unknown = sorted(set(power_signs or {}) - set(outputs))
     if unknown:
-        raise ValueError(f'power_signs: {unknown} are not power outputs of {case.name}\'s '
-                         f'kpis.json (expected some of {outputs})')
+        raise ValueError(f'power_signs: {unknown} are not power outputs of the kpis.json of '
+                         f'{case.name} (expected some of {outputs})')
     bad = {name: sign for name, sign in (power_signs or {}).items() if sign not in (-1, 1)}
     if bad:
         raise ValueError(f'power_signs: expected -1 or 1, got {bad}')
