@@ -27,7 +27,7 @@ BANDS = 'Tmax_0=max:0, Tmin_1=min:1'
 
 
 def _model(folder):
-    """The card r1c1x2 with a test case forecast naming a band per zone ('0', '1')."""
+    """Build the card r1c1x2 with a test case forecast naming a band per zone ('0', '1')."""
     import yaml
     from mshoot_core.models.card import builtin_card
     document = yaml.safe_load(builtin_card('r1c1x2').read_text())
@@ -40,8 +40,8 @@ def _model(folder):
 
 
 def _controller(folder, **settings):
-    values = dict(horizon_steps=HORIZON, cost='energy', band_setpoints=BANDS,
-                  band_setpoint_margin_k=0.5)
+    values = {'horizon_steps': HORIZON, 'cost': 'energy', 'band_setpoints': BANDS,
+              'band_setpoint_margin_k': 0.5}
     return controller_for(_model(folder), MpcSettings.from_flat({**values, **settings}),
                           assumed_inputs={'dpos': 0.0})
 
@@ -146,8 +146,8 @@ def test_band_setpoints_are_released_by_the_last_fallback(tmp_path):
     assert decision.released == (False, False, True, True)
     np.testing.assert_allclose(decision.controls[2:], 21.0)  # (safe_temperature_c, not sent)
     assert never.offer_forecast(STEP_NS, 3600.0, _series(3600.0), STEP_NS) is None
-    [outcome] = never.poll(STEP_NS, steady_ns=120 * NS) or never.poll(STEP_NS,
-                                                                     steady_ns=240 * NS)
+    [outcome] = (never.poll(STEP_NS, steady_ns=120 * NS)
+                 or never.poll(STEP_NS, steady_ns=240 * NS))
     assert outcome.decision.source == 'safe' and not outcome.band_released
     decision, _ = outcome.sent()
     assert decision.released == ()
@@ -185,3 +185,33 @@ def test_bad_band_setpoints_are_refused(tmp_path):
     controls['Tmin_1'] = CardVariable('y_u', unit='degC', canonical_unit='degC')
     with pytest.raises(ValueError, match=r"band setpoint 'Tmin_1' .*overwrite switch"):
         SupervisedPlant(controller, types.SimpleNamespace(controls=controls), lambda t: None)
+
+
+def test_the_mpc_nodes_setpoint_carries_the_band_setpoints(tmp_path):
+    """
+    The MPC node's setpoint message carries them after the controls.
+
+    As ``MpcNode._publish`` builds it: named after the controls, with the plan's intervals and
+    the release flags; it passes the node's final check.
+    """
+    from mshoot_core.safety import check_setpoint
+    from mshoot_nodes import conversions as cv
+    controller = _controller(tmp_path, release='release')
+    outcome = _step(controller, 0)
+    names = controller.sent_control_names
+    decision, schedule = outcome.sent()
+    msg = cv.decision_setpoint_msg(0, decision, 3600.0, controller.interface, 21.0, 'zone',
+                                   schedule, names)
+    assert list(msg.control_names) == ['q_0', 'q_1', 'Tmax_0', 'Tmin_1']
+    np.testing.assert_allclose(msg.control_values[2:], [29.5, 16.5])
+    m = outcome.decision.plan_controls.shape[0]
+    plan = np.asarray(msg.plan_controls).reshape(len(names), m)  # name-major
+    np.testing.assert_allclose(plan[2:].T, outcome.band_values)
+    assert list(msg.released) == []
+    assert check_setpoint(msg.step_s, msg.control_names, msg.control_values,
+                          msg.temperature_names, msg.temperature_setpoints_c, msg.plan_controls,
+                          msg.plan_temperatures_c, expected_controls=names) is None
+    released, _ = controller.hand_back(STEP_NS).sent()
+    msg = cv.decision_setpoint_msg(STEP_NS, released, 3600.0, controller.interface, 21.0,
+                                   control_names=names)
+    assert list(msg.released) == [True] * 4 and list(msg.plan_controls) == []

@@ -48,7 +48,11 @@ def runs(office: TestCase, tmp_path_factory: pytest.TempPathFactory) -> dict:
 
 
 def test_office_mpc_sends_its_decisions_as_the_bms_overwrites(runs: dict) -> None:
-    """Every step of the period is planned and held as the card's overwrites, none before."""
+    """
+    Every step of the period is planned and held as the card's overwrites, none before.
+
+    The maximum setpoints too: each zone's band's upper edge over the step less the margin.
+    """
     policy, table, start = runs['policy'], runs['mpc'].records, runs['start']
     card = load_card(runs['plant'])
     period = [o for o in policy.outcomes if o.t_s >= start - 1e-6]
@@ -65,8 +69,15 @@ def test_office_mpc_sends_its_decisions_as_the_bms_overwrites(runs: dict) -> Non
             np.testing.assert_allclose(sent, value + 273.15, atol=1e-9)  # degC -> K
             assert spec.min - 1e-9 <= sent.min() - 273.15 <= sent.max() - 273.15 <= \
                 spec.max + 1e-9  # (the card's limits in its canonical unit, degC)
+        bands = [card.controls[b[0]].variable for b in policy.controller.band_setpoints]
+        np.testing.assert_allclose(rows[bands].to_numpy() - outcome.band_values[0], 273.15,
+                                   atol=1e-9, err_msg=f'{outcome.t_s:.0f} s')
+    margin = policy.controller.settings.actuation.band_setpoint_margin_k
+    maxima = np.array([o.band_values[0] for o in period])
+    assert margin > 0 and set(np.round(maxima.ravel(), 9)) == {25.0 - margin, 30.0 - margin}
     warmup = table[table['time'] < start - 1e-6]
-    assert warmup[[card.controls[n].variable for n in names]].isna().all().all()
+    assert warmup[[card.controls[n].variable for n in policy.controller.sent_control_names]
+                  ].isna().all().all()
     # the boiler's supply temperature costs gas and nothing else in the model: its lower limit
     supply = np.array([o.decision.controls[2] for o in period])
     np.testing.assert_allclose(supply, 40.0, atol=1e-3)
@@ -108,4 +119,8 @@ def test_office_settings_plan_on_the_card_and_release_to_the_bms() -> None:
                                               settings.problem.control_names}
     import yaml
     plant = yaml.safe_load(PLANT.read_text())['controls']  # (its FMU: the test case's)
-    assert all(plant[name]['activate'] for name in settings.problem.control_names)
+    assert all(plant[name]['activate'] for name in controller.sent_control_names)
+    # the maximum (cooling) setpoints at the band's upper edge less the margin, not planned
+    assert controller.sent_control_names[3:] == ('TSetMax_nZ', 'TSetMax_sZ')
+    assert [b[1:] for b in controller.band_setpoints] == [
+        ('max', 'comfort_min_nZ', 'comfort_max_nZ'), ('max', 'comfort_min_sZ', 'comfort_max_sZ')]
