@@ -25,7 +25,9 @@ the same decisions through the same code:
 - :meth:`Controller.poll` is called whenever something may have changed (a new
   input, a timer, a finished solve) with the controller's clock ``now_ns``
   (simulated or real time) and a steady wall clock ``steady_ns``; it returns
-  the :class:`StepOutcome` of every step decided since the last call.
+  the :class:`StepOutcome` of every step decided since the last call, with the step's band
+  setpoints (settings ``band_setpoints``: plant controls at a comfort band's edge, not
+  planned, :meth:`Controller.band_setpoint_values`) and what is sent (:meth:`StepOutcome.sent`).
 
 A step is due when the clock enters it. It is solved once, from the newest
 state stamped within the step (or at most ``max_state_age_s`` before it) and
