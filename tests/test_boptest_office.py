@@ -50,7 +50,11 @@ def runs(office: TestCase, tmp_path_factory: pytest.TempPathFactory) -> dict:
 
 
 def test_office_mpc_sends_its_decisions_as_the_bms_overwrites(runs: dict) -> None:
-    """Every step of the period is planned and held as the card's overwrites, none before."""
+    """
+    Every step of the period is planned and held as the card's overwrites, none before.
+
+    The maximum setpoints too: each zone's band's upper edge over the step less the margin.
+    """
     policy, table, start = runs['policy'], runs['mpc'].records, runs['start']
     card = load_card(runs['plant'])
     period = [o for o in policy.outcomes if o.t_s >= start - 1e-6]
@@ -67,8 +71,15 @@ def test_office_mpc_sends_its_decisions_as_the_bms_overwrites(runs: dict) -> Non
             np.testing.assert_allclose(sent, value + 273.15, atol=1e-9)  # degC -> K
             assert spec.min - 1e-9 <= sent.min() - 273.15 <= sent.max() - 273.15 <= \
                 spec.max + 1e-9  # (the card's limits in its canonical unit, degC)
+        bands = [card.controls[b[0]].variable for b in policy.controller.band_setpoints]
+        np.testing.assert_allclose(rows[bands].to_numpy() - outcome.band_values[0], 273.15,
+                                   atol=1e-9, err_msg=f'{outcome.t_s:.0f} s')
+    margin = policy.controller.settings.actuation.band_setpoint_margin_k
+    maxima = np.array([o.band_values[0] for o in period])
+    assert margin > 0 and set(np.round(maxima.ravel(), 9)) == {25.0 - margin, 30.0 - margin}
     warmup = table[table['time'] < start - 1e-6]
-    assert warmup[[card.controls[n].variable for n in names]].isna().all().all()
+    assert warmup[[card.controls[n].variable for n in policy.controller.sent_control_names]
+                  ].isna().all().all()
     # the boiler's supply temperature costs gas and nothing else in the model: its lower limit
     supply = np.array([o.decision.controls[2] for o in period])
     np.testing.assert_allclose(supply, 40.0, atol=1e-3)
@@ -110,7 +121,11 @@ def test_office_settings_plan_on_the_card_and_release_to_the_bms() -> None:
                                               settings.problem.control_names}
     import yaml
     plant = yaml.safe_load(PLANT.read_text())['controls']  # (its FMU: the test case's)
-    assert all(plant[name]['activate'] for name in settings.problem.control_names)
+    assert all(plant[name]['activate'] for name in controller.sent_control_names)
+    # the maximum (cooling) setpoints at the band's upper edge less the margin, not planned
+    assert controller.sent_control_names[3:] == ('TSetMax_nZ', 'TSetMax_sZ')
+    assert [b[1:] for b in controller.band_setpoints] == [
+        ('max', 'comfort_min_nZ', 'comfort_max_nZ'), ('max', 'comfort_min_sZ', 'comfort_max_sZ')]
 
 
 @pytest.mark.ros
@@ -120,8 +135,9 @@ def test_office_over_ros_equals_the_core_run(runs: dict, tmp_path: pathlib.Path,
     The office's MPC over ROS (the runner of ``make boptest-office``) equals its core run.
 
     The emulator, forecaster and MPC nodes from the same cards and settings
-    (:func:`mshoot_nodes.boptest_run.run_ros`): two zones, three named overwrites (both
-    minimum setpoints, the boiler's supply temperature), the gas price, the weather derived
+    (:func:`mshoot_nodes.boptest_run.run_ros`): two zones, five named overwrites (both
+    minimum setpoints, the boiler's supply temperature planned; both maximum setpoints at the
+    band), the gas price, the weather derived
     from the FMU; every step's decision, the setpoints the building got minute by minute, both
     zone temperatures, the gas and the KPIs (``pgas_tot``, ``tdis_zones``) equal to 1e-9.
     """
@@ -146,15 +162,16 @@ def test_office_over_ros_equals_the_core_run(runs: dict, tmp_path: pathlib.Path,
     steps = round(LENGTH_DAYS * 24)
     assert not ros.failed and ros.steps == steps
     assert (ros.start_s, ros.end_s) == (core.start_s, core.end_s)
-    # every step's decision: the overwrites by name [degC], none a fallback
-    names = policy.controller.settings.problem.control_names
+    # every step's decision: the overwrites by name [degC] (the planned controls, then the
+    # band setpoints), none a fallback
+    names = policy.controller.sent_control_names
     period = [o for o in policy.outcomes if o.t_s >= runs['start'] - 1e-6]
     history = list(seen['mpc'].history)
     assert len(history) == len(period) == steps
     for (setpoint, status), outcome in zip(history, period):
         assert status.source == 'optimum' and not list(setpoint.released)
         sent = dict(zip(setpoint.control_names, setpoint.control_values))
-        np.testing.assert_allclose([sent[n] for n in names], outcome.decision.controls,
+        np.testing.assert_allclose([sent[n] for n in names], outcome.sent()[0].controls,
                                    rtol=1e-9, atol=1e-9)
     # what the building got and did, minute by minute (the warm-up's own control included)
     card = load_card(runs['plant'])
@@ -181,7 +198,7 @@ def test_office_over_ros_releases_every_overwrite_on_its_last_fallback(
     The solver fails for 2 steps of the office over ROS: the plan's tail, then all released.
 
     The MPC node on the office's settings (the fallback after one step of the plan's tail,
-    ``release: release``): the three named overwrites held from the plan, then released
+    ``release: release``): the five named overwrites held from the plan, then released
     together (the BMS's own setpoints and supply temperature: the overwrite inputs not applied)
     and sent again once the solver is back.
     """
@@ -218,7 +235,7 @@ def test_office_over_ros_releases_every_overwrite_on_its_last_fallback(
     expected = ['optimum'] * failing[0] + ['plan', 'released'] + ['optimum']
     assert [status.source for _, status in history] == expected
     card = load_card(runs['plant'])
-    names = runs['policy'].controller.settings.problem.control_names
+    names = runs['policy'].controller.sent_control_names
     assert [sorted(setpoint.control_names) for setpoint, _ in history] == [sorted(names)] * hours
     assert [list(setpoint.released) for setpoint, _ in history] == [
         [True] * len(names) if s == 'released' else [] for s in expected]
@@ -235,7 +252,8 @@ def test_office_emulator_cards_over_ros(runs: dict, tmp_path: pathlib.Path) -> N
     from mshoot_nodes.boptest_run import emulator_card, rule_setpoint, sent_controls
     card = load_card(runs['plant'])
     sent, step = sent_controls(str(CONTROL), MpcSettings.from_file(SETTINGS))
-    assert (sent, step) == (('TSetMin_nZ', 'TSetMin_sZ', 'TSupHea'), 3600.0)
+    assert (sent, step) == (('TSetMin_nZ', 'TSetMin_sZ', 'TSupHea', 'TSetMax_nZ',
+                             'TSetMax_sZ'), 3600.0)
     mshoot = load_card(emulator_card(card.path, sent, tmp_path / 'mshoot.yaml', warmup_days=1,
                                      history_step_s=step))
     assert list(mshoot.controls) == list(sent)

@@ -25,7 +25,9 @@ the same decisions through the same code:
 - :meth:`Controller.poll` is called whenever something may have changed (a new
   input, a timer, a finished solve) with the controller's clock ``now_ns``
   (simulated or real time) and a steady wall clock ``steady_ns``; it returns
-  the :class:`StepOutcome` of every step decided since the last call.
+  the :class:`StepOutcome` of every step decided since the last call, with the step's band
+  setpoints (settings ``band_setpoints``: plant controls at a comfort band's edge, not
+  planned, :meth:`Controller.band_setpoint_values`) and what is sent (:meth:`StepOutcome.sent`).
 
 A step is due when the clock enters it. It is solved once, from the newest
 state stamped within the step (or at most ``max_state_age_s`` before it) and
@@ -66,7 +68,7 @@ from mshoot_core.safety import (applied_control_ranges, check_forecast, check_hi
                                 check_lengths, check_named, check_series, check_zone_state,
                                 COMFORT_SERIES, Decision, InputWait, LIMITS, PRICE_SERIES,
                                 Rejection, RejectionCounter, reorder, SetpointSupervisor,
-                                StampGate, zone_state_caps)
+                                StampGate, zone_band_series, zone_state_caps)
 from mshoot_core.scenario import column_labels, forecast_window
 from mshoot_core.settings import BY_NAME, MpcSettings
 from mshoot_core.shooting import Scaling
@@ -107,6 +109,14 @@ class StepOutcome:
         What is sent within the step (:class:`~mshoot_core.actuation.Actuator`, settings
         ``actuation``): the decision's controls held (one piece), or bursts; None when the
         decision's controls are sent as they are.
+    band_values : ndarray or None
+        The band setpoints (settings ``band_setpoints``, in that order; None: none), shape
+        (max(m, 1), nb): row 0 the step's, row k the k-th interval's of the decision's plan of
+        m intervals [the band's unit, degC]; see :meth:`Controller.band_setpoint_values`.
+    band_released : bool
+        The band setpoints' overwrites released: no forecast covers the step (its values are
+        then ``safe_temperature_c``); :meth:`sent` also releases them with the decision's
+        overwrites (source 'released').
 
     """
 
@@ -117,11 +127,45 @@ class StepOutcome:
     x0: np.ndarray | None
     x0_std: np.ndarray | None = None
     schedule: Schedule | None = None
+    band_values: np.ndarray | None = None
+    band_released: bool = False
 
     @property
     def t_s(self) -> float:
         """Start of the step [s]."""
         return self.step_ns / NS_PER_S
+
+    def sent(self) -> tuple[Decision, Schedule | None]:
+        """
+        Return the decision and the schedule as sent: the band setpoints after the controls.
+
+        What the plant gets (:attr:`Controller.sent_control_names`, in that order): the
+        decision's controls, plan and release flags with the band setpoints appended (held over
+        the step's pieces; the plan's intervals each with its own); released with the
+        decision's overwrites (source 'released') or when :attr:`band_released`. Without band
+        setpoints, the decision and schedule as they are.
+        """
+        bands = self.band_values
+        if bands is None:
+            return self.decision, self.schedule
+        d = self.decision
+        bands = np.asarray(bands, dtype=float).reshape(-1, np.shape(bands)[-1])
+        nc, nb = np.asarray(d.controls).size, bands.shape[1]
+        release = self.band_released or d.source == 'released'
+        plan = np.asarray(d.plan_controls, dtype=float).reshape(-1, nc)
+        m = plan.shape[0]
+        decision = dataclasses.replace(
+            d, controls=np.concatenate([np.asarray(d.controls, dtype=float).reshape(-1),
+                                        bands[0]]),
+            plan_controls=np.hstack([plan, bands[np.minimum(np.arange(m), len(bands) - 1)]]),
+            released=((tuple(d.released) or (False,) * nc) + (release,) * nb
+                      if d.released or release else ()))
+        schedule = self.schedule
+        if schedule is not None:
+            n = schedule.offsets_s.size
+            schedule = Schedule(schedule.offsets_s,
+                                np.hstack([schedule.values, np.tile(bands[0], (n, 1))]))
+        return decision, schedule
 
 
 @dataclasses.dataclass
@@ -228,6 +272,10 @@ class Controller:
         self.actuator = self._build_actuator()
         self.measured_inputs = self._check_measured_inputs()
         self._error_processes  # noqa: B018 - bad forecast_error_inputs fail here
+        #: The band setpoints (settings ``band_setpoints``): (plant control, edge, lower
+        #: series, upper series) each.
+        self.band_setpoints = self._check_band_setpoints()
+        self._band_ranges: dict[str, tuple[float, float]] = {}
 
     # -- configuration --------------------------------------------------------------------
     @property
@@ -280,6 +328,110 @@ class Controller:
             raise ValueError('measured_inputs needs a state estimate (estimation on, or '
                              'unmeasured states)')
         return measured
+
+    def _check_band_setpoints(self) -> tuple[tuple[str, str, str, str], ...]:
+        """Return the settings' ``band_setpoints`` with their band series, checked."""
+        bands = {(lower, upper) for lower, upper, _ in self.mpc.state_bounds.values()}
+        zones = sorted(lower[len(COMFORT_SERIES[0]) + 1:] if lower != COMFORT_SERIES[0]
+                       else "'' (comfort_min, comfort_max)" for lower, _ in bands)
+        out = []
+        for control, edge, zone in self.settings.actuation.band_items:
+            pair = zone_band_series(zone) if zone else COMFORT_SERIES
+            if pair not in bands:
+                raise ValueError(f'band_setpoints: {control}={edge}{":" if zone else ""}{zone} '
+                                 f'names the band of zone {zone!r} ({pair[0]}, {pair[1]}), '
+                                 f"which the controller's forecast does not carry: its bands "
+                                 f'are those of the zones {zones}')
+            if control in self.plant_control_names:
+                raise ValueError(f'band_setpoints: {control!r} is also sent as a model '
+                                 f'control ({list(self.plant_control_names)})')
+            out.append((control, edge, *pair))
+        return tuple(out)
+
+    @property
+    def sent_control_names(self) -> tuple[str, ...]:
+        """
+        Return the names of everything sent every step, as the plant names them.
+
+        :attr:`plant_control_names`, then the band setpoints (settings ``band_setpoints``): the
+        order of :meth:`StepOutcome.sent`.
+        """
+        return (*self.plant_control_names, *(b[0] for b in self.band_setpoints))
+
+    def limit_band_setpoints(self, ranges: Mapping[str, tuple[float | None, float | None]]
+                             ) -> None:
+        """
+        Clip the band setpoints to their plant controls' ranges from now on.
+
+        Parameters
+        ----------
+        ranges : mapping
+            Band setpoint (plant control) -> (min, max) [degC, the band's unit] (None or NaN:
+            open), e.g. the plant card's limits; every band setpoint needs one.
+
+        Raises
+        ------
+        ValueError
+            For a band setpoint without a range, or an empty range.
+
+        """
+        out = {}
+        for control, *_ in self.band_setpoints:
+            if control not in ranges:
+                raise ValueError(f'band setpoint {control!r} has no range (got ranges of '
+                                 f'{sorted(ranges)})')
+            low, high = (default if v is None or math.isnan(v) else float(v)
+                         for v, default in zip(ranges[control], (-math.inf, math.inf)))
+            if not low < high:
+                raise ValueError(f'band setpoint {control!r}: empty range [{low:g}, {high:g}]')
+            out[control] = (low, high)
+        self._band_ranges = out
+
+    def band_setpoint_values(self, step_ns: int, rows: int = 1) -> tuple[np.ndarray | None, bool]:
+        """
+        Return the band setpoints of a step and of the intervals after it, and if released.
+
+        Setting ``band_setpoints``: for a step, the band of the newest forecast for the step
+        (:meth:`offer_forecast`) at the row of the step's end (a test case's forecast holds
+        there the tightest band over the step), its upper edge less ``band_setpoint_margin_k``
+        ('max') or its lower edge plus the margin ('min'), at most to the band's middle,
+        clipped to the plant control's range (:meth:`limit_band_setpoints`). Without a forecast
+        for the step: ``safe_temperature_c`` (clipped), released.
+
+        Parameters
+        ----------
+        step_ns : int
+            Start of the step [ns].
+        rows : int
+            The step and the intervals after it (e.g. a plan's).
+
+        Returns
+        -------
+        (ndarray or None, bool)
+            Shape (rows, nb) [degC] in the order of the settings (None without band
+            setpoints), and whether they are released.
+
+        """
+        if not self.band_setpoints:
+            return None, False
+        ranges = [self._band_ranges.get(b[0], (-math.inf, math.inf))
+                  for b in self.band_setpoints]
+        low, high = np.array(ranges, dtype=float).T
+        forecast = self._forecast_for(int(step_ns))
+        if forecast is None:
+            safe = self.settings.supervisor.safe_temperature_c
+            return np.clip(np.full((rows, len(ranges)), safe), low, high), True
+        stamp, frame = forecast
+        index = np.minimum((int(step_ns) - stamp) // self.step_ns + 1 + np.arange(rows),
+                           len(frame) - 1)
+        margin = self.settings.actuation.band_setpoint_margin_k
+        columns = []
+        for _, edge, lower, upper in self.band_setpoints:
+            lo = frame[lower].to_numpy(dtype=float)[index]
+            hi = frame[upper].to_numpy(dtype=float)[index]
+            inward = np.minimum(margin, np.maximum(0.5 * (hi - lo), 0.0))
+            columns.append(hi - inward if edge == 'max' else lo + inward)
+        return np.clip(np.column_stack(columns), low, high), False
 
     def _build_supervisor(self) -> SetpointSupervisor:
         p, s = self.settings.problem, self.settings.supervisor
@@ -1071,6 +1223,9 @@ class Controller:
         temperature a setpoint cannot be sent: the decision's controls are held (logged).
         """
         decision = outcome.decision
+        bands, released = self.band_setpoint_values(
+            outcome.step_ns, max(np.shape(decision.plan_controls)[0], 1))
+        outcome = dataclasses.replace(outcome, band_values=bands, band_released=released)
         controls = np.asarray(decision.controls, dtype=float).reshape(-1)
         zones = [self.model.state_names.index(s) for s in self.mpc.state_bounds]
         zone_k = (float(outcome.x0[zones[0]]) if outcome.x0 is not None and zones else None)

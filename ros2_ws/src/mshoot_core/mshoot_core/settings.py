@@ -24,6 +24,7 @@ import functools
 import logging
 import math
 import pathlib
+import re
 from typing import Any, Iterable, Mapping
 
 logger = logging.getLogger(__name__)
@@ -423,12 +424,39 @@ class ActuationSettings(SettingsGroup):
                                   "sent as, comma-separated 'control=plant_control' (e.g. a "
                                   "duty sent in bursts as the heat pump's modulation; '' = the "
                                   'same names)', apply='fixed')
+    band_setpoints: str = setting(
+        '', "plant controls (their cards') sent every step at an edge of a comfort band moved "
+        "inward by band_setpoint_margin_k, not planned: comma-separated 'plant_control=max:zone' "
+        "(the zone's band's upper edge less the margin, e.g. its maximum (cooling) setpoint) or "
+        "'plant_control=min:zone' (the lower edge plus the margin); 'max' or 'min' alone: the "
+        'band comfort_max, comfort_min. The tightest edge over the step from the forecast, '
+        "clipped to the plant control's range; released with the overwrites by the last "
+        "fallback, and when no forecast covers the step ('' = none) [the band's unit, degC]",
+        apply='fixed')
+    band_setpoint_margin_k: float = setting(
+        0.0, 'band_setpoints moved inward from their band edge by this much, at most to the '
+        "band's middle [K]", low=0.0, high=20.0, apply='inputs')
 
     @property
     def plant_names(self) -> dict[str, str]:
         """Return ``plant_controls`` as model control -> plant control."""
         return {a.strip(): b.strip() for a, _, b in (
             item.partition('=') for item in self.plant_controls.split(',') if item.strip())}
+
+    @property
+    def band_items(self) -> tuple[tuple[str, str, str], ...]:
+        """
+        Return ``band_setpoints`` as (plant control, edge, zone) items.
+
+        The edge 'min' or 'max'; the zone '' for the band ``comfort_min``, ``comfort_max``
+        (also for an item that does not parse: :meth:`rules` reports it).
+        """
+        out = []
+        for item in (i.strip() for i in self.band_setpoints.split(',') if i.strip()):
+            control, _, source = (part.strip() for part in item.partition('='))
+            edge, colon, zone = (part.strip() for part in source.partition(':'))
+            out.append((control, edge, zone if colon and zone else ('?' if colon else '')))
+        return tuple(out)
 
     def rules(self) -> list[str]:
         items = [i for i in self.plant_controls.split(',') if i.strip()]
@@ -437,6 +465,18 @@ class ActuationSettings(SettingsGroup):
                                                for a, b in names.items()):
             return ["plant_controls must be distinct 'control=plant_control' items separated "
                     f'by commas, got {self.plant_controls!r}']
+        items = [i for i in self.band_setpoints.split(',') if i.strip()]
+        bands = self.band_items
+        if len({c for c, _, _ in bands}) != len(items) or not all(
+                control.isidentifier() and edge in ('min', 'max') and re.fullmatch(r'\w*', zone)
+                for control, edge, zone in bands):
+            return ["band_setpoints must be distinct 'plant_control=max:zone' or "
+                    "'plant_control=min:zone' items separated by commas (':zone' may be left "
+                    f'out), got {self.band_setpoints!r}']
+        both = sorted({c for c, _, _ in bands} & set(names.values()))
+        if both:
+            return [f'band_setpoints: {both} are also sent as model controls (plant_controls '
+                    f'{self.plant_controls!r})']
         if self.actuation_send == 'setpoint' and self.actuation != 'burst':
             return ["actuation_send 'setpoint' needs actuation 'burst', got actuation "
                     f'{self.actuation!r}']

@@ -148,13 +148,14 @@ def sent_controls(card: str, settings: MpcSettings) -> tuple[tuple[str, ...], fl
     """
     Return the plant's controls the MPC of a control card and settings sends, and its step.
 
-    The controller's :attr:`~mshoot_core.controller.Controller.plant_control_names` (its
-    model's controls as the settings' ``plant_controls`` name them) and control step [s].
+    The controller's :attr:`~mshoot_core.controller.Controller.sent_control_names` (its
+    model's controls as the settings' ``plant_controls`` name them, then its band setpoints)
+    and control step [s].
     """
     from mshoot_core.controller import controller_for
     from mshoot_core.models.card import build_model
     controller = controller_for(build_model(load_card(control_card_path(card))), settings)
-    return controller.plant_control_names, float(controller.settings.problem.step_s)
+    return controller.sent_control_names, float(controller.settings.problem.step_s)
 
 
 def emulator_card(card: pathlib.Path, controls: Sequence[str], path: pathlib.Path, *,

@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import collections
 import concurrent.futures
+import dataclasses
 from typing import Any
 
 from mshoot_core.controller import Controller, controller_for, StepOutcome
@@ -384,11 +385,11 @@ class MpcNode(ManagedNode):
         """Publish the setpoint and status of a step (a last finiteness check included)."""
         p = self.params
         interface = self.controller.interface
-        step_ns, decision, result = outcome.step_ns, outcome.decision, outcome.result
-        sent = self.controller.plant_control_names
+        step_ns, result = outcome.step_ns, outcome.result
+        sent = self.controller.sent_control_names  # (the band setpoints after the controls)
+        decision, schedule = outcome.sent()
         setpoint = decision_setpoint_msg(step_ns, decision, p['step_s'], interface,
-                                         p['safe_temperature_c'], p['zone'], outcome.schedule,
-                                         sent)
+                                         p['safe_temperature_c'], p['zone'], schedule, sent)
         problem = check_setpoint(setpoint.step_s, setpoint.control_names,
                                  setpoint.control_values, setpoint.temperature_names,
                                  setpoint.temperature_setpoints_c, setpoint.plan_controls,
@@ -396,9 +397,9 @@ class MpcNode(ManagedNode):
         if problem:  # cannot happen unless the supervisor has a bug: never publish it
             self.get_logger().error(f'setpoint for {step_ns / NS_PER_S:.0f} s failed its final '
                                     f'check ({problem.reason}): publishing the safe setpoint')
-            decision = self.controller.supervisor.safe(
+            decision, _ = dataclasses.replace(outcome, decision=self.controller.supervisor.safe(
                 step_ns / NS_PER_S, 'invalid_plan', f'{problem.reason}; fallback: the safe '
-                'setpoint')
+                'setpoint'), schedule=None).sent()
             setpoint = decision_setpoint_msg(step_ns, decision, p['step_s'], interface,
                                              p['safe_temperature_c'], p['zone'],
                                              control_names=sent)

@@ -28,7 +28,9 @@ frame of the horizon's rows from ``t_s``, by series name); a warm-up step is obs
 other. In the test period, each step's decision (:meth:`SupervisedPlant.__call__`) goes to the
 plant as the card's overwrites piece by piece (the schedule within the step: settings
 ``actuation``), each model control sent as the plant's control of the settings'
-``plant_controls``; a released control's overwrite is released (the building's own controller).
+``plant_controls``, then the band setpoints of the settings' ``band_setpoints`` (controls of
+the card with overwrite switches, clipped to the card's limits: :meth:`StepOutcome.sent`); a
+released control's overwrite is released (the building's own controller).
 """
 from __future__ import annotations
 
@@ -68,8 +70,8 @@ class SupervisedPlant:
     Raises
     ------
     ValueError
-        If a model control is sent as a control the card does not have, or without an
-        overwrite switch.
+        If a model control or a band setpoint is sent as a control the card does not have, or
+        without an overwrite switch.
 
     """
 
@@ -91,6 +93,19 @@ class SupervisedPlant:
                                  f'of the card with an overwrite switch, got '
                                  f'{sorted(card.controls)}')
             self._sent[control] = spec
+        bands = {}
+        for plant, *_ in controller.band_setpoints:
+            spec = card.controls.get(plant)
+            if spec is None or spec.activate is None:
+                raise ValueError(f'band setpoint {plant!r} (band_setpoints '
+                                 f'{settings.actuation.band_setpoints!r}): expected a control '
+                                 f'of the card with an overwrite switch, got '
+                                 f'{sorted(card.controls)}')
+            bands[plant] = spec
+        controller.limit_band_setpoints({plant: (spec.min, spec.max)
+                                         for plant, spec in bands.items()})
+        #: What is sent, in the order of :meth:`StepOutcome.sent`: the card's controls.
+        self._specs = [*self._sent.values(), *bands.values()]
         self.outcomes: list[StepOutcome] = []
         self._last_s: float | None = None
 
@@ -156,17 +171,20 @@ class SupervisedPlant:
         return self.pieces(outcome)
 
     def pieces(self, outcome: StepOutcome) -> list[tuple[float, dict[str, float | None]]]:
-        """Return a decision's overwrites piece by piece (see :meth:`__call__`)."""
-        decision = outcome.decision
-        released = decision.released or (False,) * len(self._sent)
-        schedule = outcome.schedule
+        """
+        Return a step's overwrites piece by piece (see :meth:`__call__`).
+
+        What :meth:`StepOutcome.sent` sends: the decision's controls, then the band setpoints.
+        """
+        decision, schedule = outcome.sent()
+        released = decision.released or (False,) * len(self._specs)
         if schedule is None:
             offsets = np.zeros(1)
             values = np.asarray(decision.controls, dtype=float).reshape(1, -1)
         else:
             offsets, values = schedule.offsets_s, schedule.values
         ends = [*(outcome.t_s + offsets[1:]), outcome.t_s + self.step_s]
-        sent = list(self._sent.values())
+        sent = self._specs
         return [(float(end), card_overwrites(sent, row, released))
                 for end, row in zip(ends, values)]
 
