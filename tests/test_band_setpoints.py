@@ -98,6 +98,31 @@ def test_band_setpoints_follow_the_band_edge_and_margin(tmp_path):
     np.testing.assert_allclose(third.band_values[0], [23.0, 24.0])  # the bands' middles
 
 
+def test_applied_band_setpoints_in_a_state_are_left_out(tmp_path):
+    """
+    A zone state may carry every sent control as applied (the emulator's card has them all).
+
+    The band setpoints are not model inputs: left out; the model's controls among them are
+    kept; more applied controls than the controller sends are refused by their length.
+    """
+    controller = _controller(tmp_path)
+    names = list(controller.sent_control_names)
+    stamp = 0
+    accepted = controller.offer_named_state(
+        stamp, ['T_0', 'T_1'], [21.5 + KELVIN, 22.5 + KELVIN], stamp,
+        control_names=names, control_values=[0.0, 0.0, 29.5 + KELVIN, 16.5 + KELVIN])
+    assert accepted is None
+    rejection = controller.offer_named_state(
+        stamp, ['T_0', 'T_1'], [21.5 + KELVIN, 22.5 + KELVIN], stamp,
+        control_names=[*names, 'q_0'], control_values=[0.0] * 5)
+    assert rejection is not None and 'control_names has 5 elements, at most 4' in rejection.reason
+    # an applied control neither the model's nor a band setpoint is still refused
+    rejection = controller.offer_named_state(
+        stamp, ['T_0', 'T_1'], [21.5 + KELVIN, 22.5 + KELVIN], stamp,
+        control_names=['q_0', 'nonsense'], control_values=[0.0, 0.0])
+    assert rejection is not None and 'nonsense' in rejection.reason
+
+
 def test_band_setpoints_are_clipped_to_the_plant_controls_range(tmp_path):
     controller = _controller(tmp_path)
     with pytest.raises(ValueError, match=r"band setpoint 'Tmin_1' has no range"):

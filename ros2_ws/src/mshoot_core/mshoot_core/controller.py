@@ -760,11 +760,13 @@ class Controller:
         the history (:func:`~mshoot_core.safety.check_history`); then the state goes to
         :meth:`offer_state` in the model's order. With estimation the states must be
         among the model's and hold the measured ones (the others are ignored); the applied
-        controls enter the prediction over the last step.
+        controls enter the prediction over the last step. The applied band setpoints (settings
+        ``band_setpoints``: sent, not model inputs) may come with them and are left out.
         """
         controls = self.settings.problem.control_names
         model_names = dict(zip(self.plant_control_names, controls))
         control_names = [model_names.get(n, n) for n in control_names]
+        sent = len(controls) + len(self.band_setpoints)
         fields = dict(zip(('state_names', 'state_values', 'output_names', 'output_values',
                            'control_names', 'control_values', 'history_offsets_s',
                            'history_state_values', 'history_output_names',
@@ -772,9 +774,14 @@ class Controller:
                           (state_names, state_values, output_names, output_values,
                            control_names, control_values, *history)))
         rejection = check_lengths('zone state', {k: len(v) for k, v in fields.items()},
-                                  zone_state_caps(len(self.model.state_names), len(controls)))
+                                  zone_state_caps(len(self.model.state_names), sent))
         if rejection:
             return self.reject('state', rejection)
+        bands = {b[0] for b in self.band_setpoints}
+        if bands and len(control_names) == len(control_values):  # else check_zone_state says
+            kept = [k for k, name in enumerate(control_names) if name not in bands]
+            control_names = [control_names[k] for k in kept]
+            control_values = [control_values[k] for k in kept]
         ranges = applied_control_ranges(controls, self.settings.problem.control_bounds)
         if self.estimator is not None:
             measured = self.estimator.measured
