@@ -83,25 +83,22 @@ class SupervisedPlant:
         settings = controller.settings
         names = settings.actuation.plant_names
         self.step_s = float(settings.problem.step_s)
-        self._sent = {}
-        for control in settings.problem.control_names:
-            plant = names.get(control, control)
+
+        def overwrite(plant: str, what: str) -> Any:
             spec = card.controls.get(plant)
             if spec is None or spec.activate is None:
-                raise ValueError(f'control {control!r} is sent as {plant!r} (plant_controls '
-                                 f'{settings.actuation.plant_controls!r}): expected a control '
-                                 f'of the card with an overwrite switch, got '
-                                 f'{sorted(card.controls)}')
-            self._sent[control] = spec
-        bands = {}
-        for plant, *_ in controller.band_setpoints:
-            spec = card.controls.get(plant)
-            if spec is None or spec.activate is None:
-                raise ValueError(f'band setpoint {plant!r} (band_setpoints '
-                                 f'{settings.actuation.band_setpoints!r}): expected a control '
-                                 f'of the card with an overwrite switch, got '
-                                 f'{sorted(card.controls)}')
-            bands[plant] = spec
+                raise ValueError(f'{what}: expected a control of the card with an overwrite '
+                                 f'switch, got {sorted(card.controls)}')
+            return spec
+
+        self._sent = {control: overwrite(
+            names.get(control, control),
+            f'control {control!r} is sent as {names.get(control, control)!r} (plant_controls '
+            f'{settings.actuation.plant_controls!r})')
+            for control in settings.problem.control_names}
+        bands = {plant: overwrite(plant, f'band setpoint {plant!r} (band_setpoints '
+                                         f'{settings.actuation.band_setpoints!r})')
+                 for plant, *_ in controller.band_setpoints}
         controller.limit_band_setpoints({plant: (spec.min, spec.max)
                                          for plant, spec in bands.items()})
         #: What is sent, in the order of :meth:`StepOutcome.sent`: the card's controls.
