@@ -214,6 +214,7 @@ def test_boptest_cards(tmp_path: pathlib.Path, boptest_case: TestCase) -> None:
     assert card.source == 'boptest' and card.controls['TSet'].activate == 'oveTSet_activate'
     assert card.boptest == {'test_case_dir': str(boptest_case.directory), 'warmup_days': 7.0,
                             'history_step_s': 0.0, 'setpoint_zones': {},
+                            'cooling_zones': {}, 'supply_reset': None, 'power_signs': {},
                             'excitation': None, 'control': None}
     assert load_card(builtin_card('boptest_baseline')).controls['TSet'].activate is None
     with pytest.raises(ValueError, match='emulator'):

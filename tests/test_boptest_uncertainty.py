@@ -13,6 +13,10 @@ from mshoot_core.settings import ForecastErrorSettings, MpcSettings, SettingsErr
 import numpy as np
 import pytest
 
+#: The heat pump house's card (its boptest.control: the control card and settings boptest_house).
+HOUSE_CARD = pathlib.Path(__file__).resolve().parents[1] / 'docs' / 'boptest_cards' / \
+    'bestest_hydronic_heat_pump.yaml'
+
 
 def test_uncertainty_runs_parse_levels_and_seeds() -> None:
     runs = uncertainty_runs(BENCHMARK_UNCERTAINTY)
@@ -134,11 +138,13 @@ def test_benchmark_under_uncertainty_over_ros_equals_the_core_run(
     from mshoot_core.boptest.kpi_calculator import compute_kpis
     from mshoot_core.boptest.plant import run_period
     from mshoot_core.boptest.supervision import supervised_plant
-    from mshoot_nodes.boptest_run import main, MSHOOT_CARD, MSHOOT_PLANT, MSHOOT_SETTINGS
+    from mshoot_nodes.boptest_run import main
+    from mshoot_studies.boptest import prepare_card
     out = tmp_path / 'boptest'
     assert main(['--controllers', 'mshoot', '--uncertainty', 'high=3', '--periods',
                  'peak_heat_day', '--prices', 'dynamic', '--warmup-days', '1', '--days', '1',
-                 '--out', str(out), '--test-case', str(boptest_case.directory)]) == 0
+                 '--out', str(out), '--testcase', str(boptest_case.directory),
+                 '--card', str(HOUSE_CARD)]) == 0
     (record,) = json.loads((out / 'kpis.json').read_text())
     assert (record['controller'], record['uncertainty'], record['seed']) == ('mshoot', 'high', 3)
     (run,) = json.loads((out / 'runs.json').read_text())
@@ -147,9 +153,11 @@ def test_benchmark_under_uncertainty_over_ros_equals_the_core_run(
     ros = pd.read_csv(out / 'runs' / run['name'] / 'boptest_records.csv')
 
     def core(errors: ForecastErrorSettings | None) -> pd.DataFrame:
-        settings = MpcSettings.from_file(MSHOOT_SETTINGS, **allowance(errors))
-        policy = supervised_plant(boptest_case, builtin_card(f'boptest_{MSHOOT_PLANT}'),
-                                  builtin_card(MSHOOT_CARD), settings, 'dynamic', errors)
+        # the house's card names its MPC: control card and settings boptest_house
+        settings = MpcSettings.from_file('boptest_house', **allowance(errors))
+        plant = prepare_card(HOUSE_CARD, boptest_case.directory, tmp_path / 'plant')
+        policy = supervised_plant(boptest_case, plant, builtin_card('boptest_house'), settings,
+                                  'dynamic', errors)
         result = run_period(boptest_case, 'peak_heat_day', policy, warmup_days=1, length_days=1,
                             record=policy.recorded(boptest_case))
         assert all(not o.decision.fallback for o in policy.outcomes)
