@@ -204,34 +204,22 @@ def test_office_over_ros_releases_every_overwrite_on_its_last_fallback(
     """
     import rclpy
     from conftest import private_context
-    from mshoot_core.solvers import make_solver
     from mshoot_nodes.boptest_run import run_ros
-    from mshoot_testing.faults import FaultySolver
+    from mshoot_testing.faults import SolverOutage
     monkeypatch.setenv(fmu_cache.CACHE_ENV, runs['cache'])  # the weather derived for the run
     hours, failing = 5, (2, 3)
-    solver = FaultySolver(make_solver('ipopt'))
-    seen: dict = {}
-
-    def inject(steps: int, nodes: dict) -> None:
-        if steps == 0:
-            seen['mpc'] = nodes['controller']
-            nodes['controller'].mpc.set_solver(solver)
-        elif steps == failing[0]:
-            solver.faults.arm('fail', times=100_000)
-        elif steps == failing[-1] + 1:
-            solver.faults.clear()
-
+    outage = SolverOutage(failing)
     context = private_context()
     try:
         run = run_ros(context, 'mshoot', 'typical_heat_day', runs['case'], PLANT,
                       control=(str(CONTROL), str(SETTINGS)), warmup_days=0.25,
                       length_days=hours / 24, out=tmp_path, timeout_s=900.0,
                       mpc_settings={'horizon_steps': HORIZON, 'on_failure': 'fallback',
-                                    'max_plan_age_steps': 1}, on_step=inject)
+                                    'max_plan_age_steps': 1}, on_step=outage)
     finally:
         rclpy.try_shutdown(context=context)
     assert not run.failed and run.steps == hours
-    history = list(seen['mpc'].history)
+    history = list(outage.mpc.history)
     expected = ['optimum'] * failing[0] + ['plan', 'released'] + ['optimum']
     assert [status.source for _, status in history] == expected
     card = load_card(runs['plant'])

@@ -120,33 +120,21 @@ def test_mshoot_fault_over_ros_plan_tail_release_and_back(boptest_case: TestCase
     then control again; a defined input at every minute.
     """
     import rclpy
-    from mshoot_core.solvers import make_solver
     from mshoot_nodes.boptest_run import run_ros
-    from mshoot_testing.faults import FaultySolver
+    from mshoot_testing.faults import SolverOutage
     hours, failing = 8, (3, 4, 5)
-    solver = FaultySolver(make_solver('ipopt'))
-    seen: dict = {}
-
-    def inject(steps: int, nodes: dict) -> None:
-        if steps == 0:
-            seen['mpc'] = nodes['controller']
-            nodes['controller'].mpc.set_solver(solver)
-        elif steps == failing[0]:
-            solver.faults.arm('fail', times=100_000)
-        elif steps == failing[-1] + 1:
-            solver.faults.clear()
-
+    outage = SolverOutage(failing)
     context = private_context()
     try:
         run = run_ros(context, 'mshoot', 'peak_heat_day', boptest_case, CARD, control=CONTROL,
                       price='dynamic', warmup_days=1, length_days=hours / 24, out=tmp_path,
                       timeout_s=900.0,
                       mpc_settings={'on_failure': 'fallback', 'max_plan_age_steps': 1},
-                      on_step=inject)
+                      on_step=outage)
     finally:
         rclpy.try_shutdown(context=context)
     assert not run.failed and run.steps == hours
-    history = list(seen['mpc'].history)
+    history = list(outage.mpc.history)
     expected = (['optimum'] * failing[0] + ['plan'] + ['released'] * (len(failing) - 1)
                 + ['optimum'] * (hours - failing[-1] - 1))
     assert [status.source for _, status in history] == expected

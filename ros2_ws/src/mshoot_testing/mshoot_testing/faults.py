@@ -17,6 +17,10 @@ next calls:
 
 A fault armed for ``times`` solves is consumed one per solve (a model fault
 by the first simulation of each solve).
+
+:class:`SolverOutage` is an ``on_step`` hook of the BOPTEST runner's ROS run
+(:func:`mshoot_nodes.boptest_run.run_ros`): the MPC node's solver fails over a
+run of control steps, then works again.
 """
 from __future__ import annotations
 
@@ -169,3 +173,37 @@ class FaultyModel(Model):
 
     def jacobian_sparsity(self, wrt_inputs: Sequence[int]) -> np.ndarray | None:
         return self.inner.jacobian_sparsity(wrt_inputs)
+
+
+class SolverOutage:
+    """
+    An ``on_step(steps, nodes)`` hook: the MPC node's solver fails over some steps.
+
+    At step 0 the node's solver is wrapped in a :class:`FaultySolver` (``solver``, default
+    IPOPT) and the node kept (:attr:`mpc`, e.g. for its ``history``); from the first of
+    ``failing`` every solve fails, from the step after the last of them the solver works again.
+
+    Parameters
+    ----------
+    failing : sequence of int
+        The control steps whose solves fail, consecutive, counted from 0.
+    solver : str
+        The wrapped solver's name (:func:`mshoot_core.solvers.make_solver`).
+
+    """
+
+    def __init__(self, failing: Sequence[int], solver: str = 'ipopt') -> None:
+        from mshoot_core.solvers import make_solver
+        self.failing = tuple(failing)
+        self.solver = FaultySolver(make_solver(solver))
+        self.mpc: Any = None
+
+    def __call__(self, steps: int, nodes: dict) -> None:
+        """Wrap the solver at step 0, arm the failure, clear it after the last failing step."""
+        if steps == 0:
+            self.mpc = nodes['controller']
+            self.mpc.mpc.set_solver(self.solver)
+        elif steps == self.failing[0]:
+            self.solver.faults.arm('fail', times=100_000)
+        elif steps == self.failing[-1] + 1:
+            self.solver.faults.clear()
