@@ -310,10 +310,16 @@ def inject(fault, model, solver, on):
 
 FAULT_MPC = {'horizon_steps': 4, 'on_failure': 'fallback', 'time_budget_s': 1.0,
              'max_plan_age_steps': 2}
+#: A model call of the 'late' fault [s]. The solver looks at its deadline when an iteration
+#: ends: the first ends after 6 model calls, here half a budget past the deadline, so the
+#: solver stops itself at its first iteration however loaded the machine is (with 0.1 s, its
+#: 4th and last iteration ended within ~1 % of the budget: stopped there or finished late, by
+#: a few ms, each leaving another warm start, and the later steps 3e-4 W apart).
+LATE_CALL_S = FAULT_MPC['time_budget_s'] / 4
 
 
 def fault_setup(fault):
-    inner = SlowModel(delay_s=0.1) if fault == 'late' else R1C1Model()
+    inner = SlowModel(delay_s=LATE_CALL_S) if fault == 'late' else R1C1Model()
     return FaultyModel(inner), FaultySolver(make_solver('slsqp'))
 
 
@@ -364,6 +370,8 @@ def test_core_and_ros_make_the_same_decisions(fault, context):
     assert steps['fallback_code'].iloc[FAULT_STEP] == expected
     assert steps['source'].iloc[FAULT_STEP] == 'plan'
     assert (steps['source'].drop(steps.index[FAULT_STEP]) == 'optimum').all()
+    if fault == 'late':  # stopped by its deadline at its first iteration (LATE_CALL_S)
+        assert steps['iterations'].iloc[FAULT_STEP] == 1
 
 
 def test_model_raising_from_hour_20_same_decisions_over_ros(context):

@@ -5,6 +5,7 @@ References are analytic: the R1C1 closed-form response written out here from
 the equations of SPEC section 3, and the exact discretisation (matrix
 exponential) of the linear two-node R2C2 test FMU.
 """
+import copy
 import math
 import zipfile
 
@@ -580,7 +581,9 @@ def test_event_indicators_keep_model_exchange_on_cvode(monkeypatch):
         assert cs.me_batch_plan() == 'Co-Simulation FMU'
         # create CVode before the patch (an FMU with real event indicators gives it roots)
         model.simulate(pd.DataFrame(u[:2], index=[0.0, HOUR], columns=R1C1_INPUTS), x[0])
-        monkeypatch.setattr(model.model_description, 'numberOfEventIndicators', 1)
+        # (on a copy: the description is shared with every model of the FMU file)
+        monkeypatch.setattr(model, 'model_description', copy.copy(model.model_description))
+        model.model_description.numberOfEventIndicators = 1
         assert model.me_batch_plan() == 'the FMU has event indicators'
 
         def refuse(*args, **kwargs):

@@ -140,9 +140,12 @@ def test_a_cached_fmu_is_validated_once(isolated, monkeypatch):
 
     The description read is kept beside the marker (a pickle) and loaded by later models, the
     same description as the XML's; without it, or damaged, the XML is read again (not
-    validated); without the marker (a cache of an older mshoot), validated again.
+    validated); without the marker (a cache of an older mshoot), validated again. Each model
+    stands for another process (the description read once in a process is kept: the next
+    test).
     """
     from mshoot_core.models import fmi
+    monkeypatch.setattr(fmi, '_DESCRIPTIONS', {})
     validations = []
     read = fmi.fmpy.read_model_description
 
@@ -151,6 +154,7 @@ def test_a_cached_fmu_is_validated_once(isolated, monkeypatch):
         return read(*args, **kwargs)
     monkeypatch.setattr(fmi.fmpy, 'read_model_description', recorded)
     for _ in range(2):
+        fmi._DESCRIPTIONS.clear()  # (another process)
         with r1c1_fmi_model(fmi_type='ModelExchange') as model:
             folder = model._unzip_dir
             assert (folder / fmi.VALIDATED_MARKER).is_file()
@@ -162,13 +166,63 @@ def test_a_cached_fmu_is_validated_once(isolated, monkeypatch):
     kept = [p for p in folder.iterdir() if p.name.startswith('.mshoot-description')]
     assert len(kept) == 1  # (no temporary file left)
     kept[0].write_bytes(b'not a pickle')
+    fmi._DESCRIPTIONS.clear()
     with r1c1_fmi_model(fmi_type='ModelExchange') as model:
         assert _fields(model.model_description) == _fields(loaded)
     assert validations == [True, False]  # read again (rewritten), not validated
+    fmi._DESCRIPTIONS.clear()
     with r1c1_fmi_model(fmi_type='ModelExchange'):
         pass
     assert validations == [True, False]
     (folder / fmi.VALIDATED_MARKER).unlink()  # (a cache of an older mshoot)
+    fmi._DESCRIPTIONS.clear()
     with r1c1_fmi_model(fmi_type='CoSimulation') as model:
         assert (folder / fmi.VALIDATED_MARKER).is_file()
     assert validations == [True, False, True]
+
+
+def test_a_description_is_read_once_per_process(isolated, tmp_path, monkeypatch):
+    """
+    A process reads an FMU's modelDescription once: every later reader gets the same object.
+
+    Read again when it changes: another FMU file (another folder of the cache), the extracted
+    description touched or rewritten (its mtime, its size); and validated when a validating
+    reader comes after one that did not validate.
+    """
+    from mshoot_core.models import fmi
+    monkeypatch.setattr(fmi, '_DESCRIPTIONS', {})
+    reads = []
+    read = fmi._read_cached_description
+
+    def counted(folder, label, validate):
+        reads.append((folder.name, validate))
+        return read(folder, label, validate)
+    monkeypatch.setattr(fmi, '_read_cached_description', counted)
+    copy = tmp_path / 'zone.fmu'
+    copy.write_bytes(fmu_cache.find_fmu('r1c1').read_bytes())
+    folder = fmu_cache.extract_fmu(copy)
+    first = fmi.read_cached_description(folder, copy.name, validate=False)
+    assert fmi.read_cached_description(folder, copy.name, validate=False) is first
+    assert len(reads) == 1
+    # a validating reader: read (validated) once, then shared by every reader, models too
+    validated = fmi.read_cached_description(folder, copy.name)
+    assert validated is not first and reads[-1] == (folder.name, True)
+    with r1c1_fmi_model(fmi_type='ModelExchange', fmu_path=copy) as model:
+        assert model.model_description is validated
+    assert fmi.read_cached_description(folder, copy.name, validate=False) is validated
+    assert len(reads) == 2
+    # the extracted description touched: read again (the same content)
+    xml = folder / 'modelDescription.xml'
+    later = xml.stat().st_mtime_ns + 10**9
+    os.utime(xml, ns=(later, later))
+    touched = fmi.read_cached_description(folder, copy.name)
+    assert touched is not validated and _fields(touched) == _fields(validated)
+    assert fmi.read_cached_description(folder, copy.name) is touched and len(reads) == 3
+    # the FMU file rewritten (another description): another folder, read
+    with zipfile.ZipFile(fmu_cache.find_fmu('r1c1')) as archive:
+        members = {name: archive.read(name) for name in archive.namelist()}
+    members['modelDescription.xml'] = members['modelDescription.xml'].replace(
+        b'description="R1C1 zone model', b'description="A rewritten R1C1 zone model')
+    _zip(copy, members)
+    rewritten = fmi.read_cached_description(fmu_cache.extract_fmu(copy), copy.name)
+    assert rewritten.description.startswith('A rewritten R1C1') and len(reads) == 4

@@ -75,12 +75,12 @@ from mshoot_core.forecast_margin import allowance
 from mshoot_core.models.card import load_card
 from mshoot_core.settings import ForecastErrorSettings, MpcSettings
 from mshoot_core.units import json_ready
-from mshoot_studies.boptest import (control_card_path, ensure_forecast_weather,
-                                    mpc_configuration, plan_runs, prepare_card, reads_price,
-                                    RunJob, write_tables)
+from mshoot_studies.boptest import (add_shared_arguments, control_card_path,
+                                    ensure_forecast_weather, mpc_configuration, plan_runs,
+                                    prepare_card, reads_price, RunJob, write_tables)
 from mshoot_studies.boptest_page import write_docs
 from mshoot_studies.boptest_report import count_starts
-from mshoot_studies.boptest_rule import LEADS_H, MARGINS_K, rule_targets, RuleTuning, tune_rule
+from mshoot_studies.boptest_rule import rule_targets, RuleTuning, tune_rule
 import pandas as pd
 import rclpy
 from rclpy.context import Context
@@ -454,14 +454,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--testcase', '--test-case', dest='test_case', default='',
                         help='the BOPTEST test case folder (default $MSHOOT_BOPTEST_DIR or '
                              '../shared/boptest/...)')
-    parser.add_argument('--card', required=True, type=pathlib.Path,
-                        help='the model card of the building (kind boptest)')
-    parser.add_argument('--control-card', default=None,
-                        help='mshoot: the control model card (a file or a built-in card name; '
-                             "default the card's boptest.control.card)")
-    parser.add_argument('--mpc-settings', default=None,
-                        help='mshoot: the MPC settings (a YAML file of flat settings or a '
-                             "packaged name; default the card's boptest.control.settings)")
+    add_shared_arguments(parser)
     parser.add_argument('--periods', nargs='+', default=None,
                         help='test periods (keys of days.json; default all of them)')
     parser.add_argument('--prices', nargs='+', default=list(PRICE_SCENARIOS),
@@ -474,15 +467,6 @@ def build_parser() -> argparse.ArgumentParser:
                              'outdoor temperature and the irradiance at that level, one run per '
                              'seed; LEVEL alone: seed 1; default: '
                              + ' '.join(BENCHMARK_UNCERTAINTY) + ')')
-    parser.add_argument('--warmup-days', type=float, default=None,
-                        help="warm-up [days] (default the card's boptest.warmup_days)")
-    parser.add_argument('--days', type=float, default=14.0, help='test period length [days]')
-    parser.add_argument('--lead', type=float, default=None, help='rule: a fixed lead [h]')
-    parser.add_argument('--margin', type=float, default=None, help='rule: a fixed margin [K]')
-    parser.add_argument('--leads', type=float, nargs='+', default=list(LEADS_H),
-                        help='rule tuning grid: leads [h]')
-    parser.add_argument('--margins', type=float, nargs='+', default=list(MARGINS_K),
-                        help='rule tuning grid: margins [K]')
     parser.add_argument('--retune', action='store_true', help='tune the rule again')
     parser.add_argument('--workers', type=int, default=2, choices=range(1, 9),
                         metavar='N', help="runs and the rule tuning's grid points at once, "

@@ -186,28 +186,20 @@ def plan_runs(periods: Sequence[str], controllers: Sequence[str], prices: Sequen
     return jobs
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+def add_shared_arguments(parser: argparse.ArgumentParser) -> None:
     """
-    Build the command line of ``mshoot boptest``.
+    Add the options both BOPTEST runners take alike to ``parser``.
 
-    Fills ``parser`` (the ``boptest`` verb of ``mshoot``), or a new parser when None. Its errors
-    are one line (``<prog>: error: ...``) and exit 2.
+    The building's card (``--card``), mshoot's control card and settings (``--control-card``,
+    ``--mpc-settings``), the warm-up and test lengths (``--warmup-days``, ``--days``) and the
+    rule's fixed lead and margin or tuning grid (``--lead``, ``--margin``, ``--leads``,
+    ``--margins``): one description for ``mshoot boptest`` (:func:`build_parser`) and the ROS
+    runner (``python -m mshoot_nodes.boptest_run``), whose parsed options
+    :func:`mpc_configuration` and :func:`write_tables` read alike.
     """
-    from mshoot_studies.boptest_rule import COOLING_MARGINS_K, LEADS_H, MARGINS_K, \
-        SUPPLY_SHIFTS_K
-    from mshoot_studies.cli import verb_parser
-    parser = verb_parser(parser, 'mshoot_studies.boptest', __doc__)
-    parser.add_argument('--testcase', required=True, type=pathlib.Path,
-                        help='the BOPTEST test case folder')
+    from mshoot_studies.boptest_rule import LEADS_H, MARGINS_K
     parser.add_argument('--card', required=True, type=pathlib.Path,
                         help='the model card of the building (kind boptest)')
-    parser.add_argument('--out', required=True, type=pathlib.Path, help='output folder')
-    parser.add_argument('--periods', nargs='+', default=None,
-                        help='test periods (keys of days.json; default all of them)')
-    parser.add_argument('--prices', nargs='+', default=list(PRICE_SCENARIOS),
-                        choices=list(PRICE_SCENARIOS), help='price scenarios')
-    parser.add_argument('--controllers', nargs='+', default=['baseline', 'rule'],
-                        help='baseline, rule, mshoot; separated by spaces or commas')
     parser.add_argument('--control-card', default=None,
                         help='mshoot: the control model card (a file or a built-in card name, '
                              "e.g. boptest_house; default the card's boptest.control.card)")
@@ -215,10 +207,6 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                         help='mshoot: the MPC settings (a YAML file of flat settings or a '
                              "packaged name, e.g. boptest_house; default the card's "
                              'boptest.control.settings)')
-    parser.add_argument('--uncertainty', nargs='+', default=['none'], metavar='LEVEL[=SEEDS]',
-                        help="mshoot: forecast scenarios, e.g. none high=1,2,3 low (BOPTEST's "
-                             'forecast errors of the outdoor temperature and the irradiance at '
-                             'that level, one run per seed; LEVEL alone: seed 1; default none)')
     parser.add_argument('--warmup-days', type=float, default=None,
                         help="warm-up [days] (default the card's boptest.warmup_days)")
     parser.add_argument('--days', type=float, default=14.0,
@@ -229,6 +217,32 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                         help='rule tuning grid: leads [h]')
     parser.add_argument('--margins', type=float, nargs='+', default=list(MARGINS_K),
                         help='rule tuning grid: margins [K]')
+
+
+def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    """
+    Build the command line of ``mshoot boptest``.
+
+    Fills ``parser`` (the ``boptest`` verb of ``mshoot``), or a new parser when None. Its errors
+    are one line (``<prog>: error: ...``) and exit 2.
+    """
+    from mshoot_studies.boptest_rule import COOLING_MARGINS_K, SUPPLY_SHIFTS_K
+    from mshoot_studies.cli import verb_parser
+    parser = verb_parser(parser, 'mshoot_studies.boptest', __doc__)
+    parser.add_argument('--testcase', required=True, type=pathlib.Path,
+                        help='the BOPTEST test case folder')
+    add_shared_arguments(parser)
+    parser.add_argument('--out', required=True, type=pathlib.Path, help='output folder')
+    parser.add_argument('--periods', nargs='+', default=None,
+                        help='test periods (keys of days.json; default all of them)')
+    parser.add_argument('--prices', nargs='+', default=list(PRICE_SCENARIOS),
+                        choices=list(PRICE_SCENARIOS), help='price scenarios')
+    parser.add_argument('--controllers', nargs='+', default=['baseline', 'rule'],
+                        help='baseline, rule, mshoot; separated by spaces or commas')
+    parser.add_argument('--uncertainty', nargs='+', default=['none'], metavar='LEVEL[=SEEDS]',
+                        help="mshoot: forecast scenarios, e.g. none high=1,2,3 low (BOPTEST's "
+                             'forecast errors of the outdoor temperature and the irradiance at '
+                             'that level, one run per seed; LEVEL alone: seed 1; default none)')
     parser.add_argument('--cooling-margin', type=float, default=None,
                         help='rule: a fixed cooling margin [K] (a card with cooling_zones)')
     parser.add_argument('--supply-shift', type=float, default=None,

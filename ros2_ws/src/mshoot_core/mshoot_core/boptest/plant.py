@@ -131,6 +131,9 @@ class BoptestPlant:
         Every output of the FMU.
     interface : str
         'CoSimulation' or 'ModelExchange'.
+    model_description : fmpy ModelDescription
+        The FMU's, shared with every reader of it in the process
+        (:func:`~mshoot_core.models.fmi.read_cached_description`): read only.
 
     """
 

@@ -76,7 +76,7 @@ import numpy as np
 import pandas as pd
 
 from mshoot_core.fmu_binary import binary_file, check_binary, isolated, Library
-from mshoot_core.fmu_cache import extract_fmu, find_fmu
+from mshoot_core.fmu_cache import extract_fmu, find_fmu, STAGING_PREFIX
 from mshoot_core.models.base import interval_start_times, Model
 from mshoot_core.models.fmi_drivers import (CsBatchDriver, MeBatchDriver, MeProblem,
                                             real_array, vr_array)
@@ -170,6 +170,13 @@ VALIDATED_MARKER = '.mshoot-validated'
 #: import and the parse, some 6 ms of every command with an FMU).
 DESCRIPTION_PICKLE = '.mshoot-description-fmpy{fmpy}-py{python}.pickle'
 
+#: The modelDescriptions :func:`read_cached_description` returned in this process: by the
+#: resolved folder and its modelDescription.xml's mtime [ns] and size, the description and
+#: whether it was validated. A large FMU's pickle takes seconds to load (the BOPTEST office's
+#: 26 642 variables, 11 MB) and a run reads it several times (the card's check, the plant,
+#: the controller's card).
+_DESCRIPTIONS: dict[tuple[str, int, int], tuple[Any, bool]] = {}
+
 
 def read_cached_description(folder: pathlib.Path, label: str, validate: bool = True) -> Any:
     """
@@ -181,8 +188,33 @@ def read_cached_description(folder: pathlib.Path, label: str, validate: bool = T
     is there and loads; else read from the XML again. Without ``validate`` (a card's
     ``validate: false``) the pickle is used whether or not the folder is marked. The cache is
     trusted as for the FMU's own binaries, which it holds and which are loaded and run.
+
+    Read once per process: a later call for the same folder returns the very same object
+    (``_DESCRIPTIONS``), unless the folder's modelDescription.xml changed (its mtime or
+    size; a changed FMU file is extracted into another folder anyway, the cache's folders
+    being keyed by the file's hash) or a validated description is asked for and the one read
+    was not. The description is shared: callers read it and never change it.
     """
     folder = pathlib.Path(folder)
+    try:
+        stat = (folder / 'modelDescription.xml').stat()
+        key: tuple[str, int, int] | None = (str(folder.resolve()), stat.st_mtime_ns,
+                                            stat.st_size)
+    except OSError:  # no description: read_fmu_description says what is wrong
+        key = None
+    known = _DESCRIPTIONS.get(key) if key is not None else None
+    if known is not None and (known[1] or not validate):
+        return known[0]
+    md, validated = _read_cached_description(folder, label, validate)
+    if key is not None and not folder.name.startswith(STAGING_PREFIX):
+        # (a folder being extracted is renamed next: its key would never be asked for)
+        _DESCRIPTIONS[key] = (md, validated)
+    return md
+
+
+def _read_cached_description(folder: pathlib.Path, label: str,
+                             validate: bool) -> tuple[Any, bool]:
+    """:func:`read_cached_description` without the memo: (description, whether validated)."""
     marker = folder / VALIDATED_MARKER
     cached = folder / DESCRIPTION_PICKLE.format(
         fmpy=fmpy.__version__, python=f'{sys.version_info[0]}.{sys.version_info[1]}')
@@ -190,7 +222,7 @@ def read_cached_description(folder: pathlib.Path, label: str, validate: bool = T
     if validated or not validate:
         try:
             with open(cached, 'rb') as stream:
-                return pickle.load(stream)
+                return pickle.load(stream), validated
         except FileNotFoundError:
             pass
         except Exception as error:  # noqa: BLE001 - a damaged pickle: read the XML again
@@ -205,7 +237,7 @@ def read_cached_description(folder: pathlib.Path, label: str, validate: bool = T
         # a read-only cache (validated every time) or a description that does not pickle
         logger.debug('modelDescription of %s not cached (%s: %s)', label,
                      type(error).__name__, error)
-    return md
+    return md, validated or validate
 
 
 def _write_whole(path: pathlib.Path, payload: bytes) -> None:
@@ -355,7 +387,9 @@ class FmiModel(FmuPlant, ModelExchangeIntegration, ForwardSensitivities, NonFini
     Notes
     -----
     Use as a context manager or call :meth:`close` to free the instance and
-    the extracted files. The instance is not thread-safe.
+    the extracted files. The instance is not thread-safe. Its ``model_description`` (fmpy's)
+    is shared with every model of the same FMU file in the process
+    (:func:`read_cached_description`): read it, never change it.
 
     This class holds the instance, the configuration and the Co-Simulation
     stepping; the Model Exchange integration comes from
