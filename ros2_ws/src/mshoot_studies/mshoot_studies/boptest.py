@@ -632,7 +632,7 @@ def _run(args: argparse.Namespace) -> int:
     from mshoot_core.models.card import load_card
     from mshoot_studies.boptest_report import plot_run
     from mshoot_studies.boptest_rule import COOLING_MARGINS_K, PreheatRule, rule_axes, \
-        rule_targets, RuleTarget, SUPPLY_SHIFTS_K, SupplyReset, tune_rule
+        rule_kinds, rule_targets, SUPPLY_SHIFTS_K, tune_rule
     began = time.perf_counter()
     controllers = _controllers(args.controllers)
     scenarios = uncertainty_runs(args.uncertainty)
@@ -649,8 +649,7 @@ def _run(args: argparse.Namespace) -> int:
     plant = BoptestPlant(case, record=record)  # checks the names; no instance
     check_power_signs(case, card.boptest['power_signs'])
     targets = rule_targets(card, case) if 'rule' in controllers else {}
-    cooled = any(isinstance(t, RuleTarget) and t.edge == 'upper' for t in targets.values())
-    reset = any(isinstance(t, SupplyReset) for t in targets.values())
+    cooled, reset = rule_kinds(targets)
     fixed = (args.cooling_margin or 0.0, args.supply_shift or 0.0)
     grid = (args.cooling_margins if args.cooling_margins is not None or not cooled
             else COOLING_MARGINS_K,

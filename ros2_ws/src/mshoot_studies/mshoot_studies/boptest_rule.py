@@ -128,6 +128,12 @@ def _grid_point(directory: str, targets: dict[str, RuleTarget | SupplyReset], pe
     return rows, run.wall_s
 
 
+def rule_kinds(targets: Mapping[str, RuleTarget | SupplyReset]) -> tuple[bool, bool]:
+    """Return whether a rule's targets have a cooling setpoint, and a supply reset."""
+    return (any(isinstance(t, RuleTarget) and t.edge == 'upper' for t in targets.values()),
+            any(isinstance(t, SupplyReset) for t in targets.values()))
+
+
 def rule_axes(targets: Mapping[str, RuleTarget | SupplyReset],
               cooling_margins_k: Sequence[float] | None,
               supply_shifts_k: Sequence[float] | None
@@ -144,8 +150,7 @@ def rule_axes(targets: Mapping[str, RuleTarget | SupplyReset],
         For values other than 0 given for targets that have no such setpoint.
 
     """
-    has_cooling = any(isinstance(t, RuleTarget) and t.edge == 'upper' for t in targets.values())
-    has_reset = any(isinstance(t, SupplyReset) for t in targets.values())
+    has_cooling, has_reset = rule_kinds(targets)
     axes = []
     for values, present, what in ((cooling_margins_k, has_cooling, 'cooling margins'),
                                   (supply_shifts_k, has_reset, 'supply shifts')):

@@ -135,8 +135,7 @@ class SupplyReset:
         return float(min(max(curve, self.floor_k, self.lower_k), self.upper_k))
 
 
-def setpoint_targets(case: TestCase, zones: Mapping[str, str],
-                     edge: str = 'lower') -> dict[str, RuleTarget]:
+def setpoint_targets(case: TestCase, zones: Mapping[str, str]) -> dict[str, RuleTarget]:
     """
     Return the rule's targets: FMU setpoint input -> its zone and its declared range [K].
 
@@ -146,8 +145,6 @@ def setpoint_targets(case: TestCase, zones: Mapping[str, str],
         The test case (its FMU's overwrite inputs).
     zones : dict of str to str
         Overwrite input (``X_u``) -> the zone of its band.
-    edge : {'lower', 'upper'}
-        The band's edge they follow (:class:`RuleTarget`).
 
     Raises
     ------
@@ -156,7 +153,7 @@ def setpoint_targets(case: TestCase, zones: Mapping[str, str],
 
     """
     inputs = _overwrite_inputs(case, zones)
-    return {name: RuleTarget(str(zone), inputs[name].lower, inputs[name].upper, edge)
+    return {name: RuleTarget(str(zone), inputs[name].lower, inputs[name].upper)
             for name, zone in zones.items()}
 
 
