@@ -68,7 +68,7 @@ import sys
 import time
 from typing import Any, Callable, Sequence
 
-from mshoot_core.boptest.kpi_calculator import check_power_signs, kpi_records
+from mshoot_core.boptest.kpi_calculator import kpi_records
 from mshoot_core.boptest.testcase import PRICE_SCENARIOS, TestCase
 from mshoot_core.forecast import BENCHMARK_UNCERTAINTY, scenario_fields, uncertainty_runs
 from mshoot_core.forecast_margin import allowance
@@ -77,7 +77,8 @@ from mshoot_core.settings import ForecastErrorSettings, MpcSettings
 from mshoot_core.units import json_ready
 from mshoot_studies.boptest import (add_shared_arguments, control_card_path,
                                     ensure_forecast_weather, mpc_configuration, plan_runs,
-                                    prepare_card, reads_price, RunJob, write_tables)
+                                    prepare_card, reads_price, RunJob, runs_window,
+                                    write_tables)
 from mshoot_studies.boptest_page import write_docs
 from mshoot_studies.boptest_report import count_starts
 from mshoot_studies.boptest_rule import rule_targets, RuleTuning, tune_rule
@@ -507,12 +508,7 @@ def configure(args: argparse.Namespace) -> tuple[TestCase, Any, tuple[str, str] 
     """
     case = TestCase.load(args.test_case or None)
     card = load_card(prepare_card(args.card, case.directory, args.out / 'cards'))
-    if args.warmup_days is None:
-        args.warmup_days = float(card.boptest['warmup_days'])
-    args.periods = list(case.days) if args.periods is None else list(args.periods)
-    for period in args.periods:
-        case.test_period(period, args.warmup_days, args.days)  # bad names fail here
-    check_power_signs(case, card.boptest['power_signs'])
+    args.warmup_days, args.periods = runs_window(case, card, args)
     control = None
     if 'mshoot' in args.controllers:
         control = mpc_configuration(args, case, card, card.path)

@@ -376,6 +376,31 @@ def _run_one(directory: str, card_path: str, controller: str, period: str, lead:
     return records
 
 
+def runs_window(case: Any, card: Any, args: argparse.Namespace) -> tuple[float, list[str]]:
+    """
+    Return the runs' warm-up [days] and test periods; check them and the card's KPI signs.
+
+    ``--warmup-days`` (default the card's ``boptest.warmup_days``) and ``--periods`` (default
+    every period of the test case), checked with ``--days`` against the test case, and the
+    card's ``boptest.power_signs`` against its ``kpis.json``: before any run, for both BOPTEST
+    runners.
+
+    Raises
+    ------
+    ValueError
+        For an unknown period, a bad length, or a bad sign correction.
+
+    """
+    from mshoot_core.boptest.kpi_calculator import check_power_signs
+    warmup = float(card.boptest['warmup_days'] if args.warmup_days is None
+                   else args.warmup_days)
+    periods = list(case.days) if args.periods is None else list(args.periods)
+    for period in periods:
+        case.test_period(period, warmup, args.days)  # bad names and lengths fail here
+    check_power_signs(case, card.boptest['power_signs'])
+    return warmup, periods
+
+
 def mpc_configuration(args: argparse.Namespace, case: Any, card: Any,
                       card_path: pathlib.Path) -> tuple[str, str]:
     """
@@ -625,7 +650,6 @@ def _say(began: float, line: str) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from mshoot_core.boptest.kpi_calculator import check_power_signs
     from mshoot_core.boptest.plant import BoptestPlant, recorded_outputs
     from mshoot_core.boptest.testcase import TestCase
     from mshoot_core.forecast import uncertainty_runs
@@ -639,15 +663,11 @@ def _run(args: argparse.Namespace) -> int:
     case = TestCase.load(args.testcase)
     card_path = prepare_card(args.card, args.testcase, args.out)
     card = load_card(card_path)
-    warmup = card.boptest['warmup_days'] if args.warmup_days is None else args.warmup_days
-    periods = list(case.days) if args.periods is None else list(args.periods)
-    for period in periods:
-        case.test_period(period, warmup, args.days)  # bad names and lengths fail here
+    warmup, periods = runs_window(case, card, args)
     variables = [v.variable for v in (*card.states.values(), *card.outputs.values())]
     record = recorded_outputs(case, [*variables, *([args.starts_output]
                                                    if args.starts_output else [])])
     plant = BoptestPlant(case, record=record)  # checks the names; no instance
-    check_power_signs(case, card.boptest['power_signs'])
     targets = rule_targets(card, case) if 'rule' in controllers else {}
     cooled, reset = rule_kinds(targets)
     fixed = (args.cooling_margin or 0.0, args.supply_shift or 0.0)
