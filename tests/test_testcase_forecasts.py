@@ -2,7 +2,7 @@
 import pathlib
 
 from mshoot_core import fmu_cache
-from mshoot_core.boptest.forecasts import ForecastSpec, TestCaseForecasts
+from mshoot_core.boptest.forecasts import ForecastSpec, rises_after_rest, TestCaseForecasts
 from mshoot_core.boptest.testcase import TestCase
 from mshoot_core.forecast import ForecastSource
 from mshoot_core.settings import ForecastErrorSettings
@@ -84,6 +84,63 @@ def test_a_series_with_a_lead_runs_ahead_of_its_column(boptest_case) -> None:
     frame = TestCaseForecasts(boptest_case, spec).frame(16 * 86400.0, 24, 3600.0)
     np.testing.assert_array_equal(frame['ahead'].to_numpy()[:-1], frame['now'].to_numpy()[1:])
     assert frame['ahead'].to_numpy()[:-1].tolist() != frame['now'].to_numpy()[:-1].tolist()
+
+
+def test_rises_after_rest_need_the_whole_rest() -> None:
+    values = np.array([0, 0, 0, 5, 5, 0, 5, 0, 0, 0, 5, 5, 0, 0])
+    np.testing.assert_array_equal(np.flatnonzero(rises_after_rest(values, 3)), [3, 10])
+    np.testing.assert_array_equal(np.flatnonzero(rises_after_rest(values, 1)), [3, 6, 10])
+    np.testing.assert_array_equal(np.flatnonzero(rises_after_rest(values, 4)), [])
+
+
+def test_a_series_leads_further_after_a_long_rest(boptest_case) -> None:
+    """
+    rest_s, rest_lead_s: the rows before a rise that follows a rest of at least rest_s run
+    rest_lead_s ahead, the others lead_s. The house's band rests 10 h or more every night and
+    never a whole day: with 8 h of rest every morning leads 3 h, with 24 h none.
+    """
+    series = {'now': {'columns': ['LowerSetp[1]'], 'offset': -KELVIN - 15.0},
+              'ahead': {'columns': ['LowerSetp[1]'], 'offset': -KELVIN - 15.0, 'lead_s': 3600.0}}
+    def frame(rest_s):
+        spec = ForecastSpec.from_section({'series': {**series, 'lead': {
+            **series['ahead'], 'rest_s': rest_s, 'rest_lead_s': 10800.0}}})
+        return TestCaseForecasts(boptest_case, spec).frame(16 * 86400.0, 47, 3600.0)
+    never = frame(86400.0)
+    np.testing.assert_array_equal(never['lead'], never['ahead'])
+    nights = frame(8 * 3600.0)
+    now = nights['now'].to_numpy()
+    starts = np.flatnonzero((now[1:] > 0) & (now[:-1] <= 0)) + 1  # the band's rises
+    assert starts.size == 2
+    lead = nights['lead'].to_numpy()
+    for k in starts:  # 3 h ahead before each rise: the band's value from 3 h earlier on
+        np.testing.assert_array_equal(lead[k - 3:k], now[k:k + 3])
+        np.testing.assert_array_equal(lead[k - 4], nights['ahead'].to_numpy()[k - 4])
+    ends = np.flatnonzero((now[1:] <= 0) & (now[:-1] > 0)) + 1
+    np.testing.assert_array_equal(lead[ends - 1], nights['ahead'].to_numpy()[ends - 1])
+
+
+@pytest.mark.parametrize('entry, match', [
+    ({'rest_s': 3600.0}, 'rest_s and rest_lead_s go together'),
+    ({'rest_s': 3600.0, 'rest_lead_s': 1800.0}, r'rest_lead_s >= lead_s \(3600\)'),
+    ({'rest_s': 0.0, 'rest_lead_s': 7200.0}, 'rest_s > 0'),
+])
+def test_a_bad_rest_lead_is_refused(entry, match) -> None:
+    with pytest.raises(ValueError, match=match):
+        ForecastSpec.from_section({'series': {'x': {'columns': ['LowerSetp[1]'],
+                                                    'lead_s': 3600.0, **entry}}})
+
+
+@pytest.mark.skipif(not OFFICE.is_dir(), reason=f'needs the office test case at {OFFICE}')
+def test_the_offices_pumps_start_at_4_h_after_a_weekend() -> None:
+    """The office's control card: the BMS's pumps from 6 h, from 4 h after 36 h unoccupied."""
+    card = (pathlib.Path(__file__).resolve().parents[1] / 'docs' / 'boptest_cards'
+            / 'multizone_office_simple_hydronic_control.yaml')
+    source = TestCaseForecasts(TestCase.load(OFFICE), ForecastSpec.from_card(card))
+    for day, first in ((67, None), (68, 4), (69, 6), (107, None), (110, 4)):  # Sun, Mon, Tue
+        occupied = source.frame(day * 86400.0, 23, 3600.0)['occupied'].to_numpy()
+        hours = np.flatnonzero(occupied > 0)
+        assert (hours[0] if hours.size else None) == first
+        assert hours.size == 0 or hours[-1] == 17  # pumps off from 19 h: the band's hour ahead
 
 
 def test_a_missing_column_names_the_folder_and_the_files(boptest_case, tmp_path,

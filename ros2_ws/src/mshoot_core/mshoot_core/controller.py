@@ -276,6 +276,9 @@ class Controller:
         #: series, upper series) each.
         self.band_setpoints = self._check_band_setpoints()
         self._band_ranges: dict[str, tuple[float, float]] = {}
+        #: The capped setpoints (settings ``setpoint_caps``): (control index, zone state
+        #: index, the zone's band offset [K]) each.
+        self.setpoint_caps = self._check_setpoint_caps()
 
     # -- configuration --------------------------------------------------------------------
     @property
@@ -348,6 +351,73 @@ class Controller:
             out.append((control, edge, *pair))
         return tuple(out)
 
+    def _check_setpoint_caps(self) -> tuple[tuple[int, int, str, float], ...]:
+        """Return the settings' ``setpoint_caps``, checked: (control, state, lower, offset)."""
+        controls = list(self.settings.problem.control_names)
+        states = list(self.model.state_names)
+        out = []
+        for control, state in self.settings.actuation.cap_items.items():
+            if control not in controls:
+                raise ValueError(f'setpoint_caps: {control!r} is not a control of the MPC '
+                                 f'{controls}')
+            if state not in self.mpc.state_bounds:
+                raise ValueError(f'setpoint_caps: {control}={state} names no zone temperature '
+                                 f'with a comfort band (those are '
+                                 f'{sorted(self.mpc.state_bounds)})')
+            lower, _, offset = self.mpc.state_bounds[state]
+            out.append((controls.index(control), states.index(state), lower, float(offset)))
+        return tuple(out)
+
+    def capped(self, decision: Decision, step_ns: int) -> Decision:
+        """
+        Return the decision with its zone setpoints between the band and the plan's temperature.
+
+        Settings ``setpoint_caps``, for a decided plan (source 'optimum' or 'plan'): a capped
+        control is at most its zone's predicted temperature at the step's end (the state less
+        the band's offset, in the band's unit), or the zone's band's lower edge there raised by
+        ``band_margin_k`` where the plan expects to fall short of it, and at least that raised
+        lower edge at the step's start (the newest forecast for the step's rows, as
+        :meth:`band_setpoint_values`): the loop stops where the plan does, still goes for the
+        band where the plan expects to miss it, and keeps the band the step starts in as the
+        building's own loop would. Every planned interval likewise. Other decisions are
+        returned as they are.
+        """
+        if not self.setpoint_caps or decision.source not in ('optimum', 'plan') or \
+                decision.predicted_state is None:
+            return decision
+        controls = np.array(decision.controls, dtype=float).reshape(-1)
+        plan = np.array(decision.plan_controls, dtype=float)
+        states = np.asarray(decision.plan_states, dtype=float)
+        rows = plan.shape[0] if plan.ndim == 2 and plan.shape[0] == states.shape[0] else 0
+        found = self._forecast_rows(step_ns, max(rows, 1) + 1, first=0)
+        raise_k = self.settings.comfort.band_margin_k
+        for control, state, lower, offset in self.setpoint_caps:
+            edge = (found[0][lower].to_numpy(dtype=float)[found[1]] + raise_k
+                    if found is not None else np.full(max(rows, 1) + 1, -math.inf))
+            start, end = edge[:-1], edge[1:]  # each interval's start and end rows
+            controls[control] = max(start[0], min(controls[control], max(
+                float(decision.predicted_state[state]) - offset, end[0])))
+            if rows:
+                plan[:, control] = np.maximum(start, np.minimum(
+                    plan[:, control], np.maximum(states[:, state] - offset, end)))
+        low, high = np.asarray(self.settings.problem.control_bounds, dtype=float).T
+        return dataclasses.replace(decision, controls=np.clip(controls, low, high),
+                                   plan_controls=np.clip(plan, low, high) if rows else plan)
+
+    def _forecast_rows(self, step_ns: int, rows: int, first: int = 1
+                       ) -> tuple[pd.DataFrame, np.ndarray] | None:
+        """
+        Return the newest forecast for a step and the rows of the step's end and after
+        (``first`` 1; 0: from the step's start).
+        """
+        forecast = self._forecast_for(int(step_ns))
+        if forecast is None:
+            return None
+        stamp, frame = forecast
+        index = np.minimum((int(step_ns) - stamp) // self.step_ns + first + np.arange(rows),
+                           len(frame) - 1)
+        return frame, index
+
     @property
     def sent_control_names(self) -> tuple[str, ...]:
         """
@@ -417,13 +487,11 @@ class Controller:
         ranges = [self._band_ranges.get(b[0], (-math.inf, math.inf))
                   for b in self.band_setpoints]
         low, high = np.array(ranges, dtype=float).T
-        forecast = self._forecast_for(int(step_ns))
-        if forecast is None:
+        found = self._forecast_rows(step_ns, rows)
+        if found is None:
             safe = self.settings.supervisor.safe_temperature_c
             return np.clip(np.full((rows, len(ranges)), safe), low, high), True
-        stamp, frame = forecast
-        index = np.minimum((int(step_ns) - stamp) // self.step_ns + 1 + np.arange(rows),
-                           len(frame) - 1)
+        frame, index = found
         margin = self.settings.actuation.band_setpoint_margin_k
         columns = []
         for _, edge, lower, upper in self.band_setpoints:
@@ -1229,10 +1297,11 @@ class Controller:
         setpoint is held, and the bursts in progress are forgotten. Without a zone
         temperature a setpoint cannot be sent: the decision's controls are held (logged).
         """
-        decision = outcome.decision
+        decision = self.capped(outcome.decision, outcome.step_ns)
         bands, released = self.band_setpoint_values(
             outcome.step_ns, max(np.shape(decision.plan_controls)[0], 1))
-        outcome = dataclasses.replace(outcome, band_values=bands, band_released=released)
+        outcome = dataclasses.replace(outcome, decision=decision, band_values=bands,
+                                      band_released=released)
         controls = np.asarray(decision.controls, dtype=float).reshape(-1)
         zones = [self.model.state_names.index(s) for s in self.mpc.state_bounds]
         zone_k = (float(outcome.x0[zones[0]]) if outcome.x0 is not None and zones else None)

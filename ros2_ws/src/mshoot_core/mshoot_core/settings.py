@@ -436,6 +436,22 @@ class ActuationSettings(SettingsGroup):
     band_setpoint_margin_k: float = setting(
         0.0, 'band_setpoints moved inward from their band edge by this much, at most to the '
         "band's middle [K]", low=0.0, high=20.0, apply='inputs')
+    setpoint_caps: str = setting(
+        '', "model controls that are a zone's heating setpoint for the building's own loop: "
+        "comma-separated 'control=zone_state'. Each is sent no higher than the plan's "
+        "temperature of its zone at the step's end (or the zone's band's lower edge there, "
+        'raised by band_margin_k, where the plan falls short of it) and no lower than that '
+        'raised lower edge at the step\'s start; every planned interval likewise. A high-gain '
+        "loop asked for more than the plan's temperature heats on past it; capped, it stops "
+        'where the plan does, still goes for the band where the plan expects to miss it, and '
+        "holds the band as the building's own loop would. A safe or released step is not "
+        "capped ('' = none) [the band's unit, degC]", apply='fixed')
+
+    @property
+    def cap_items(self) -> dict[str, str]:
+        """Return ``setpoint_caps`` as model control -> zone state."""
+        return {a.strip(): b.strip() for a, _, b in (
+            item.partition('=') for item in self.setpoint_caps.split(',') if item.strip())}
 
     @property
     def plant_names(self) -> dict[str, str]:
@@ -477,6 +493,14 @@ class ActuationSettings(SettingsGroup):
         if both:
             return [f'band_setpoints: {both} are also sent as model controls (plant_controls '
                     f'{self.plant_controls!r})']
+        caps = self.cap_items
+        if len(caps) != len([i for i in self.setpoint_caps.split(',') if i.strip()]) or not all(
+                a.isidentifier() and b.isidentifier() for a, b in caps.items()):
+            return ["setpoint_caps must be distinct 'control=zone_state' items separated by "
+                    f'commas, got {self.setpoint_caps!r}']
+        if caps and self.actuation != 'hold':
+            return [f"setpoint_caps needs actuation 'hold' (a capped setpoint is held over the "
+                    f'step), got actuation {self.actuation!r}']
         if self.actuation_send == 'setpoint' and self.actuation != 'burst':
             return ["actuation_send 'setpoint' needs actuation 'burst', got actuation "
                     f'{self.actuation!r}']

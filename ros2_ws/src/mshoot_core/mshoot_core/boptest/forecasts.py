@@ -17,6 +17,7 @@ where each comes from in a test case folder)::
       series:
         Tout: {columns: [TDryBul], offset: -273.15}            # sum of columns + offset
         occupied: {columns: ['LowerSetp[1]'], lead_s: 3600}    # an hour ahead of the column
+        pumps: {columns: [...], lead_s: 3600, rest_s: 129600, rest_lead_s: 10800}  # see below
         gains: {columns: ['InternalGainsCon[1]', 'InternalGainsRad[1]']}
         price: {price: {constant: PriceElectricPowerConstant, dynamic: ...}}  # per scenario
       bands:
@@ -29,7 +30,11 @@ Row k of :meth:`TestCaseForecasts.frame` (time ``t_s + k step_s``, k = 0..steps)
   midpoints of the interval's ``n = round(step_s / data_step_s)`` sub-intervals, each column
   forward-filled between its rows (:meth:`TestCase.lookup`), exact on the data's grid; a sum of
   columns is the sum of their means, plus the offset; a price series is the column its card entry
-  names for the price scenario;
+  names for the price scenario; a series with a lead (``lead_s``) runs that much ahead of its
+  columns, and with ``rest_s`` and ``rest_lead_s`` it runs ``rest_lead_s`` ahead in the rows whose
+  interval [t_k + lead_s, t_k + rest_lead_s + step_s) holds a rise of the series (above 0, after
+  the offset, on the data's grid) after at least ``rest_s`` at or below 0: a building's schedule
+  that starts earlier after a weekend;
 - the comfort band of each zone [degC with the default offset] over the interval ending at the
   row, (t_{k-1}, t_k] on the data's grid (row 0: t_0 alone): the highest lower edge and the
   lowest upper edge (the tightest band), the upper edge never below the lower one
@@ -84,6 +89,10 @@ class SeriesSource:
         The series runs this much ahead of its columns [s]: row k holds the columns' means
         over [t_k + lead_s, t_k + step + lead_s) (e.g. a building's schedule that starts an
         hour before the band it is derived from: 3600).
+    rest_s, rest_lead_s : float
+        The lead before a rise of the series (above 0) that follows at least ``rest_s`` at or
+        below 0 [s], instead of ``lead_s`` (0, 0: none; e.g. a schedule that starts 3 h before
+        the band after a weekend: 129600, 10800).
 
     """
 
@@ -91,6 +100,8 @@ class SeriesSource:
     offset: float = 0.0
     prices: Mapping[str, str] = dataclasses.field(default_factory=dict)
     lead_s: float = 0.0
+    rest_s: float = 0.0
+    rest_lead_s: float = 0.0
 
     def columns_for(self, price: str, name: str, where: str) -> tuple[str, ...]:
         """Return the columns of the series under a price scenario (ValueError if none)."""
@@ -155,9 +166,18 @@ class ForecastSpec:
                 series[str(name)] = SeriesSource(prices={str(k): str(v) for k, v
                                                          in entry['price'].items()})
             elif isinstance(entry, Mapping) and entry.get('columns'):
-                series[str(name)] = SeriesSource(tuple(str(c) for c in entry['columns']),
-                                                 float(entry.get('offset', 0.0)),
-                                                 lead_s=float(entry.get('lead_s', 0.0)))
+                source = SeriesSource(tuple(str(c) for c in entry['columns']),
+                                      float(entry.get('offset', 0.0)),
+                                      lead_s=float(entry.get('lead_s', 0.0)),
+                                      rest_s=float(entry.get('rest_s', 0.0)),
+                                      rest_lead_s=float(entry.get('rest_lead_s', 0.0)))
+                if ('rest_s' in entry) != ('rest_lead_s' in entry) or (
+                        'rest_s' in entry and not (source.rest_s > 0
+                                                   and source.rest_lead_s >= source.lead_s)):
+                    raise ValueError(f'{where}: series {name!r}: rest_s and rest_lead_s go '
+                                     f'together, with rest_s > 0 and rest_lead_s >= lead_s '
+                                     f'({source.lead_s:g}), got {entry!r}')
+                series[str(name)] = source
             else:
                 raise ValueError(f'{where}: series {name!r} must be {{columns: [...], '
                                  f'offset: x}} or {{price: {{scenario: column}}}}, got {entry!r}')
@@ -290,6 +310,22 @@ class TestCaseForecasts:
             values = self.case.lookup(column, times)
         return values.reshape(t_s.size, n_sub).mean(axis=1)
 
+    def _after_rest(self, columns: Sequence[str], source: SeriesSource, times: np.ndarray,
+                    step_s: float) -> np.ndarray:
+        """
+        Return the rows that lead by ``rest_lead_s`` (:class:`SeriesSource`): their interval
+        [t_k + lead_s, t_k + rest_lead_s + step_s) holds a rise after ``rest_s`` at rest.
+        """
+        grid_s = self.data_step_s
+        first = max(0.0, float(times[0]) + source.lead_s - source.rest_s - grid_s)
+        count = int(math.ceil((float(times[-1]) + source.rest_lead_s + step_s - first)
+                              / grid_s)) + 1
+        grid = first + grid_s * np.arange(count)
+        values = sum(self.case.lookup(c, grid) for c in columns) + source.offset
+        rises = grid[rises_after_rest(values, int(math.ceil(source.rest_s / grid_s)))]
+        begin, end = times + source.lead_s, times + source.rest_lead_s + step_s
+        return ((rises[None, :] >= begin[:, None]) & (rises[None, :] < end[:, None])).any(axis=1)
+
     def frame(self, t_s: float, steps: int, step_s: float) -> pd.DataFrame:
         """
         Return the forecast of ``steps`` intervals of ``step_s`` [s] from ``t_s`` (N+1 rows).
@@ -308,7 +344,11 @@ class TestCaseForecasts:
         frame = pd.DataFrame(index=pd.Index(times, name='time_s'))
         horizon = (steps + 1) * step_s
         for name, columns in self._columns.items():
-            at = times + self.spec.series[name].lead_s
+            source = self.spec.series[name]
+            at = times + source.lead_s
+            if source.rest_s > 0:
+                at = np.where(self._after_rest(columns, source, times, step_s),
+                              times + source.rest_lead_s, at)
             total = self.interval_means(columns[0], at, step_s, float(t_s), horizon)
             for column in columns[1:]:
                 total = total + self.interval_means(column, at, step_s, float(t_s), horizon)
@@ -322,6 +362,15 @@ class TestCaseForecasts:
             if several:
                 frame[zone_band_series(zone)[0]], frame[zone_band_series(zone)[1]] = lo, hi
         return frame
+
+
+def rises_after_rest(values: np.ndarray, rest_rows: int) -> np.ndarray:
+    """Return where a series rises above 0 after at least ``rest_rows`` rows at or below 0."""
+    active = np.asarray(values) > 0
+    idle = np.concatenate([[0], np.cumsum(~active)])  # rows at rest before each row
+    rows = np.arange(active.size)
+    return active & (rows >= rest_rows) & (idle[rows] - idle[np.maximum(rows - rest_rows, 0)]
+                                           == rest_rows)
 
 
 def interval_band(case: TestCase, band: BandSource, times_s: np.ndarray, step_s: float,

@@ -1,0 +1,130 @@
+"""
+Capped setpoints (settings ``setpoint_caps``): a zone's heating setpoint sent no higher than the
+plan's temperature of its zone.
+
+Fast core tests on the built-in setpoint zone (``setpoint_zone_identified``: the zone's own loop
+modelled as a gain to its setpoint, no FMU). A zone at 18 degC an hour before a 21 degC band
+makes the plan ask for its highest setpoint over the first hour; what is sent is the plan's
+temperature at the hour's end (or the band's lower edge there, raised by band_margin_k, where
+the plan falls short of it), and never below the raised lower edge of the band the step starts
+in; every planned interval likewise; a safe step is not capped; bad settings are refused with clear
+errors.
+"""
+import dataclasses
+
+from mshoot_core.controller import controller_for
+from mshoot_core.models.card import build_model, builtin_card, load_card
+from mshoot_core.settings import MpcSettings, SettingsError
+from mshoot_core.units import KELVIN
+import numpy as np
+import pytest
+
+
+NS = 1_000_000_000
+STEP_NS = 3600 * NS
+HORIZON = 4
+CAPS = 'TSet=T'
+
+
+def _controller(**settings):
+    values = {'horizon_steps': HORIZON, 'cost': 'output', 'cost_output': 'Qh',
+              'estimation': 'off', 'measured_states': 'T, Tw', 'setpoint_caps': CAPS}
+    model = build_model(load_card(builtin_card('setpoint_zone_identified')))
+    return controller_for(model, MpcSettings.from_flat({**values, **settings}))
+
+
+def _forecast(first_s):
+    """Hourly rows from ``first_s`` [s]: 0 degC outdoors, the band 21-24 degC from 1 h."""
+    times = first_s + 3600.0 * np.arange(HORIZON + 1)
+    occupied = times >= 3600.0
+    return {'solrad': np.zeros(times.size), 'Tout': np.zeros(times.size),
+            'occ': np.zeros(times.size),
+            'comfort_min': np.where(occupied, 21.0, 16.0),
+            'comfort_max': np.where(occupied, 24.0, 30.0)}
+
+
+def _step(controller, zone_c=18.0):
+    stamp = 0
+    assert controller.offer_named_state(stamp, ['T', 'Tw'], [zone_c + KELVIN, 15.0 + KELVIN],
+                                        stamp) is None
+    assert controller.offer_forecast(stamp, 3600.0, _forecast(0.0), stamp) is None
+    [outcome] = controller.poll(stamp)
+    return outcome
+
+
+def test_a_capped_setpoint_is_the_plans_zone_temperature():
+    """
+    Uncapped, the plan's first setpoint is above the temperature it plans for the hour's end
+    (the loop's gain makes up the difference); capped, that temperature is sent, and every
+    planned interval is at most its own planned temperature. The MPC's result is unchanged.
+    """
+    free = _step(_controller(setpoint_caps=''))
+    assert free.decision.source == 'optimum'
+    planned_c = free.decision.predicted_state[0] - KELVIN
+    assert free.decision.controls[0] > planned_c + 0.5  # asks for more than it plans to reach
+    capped = _step(_controller())
+    assert capped.decision.source == 'optimum'
+    planned_c = capped.decision.predicted_state[0] - KELVIN
+    asked = capped.result.plan['TSet'].to_numpy()
+    np.testing.assert_allclose(asked[0], free.decision.controls[0], atol=1e-6)
+    np.testing.assert_allclose(capped.decision.controls, [planned_c])
+    plan_c = capped.decision.plan_states[:, 0] - KELVIN
+    start, end = _lower_edges(plan_c.size)
+    np.testing.assert_allclose(capped.decision.plan_controls[:, 0], np.maximum(
+        start, np.minimum(asked[:plan_c.size], np.maximum(plan_c, end))))
+    decision, schedule = capped.sent()
+    np.testing.assert_allclose(schedule.values, [[planned_c]])
+    np.testing.assert_allclose(decision.controls, [planned_c])
+
+
+def test_a_safe_step_is_not_capped():
+    controller = _controller()
+    decision = controller.supervisor.fallback(0.0, 'solve_failed', 'test')
+    assert decision.source == 'safe'
+    assert controller.capped(decision, 0) is decision
+
+
+def _lower_edges(rows, margin_k=0.0):
+    """The band's lower edge (+ margin) at each interval's start and end: 16, then 21 degC."""
+    edges = np.where(np.arange(rows + 1) >= 1, 21.0, 16.0) + margin_k
+    return edges[:-1], edges[1:]
+
+
+def test_a_capped_setpoint_keeps_the_band():
+    """
+    Where the plan expects to fall short of the band (here its predicted temperatures moved
+    2 K down), the cap is the band's lower edge at the step's end raised by band_margin_k: the
+    loop still goes for the band its capacity may reach. A setpoint the plan puts below the band
+    the step starts in (here the plan's setpoints moved 5 K down) is sent at the band's lower
+    edge, raised: the zone is held there as the building's own loop would.
+    """
+    controller = _controller(band_margin_k=0.3)
+    outcome = _step(controller)
+    decision = outcome.decision
+    asked = outcome.result.plan['TSet'].to_numpy()[:decision.plan_states.shape[0]]
+    start, end = _lower_edges(asked.size, 0.3)
+    short = dataclasses.replace(decision, predicted_state=decision.predicted_state - 2.0,
+                                plan_states=decision.plan_states - 2.0,
+                                controls=asked[:1], plan_controls=asked[:, None])
+    capped = controller.capped(short, 0)
+    assert capped.controls[0] == pytest.approx(max(16.3, min(asked[0], 21.3)))
+    np.testing.assert_allclose(capped.plan_controls[:, 0], np.maximum(start, np.minimum(
+        asked, np.maximum(decision.plan_states[:, 0] - 2.0 - KELVIN, end))))
+    low = dataclasses.replace(short, controls=asked[:1] - 5.0,
+                              plan_controls=asked[:, None] - 5.0)
+    capped = controller.capped(low, 0)
+    np.testing.assert_allclose(capped.plan_controls[1:, 0], 21.3)  # in the band from 1 h
+    assert capped.controls[0] == pytest.approx(max(16.3, asked[0] - 5.0))
+
+
+@pytest.mark.parametrize('settings, error, match', [
+    ({'setpoint_caps': 'TSet=Tw'}, ValueError, r"setpoint_caps: TSet=Tw names no zone "
+                                               r"temperature with a comfort band.*\['T'\]"),
+    ({'setpoint_caps': 'Tset=T'}, ValueError, r"'Tset' is not a control of the MPC \['TSet'\]"),
+    ({'setpoint_caps': 'TSet T'}, SettingsError, r"setpoint_caps must be distinct "
+                                                 r"'control=zone_state' items"),
+    ({'actuation': 'burst'}, SettingsError, r"setpoint_caps needs actuation 'hold'"),
+])
+def test_bad_setpoint_caps_are_refused(settings, error, match):
+    with pytest.raises(error, match=match):
+        _controller(**settings)
