@@ -83,6 +83,27 @@ def test_office_mpc_sends_its_decisions_as_the_bms_overwrites(runs: dict) -> Non
     # the boiler's supply temperature costs gas and nothing else in the model: its lower limit
     supply = np.array([o.decision.controls[2] for o in period])
     np.testing.assert_allclose(supply, 40.0, atol=1e-3)
+    # the minimum setpoints capped (settings setpoint_caps): at most the plan's temperature of
+    # the zone at the step's end (or the band's raised lower edge there), at least the raised
+    # lower edge at the step's start; the lower edge is 21 degC where the maximum is 25 - margin
+    # (over the step: at its start where it is so at both ends, the band's hours being whole)
+    raised = policy.controller.settings.comfort.band_margin_k
+    assert raised > 0 and policy.controller.settings.actuation.cap_items == {
+        'TSetMin_nZ': 'T_nZ', 'TSetMin_sZ': 'T_sZ'}
+    steps = [o for o in policy.outcomes if o.t_s >= start - 3600.0 - 1e-6]
+    lower = [21.0 if abs(o.band_values[0][0] - (25.0 - margin)) < 1e-9 else 16.0 for o in steps]
+    states = list(policy.controller.model.state_names)
+    capped = 0
+    for outcome, begin, end in zip(steps[1:], lower, lower[1:]):
+        asked = outcome.result.plan[list(names)].to_numpy()[0]
+        for i, zone in enumerate(('T_nZ', 'T_sZ')):
+            planned = outcome.decision.predicted_state[states.index(zone)] - 273.15
+            sent = outcome.decision.controls[i]
+            at_start = min(begin, end) + raised
+            assert at_start - 1e-9 <= sent <= max(planned, end + raised) + 1e-9
+            assert sent <= max(asked[i], at_start) + 1e-9
+            capped += sent < asked[i] - 0.5
+    assert capped > 0  # the plan's pre-heating setpoints were capped
 
 
 def test_office_mpc_burns_less_gas_than_the_bms_and_keeps_the_band(runs: dict) -> None:
