@@ -1,6 +1,7 @@
 """
-Capped setpoints (settings ``setpoint_caps``): a zone's heating setpoint sent no higher than the
-plan's temperature of its zone.
+Capped setpoints (settings ``setpoint_caps``): a zone's heating setpoint between band and plan.
+
+A capped setpoint is sent no higher than the plan's temperature of its zone.
 
 Fast core tests on the built-in setpoint zone (``setpoint_zone_identified``: the zone's own loop
 modelled as a gain to its setpoint, no FMU). A zone at 18 degC an hour before a 21 degC band
@@ -54,6 +55,8 @@ def _step(controller, zone_c=18.0):
 
 def test_a_capped_setpoint_is_the_plans_zone_temperature():
     """
+    Capped, the plan's temperature at the hour's end is sent, not the plan's setpoint.
+
     Uncapped, the plan's first setpoint is above the temperature it plans for the hour's end
     (the loop's gain makes up the difference); capped, that temperature is sent, and every
     planned interval is at most its own planned temperature. The MPC's result is unchanged.
@@ -85,13 +88,15 @@ def test_a_safe_step_is_not_capped():
 
 
 def _lower_edges(rows, margin_k=0.0):
-    """The band's lower edge (+ margin) at each interval's start and end: 16, then 21 degC."""
+    """Return the band's lower edge (+ margin) at each interval's start and end (16, 21 degC)."""
     edges = np.where(np.arange(rows + 1) >= 1, 21.0, 16.0) + margin_k
     return edges[:-1], edges[1:]
 
 
 def test_a_capped_setpoint_keeps_the_band():
     """
+    A capped setpoint goes for the band, and holds it.
+
     Where the plan expects to fall short of the band (here its predicted temperatures moved
     2 K down), the cap is the band's lower edge at the step's end raised by band_margin_k: the
     loop still goes for the band its capacity may reach. A setpoint the plan puts below the band
@@ -118,10 +123,10 @@ def test_a_capped_setpoint_keeps_the_band():
 
 
 @pytest.mark.parametrize('settings, error, match', [
-    ({'setpoint_caps': 'TSet=Tw'}, ValueError, r"setpoint_caps: TSet=Tw names no zone "
+    ({'setpoint_caps': 'TSet=Tw'}, ValueError, r'setpoint_caps: TSet=Tw names no zone '
                                                r"temperature with a comfort band.*\['T'\]"),
     ({'setpoint_caps': 'Tset=T'}, ValueError, r"'Tset' is not a control of the MPC \['TSet'\]"),
-    ({'setpoint_caps': 'TSet T'}, SettingsError, r"setpoint_caps must be distinct "
+    ({'setpoint_caps': 'TSet T'}, SettingsError, r'setpoint_caps must be distinct '
                                                  r"'control=zone_state' items"),
     ({'actuation': 'burst'}, SettingsError, r"setpoint_caps needs actuation 'hold'"),
 ])

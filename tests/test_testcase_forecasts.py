@@ -95,12 +95,14 @@ def test_rises_after_rest_need_the_whole_rest() -> None:
 
 def test_a_series_leads_further_after_a_long_rest(boptest_case) -> None:
     """
-    rest_s, rest_lead_s: the rows before a rise that follows a rest of at least rest_s run
-    rest_lead_s ahead, the others lead_s. The house's band rests 10 h or more every night and
-    never a whole day: with 8 h of rest every morning leads 3 h, with 24 h none.
+    rest_s, rest_lead_s: the rows before a rise after a long rest run rest_lead_s ahead.
+
+    The others run lead_s ahead. The house's band rests 10 h or more every night and never a
+    whole day: with 8 h of rest every morning leads 3 h, with 24 h none.
     """
     series = {'now': {'columns': ['LowerSetp[1]'], 'offset': -KELVIN - 15.0},
               'ahead': {'columns': ['LowerSetp[1]'], 'offset': -KELVIN - 15.0, 'lead_s': 3600.0}}
+
     def frame(rest_s):
         spec = ForecastSpec.from_section({'series': {**series, 'lead': {
             **series['ahead'], 'rest_s': rest_s, 'rest_lead_s': 10800.0}}})

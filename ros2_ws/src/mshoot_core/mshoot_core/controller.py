@@ -407,8 +407,9 @@ class Controller:
     def _forecast_rows(self, step_ns: int, rows: int, first: int = 1
                        ) -> tuple[pd.DataFrame, np.ndarray] | None:
         """
-        Return the newest forecast for a step and the rows of the step's end and after
-        (``first`` 1; 0: from the step's start).
+        Return the newest forecast for a step and its rows from the step's end (``first`` 1).
+
+        ``first`` 0: from the step's start.
         """
         forecast = self._forecast_for(int(step_ns))
         if forecast is None:

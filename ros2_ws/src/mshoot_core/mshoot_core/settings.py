@@ -386,6 +386,19 @@ class InputSettings(SettingsGroup):
                                   '[s]', low=0.0, high=86400.0, apply='inputs')
 
 
+def _pairs(text: str) -> dict[str, str]:
+    """Return comma-separated 'a=b' items as a dict (a later item with the same a wins)."""
+    return {a.strip(): b.strip() for a, _, b in (
+        item.partition('=') for item in text.split(',') if item.strip())}
+
+
+def _distinct_pairs(text: str) -> bool:
+    """Return whether comma-separated items are 'name=name' pairs with distinct left names."""
+    pairs = _pairs(text)
+    return len(pairs) == len([i for i in text.split(',') if i.strip()]) and all(
+        a.isidentifier() and b.isidentifier() for a, b in pairs.items())
+
+
 #: How the decided controls of a step reach the building (setting ``actuation``).
 ACTUATIONS = ('hold', 'burst')
 #: What is sent (setting ``actuation_send``).
@@ -441,7 +454,7 @@ class ActuationSettings(SettingsGroup):
         "comma-separated 'control=zone_state'. Each is sent no higher than the plan's "
         "temperature of its zone at the step's end (or the zone's band's lower edge there, "
         'raised by band_margin_k, where the plan falls short of it) and no lower than that '
-        'raised lower edge at the step\'s start; every planned interval likewise. A high-gain '
+        "raised lower edge at the step's start; every planned interval likewise. A high-gain "
         "loop asked for more than the plan's temperature heats on past it; capped, it stops "
         'where the plan does, still goes for the band where the plan expects to miss it, and '
         "holds the band as the building's own loop would. A safe or released step is not "
@@ -450,14 +463,12 @@ class ActuationSettings(SettingsGroup):
     @property
     def cap_items(self) -> dict[str, str]:
         """Return ``setpoint_caps`` as model control -> zone state."""
-        return {a.strip(): b.strip() for a, _, b in (
-            item.partition('=') for item in self.setpoint_caps.split(',') if item.strip())}
+        return _pairs(self.setpoint_caps)
 
     @property
     def plant_names(self) -> dict[str, str]:
         """Return ``plant_controls`` as model control -> plant control."""
-        return {a.strip(): b.strip() for a, _, b in (
-            item.partition('=') for item in self.plant_controls.split(',') if item.strip())}
+        return _pairs(self.plant_controls)
 
     @property
     def band_items(self) -> tuple[tuple[str, str, str], ...]:
@@ -475,10 +486,8 @@ class ActuationSettings(SettingsGroup):
         return tuple(out)
 
     def rules(self) -> list[str]:
-        items = [i for i in self.plant_controls.split(',') if i.strip()]
         names = self.plant_names
-        if len(names) != len(items) or not all(a.isidentifier() and b.isidentifier()
-                                               for a, b in names.items()):
+        if not _distinct_pairs(self.plant_controls):
             return ["plant_controls must be distinct 'control=plant_control' items separated "
                     f'by commas, got {self.plant_controls!r}']
         items = [i for i in self.band_setpoints.split(',') if i.strip()]
@@ -493,12 +502,10 @@ class ActuationSettings(SettingsGroup):
         if both:
             return [f'band_setpoints: {both} are also sent as model controls (plant_controls '
                     f'{self.plant_controls!r})']
-        caps = self.cap_items
-        if len(caps) != len([i for i in self.setpoint_caps.split(',') if i.strip()]) or not all(
-                a.isidentifier() and b.isidentifier() for a, b in caps.items()):
+        if not _distinct_pairs(self.setpoint_caps):
             return ["setpoint_caps must be distinct 'control=zone_state' items separated by "
                     f'commas, got {self.setpoint_caps!r}']
-        if caps and self.actuation != 'hold':
+        if self.cap_items and self.actuation != 'hold':
             return [f"setpoint_caps needs actuation 'hold' (a capped setpoint is held over the "
                     f'step), got actuation {self.actuation!r}']
         if self.actuation_send == 'setpoint' and self.actuation != 'burst':

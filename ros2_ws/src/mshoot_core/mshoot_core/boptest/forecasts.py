@@ -313,8 +313,10 @@ class TestCaseForecasts:
     def _after_rest(self, columns: Sequence[str], source: SeriesSource, times: np.ndarray,
                     step_s: float) -> np.ndarray:
         """
-        Return the rows that lead by ``rest_lead_s`` (:class:`SeriesSource`): their interval
-        [t_k + lead_s, t_k + rest_lead_s + step_s) holds a rise after ``rest_s`` at rest.
+        Return the rows that lead by ``rest_lead_s`` (:class:`SeriesSource`).
+
+        Their interval [t_k + lead_s, t_k + rest_lead_s + step_s) holds a rise after
+        ``rest_s`` at rest.
         """
         grid_s = self.data_step_s
         first = max(0.0, float(times[0]) + source.lead_s - source.rest_s - grid_s)
