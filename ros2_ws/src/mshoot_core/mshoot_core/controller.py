@@ -277,7 +277,7 @@ class Controller:
         self.band_setpoints = self._check_band_setpoints()
         self._band_ranges: dict[str, tuple[float, float]] = {}
         #: The capped setpoints (settings ``setpoint_caps``): (control index, zone state
-        #: index, the zone's band offset [K]) each.
+        #: index, the zone's lower band series, its offset [K]) each.
         self.setpoint_caps = self._check_setpoint_caps()
 
     # -- configuration --------------------------------------------------------------------
@@ -1293,9 +1293,10 @@ class Controller:
         """
         Return the outcome with its schedule within the step (settings ``actuation``).
 
-        A decided plan (this step's or the last good one's) goes through the actuator, with
-        the plan's next controls and the zone temperature the step started from; a safe
-        setpoint is held, and the bursts in progress are forgotten. Without a zone
+        The decision's zone setpoints are capped first (:meth:`capped`, settings
+        ``setpoint_caps``). A decided plan (this step's or the last good one's) goes through
+        the actuator, with the plan's next controls and the zone temperature the step started
+        from; a safe setpoint is held, and the bursts in progress are forgotten. Without a zone
         temperature a setpoint cannot be sent: the decision's controls are held (logged).
         """
         decision = self.capped(outcome.decision, outcome.step_ns)
