@@ -7,6 +7,7 @@ plant is excited over a few simulated days outside its test periods and the iden
 predicts the held-out hours within a stated bound; an excitation overlapping a test period or
 its warm-up is refused before anything runs.
 """
+import dataclasses
 import json
 import pathlib
 
@@ -15,6 +16,7 @@ from mshoot_core.models import card as cards
 from mshoot_core.scenario import synthetic_scenario
 from mshoot_studies import identify as identify_verb
 import numpy as np
+import pandas as pd
 import pytest
 
 DOCS_CARDS = pathlib.Path(__file__).resolve().parents[1] / 'docs' / 'boptest_cards'
@@ -89,3 +91,30 @@ def test_experiment_section_checked():
         ident.TestCaseExperiment.from_card(card, 3600.0, first_day=360.0)
     with pytest.raises(ValueError, match='no boptest.excitation section'):
         ident.TestCaseExperiment.from_card(cards.load_card(HOUSE_MODEL), 3600.0)
+
+
+def test_a_model_input_comes_from_the_model_cards_testcase_forecast(boptest_case):
+    """
+    A model input that is no output or control of the plant card is a series of the model card.
+
+    Its testcase_forecast series at the records' times (the house's gains: the sum of two data
+    columns), its step means in the table; without the section it is refused, naming both.
+    """
+    card, model_card = cards.load_card(HOUSE_CARD), cards.load_card(HOUSE_MODEL)
+    experiment = ident.TestCaseExperiment.from_card(card, 3600.0, first_day=34.0, days=1.0)
+    times = experiment.start_s + 60.0 * np.arange(1, 24 * 60 + 1)
+    variables = {v.variable for group in (card.outputs, card.controls, card.states)
+                 for v in group.values()}
+    records = pd.DataFrame({'time': np.concatenate([[experiment.start_s], times]),
+                            **dict.fromkeys(variables, 293.15)})
+    table = ident.step_table(records, boptest_case, card, model_card, experiment)
+    columns = ('InternalGainsCon[1]', 'InternalGainsRad[1]')
+    gains = sum(boptest_case.lookup(c, times) for c in columns)
+    np.testing.assert_allclose(table['gains'].to_numpy(), gains.reshape(24, 60).mean(axis=1),
+                               rtol=1e-12)
+    assert table['gains'].std() > 0
+    bare = dataclasses.replace(model_card, testcase_forecast=None)
+    with pytest.raises(ValueError, match=r"'gains' is no output or control of "
+                                         r'bestest_hydronic_heat_pump.yaml .* and no series '
+                                         r'of the testcase_forecast section of'):
+        ident.step_table(records, boptest_case, card, bare, experiment)

@@ -275,3 +275,28 @@ def test_a_period_scenario_has_the_forecasts_band(tmp_path: pathlib.Path) -> Non
     lo, hi = interval_band(case, BandSource('LowerSetp[1]', 'UpperSetp[1]'),
                            scenario['fmu_time_s'].to_numpy(), 3600.0)
     np.testing.assert_array_equal(lo, scenario['comfort_min'])
+
+
+def test_a_series_at_given_times_leads_as_the_frame_does(boptest_case) -> None:
+    """
+    series_at: the columns at each time plus the lead, exact.
+
+    With a rest lead of 3 h after 8 h at rest, every sample (a minute apart) of the 3 h before
+    a rise of the house's band reads the band 3 h later, every other one 1 h later.
+    """
+    spec = ForecastSpec.from_section({'series': {'lead': {
+        'columns': ['LowerSetp[1]'], 'offset': -KELVIN - 15.0, 'lead_s': 3600.0,
+        'rest_s': 8 * 3600.0, 'rest_lead_s': 10800.0}}})
+    source = TestCaseForecasts(boptest_case, spec)
+    samples = 16 * 86400.0 + 60.0 * np.arange(48 * 60)
+    values = source.series_at('lead', samples, 60.0)
+    band = boptest_case.lookup('LowerSetp[1]', samples) - KELVIN - 15.0
+    rises = samples[1:][(band[1:] > 0) & (band[:-1] <= 0)]
+    assert rises.size == 2
+    before = np.zeros(samples.size, dtype=bool)
+    for rise in rises:  # from 3 h to 1 h before it (the last hour leads 1 h into the band)
+        before |= (samples >= rise - 10800.0) & (samples < rise - 3600.0)
+    later = np.where(before, 10800.0, 3600.0)
+    np.testing.assert_array_equal(
+        values, boptest_case.lookup('LowerSetp[1]', samples + later) - KELVIN - 15.0)
+    assert values[before].min() > 0 and before.sum() == 2 * 120

@@ -22,7 +22,8 @@ per step the disturbances and controls held over it and the plant's states at it
 the last step's end). A BOPTEST test case (:func:`excite_test_case`) runs under its own weather
 from ``first_day``, after ``lead_days`` under the building's own control, never inside a test
 period or its warm-up; :func:`step_table` makes the same table from its records (each model
-input the step mean of the card's output or control of its name, or of test case data columns).
+input the step mean of the card's output or control of its name, or of the series of the model
+card's ``testcase_forecast`` section: where the controller's forecast takes it from).
 The identification (:func:`identify`) fits the model card's free network parameters
 (:func:`mshoot_core.calibration.calibrate`, analytic Jacobian) to the zone temperatures of the
 first part of the table and scores the rest (held out): per zone the RMSE of a free run from
@@ -244,9 +245,6 @@ class TestCaseExperiment:
         Step of the records and of the control model [s]; each level is held whole steps.
     excitation : Excitation
         Seed, hold times and level ranges of the card's controls [canonical units].
-    inputs : mapping str -> float or tuple of str
-        Control model input -> a constant, or the test case data columns whose sum it is
-        (their step means); every other input is a card output or control of the same name.
     sample_s : float
         Step of the plant's records [s] (at most 60 s).
 
@@ -259,7 +257,6 @@ class TestCaseExperiment:
     lead_days: float = 3.0
     step_s: float = 3600.0
     excitation: Excitation = Excitation()
-    inputs: Mapping[str, float | tuple[str, ...]] = dataclasses.field(default_factory=dict)
     sample_s: float = 60.0
 
     def __post_init__(self) -> None:
@@ -321,13 +318,10 @@ class TestCaseExperiment:
             hold_steps=tuple(int(v) for v in spec.get('hold_steps', (1, 8))),
             levels={str(k): (float(v[0]), float(v[1]))
                     for k, v in (spec.get('levels') or {}).items()} or None)
-        inputs = {str(k): float(v) if isinstance(v, (int, float)) else tuple(map(str, v))
-                  for k, v in (spec.get('inputs') or {}).items()}
         fields = {'first_day': spec.get('first_day'), 'days': spec.get('days'),
                   'lead_days': spec.get('lead_days', 3.0),
                   'step_s': spec.get('step_s', step_s), **changes}
-        return cls(**{k: float(v) for k, v in fields.items()}, excitation=excitation,
-                   inputs=inputs)
+        return cls(**{k: float(v) for k, v in fields.items()}, excitation=excitation)
 
 
 def overlapping_test_periods(case: Any, experiment: TestCaseExperiment,
@@ -454,10 +448,12 @@ def step_table(records: pd.DataFrame, case: Any, card: Any, model_card: Any,
     card : ModelCard
         Its card: the variables of the outputs, controls and states.
     model_card : ModelCard
-        The network card identified: its inputs (units from its ``network.inputs``) and
-        zones.
+        The network card identified: its inputs (units from its ``network.inputs``), where
+        those that are no output or control of ``card`` come from in the test case (its
+        ``testcase_forecast`` series, :class:`~mshoot_core.boptest.forecasts.ForecastSpec`:
+        each at the records' times, exact) and its zones.
     experiment : TestCaseExperiment
-        The experiment (its start, step and ``inputs``).
+        The experiment (its start and step).
 
     Returns
     -------
@@ -470,27 +466,29 @@ def step_table(records: pd.DataFrame, case: Any, card: Any, model_card: Any,
     Raises
     ------
     ValueError
-        For a model input that is no card output or control and not in ``inputs``, or a
-        zone that is no state of the card.
+        For a model input that is no card output or control and no series of the model
+        card's ``testcase_forecast``, or a zone that is no state of the card.
 
     """
+    from mshoot_core.boptest.forecasts import ForecastSpec, TestCaseForecasts
     from mshoot_core.models.card import conversion
     times = records['time'].to_numpy(dtype=float)
+    section = getattr(model_card, 'testcase_forecast', None)
+    forecasts = (TestCaseForecasts(case, ForecastSpec.from_section(
+        section, f'{model_card.path}: testcase_forecast')) if section else None)
     series: dict[str, np.ndarray] = {}
     for name, unit in model_card.network.inputs.items():
-        source = experiment.inputs.get(name)
-        if isinstance(source, float):
-            series[name] = np.full(times.size, source)
-        elif source is not None:
-            series[name] = sum(case.lookup(column, times) for column in source)
-        elif name in card.outputs or name in card.controls:
+        if name in card.outputs or name in card.controls:
             variable = card.outputs.get(name) or card.controls[name]
             scale, offset = conversion(unit, variable.unit)
             series[name] = (records[variable.variable].to_numpy(dtype=float) - offset) / scale
+        elif forecasts is not None and name in forecasts.spec.series:
+            series[name] = forecasts.series_at(name, times, experiment.sample_s)
         else:
             raise ValueError(f'the model input {name!r} is no output or control of '
                              f'{card.path.name} ({list(card.outputs)}, {list(card.controls)}) '
-                             'and not in its boptest.excitation.inputs')
+                             f'and no series of the testcase_forecast section of '
+                             f'{model_card.path.name}')
     step_of = np.floor((times - experiment.start_s - 1e-6) / experiment.step_s).astype(int)
     frame = pd.DataFrame(series).assign(step=step_of).iloc[1:]
     grouped = frame.groupby('step')

@@ -21,7 +21,8 @@ temperatures of the first part of the records by least squares (analytic Jacobia
 mshoot_core.calibration) and scored on the held-out rest (``--validation-share``): per zone
 the RMSE of a free run and of one control step ahead. The model's inputs must be disturbances
 of the scenario or controls of the plant (by name) -- for a test case: outputs or controls of
-its card (step means), or constants and sums of data columns the section's ``inputs`` names --
+its card (step means), or series of the model card's ``testcase_forecast`` section (the test
+case's data as the controller's forecast reads it, at the plant's samples; step means) --
 its zones (``T``, ``T_<zone>``) states of the plant too. ``--reference CARD`` scores the
 parameter values of another card of the same network (e.g. a packaged one) on the same
 held-out steps, side by side.

@@ -310,6 +310,40 @@ class TestCaseForecasts:
             values = self.case.lookup(column, times)
         return values.reshape(t_s.size, n_sub).mean(axis=1)
 
+    def series_at(self, name: str, times_s: np.ndarray, step_s: float) -> np.ndarray:
+        """
+        Return a series at the given times, exact: its columns at each time plus its lead.
+
+        Parameters
+        ----------
+        name : str
+            A series of the spec.
+        times_s : np.ndarray
+            Times [s from 1 January], e.g. a plant's records'.
+        step_s : float
+            Spacing of the times [s]: each time leads as the row of an interval of this length
+            (``rest_s``, ``rest_lead_s``).
+
+        Returns
+        -------
+        np.ndarray
+            The sum of the columns at ``t + lead`` (forward-filled), plus the offset.
+
+        """
+        times = np.asarray(times_s, dtype=float).reshape(-1)
+        at = self._lead_times(name, times, step_s)
+        return sum(self.case.lookup(c, at) for c in self._columns[name]) + \
+            self.spec.series[name].offset
+
+    def _lead_times(self, name: str, times: np.ndarray, step_s: float) -> np.ndarray:
+        """Return each row's time plus the series' lead (``lead_s`` or ``rest_lead_s``)."""
+        source = self.spec.series[name]
+        at = times + source.lead_s
+        if source.rest_s > 0:
+            at = np.where(self._after_rest(self._columns[name], source, times, step_s),
+                          times + source.rest_lead_s, at)
+        return at
+
     def _after_rest(self, columns: Sequence[str], source: SeriesSource, times: np.ndarray,
                     step_s: float) -> np.ndarray:
         """
@@ -346,11 +380,7 @@ class TestCaseForecasts:
         frame = pd.DataFrame(index=pd.Index(times, name='time_s'))
         horizon = (steps + 1) * step_s
         for name, columns in self._columns.items():
-            source = self.spec.series[name]
-            at = times + source.lead_s
-            if source.rest_s > 0:
-                at = np.where(self._after_rest(columns, source, times, step_s),
-                              times + source.rest_lead_s, at)
+            at = self._lead_times(name, times, step_s)
             total = self.interval_means(columns[0], at, step_s, float(t_s), horizon)
             for column in columns[1:]:
                 total = total + self.interval_means(column, at, step_s, float(t_s), horizon)
