@@ -340,27 +340,25 @@ class TestCaseForecasts:
         source = self.spec.series[name]
         at = times + source.lead_s
         if source.rest_s > 0:
-            at = np.where(self._after_rest(self._columns[name], source, times, step_s),
-                          times + source.rest_lead_s, at)
+            at = np.where(self._after_rest(name, times, step_s), times + source.rest_lead_s, at)
         return at
 
-    def _after_rest(self, columns: Sequence[str], source: SeriesSource, times: np.ndarray,
-                    step_s: float) -> np.ndarray:
+    def _after_rest(self, name: str, times: np.ndarray, step_s: float) -> np.ndarray:
         """
         Return the rows that lead by ``rest_lead_s`` (:class:`SeriesSource`).
 
         Their interval [t_k + lead_s, t_k + rest_lead_s + step_s) holds a rise after
         ``rest_s`` at rest.
         """
-        grid_s = self.data_step_s
+        source, grid_s = self.spec.series[name], self.data_step_s
         first = max(0.0, float(times[0]) + source.lead_s - source.rest_s - grid_s)
         count = int(math.ceil((float(times[-1]) + source.rest_lead_s + step_s - first)
                               / grid_s)) + 1
         grid = first + grid_s * np.arange(count)
-        values = sum(self.case.lookup(c, grid) for c in columns) + source.offset
+        values = sum(self.case.lookup(c, grid) for c in self._columns[name]) + source.offset
         rises = grid[rises_after_rest(values, int(math.ceil(source.rest_s / grid_s)))]
         begin, end = times + source.lead_s, times + source.rest_lead_s + step_s
-        return ((rises[None, :] >= begin[:, None]) & (rises[None, :] < end[:, None])).any(axis=1)
+        return np.searchsorted(rises, begin) < np.searchsorted(rises, end)  # one in [begin, end)
 
     def frame(self, t_s: float, steps: int, step_s: float) -> pd.DataFrame:
         """
