@@ -10,8 +10,14 @@ temperature at the hour's end (or the band's lower edge there, raised by band_ma
 the plan falls short of it), and never below the raised lower edge of the band the step starts
 in; every planned interval likewise; a safe step is not capped; bad settings are refused with clear
 errors.
+
+Supply floors (settings ``supply_floors``): the same zone with a supply temperature ``TSup``
+added as a control the plan prices and that does nothing else: the plan holds it at its lower
+limit; it is sent at its floor where the capped setpoint heats, and as planned where the zone
+floats above it.
 """
 import dataclasses
+import pathlib
 
 from mshoot_core.controller import controller_for
 from mshoot_core.models.card import build_model, builtin_card, load_card
@@ -19,6 +25,7 @@ from mshoot_core.settings import MpcSettings, SettingsError
 from mshoot_core.units import KELVIN
 import numpy as np
 import pytest
+import yaml
 
 
 NS = 1_000_000_000
@@ -27,28 +34,40 @@ HORIZON = 4
 CAPS = 'TSet=T'
 
 
-def _controller(**settings):
+def _controller(card=None, **settings):
     values = {'horizon_steps': HORIZON, 'cost': 'output', 'cost_output': 'Qh',
               'estimation': 'off', 'measured_states': 'T, Tw', 'setpoint_caps': CAPS}
-    model = build_model(load_card(builtin_card('setpoint_zone_identified')))
+    model = build_model(load_card(card or builtin_card('setpoint_zone_identified')))
     return controller_for(model, MpcSettings.from_flat({**values, **settings}))
 
 
-def _forecast(first_s):
-    """Hourly rows from ``first_s`` [s]: 0 degC outdoors, the band 21-24 degC from 1 h."""
+def _supply_card(directory: pathlib.Path) -> pathlib.Path:
+    """Write the setpoint zone with a supply temperature TSup [degC, 20-60] it prices alone."""
+    card = yaml.safe_load(builtin_card('setpoint_zone_identified').read_text())
+    card['network']['inputs']['TSup'] = 'degC'
+    card['network']['outputs']['Qh']['terms'].append({'times': 'TSup', 'value': '0.01'})
+    card['controls']['TSup'] = {'unit': 'degC', 'min': 20, 'max': 60, 'safe': 40}
+    path = directory / 'supply_zone.yaml'
+    path.write_text(yaml.safe_dump(card, sort_keys=False))
+    return path
+
+
+def _forecast(first_s, outdoor_c=0.0, occupants=0.0):
+    """Hourly rows from ``first_s`` [s]: 0 degC outdoors, nobody in, the band 21-24 from 1 h."""
     times = first_s + 3600.0 * np.arange(HORIZON + 1)
     occupied = times >= 3600.0
-    return {'solrad': np.zeros(times.size), 'Tout': np.zeros(times.size),
-            'occ': np.zeros(times.size),
+    return {'solrad': np.zeros(times.size), 'Tout': np.full(times.size, outdoor_c),
+            'occ': np.full(times.size, occupants),
             'comfort_min': np.where(occupied, 21.0, 16.0),
             'comfort_max': np.where(occupied, 24.0, 30.0)}
 
 
-def _step(controller, zone_c=18.0):
+def _step(controller, zone_c=18.0, wall_c=15.0, outdoor_c=0.0, occupants=0.0):
     stamp = 0
-    assert controller.offer_named_state(stamp, ['T', 'Tw'], [zone_c + KELVIN, 15.0 + KELVIN],
+    assert controller.offer_named_state(stamp, ['T', 'Tw'], [zone_c + KELVIN, wall_c + KELVIN],
                                         stamp) is None
-    assert controller.offer_forecast(stamp, 3600.0, _forecast(0.0), stamp) is None
+    forecast = _forecast(0.0, outdoor_c, occupants)
+    assert controller.offer_forecast(stamp, 3600.0, forecast, stamp) is None
     [outcome] = controller.poll(stamp)
     return outcome
 
@@ -133,3 +152,62 @@ def test_a_capped_setpoint_keeps_the_band():
 def test_bad_setpoint_caps_are_refused(settings, error, match):
     with pytest.raises(error, match=match):
         _controller(**settings)
+
+
+def test_a_supply_floor_holds_where_a_capped_setpoint_heats(tmp_path):
+    """
+    The supply temperature is sent at its floor where the capped setpoint heats.
+
+    A zone at 18 degC an hour before a 21 degC band, 0 degC outdoors: the plan holds TSup at its
+    lower limit (it prices TSup and nothing else depends on it) and heats every interval (the
+    capped setpoint at the plan's temperature of the zone, or above it); TSup is sent at 50 degC
+    this step and in every planned interval. The setpoint is capped as without the floor.
+    """
+    card = _supply_card(tmp_path)
+    plain = _step(_controller(card))
+    outcome = _step(_controller(card, supply_floors='TSup=50'))
+    assert outcome.decision.source == 'optimum'
+    np.testing.assert_allclose(outcome.result.plan['TSup'].to_numpy(), 20.0, atol=1e-3)
+    np.testing.assert_allclose(plain.decision.controls[1], 20.0, atol=1e-3)
+    zones = outcome.decision.plan_states[:, 0] - KELVIN
+    setpoints = outcome.decision.plan_controls[:, 0]
+    assert (setpoints >= zones - 0.05).all()  # the loop heats in every interval
+    np.testing.assert_allclose(outcome.decision.plan_controls[:, 1], 50.0)
+    assert outcome.decision.controls[1] == pytest.approx(50.0)
+    np.testing.assert_allclose(outcome.decision.controls[0], plain.decision.controls[0])
+    decision, schedule = outcome.sent()
+    np.testing.assert_allclose(schedule.values[0], outcome.decision.controls)
+
+
+def test_a_supply_floor_leaves_a_floating_zone_as_planned(tmp_path):
+    """
+    Where the zone floats above its capped setpoint, the supply temperature is as planned.
+
+    A zone and its envelope at 23.5 degC, 20 degC outdoors and 300 occupants' gains: the plan
+    sets the loop's lowest setpoint and the zone stays above the 21 degC band over the 4 h on
+    its gains; every capped setpoint is below the zone (the loop idle) and TSup is sent as
+    planned, at its lower limit.
+    """
+    controller = _controller(_supply_card(tmp_path), supply_floors='TSup=50')
+    outcome = _step(controller, zone_c=23.5, wall_c=23.5, outdoor_c=20.0, occupants=300.0)
+    assert outcome.decision.source == 'optimum'
+    zones = outcome.decision.plan_states[:, 0] - KELVIN
+    assert (outcome.decision.plan_controls[:, 0] < zones - 0.05).all()  # the loop idle
+    np.testing.assert_allclose(outcome.decision.plan_controls[:, 1], 20.0, atol=1e-3)
+    assert outcome.decision.controls[1] == pytest.approx(20.0, abs=1e-3)
+
+
+@pytest.mark.parametrize('settings, error, match', [
+    ({'supply_floors': 'TSup=warm'}, SettingsError, r'supply_floors must be distinct '
+                                                    r"'control=floor' items"),
+    ({'supply_floors': 'TSup=50', 'setpoint_caps': ''}, SettingsError,
+     r'supply_floors needs setpoint_caps'),
+    ({'supply_floors': 'TSet=22'}, SettingsError, r"supply_floors: \['TSet'\] are also capped"),
+    ({'supply_floors': 'Tsup=50'}, ValueError, r"supply_floors: 'Tsup' is not a control of the "
+                                               r"MPC \['TSet', 'TSup'\]"),
+    ({'supply_floors': 'TSup=70'}, ValueError, r'supply_floors: TSup=70 is outside the '
+                                               r"control's limits \[20, 60\]"),
+])
+def test_bad_supply_floors_are_refused(tmp_path, settings, error, match):
+    with pytest.raises(error, match=match):
+        _controller(_supply_card(tmp_path), **settings)

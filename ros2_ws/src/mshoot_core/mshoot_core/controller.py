@@ -80,6 +80,9 @@ logger = logging.getLogger(__name__)
 STREAMS = ('state', 'forecast')
 #: States and forecasts kept, by stamp.
 KEEP_INPUTS = 8
+#: A capped setpoint this close to its zone's planned temperature at an interval's end, or
+#: above it, heats in that interval (settings ``supply_floors``) [K].
+HEATING_TOLERANCE_K = 0.05
 #: Prefix of an output's mean over the last step in a zone state (``mean_<output>``); a
 #: history's outputs are such means, named by output.
 MEAN_PREFIX = 'mean_'
@@ -279,6 +282,8 @@ class Controller:
         #: The capped setpoints (settings ``setpoint_caps``): (control index, zone state
         #: index, the zone's lower band series, its offset [K]) each.
         self.setpoint_caps = self._check_setpoint_caps()
+        #: The supply floors (settings ``supply_floors``): (control index, floor) each.
+        self.supply_floors = self._check_supply_floors()
 
     # -- configuration --------------------------------------------------------------------
     @property
@@ -368,6 +373,22 @@ class Controller:
             out.append((controls.index(control), states.index(state), lower, float(offset)))
         return tuple(out)
 
+    def _check_supply_floors(self) -> tuple[tuple[int, float], ...]:
+        """Return the settings' ``supply_floors``, checked: (control index, floor) each."""
+        controls = list(self.settings.problem.control_names)
+        bounds = self.settings.problem.control_bounds
+        out = []
+        for control, floor in self.settings.actuation.supply_floor_items.items():
+            if control not in controls:
+                raise ValueError(f'supply_floors: {control!r} is not a control of the MPC '
+                                 f'{controls}')
+            low, high = bounds[controls.index(control)]
+            if not low <= floor <= high:
+                raise ValueError(f'supply_floors: {control}={floor:g} is outside the '
+                                 f"control's limits [{low:g}, {high:g}]")
+            out.append((controls.index(control), floor))
+        return tuple(out)
+
     def capped(self, decision: Decision, step_ns: int) -> Decision:
         """
         Return the decision with its zone setpoints between the band and the plan's temperature.
@@ -381,6 +402,11 @@ class Controller:
         band where the plan expects to miss it, and keeps the band the step starts in as the
         building's own loop would. Every planned interval likewise. Other decisions are
         returned as they are.
+
+        Settings ``supply_floors``: in an interval where a capped setpoint heats (it is at or
+        above its zone's planned temperature at the interval's end less
+        :data:`HEATING_TOLERANCE_K`: the loop holds or raises the zone), each floored control
+        (the loops' supply temperature) is at least its floor.
         """
         if not self.setpoint_caps or decision.source not in ('optimum', 'plan') or \
                 decision.predicted_state is None:
@@ -391,15 +417,24 @@ class Controller:
         rows = plan.shape[0] if plan.ndim == 2 and plan.shape[0] == states.shape[0] else 0
         found = self._forecast_rows(step_ns, max(rows, 1) + 1, first=0)
         raise_k = self.settings.comfort.band_margin_k
+        heats, plan_heats = False, np.zeros(rows, dtype=bool)
         for control, state, lower, offset in self.setpoint_caps:
             edge = (found[0][lower].to_numpy(dtype=float)[found[1]] + raise_k
                     if found is not None else np.full(max(rows, 1) + 1, -math.inf))
             start, end = edge[:-1], edge[1:]  # each interval's start and end rows
-            controls[control] = max(start[0], min(controls[control], max(
-                float(decision.predicted_state[state]) - offset, end[0])))
+            zone = float(decision.predicted_state[state]) - offset
+            controls[control] = max(start[0], min(controls[control], max(zone, end[0])))
+            heats |= controls[control] >= zone - HEATING_TOLERANCE_K
             if rows:
+                zones = states[:, state] - offset
                 plan[:, control] = np.maximum(start, np.minimum(
-                    plan[:, control], np.maximum(states[:, state] - offset, end)))
+                    plan[:, control], np.maximum(zones, end)))
+                plan_heats |= plan[:, control] >= zones - HEATING_TOLERANCE_K
+        for control, floor in self.supply_floors:
+            if heats:
+                controls[control] = max(controls[control], floor)
+            if rows:
+                plan[plan_heats, control] = np.maximum(plan[plan_heats, control], floor)
         low, high = np.asarray(self.settings.problem.control_bounds, dtype=float).T
         return dataclasses.replace(decision, controls=np.clip(controls, low, high),
                                    plan_controls=np.clip(plan, low, high) if rows else plan)

@@ -399,6 +399,14 @@ def _distinct_pairs(text: str) -> bool:
         a.isidentifier() and b.isidentifier() for a, b in pairs.items())
 
 
+def _is_number(text: str) -> bool:
+    """Return whether a text is a finite number."""
+    try:
+        return math.isfinite(float(text))
+    except ValueError:
+        return False
+
+
 #: How the decided controls of a step reach the building (setting ``actuation``).
 ACTUATIONS = ('hold', 'burst')
 #: What is sent (setting ``actuation_send``).
@@ -460,6 +468,21 @@ class ActuationSettings(SettingsGroup):
         "holds the band as the building's own loop would. A safe or released step is not "
         "capped ('' = none) [the band's unit, degC]", apply='fixed')
 
+    supply_floors: str = setting(
+        '', 'model controls that are the supply temperature of the loops the capped setpoints '
+        '(setpoint_caps) heat through, with the least supply temperature those loops need to '
+        "deliver the plan's heat: comma-separated 'control=floor'. In a step where a capped "
+        "setpoint heats (it is sent at the plan's temperature of its zone at the step's end, "
+        'or above it, within 0.05 K: the loop holds or raises the zone), each is sent at least '
+        'at its floor; otherwise as planned, e.g. at its lower limit where the model prices its '
+        "gas and no capacity falling with it; every planned interval likewise ('' = none) "
+        "[the control's unit, degC]", apply='fixed')
+
+    @property
+    def supply_floor_items(self) -> dict[str, float]:
+        """Return ``supply_floors`` as model control -> floor (:meth:`rules` checks them)."""
+        return {control: float(floor) for control, floor in _pairs(self.supply_floors).items()}
+
     @property
     def cap_items(self) -> dict[str, str]:
         """Return ``setpoint_caps`` as model control -> zone state."""
@@ -505,6 +528,18 @@ class ActuationSettings(SettingsGroup):
         if not _distinct_pairs(self.setpoint_caps):
             return ["setpoint_caps must be distinct 'control=zone_state' items separated by "
                     f'commas, got {self.setpoint_caps!r}']
+        floors = _pairs(self.supply_floors)
+        if len(floors) != len([i for i in self.supply_floors.split(',') if i.strip()]) or \
+                not all(control.isidentifier() and _is_number(floor)
+                        for control, floor in floors.items()):
+            return ["supply_floors must be distinct 'control=floor' items (a model control, a "
+                    f'number) separated by commas, got {self.supply_floors!r}']
+        if floors and not self.cap_items:
+            return ['supply_floors needs setpoint_caps (a supply floor holds while a capped '
+                    'setpoint heats)']
+        both = sorted(set(floors) & set(self.cap_items))
+        if both:
+            return [f'supply_floors: {both} are also capped setpoints (setpoint_caps)']
         if self.cap_items and self.actuation != 'hold':
             return [f"setpoint_caps needs actuation 'hold' (a capped setpoint is held over the "
                     f'step), got actuation {self.actuation!r}']
