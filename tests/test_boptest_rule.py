@@ -4,8 +4,8 @@ import pathlib
 import types
 
 from mshoot_core.boptest.testcase import TestCase
-from mshoot_studies.boptest_rule import (choose, PreheatRule, rule_axes, rule_targets,
-                                         RuleTarget, SupplyReset, tune_rule)
+from mshoot_studies.boptest_rule import (choose, grid_tuning, PreheatRule, rule_axes,
+                                         rule_targets, RuleTarget, SupplyReset, tune_rule)
 import numpy as np
 import pandas as pd
 import pytest
@@ -192,6 +192,34 @@ def test_choose_by_score() -> None:
     assert (best['constant']['lead_h'], best['dynamic']['lead_h']) == (2.0, 4.0)
     assert best['constant']['score'] == pytest.approx(0.7)
     assert choose(grid, weight=0.0)['dynamic']['lead_h'] == 0.0
+
+
+def test_a_tuning_grid_written_is_chosen_again(tmp_path: pathlib.Path) -> None:
+    """
+    The rule as a tuning run chose it, from the grid it wrote: the same choice, no run.
+
+    A grid with cooling margins and shifts per price, as ``rule_tuning_<period>.csv``: each
+    price's parameters are its smallest score's; a missing grid, price or column is refused.
+    """
+    grid = pd.DataFrame({
+        'lead_h': 0.0, 'margin_k': 0.0, 'price': ['constant'] * 3 + ['highly_dynamic'] * 3,
+        'cooling_margin_k': [0.5, 1.0, 2.0] * 2, 'supply_shift_k': [-10.0, -20.0, -30.0] * 2,
+        'cost_tot': [0.10, 0.11, 0.15, 0.09, 0.08, 0.14], 'tdis_tot': [0.5, 0.2, 0.1] * 2})
+    grid.to_csv(tmp_path / 'rule_tuning_typical_cool_day.csv', index=False)
+    # scores with weight 0.1: constant 0.15, 0.13, 0.16; highly_dynamic 0.14, 0.10, 0.15
+    tuning = grid_tuning(tmp_path, 'typical_cool_day', ['constant', 'highly_dynamic'])
+    assert tuning.parameters('constant') == (0.0, 0.0, 1.0, -20.0)
+    assert tuning.parameters('highly_dynamic') == (0.0, 0.0, 1.0, -20.0)
+    assert grid_tuning(tmp_path, 'typical_cool_day', ['constant'], weight=1.0).parameters(
+        'constant') == (0.0, 0.0, 2.0, -30.0)
+    with pytest.raises(ValueError, match=r"no rule tuning grid for 'peak_heat_day': .*"
+                                         r'rule_tuning_peak_heat_day.csv is missing'):
+        grid_tuning(tmp_path, 'peak_heat_day', ['constant'])
+    with pytest.raises(ValueError, match=r"no grid point for the price scenarios \['dynamic'\]"):
+        grid_tuning(tmp_path, 'typical_cool_day', ['constant', 'dynamic'])
+    grid.drop(columns='tdis_tot').to_csv(tmp_path / 'rule_tuning_mix_day.csv', index=False)
+    with pytest.raises(ValueError, match=r"no column \['tdis_tot'\]"):
+        grid_tuning(tmp_path, 'mix_day', ['constant'])
 
 
 def test_short_tuning_on_the_fmu(boptest_case: TestCase) -> None:

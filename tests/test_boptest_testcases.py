@@ -274,6 +274,10 @@ def test_mshoot_boptest_refuses_bad_input_in_one_line(boptest_case: TestCase,
                   'supply shifts [0.0, -10.0] given, but the rule has no supply reset'))
     cases.append((['--card', str(card), '--controllers', 'rule', '--margin', '-1'],
                   'expected margin_k >= 0'))
+    cases.append((['--card', str(card), '--controllers', 'rule', '--lead', '1', '--rule-grids',
+                   str(tmp_path)], '--rule-grids takes the rule from a tuning: not with --lead'))
+    cases.append((['--card', str(card), '--controllers', 'rule', '--rule-grids', str(tmp_path)],
+                  'no rule tuning grid for '))
     for extra, message in cases:
         assert cli.main([*base, *extra]) == 2, extra
         err = capsys.readouterr().err

@@ -33,7 +33,8 @@ instance per process). Controllers:
   (``--cooling-margin``, ``--supply-shift``) fixed, else tuned per period and price on the test
   period itself, on the grid ``--leads`` x ``--margins`` (x ``--cooling-margins`` x
   ``--supply-shifts`` when the card names cooling setpoints, a supply reset) (each a full run;
-  :mod:`mshoot_studies.boptest_rule`);
+  :mod:`mshoot_studies.boptest_rule`), or as such a tuning chose it from the grids it wrote
+  (``--rule-grids DIR``: ``DIR/rule_tuning_<period>.csv``, no grid run);
 - ``mshoot``: the supervisory MPC (:class:`mshoot_core.controller.Controller`, in the loop by
   :func:`mshoot_core.boptest.supervision.supervised_plant`) of a control model card
   (``--control-card``: a file or a built-in card, with its ``testcase_forecast`` section: the
@@ -253,6 +254,10 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument('--supply-shifts', type=float, nargs='+', default=None,
                         help='rule tuning grid: supply shifts [K] (a card with supply_reset; '
                              f'default {" ".join(f"{v:g}" for v in SUPPLY_SHIFTS_K)})')
+    parser.add_argument('--rule-grids', type=pathlib.Path, default=None, metavar='DIR',
+                        help='rule: as an earlier tuning run chose it per period and price, '
+                             'from its grids DIR/rule_tuning_<period>.csv (no grid run; '
+                             'not with fixed rule parameters)')
     parser.add_argument('--workers', type=int, default=2, choices=range(1, 9), metavar='N',
                         help='runs at once, one process and FMU instance each (default 2)')
     parser.add_argument('--starts-output', default='',
@@ -656,7 +661,7 @@ def _run(args: argparse.Namespace) -> int:
     from mshoot_core.models.card import load_card
     from mshoot_studies.boptest_report import plot_run
     from mshoot_studies.boptest_rule import COOLING_MARGINS_K, PreheatRule, rule_axes, \
-        rule_kinds, rule_targets, SUPPLY_SHIFTS_K, tune_rule
+        grid_tuning, rule_kinds, rule_targets, SUPPLY_SHIFTS_K, tune_rule
     began = time.perf_counter()
     controllers = _controllers(args.controllers)
     scenarios = uncertainty_runs(args.uncertainty)
@@ -689,10 +694,17 @@ def _run(args: argparse.Namespace) -> int:
                 f'{list(case.energy_outputs)}): {controllers} on {periods}')
     tunings: dict[str, Any] = {}
 
+    fixed_rule = any(v is not None for v in (args.lead, args.margin, args.cooling_margin,
+                                             args.supply_shift))
+    if fixed_rule and args.rule_grids is not None:
+        raise ValueError('--rule-grids takes the rule from a tuning: not with --lead, --margin, '
+                         '--cooling-margin or --supply-shift')
+
     def rule_parameters(period: str, price: str) -> tuple[float, ...]:
-        if any(v is not None for v in (args.lead, args.margin, args.cooling_margin,
-                                       args.supply_shift)):
+        if fixed_rule:
             return args.lead or 0.0, args.margin or 0.0, *fixed
+        if period not in tunings and args.rule_grids is not None:
+            tunings[period] = grid_tuning(args.rule_grids, period, args.prices)
         if period not in tunings:
             tunings[period] = tune_rule(case, targets, period, args.leads, args.margins,
                                         prices=args.prices, warmup_days=warmup,

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import pathlib
 from typing import Callable, Mapping, Sequence
 
 from mshoot_core.boptest.kpi_calculator import kpi_records
@@ -163,6 +164,45 @@ def rule_axes(targets: Mapping[str, RuleTarget | SupplyReset],
                              '(the card names none)')
         axes.append(chosen)
     return axes[0], axes[1]
+
+
+def grid_tuning(folder: pathlib.Path, period: str, prices: Sequence[str],
+                weight: float = DISCOMFORT_WEIGHT) -> RuleTuning:
+    """
+    Return the rule as an earlier tuning chose it: its grid ``rule_tuning_<period>.csv``.
+
+    The grid a tuning run wrote (``mshoot boptest`` without fixed rule parameters:
+    ``OUT/rule_tuning_<period>.csv``), chosen again by :func:`choose`: no run of the grid.
+
+    Parameters
+    ----------
+    folder : pathlib.Path
+        The folder of the grids.
+    period : str
+        The test period.
+    prices : sequence of str
+        The price scenarios the grid must have.
+    weight : float
+        The discomfort weight of the score [EUR/m2 per K h].
+
+    Raises
+    ------
+    ValueError
+        When the grid is missing, lacks a column :func:`choose` reads or a price scenario.
+
+    """
+    path = pathlib.Path(folder) / f'rule_tuning_{period}.csv'
+    if not path.is_file():
+        raise ValueError(f'no rule tuning grid for {period!r}: {path} is missing (a tuning run '
+                         'writes it: mshoot boptest --controllers rule without --lead, --margin)')
+    grid = pd.read_csv(path)
+    missing = sorted({'price', 'lead_h', 'margin_k', 'cost_tot', 'tdis_tot'} - set(grid))
+    if missing:
+        raise ValueError(f'{path}: no column {missing}')
+    absent = sorted(set(prices) - set(grid['price']))
+    if absent:
+        raise ValueError(f'{path}: no grid point for the price scenarios {absent}')
+    return RuleTuning(period, grid, choose(grid, weight), weight)
 
 
 def tune_rule(case: TestCase, targets: Mapping[str, RuleTarget | SupplyReset], period: str,
