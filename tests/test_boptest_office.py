@@ -80,9 +80,19 @@ def test_office_mpc_sends_its_decisions_as_the_bms_overwrites(runs: dict) -> Non
     warmup = table[table['time'] < start - 1e-6]
     assert warmup[[card.controls[n].variable for n in policy.controller.sent_control_names]
                   ].isna().all().all()
-    # the boiler's supply temperature costs gas and nothing else in the model: its lower limit
-    supply = np.array([o.decision.controls[2] for o in period])
-    np.testing.assert_allclose(supply, 40.0, atol=1e-3)
+    # the boiler's supply temperature costs gas and nothing else in the model: planned at its
+    # lower limit, sent at its floor where a capped setpoint heats (settings supply_floors)
+    floor = policy.controller.settings.actuation.supply_floor_items['TSupHea']
+    states = list(policy.controller.model.state_names)
+    heating = []
+    for outcome in period:
+        np.testing.assert_allclose(outcome.result.plan['TSupHea'].to_numpy()[0], 20.0, atol=1e-3)
+        heating.append(any(
+            outcome.decision.controls[i] >= outcome.decision.predicted_state[
+                states.index(zone)] - 273.15 - 0.05 for i, zone in enumerate(('T_nZ', 'T_sZ'))))
+        assert outcome.decision.controls[2] == pytest.approx(floor if heating[-1] else 20.0,
+                                                             abs=1e-3)
+    assert floor > 20.0 and 0 < sum(heating) < len(heating)  # both: mornings heat, nights not
     # the minimum setpoints capped (settings setpoint_caps): at most the plan's temperature of
     # the zone at the step's end (or the band's raised lower edge there), at least the raised
     # lower edge at the step's start; the lower edge is 21 degC where the maximum is 25 - margin
@@ -92,7 +102,6 @@ def test_office_mpc_sends_its_decisions_as_the_bms_overwrites(runs: dict) -> Non
         'TSetMin_nZ': 'T_nZ', 'TSetMin_sZ': 'T_sZ'}
     steps = [o for o in policy.outcomes if o.t_s >= start - 3600.0 - 1e-6]
     lower = [21.0 if abs(o.band_values[0][0] - (25.0 - margin)) < 1e-9 else 16.0 for o in steps]
-    states = list(policy.controller.model.state_names)
     capped = 0
     for outcome, begin, end in zip(steps[1:], lower, lower[1:]):
         asked = outcome.result.plan[list(names)].to_numpy()[0]
@@ -153,12 +162,12 @@ def test_office_settings_plan_on_the_card_and_release_to_the_bms() -> None:
 def test_office_over_ros_equals_the_core_run(runs: dict, tmp_path: pathlib.Path,
                                              monkeypatch: pytest.MonkeyPatch) -> None:
     """
-    The office's MPC over ROS (the runner of ``make boptest-office``) equals its core run.
+    The office's MPC over ROS (``python -m mshoot_nodes.boptest_run``) equals its core run.
 
     The emulator, forecaster and MPC nodes from the same cards and settings
     (:func:`mshoot_nodes.boptest_run.run_ros`): two zones, five named overwrites (both
-    minimum setpoints, the boiler's supply temperature planned; both maximum setpoints at the
-    band), the gas price, the weather derived
+    minimum setpoints capped, the boiler's supply temperature planned and floored; both maximum
+    setpoints at the band), the gas price, the weather derived
     from the FMU; every step's decision, the setpoints the building got minute by minute, both
     zone temperatures, the gas and the KPIs (``pgas_tot``, ``tdis_zones``) equal to 1e-9.
     """

@@ -177,7 +177,7 @@ def test_office_card_names_its_rule(office: TestCase, tmp_path: pathlib.Path) ->
                      'bms_oveTZonSetMaxSz_u': ('sZ', 'upper')}
     reset = targets['bms_oveTProHea_u']
     assert reset == SupplyReset('weaSta_reaWeaTDryBul_y', (263.15, 293.15), (343.15, 313.15),
-                                313.15, 293.15, 353.15)
+                                293.15, 293.15, 353.15)
     assert rule_axes(targets, [0, 0.5], [0, -10]) == ((0.0, 0.5), (0.0, -10.0))
 
 
@@ -255,7 +255,8 @@ def test_office_rule_overwrites_act_on_the_fmu(office: TestCase, tmp_path: pathl
 
     Each step's applied maximum setpoints are the band's upper edge ahead minus the cooling
     margin, and the boiler's applied supply the heating curve at the outdoor temperature
-    measured at the step's start, shifted, at or above its 40 degC floor.
+    measured at the step's start, shifted (by -40 K: below the card's 20 degC floor in every
+    step of these 12 h), at or above the card's floor.
     """
     from mshoot_core.boptest.plant import run_period
     from mshoot_core.models.card import load_card
@@ -263,7 +264,7 @@ def test_office_rule_overwrites_act_on_the_fmu(office: TestCase, tmp_path: pathl
     card = load_card(prepare_card(OFFICE_CARD, office.directory, tmp_path))
     targets = rule_targets(card, office)
     reset = targets['bms_oveTProHea_u']
-    rule = PreheatRule(office, targets, lead_h=1.0, cooling_margin_k=2.0, supply_shift_k=-20.0)
+    rule = PreheatRule(office, targets, lead_h=1.0, cooling_margin_k=2.0, supply_shift_k=-40.0)
     applied = {'bms_oveTProHea_u': 'bms_oveTProHea_y',
                'bms_oveTZonSetMaxSz_u': 'bms_oveTZonSetMaxSz_y',
                'bms_oveTZonSetMinNz_u': 'bms_oveTZonSetMinNz_y'}
@@ -283,8 +284,9 @@ def test_office_rule_overwrites_act_on_the_fmu(office: TestCase, tmp_path: pathl
                 (step, name)
         supplies.append(decided['bms_oveTProHea_u'])
         assert decided['bms_oveTProHea_u'] == pytest.approx(
-            max(float(np.interp(outdoor, reset.outdoor_k, reset.supply_k)) - 20.0, 313.15))
+            max(float(np.interp(outdoor, reset.outdoor_k, reset.supply_k)) - 40.0,
+                reset.floor_k))
     # the night at 28 degC (30 - 2), the occupied day from 6 h (an hour's lead) at 23 degC
     maxima = [rule.setpoint(run.start_s + h * HOUR, 'sZ', edge='upper') for h in (0, 6)]
     assert maxima == [pytest.approx(301.15), pytest.approx(296.15)]
-    assert min(supplies) >= 313.15 - 1e-9
+    assert supplies == [pytest.approx(293.15)] * len(supplies)  # the floor, 20 degC
