@@ -14,7 +14,8 @@ errors.
 Supply floors (settings ``supply_floors``): the same zone with a supply temperature ``TSup``
 added as a control the plan prices and that does nothing else: the plan holds it at its lower
 limit; it is sent at its floor where the capped setpoint heats, and as planned where the zone
-floats above it.
+floats above it. Cooling mode (settings ``cooling_mode_margin_k``): the band setpoints moved
+inward by that margin where the plan heats nowhere.
 """
 import dataclasses
 import pathlib
@@ -211,3 +212,29 @@ def test_a_supply_floor_leaves_a_floating_zone_as_planned(tmp_path):
 def test_bad_supply_floors_are_refused(tmp_path, settings, error, match):
     with pytest.raises(error, match=match):
         _controller(_supply_card(tmp_path), **settings)
+
+
+def test_cooling_mode_moves_the_band_setpoints_where_the_plan_heats_nowhere():
+    """
+    Band setpoints at ``cooling_mode_margin_k`` where the plan heats nowhere, else as before.
+
+    A maximum setpoint at the band's upper edge (24 degC from 1 h) less 0.5 K, 1.5 K in cooling
+    mode: the cold zone's plan heats (23.5 degC sent); the warm zone's plan heats in no interval
+    (22.5 degC sent, every interval likewise); without the setting, 23.5 degC either way.
+    """
+    bands = {'band_setpoints': 'TMax=max', 'band_setpoint_margin_k': 0.5}
+    warm = {'zone_c': 23.5, 'wall_c': 23.5, 'outdoor_c': 20.0, 'occupants': 300.0}
+    controller = _controller(cooling_mode_margin_k=1.5, **bands)
+    cold = _step(controller)
+    assert controller.heats_ahead(cold.decision) is True
+    np.testing.assert_allclose(cold.band_values[0], [23.5])
+    controller = _controller(cooling_mode_margin_k=1.5, **bands)
+    floating = _step(controller, **warm)
+    assert controller.heats_ahead(floating.decision) is False
+    np.testing.assert_allclose(floating.band_values, 22.5)
+    np.testing.assert_allclose(_step(_controller(**bands), **warm).band_values, 23.5)
+    safe = controller.supervisor.fallback(0.0, 'solve_failed', 'test')
+    assert controller.heats_ahead(safe) is None  # not known: as heating
+    with pytest.raises(SettingsError, match=r'cooling_mode_margin_k must be NaN or within '
+                                            r'\[0, 20\] K, got -1'):
+        _controller(cooling_mode_margin_k=-1.0, **bands)

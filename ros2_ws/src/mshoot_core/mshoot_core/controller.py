@@ -417,27 +417,56 @@ class Controller:
         rows = plan.shape[0] if plan.ndim == 2 and plan.shape[0] == states.shape[0] else 0
         found = self._forecast_rows(step_ns, max(rows, 1) + 1, first=0)
         raise_k = self.settings.comfort.band_margin_k
-        heats, plan_heats = False, np.zeros(rows, dtype=bool)
         for control, state, lower, offset in self.setpoint_caps:
             edge = (found[0][lower].to_numpy(dtype=float)[found[1]] + raise_k
                     if found is not None else np.full(max(rows, 1) + 1, -math.inf))
             start, end = edge[:-1], edge[1:]  # each interval's start and end rows
-            zone = float(decision.predicted_state[state]) - offset
-            controls[control] = max(start[0], min(controls[control], max(zone, end[0])))
-            heats |= controls[control] >= zone - HEATING_TOLERANCE_K
+            controls[control] = max(start[0], min(controls[control], max(
+                float(decision.predicted_state[state]) - offset, end[0])))
             if rows:
-                zones = states[:, state] - offset
                 plan[:, control] = np.maximum(start, np.minimum(
-                    plan[:, control], np.maximum(zones, end)))
-                plan_heats |= plan[:, control] >= zones - HEATING_TOLERANCE_K
+                    plan[:, control], np.maximum(states[:, state] - offset, end)))
+        heats = self._heating(controls[None], np.asarray(decision.predicted_state)[None])[0]
+        plan_heats = self._heating(plan, states) if rows else np.zeros(0, dtype=bool)
         for control, floor in self.supply_floors:
             if heats:
                 controls[control] = max(controls[control], floor)
-            if rows:
-                plan[plan_heats, control] = np.maximum(plan[plan_heats, control], floor)
+            plan[plan_heats, control] = np.maximum(plan[plan_heats, control], floor)
         low, high = np.asarray(self.settings.problem.control_bounds, dtype=float).T
         return dataclasses.replace(decision, controls=np.clip(controls, low, high),
                                    plan_controls=np.clip(plan, low, high) if rows else plan)
+
+    def _heating(self, controls: np.ndarray, states: np.ndarray) -> np.ndarray:
+        """
+        Return, per row, whether a capped setpoint heats: at least its zone's temperature.
+
+        ``controls`` (rows, nu) capped, ``states`` (rows, nx) the planned states at each
+        interval's end; a setpoint within :data:`HEATING_TOLERANCE_K` below its zone's
+        temperature (less the band's offset) heats: its loop holds or raises the zone.
+        """
+        out = np.zeros(len(controls), dtype=bool)
+        for control, state, _, offset in self.setpoint_caps:
+            out |= controls[:, control] >= states[:, state] - offset - HEATING_TOLERANCE_K
+        return out
+
+    def heats_ahead(self, decision: Decision) -> bool | None:
+        """
+        Return whether a decided plan heats this step or in any planned interval after it.
+
+        With ``setpoint_caps`` and a capped decision (:meth:`capped`, source 'optimum' or
+        'plan'): a capped setpoint heats (:meth:`_heating`) this step or in any interval of
+        the plan; otherwise None (not known).
+        """
+        if not self.setpoint_caps or decision.source not in ('optimum', 'plan') or \
+                decision.predicted_state is None:
+            return None
+        controls = np.array(decision.controls, dtype=float).reshape(1, -1)
+        heats = bool(self._heating(controls, np.asarray(decision.predicted_state)[None])[0])
+        plan = np.asarray(decision.plan_controls, dtype=float)
+        states = np.asarray(decision.plan_states, dtype=float)
+        if plan.ndim == 2 and states.ndim == 2 and plan.shape[0] == states.shape[0]:
+            heats |= bool(self._heating(plan, states).any())
+        return heats
 
     def _forecast_rows(self, step_ns: int, rows: int, first: int = 1
                        ) -> tuple[pd.DataFrame, np.ndarray] | None:
@@ -493,7 +522,8 @@ class Controller:
             out[control] = (low, high)
         self._band_ranges = out
 
-    def band_setpoint_values(self, step_ns: int, rows: int = 1) -> tuple[np.ndarray | None, bool]:
+    def band_setpoint_values(self, step_ns: int, rows: int = 1, heats: bool | None = None
+                             ) -> tuple[np.ndarray | None, bool]:
         """
         Return the band setpoints of a step and of the intervals after it, and if released.
 
@@ -501,8 +531,10 @@ class Controller:
         (:meth:`offer_forecast`) at the row of the step's end (a test case's forecast holds
         there the tightest band over the step), its upper edge less ``band_setpoint_margin_k``
         ('max') or its lower edge plus the margin ('min'), at most to the band's middle,
-        clipped to the plant control's range (:meth:`limit_band_setpoints`). Without a forecast
-        for the step: ``safe_temperature_c`` (clipped), released.
+        clipped to the plant control's range (:meth:`limit_band_setpoints`); the margin
+        ``cooling_mode_margin_k`` instead (when set) in cooling mode, a decided plan that heats
+        nowhere (``heats`` False). Without a forecast for the step: ``safe_temperature_c``
+        (clipped), released.
 
         Parameters
         ----------
@@ -510,6 +542,9 @@ class Controller:
             Start of the step [ns].
         rows : int
             The step and the intervals after it (e.g. a plan's).
+        heats : bool or None
+            Whether the step's plan heats this step or later (:meth:`heats_ahead`; None: not
+            known, as heating).
 
         Returns
         -------
@@ -528,7 +563,10 @@ class Controller:
             safe = self.settings.supervisor.safe_temperature_c
             return np.clip(np.full((rows, len(ranges)), safe), low, high), True
         frame, index = found
-        margin = self.settings.actuation.band_setpoint_margin_k
+        actuation = self.settings.actuation
+        margin = (actuation.cooling_mode_margin_k
+                  if heats is False and math.isfinite(actuation.cooling_mode_margin_k)
+                  else actuation.band_setpoint_margin_k)
         columns = []
         for _, edge, lower, upper in self.band_setpoints:
             lo = frame[lower].to_numpy(dtype=float)[index]
@@ -1336,7 +1374,8 @@ class Controller:
         """
         decision = self.capped(outcome.decision, outcome.step_ns)
         bands, released = self.band_setpoint_values(
-            outcome.step_ns, max(np.shape(decision.plan_controls)[0], 1))
+            outcome.step_ns, max(np.shape(decision.plan_controls)[0], 1),
+            self.heats_ahead(decision))
         outcome = dataclasses.replace(outcome, decision=decision, band_values=bands,
                                       band_released=released)
         controls = np.asarray(decision.controls, dtype=float).reshape(-1)

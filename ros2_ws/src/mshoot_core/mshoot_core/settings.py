@@ -457,6 +457,11 @@ class ActuationSettings(SettingsGroup):
     band_setpoint_margin_k: float = setting(
         0.0, 'band_setpoints moved inward from their band edge by this much, at most to the '
         "band's middle [K]", low=0.0, high=20.0, apply='inputs')
+    cooling_mode_margin_k: float = setting(
+        math.nan, 'band_setpoints moved inward by this much instead of band_setpoint_margin_k '
+        'in cooling mode: a step whose plan heats nowhere, neither in the step nor in a later '
+        "interval (no capped setpoint of setpoint_caps at its zone's planned temperature); "
+        'NaN: band_setpoint_margin_k always; else 0-20 [K]', optional=True, apply='inputs')
     setpoint_caps: str = setting(
         '', "model controls that are a zone's heating setpoint for the building's own loop: "
         "comma-separated 'control=zone_state'. Each is sent no higher than the plan's "
@@ -528,6 +533,10 @@ class ActuationSettings(SettingsGroup):
         if not _distinct_pairs(self.setpoint_caps):
             return ["setpoint_caps must be distinct 'control=zone_state' items separated by "
                     f'commas, got {self.setpoint_caps!r}']
+        if not (math.isnan(self.cooling_mode_margin_k)
+                or 0.0 <= self.cooling_mode_margin_k <= 20.0):
+            return ['cooling_mode_margin_k must be NaN or within [0, 20] K, got '
+                    f'{self.cooling_mode_margin_k!r}']
         floors = _pairs(self.supply_floors)
         if len(floors) != len([i for i in self.supply_floors.split(',') if i.strip()]) or \
                 not all(control.isidentifier() and _is_number(floor)
