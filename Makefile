@@ -62,9 +62,10 @@ study: setup  ## regenerate every table and figure of the OU44 reference study -
 OFFICE_DIR ?= $(dir $(ROOT))shared/boptest/multizone_office_simple_hydronic
 OFFICE_CARDS := $(ROOT)/docs/boptest_cards/multizone_office_simple_hydronic
 OFFICE_ARGS ?=
-# the rule's parameters, tuned on the test periods' first 2 days (docs/boptest_office.md);
-# OFFICE_RULE= tunes it on the full periods instead (a grid of full runs per period)
-OFFICE_RULE ?= --lead 0 --margin 0 --cooling-margin 0.5 --supply-shift -20
+# the rule as `make boptest-office-tune` chose it per period and price on the full test
+# periods, from the grids it wrote (docs/boptest_office/rule_tuning_<period>.csv)
+OFFICE_RULE ?= --rule-grids $(ROOT)/docs/boptest_office
+OFFICE_GRID ?= --leads 0 --margins 0 --cooling-margins 0 0.5 1 2 --supply-shifts -10 -20 -30
 
 .PHONY: boptest-office
 boptest-office: setup  ## the two-zone office: BMS baseline, tuned rule and mshoot, 3 periods x 2 prices, runs on 2 workers -> out/boptest_office/kpis.json, docs/boptest_office.md
@@ -74,6 +75,14 @@ boptest-office: setup  ## the two-zone office: BMS baseline, tuned rule and msho
 		--periods typical_heat_day peak_heat_day typical_cool_day \
 		--prices constant highly_dynamic --uncertainty none $(OFFICE_RULE) --workers 2 \
 		--out out/boptest_office --report docs/boptest_office.md $(OFFICE_ARGS)
+
+.PHONY: boptest-office-tune
+boptest-office-tune: setup  ## the two-zone office's rule tuned on the full test periods: OFFICE_GRID of full runs (~35 min on 2 cores) -> docs/boptest_office/rule_tuning_<period>.csv
+	@$(RUN) cd $(ROOT) && mshoot boptest --testcase $(OFFICE_DIR) --card $(OFFICE_CARDS).yaml \
+		--controllers rule --periods typical_heat_day peak_heat_day typical_cool_day \
+		--prices constant highly_dynamic $(OFFICE_GRID) --workers 2 \
+		--out out/boptest_office_tune && mkdir -p docs/boptest_office && \
+		cp out/boptest_office_tune/rule_tuning_*.csv docs/boptest_office/
 
 # -- the soak benchmark (issue 6): many simulated days over ROS 2 with faults injected ---------
 SOAK_DAYS ?= 30

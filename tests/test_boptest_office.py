@@ -74,9 +74,14 @@ def test_office_mpc_sends_its_decisions_as_the_bms_overwrites(runs: dict) -> Non
         bands = [card.controls[b[0]].variable for b in policy.controller.band_setpoints]
         np.testing.assert_allclose(rows[bands].to_numpy() - outcome.band_values[0], 273.15,
                                    atol=1e-9, err_msg=f'{outcome.t_s:.0f} s')
-    margin = policy.controller.settings.actuation.band_setpoint_margin_k
-    maxima = np.array([o.band_values[0] for o in period])
-    assert margin > 0 and set(np.round(maxima.ravel(), 9)) == {25.0 - margin, 30.0 - margin}
+    # less band_setpoint_margin_k, cooling_mode_margin_k where the plan heats nowhere
+    actuation = policy.controller.settings.actuation
+    margin, cooling = actuation.band_setpoint_margin_k, actuation.cooling_mode_margin_k
+    modes = [policy.controller.heats_ahead(o.decision) for o in period]
+    for outcome, heats in zip(period, modes):
+        inward = cooling if heats is False else margin
+        assert set(np.round(outcome.band_values[0], 9)) <= {25.0 - inward, 30.0 - inward}
+    assert 0 < margin < cooling and True in modes and False in modes  # both modes: 6 h plans
     warmup = table[table['time'] < start - 1e-6]
     assert warmup[[card.controls[n].variable for n in policy.controller.sent_control_names]
                   ].isna().all().all()
@@ -101,7 +106,7 @@ def test_office_mpc_sends_its_decisions_as_the_bms_overwrites(runs: dict) -> Non
     assert raised > 0 and policy.controller.settings.actuation.cap_items == {
         'TSetMin_nZ': 'T_nZ', 'TSetMin_sZ': 'T_sZ'}
     steps = [o for o in policy.outcomes if o.t_s >= start - 3600.0 - 1e-6]
-    lower = [21.0 if abs(o.band_values[0][0] - (25.0 - margin)) < 1e-9 else 16.0 for o in steps]
+    lower = [21.0 if o.band_values[0][0] < 26.0 else 16.0 for o in steps]  # 25 less the margin
     capped = 0
     for outcome, begin, end in zip(steps[1:], lower, lower[1:]):
         asked = outcome.result.plan[list(names)].to_numpy()[0]
