@@ -81,7 +81,8 @@ STREAMS = ('state', 'forecast')
 #: States and forecasts kept, by stamp.
 KEEP_INPUTS = 8
 #: A capped setpoint this close to its zone's planned temperature at an interval's end, or
-#: above it, heats in that interval (settings ``supply_floors``) [K].
+#: above it, heats in that interval (settings ``supply_floors``, ``cooling_mode_margin_k``)
+#: [K].
 HEATING_TOLERANCE_K = 0.05
 #: Prefix of an output's mean over the last step in a zone state (``mean_<output>``); a
 #: history's outputs are such means, named by output.
