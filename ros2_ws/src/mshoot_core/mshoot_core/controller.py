@@ -409,13 +409,11 @@ class Controller:
         :data:`HEATING_TOLERANCE_K`: the loop holds or raises the zone), each floored control
         (the loops' supply temperature) is at least its floor.
         """
-        if not self.setpoint_caps or decision.source not in ('optimum', 'plan') or \
-                decision.predicted_state is None:
+        found = self._capped_plan(decision)
+        if found is None:
             return decision
+        plan, states, rows = found
         controls = np.array(decision.controls, dtype=float).reshape(-1)
-        plan = np.array(decision.plan_controls, dtype=float)
-        states = np.asarray(decision.plan_states, dtype=float)
-        rows = plan.shape[0] if plan.ndim == 2 and plan.shape[0] == states.shape[0] else 0
         found = self._forecast_rows(step_ns, max(rows, 1) + 1, first=0)
         raise_k = self.settings.comfort.band_margin_k
         for control, state, lower, offset in self.setpoint_caps:
@@ -436,6 +434,22 @@ class Controller:
         low, high = np.asarray(self.settings.problem.control_bounds, dtype=float).T
         return dataclasses.replace(decision, controls=np.clip(controls, low, high),
                                    plan_controls=np.clip(plan, low, high) if rows else plan)
+
+    def _capped_plan(self, decision: Decision) -> tuple[np.ndarray, np.ndarray, int] | None:
+        """
+        Return a decision's plan (controls, states) and its rows, where the caps apply.
+
+        None without ``setpoint_caps``, for a decision other than a decided plan (source
+        'optimum' or 'plan') and without a predicted state; rows 0 where the plan's controls
+        and states do not align (the step alone is capped).
+        """
+        if not self.setpoint_caps or decision.source not in ('optimum', 'plan') or \
+                decision.predicted_state is None:
+            return None
+        plan = np.array(decision.plan_controls, dtype=float)
+        states = np.asarray(decision.plan_states, dtype=float)
+        aligned = plan.ndim == 2 and states.ndim == 2 and plan.shape[0] == states.shape[0]
+        return plan, states, plan.shape[0] if aligned else 0
 
     def _heating(self, controls: np.ndarray, states: np.ndarray) -> np.ndarray:
         """
@@ -458,16 +472,13 @@ class Controller:
         'plan'): a capped setpoint heats (:meth:`_heating`) this step or in any interval of
         the plan; otherwise None (not known).
         """
-        if not self.setpoint_caps or decision.source not in ('optimum', 'plan') or \
-                decision.predicted_state is None:
+        found = self._capped_plan(decision)
+        if found is None:
             return None
+        plan, states, rows = found
         controls = np.array(decision.controls, dtype=float).reshape(1, -1)
         heats = bool(self._heating(controls, np.asarray(decision.predicted_state)[None])[0])
-        plan = np.asarray(decision.plan_controls, dtype=float)
-        states = np.asarray(decision.plan_states, dtype=float)
-        if plan.ndim == 2 and states.ndim == 2 and plan.shape[0] == states.shape[0]:
-            heats |= bool(self._heating(plan, states).any())
-        return heats
+        return heats or bool(rows and self._heating(plan, states).any())
 
     def _forecast_rows(self, step_ns: int, rows: int, first: int = 1
                        ) -> tuple[pd.DataFrame, np.ndarray] | None:

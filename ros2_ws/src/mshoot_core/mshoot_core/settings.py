@@ -25,7 +25,7 @@ import logging
 import math
 import pathlib
 import re
-from typing import Any, Iterable, Mapping
+from typing import Any, Callable, Iterable, Mapping
 
 logger = logging.getLogger(__name__)
 
@@ -392,11 +392,15 @@ def _pairs(text: str) -> dict[str, str]:
         item.partition('=') for item in text.split(',') if item.strip())}
 
 
-def _distinct_pairs(text: str) -> bool:
-    """Return whether comma-separated items are 'name=name' pairs with distinct left names."""
+def _distinct_pairs(text: str, right: Callable[[str], bool] = str.isidentifier) -> bool:
+    """
+    Return whether comma-separated items are 'name=value' pairs with distinct left names.
+
+    Each left side a name; each right side one ``right`` accepts (default: a name too).
+    """
     pairs = _pairs(text)
     return len(pairs) == len([i for i in text.split(',') if i.strip()]) and all(
-        a.isidentifier() and b.isidentifier() for a, b in pairs.items())
+        a.isidentifier() and right(b) for a, b in pairs.items())
 
 
 def _is_number(text: str) -> bool:
@@ -538,9 +542,7 @@ class ActuationSettings(SettingsGroup):
             return ['cooling_mode_margin_k must be NaN or within [0, 20] K, got '
                     f'{self.cooling_mode_margin_k!r}']
         floors = _pairs(self.supply_floors)
-        if len(floors) != len([i for i in self.supply_floors.split(',') if i.strip()]) or \
-                not all(control.isidentifier() and _is_number(floor)
-                        for control, floor in floors.items()):
+        if not _distinct_pairs(self.supply_floors, _is_number):
             return ["supply_floors must be distinct 'control=floor' items (a model control, a "
                     f'number) separated by commas, got {self.supply_floors!r}']
         if floors and not self.cap_items:
