@@ -661,7 +661,7 @@ def _run(args: argparse.Namespace) -> int:
     from mshoot_core.models.card import load_card
     from mshoot_studies.boptest_report import plot_run
     from mshoot_studies.boptest_rule import COOLING_MARGINS_K, PreheatRule, rule_axes, \
-        grid_tuning, rule_kinds, rule_targets, SUPPLY_SHIFTS_K, tune_rule
+        grid_path, grid_tuning, rule_kinds, rule_targets, SUPPLY_SHIFTS_K, tune_rule
     began = time.perf_counter()
     controllers = _controllers(args.controllers)
     scenarios = uncertainty_runs(args.uncertainty)
@@ -737,7 +737,7 @@ def _run(args: argparse.Namespace) -> int:
     records = [entry for result in results for entry in result]
     args.out.mkdir(parents=True, exist_ok=True)
     for period, tuning in tunings.items():  # the rule's grid, every point and price
-        tuning.grid.to_csv(args.out / f'rule_tuning_{period}.csv', index=False)
+        tuning.grid.to_csv(grid_path(args.out, period), index=False)
     (args.out / 'kpis.json').write_text(json.dumps(records, indent=1) + '\n')
     print(write_tables(args, case, warmup, names, results), end='')
     if args.figures:

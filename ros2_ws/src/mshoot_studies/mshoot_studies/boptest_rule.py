@@ -166,6 +166,11 @@ def rule_axes(targets: Mapping[str, RuleTarget | SupplyReset],
     return axes[0], axes[1]
 
 
+def grid_path(folder: pathlib.Path, period: str) -> pathlib.Path:
+    """Return where a tuning writes, and reads, a period's grid: ``rule_tuning_<period>.csv``."""
+    return pathlib.Path(folder) / f'rule_tuning_{period}.csv'
+
+
 def grid_tuning(folder: pathlib.Path, period: str, prices: Sequence[str],
                 weight: float = DISCOMFORT_WEIGHT) -> RuleTuning:
     """
@@ -191,7 +196,7 @@ def grid_tuning(folder: pathlib.Path, period: str, prices: Sequence[str],
         When the grid is missing, lacks a column :func:`choose` reads or a price scenario.
 
     """
-    path = pathlib.Path(folder) / f'rule_tuning_{period}.csv'
+    path = grid_path(folder, period)
     if not path.is_file():
         raise ValueError(f'no rule tuning grid for {period!r}: {path} is missing (a tuning run '
                          'writes it: mshoot boptest --controllers rule without --lead, --margin)')
